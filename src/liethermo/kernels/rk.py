@@ -1,0 +1,81 @@
+"""Explicit Runge–Kutta baselines on the continuous system (flat state).
+
+* ``rk2_step``: explicit midpoint rule (the paper's "standard Runge–Kutta of
+  order 2"), order 2, 2 right-hand-side evaluations per step;
+* ``rk4_step``: classical RK4, order 4, 4 evaluations;
+* ``dop853_step``: the 8th-order Dormand–Prince tableau (12 stages, taken from
+  scipy's ``dop853_coefficients``) used at fixed step as the high-accuracy
+  reference; callers take ``nsub`` substeps per output step.
+
+None of these preserves |Γ| = 1, RᵀR = I or the discrete Kelvin–Noether law.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.integrate._ivp import dop853_coefficients as _dop
+
+from ._jit import jit
+from .model import rhs
+
+# Tableau of the 8th-order DOP853 solution (first 12 stages).
+DOP853_A = np.ascontiguousarray(_dop.A[:12, :12], dtype=np.float64)
+DOP853_B = np.ascontiguousarray(_dop.B, dtype=np.float64)
+DOP853_C = np.ascontiguousarray(_dop.C[:12], dtype=np.float64)
+DOP853_STAGES = 12
+
+
+@jit
+def rk2_step(y, p, h, n, work, ynew):
+    """Explicit midpoint: y' = y + h f(y + h/2 f(y)).  work: (2, n) scratch."""
+    k1 = work[0]
+    k2 = work[1]
+    rhs(y, p, n, k1)
+    for i in range(n):
+        ynew[i] = y[i] + 0.5 * h * k1[i]
+    rhs(ynew, p, n, k2)
+    for i in range(n):
+        ynew[i] = y[i] + h * k2[i]
+
+
+@jit
+def rk4_step(y, p, h, n, work, ynew):
+    """Classical RK4.  work: (5, n) scratch."""
+    k1 = work[0]
+    k2 = work[1]
+    k3 = work[2]
+    k4 = work[3]
+    tmp = work[4]
+    rhs(y, p, n, k1)
+    for i in range(n):
+        tmp[i] = y[i] + 0.5 * h * k1[i]
+    rhs(tmp, p, n, k2)
+    for i in range(n):
+        tmp[i] = y[i] + 0.5 * h * k2[i]
+    rhs(tmp, p, n, k3)
+    for i in range(n):
+        tmp[i] = y[i] + h * k3[i]
+    rhs(tmp, p, n, k4)
+    for i in range(n):
+        ynew[i] = y[i] + h * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]) / 6.0
+
+
+@jit
+def dop853_step(y, p, h, n, A, B, K, tmp, ynew):
+    """One fixed step of the 8th-order DOP853 solution.
+
+    K: (12, n) stage scratch, tmp: (n,) scratch.
+    """
+    rhs(y, p, n, K[0])
+    for s in range(1, DOP853_STAGES):
+        for i in range(n):
+            acc = 0.0
+            for j in range(s):
+                acc += A[s, j] * K[j, i]
+            tmp[i] = y[i] + h * acc
+        rhs(tmp, p, n, K[s])
+    for i in range(n):
+        acc = 0.0
+        for j in range(DOP853_STAGES):
+            acc += B[j] * K[j, i]
+        ynew[i] = y[i] + h * acc
