@@ -1,0 +1,252 @@
+"""Kernel benchmark: ns per member-step of the ensemble kernels.
+
+``python benchmarks/bench.py`` (or ``liethermo bench``) times the VI, RK2 and
+RK4 ensemble kernels on the paper scene (SPEC §2) with a random ensemble —
+attitudes uniform on SO(3) (so Γ = Rᵀe₃ uniform on S²), spins uniform in
+direction with |Ω₀| uniform in [0.5, 1.5]·√2 rad s⁻¹ — at h = 0.1 s, for
+``steps`` steps keeping every ``every``-th state, with
+
+* ``simple``: :func:`liethermo.kernels.ensemble.advance_ensemble`, the
+  straightforward one-member-per-iteration ``prange`` kernel (the baseline);
+* ``fast``: :func:`liethermo.kernels.fast.advance_ensemble_fast`, the
+  structure-of-arrays block kernel (same contract, same results).
+
+Reported per (kernel, method, members): wall time of one kernel call (best of
+``--repeat``, after a warm-up call that compiles or loads the numba cache),
+ns per member-step = wall / (members · steps) with all cores, the speed-up
+over ``simple``, whether the results agree bitwise with ``simple`` (and the
+largest relative difference otherwise), and memory: the bytes of the arrays
+the call works on and the process's peak resident set size.
+
+The table goes to stdout, the numbers to a JSON file (``--json``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import platform
+import resource
+import sys
+import time
+
+import numpy as np
+
+__all__ = ["paper_params", "random_ensemble", "run_kernel", "main"]
+
+METHODS = ("vi", "rk2", "rk4")
+
+
+def paper_params() -> np.ndarray:
+    """Parameter row (model.py layout) of the paper scene, from SPEC §2 numbers."""
+    from .kernels.model import NPARAM, P_C, P_CV, P_GX, P_GY, P_GZ, P_I1, P_I2, P_I3, P_T0
+
+    a, mu, rho, M = 0.05, 0.1, 2700.0, 26.981539e-3
+    g, R_gas, T0 = 9.81, 8.314462618, 300.0
+    m = 4.0 / 3.0 * math.pi * a**3 * rho
+    m1 = 0.6 * m
+    m2 = m - m1
+    Gz = 3.0 * m1 * a / (8.0 * m) - m2 * a / (2.0 * m)
+    p = np.zeros(NPARAM)
+    p[P_I1] = p[P_I2] = 83.0 * a * a * m1 / 320.0 + a * a * m2 / 12.0
+    p[P_I3] = 2.0 * a * a * m1 / 5.0 + a * a * m2 / 3.0
+    p[P_C] = 8.0 * math.pi * mu * a**3
+    p[P_GX], p[P_GY], p[P_GZ] = 0.0, 0.0, m * g * Gz  # m g ℓ χ, χ = G/|G|
+    p[P_CV] = 3.0 * (m / M) * R_gas
+    p[P_T0] = T0
+    return p
+
+
+def random_ensemble(N: int, seed: int = 0, attitude: bool = False):
+    """(Y, P): N random initial states on the paper scene (see module docstring)."""
+    from .kernels.model import NSTATE_ATTITUDE, NSTATE_BASE
+
+    rng = np.random.default_rng(seed)
+    q = rng.standard_normal((N, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    w, x, y, z = q.T
+    R = np.empty((N, 3, 3))
+    R[:, 0, 0] = 1 - 2 * (y * y + z * z)
+    R[:, 0, 1] = 2 * (x * y - w * z)
+    R[:, 0, 2] = 2 * (x * z + w * y)
+    R[:, 1, 0] = 2 * (x * y + w * z)
+    R[:, 1, 1] = 1 - 2 * (x * x + z * z)
+    R[:, 1, 2] = 2 * (y * z - w * x)
+    R[:, 2, 0] = 2 * (x * z - w * y)
+    R[:, 2, 1] = 2 * (y * z + w * x)
+    R[:, 2, 2] = 1 - 2 * (x * x + y * y)
+    d = rng.standard_normal((N, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    mag = rng.uniform(0.5, 1.5, N) * math.sqrt(2.0)
+    n = NSTATE_ATTITUDE if attitude else NSTATE_BASE
+    Y = np.zeros((N, n))
+    Y[:, 0:3] = d * mag[:, None]
+    Y[:, 3:6] = R[:, 2, :]  # Γ = Rᵀe₃ = third row of R
+    if attitude:
+        Y[:, 7:16] = R.reshape(N, 9)
+    P = np.ascontiguousarray(np.broadcast_to(paper_params(), (N, paper_params().size)))
+    return Y, P
+
+
+def _kernel_fn(kernel: str):
+    if kernel == "simple":
+        from .kernels.ensemble import advance_ensemble
+
+        return advance_ensemble
+    if kernel == "fast":
+        from .kernels.fast import advance_ensemble_fast
+
+        return advance_ensemble_fast
+    raise ValueError(f"unknown kernel {kernel!r}: expected 'simple' or 'fast'")
+
+
+def run_kernel(kernel: str, method: str, Y0: np.ndarray, P: np.ndarray, h: float, steps: int,
+               every: int, tol: float = 1e-14, maxiter: int = 30, friction=(0.5, 0.5)):
+    """One call of an ensemble kernel on copies of Y0; returns (seconds, Y, OUT, IS, FS)."""
+    from .kernels import ensemble as E
+    from .kernels.rk import DOP853_A, DOP853_B
+
+    mid = {"vi": E.METHOD_VI, "rk2": E.METHOD_RK2, "rk4": E.METHOD_RK4}[method]
+    fn = _kernel_fn(kernel)
+    N, n = Y0.shape
+    Y = Y0.copy()
+    n_out = steps // every
+    OUT = np.full((N, n_out, n), np.nan)
+    IS = np.zeros((N, E.NISTAT), np.int64)
+    FS = np.zeros((N, E.NFSTAT))
+    t0 = time.perf_counter()
+    fn(mid, Y, P, float(h), int(every), int(n_out), friction[0], friction[1], float(tol),
+       int(maxiter), 1, DOP853_A, DOP853_B, OUT, IS, FS)
+    return time.perf_counter() - t0, Y, OUT, IS, FS
+
+
+def _max_rel_diff(a: np.ndarray, b: np.ndarray) -> float:
+    fa, fb = np.isfinite(a), np.isfinite(b)
+    if not np.array_equal(fa, fb) or not np.array_equal(a[~fa], b[~fb], equal_nan=True):
+        return math.inf
+    if not fa.any():
+        return 0.0
+    scale = np.maximum(np.abs(a[fa]), np.abs(b[fb]))
+    diff = np.abs(a[fa] - b[fb])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rel = np.where(diff == 0.0, 0.0, diff / scale)
+    return float(rel.max())
+
+
+def _peak_rss_mb() -> float:
+    kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return kb / 1024.0 if sys.platform != "darwin" else kb / 2**20
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="liethermo bench", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--members", type=int, nargs="+", default=[4096, 65536])
+    ap.add_argument("--steps", type=int, default=1000)
+    ap.add_argument("--every", type=int, default=100)
+    ap.add_argument("--h", type=float, default=0.1)
+    ap.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
+    ap.add_argument("--kernels", nargs="+", default=["simple", "fast"], choices=["simple", "fast"])
+    ap.add_argument("--repeat", type=int, default=3, help="timed calls per case (best is kept)")
+    ap.add_argument("--attitude", action="store_true", help="carry R (16-wide state)")
+    ap.add_argument("--threads", type=int, default=None, help="numba threads (default: all)")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--json", default="bench_results.json", help="output JSON path ('' = none)")
+    args = ap.parse_args(argv)
+    if args.steps % args.every:
+        ap.error("--steps must be a multiple of --every")
+
+    import numba
+
+    if args.threads:
+        numba.set_num_threads(args.threads)
+    threads = numba.get_num_threads()
+
+    # warm-up: compile or load every kernel once on a tiny ensemble
+    compile_s = {}
+    Yw, Pw = random_ensemble(64, seed=1, attitude=args.attitude)
+    for kernel in args.kernels:
+        t0 = time.perf_counter()
+        for method in args.methods:
+            run_kernel(kernel, method, Yw, Pw, args.h, args.every, args.every)
+        compile_s[kernel] = time.perf_counter() - t0
+
+    rows = []
+    hdr = (f"{'kernel':<7}{'method':<7}{'members':>8}{'wall s':>9}{'ns/mstep':>10}"
+           f"{'speedup':>9}{'agree':>10}{'arrays MB':>10}{'peakRSS MB':>11}")
+    print(f"liethermo bench: paper scene, random ensemble, h={args.h}, {args.steps} steps, "
+          f"every {args.every}, {threads} threads, state width {7 + 9 * args.attitude}")
+    print(hdr)
+    print("-" * len(hdr))
+    for N in args.members:
+        Y0, P = random_ensemble(N, seed=args.seed, attitude=args.attitude)
+        for method in args.methods:
+            ref = None
+            for kernel in args.kernels:
+                best = math.inf
+                for _ in range(max(1, args.repeat)):
+                    dt, Y, OUT, IS, FS = run_kernel(kernel, method, Y0, P, args.h, args.steps,
+                                                    args.every)
+                    best = min(best, dt)
+                nbytes = Y.nbytes + P.nbytes + OUT.nbytes + IS.nbytes + FS.nbytes
+                row = dict(kernel=kernel, method=method, members=N, steps=args.steps,
+                           every=args.every, h=args.h, threads=threads, wall_s=best,
+                           ns_per_member_step=best / (N * args.steps) * 1e9,
+                           arrays_mb=nbytes / 2**20, peak_rss_mb=_peak_rss_mb(),
+                           n_ok=int((IS[:, 0] == 0).sum()),
+                           newton_mean=float(IS[:, 2].sum() / max(1, IS[:, 4].sum())))
+                if ref is None:
+                    ref = (row, Y, OUT, IS, FS)
+                    row["speedup"] = 1.0
+                    row["bitwise"] = True
+                    row["max_rel_diff"] = 0.0
+                else:
+                    r0, Yr, OUTr, ISr, FSr = ref
+                    row["speedup"] = r0["wall_s"] / best
+                    row["bitwise"] = bool(np.array_equal(OUT, OUTr, equal_nan=True)
+                                          and np.array_equal(Y, Yr, equal_nan=True)
+                                          and np.array_equal(IS, ISr) and np.array_equal(FS, FSr))
+                    row["max_rel_diff"] = max(_max_rel_diff(OUT, OUTr), _max_rel_diff(Y, Yr),
+                                              _max_rel_diff(FS, FSr),
+                                              0.0 if np.array_equal(IS, ISr) else math.inf)
+                rows.append(row)
+                agree = ("bitwise" if row["bitwise"] else f"{row['max_rel_diff']:.1e}")
+                print(f"{kernel:<7}{method:<7}{N:>8}{best:>9.3f}{row['ns_per_member_step']:>10.2f}"
+                      f"{row['speedup']:>9.2f}{agree:>10}{row['arrays_mb']:>10.1f}"
+                      f"{row['peak_rss_mb']:>11.0f}")
+    print("(warm-up incl. compile/cache load, s: "
+          + ", ".join(f"{k} {v:.1f}" for k, v in compile_s.items()) + ")")
+    if args.json:
+        import numba as _nb
+
+        from . import __version__
+
+        doc = dict(
+            machine=dict(platform=platform.platform(), processor=platform.processor(),
+                         cpu=_cpu_name(), cores=os.cpu_count(), threads=threads,
+                         numba=_nb.__version__, numpy=np.__version__, python=sys.version.split()[0]),
+            liethermo=__version__, created=time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+            scene="paper (SPEC §2), random ensemble", warmup_s=compile_s, results=rows,
+        )
+        tmp = args.json + ".tmp"
+        with open(tmp, "w") as f:
+            json.dump(doc, f, indent=1)
+        os.replace(tmp, args.json)
+        print(f"wrote {args.json}")
+    return 0
+
+
+def _cpu_name() -> str:
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor()
+
+
+if __name__ == "__main__":  # pragma: no cover
+    raise SystemExit(main())

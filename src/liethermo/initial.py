@@ -1,0 +1,77 @@
+"""Initial conditions of an ensemble, reproducible from ``ensemble.seed``.
+
+* ``ensemble.members = 1``: the scene's own data, exactly (Ω₀ = initial.omega,
+  R₀ = initial.R, Γ₀ = R₀ᵀe₃, S = S₀).
+* more members: member i's initial condition depends only on (seed, i) — not
+  on how the ensemble is chunked or distributed — because members are drawn
+  in fixed blocks of :data:`BLOCK` from ``SeedSequence([seed, block])``:
+  attitude R uniform on SO(3) (Haar measure: a normalised 4-D Gaussian
+  quaternion), spin direction uniform on the sphere, spin magnitude uniform
+  in ``spin_range × |initial.omega|``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .kernels.model import NSTATE_ATTITUDE, NSTATE_BASE
+
+BLOCK = 1024
+
+
+def _quat_to_matrix(q: np.ndarray) -> np.ndarray:
+    w, x, y, z = q.T
+    R = np.empty((q.shape[0], 3, 3))
+    R[:, 0, 0] = 1 - 2 * (y * y + z * z)
+    R[:, 0, 1] = 2 * (x * y - w * z)
+    R[:, 0, 2] = 2 * (x * z + w * y)
+    R[:, 1, 0] = 2 * (x * y + w * z)
+    R[:, 1, 1] = 1 - 2 * (x * x + z * z)
+    R[:, 1, 2] = 2 * (y * z - w * x)
+    R[:, 2, 0] = 2 * (x * z - w * y)
+    R[:, 2, 1] = 2 * (y * z + w * x)
+    R[:, 2, 2] = 1 - 2 * (x * x + y * y)
+    return R
+
+
+def _draw_block(seed: int, block: int, omega_norm: float, spin_range) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(np.random.SeedSequence([seed, block]))
+    q = rng.standard_normal((BLOCK, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    d = rng.standard_normal((BLOCK, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    mag = rng.uniform(spin_range[0], spin_range[1], BLOCK) * omega_norm
+    return d * mag[:, None], _quat_to_matrix(q)
+
+
+def initial_conditions(scene: dict, start: int = 0, stop: int | None = None):
+    """Initial Ω (N, 3) and R (N, 3, 3) of members ``start:stop``."""
+    members = int(scene["ensemble"]["members"])
+    stop = members if stop is None else stop
+    omega0 = np.asarray(scene["initial"]["omega"], dtype=np.float64)
+    R0 = np.asarray(scene["initial"]["R"], dtype=np.float64)
+    n = stop - start
+    if members == 1:
+        return np.repeat(omega0[None], n, 0), np.repeat(R0[None], n, 0)
+    seed = int(scene["ensemble"]["seed"])
+    sr = scene["ensemble"]["spin_range"]
+    w = np.linalg.norm(omega0)
+    omegas, Rs = [], []
+    for b in range(start // BLOCK, (stop - 1) // BLOCK + 1):
+        ob, Rb = _draw_block(seed, b, w, sr)
+        lo = max(start - b * BLOCK, 0)
+        hi = min(stop - b * BLOCK, BLOCK)
+        omegas.append(ob[lo:hi])
+        Rs.append(Rb[lo:hi])
+    return np.concatenate(omegas), np.concatenate(Rs)
+
+
+def initial_states(omega: np.ndarray, R: np.ndarray, attitude: bool) -> np.ndarray:
+    """Flat kernel states (N, 7|16): Ω, Γ = Rᵀe₃, σ = 0[, R]."""
+    n = omega.shape[0]
+    y = np.zeros((n, NSTATE_ATTITUDE if attitude else NSTATE_BASE))
+    y[:, 0:3] = omega
+    y[:, 3:6] = R[:, 2, :]  # Rᵀe₃ = third row of R
+    if attitude:
+        y[:, 7:16] = R.reshape(n, 9)
+    return y

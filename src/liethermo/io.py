@@ -1,0 +1,122 @@
+"""Atomic, member-chunked netCDF4 output.
+
+:class:`ChunkedWriter` writes a dataset whose leading dimension ``member`` is
+filled chunk by chunk (so memory stays bounded by one chunk), into a
+temporary file in the destination folder, and renames it onto the output
+path only when everything was written: a run that is killed leaves either no
+file at the path or the previous complete one.  Variables are chunked along
+``member`` on disk so that ``xarray.open_dataset(path, chunks={})`` reads a
+large result lazily.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import netCDF4
+import numpy as np
+import xarray as xr
+
+CHUNK_BYTES = 4 * 2**20  # target on-disk chunk size
+
+
+def _nc_attr(value):
+    if isinstance(value, (bool, np.bool_)):
+        return int(value)
+    return value
+
+
+class ChunkedWriter:
+    """Write ``n_members`` members in chunks: ``write(ds_chunk, offset)``.
+
+    Variables without a ``member`` dimension are written from the first chunk.
+    Use as a context manager; on an exception the temporary file is removed.
+    """
+
+    def __init__(self, path: str | os.PathLike, n_members: int, attrs: dict | None = None):
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.tmp")
+        self.n_members = int(n_members)
+        self.attrs = dict(attrs or {})
+        self.nc: netCDF4.Dataset | None = None
+        self.written = 0
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, exc_type, exc, tb):
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
+        return False
+
+    def _define(self, ds: xr.Dataset) -> None:
+        nc = netCDF4.Dataset(self.tmp, "w", format="NETCDF4")
+        self.nc = nc
+        for dim, size in ds.sizes.items():
+            nc.createDimension(dim, self.n_members if dim == "member" else size)
+        for name, var in list(ds.coords.items()) + list(ds.data_vars.items()):
+            if var.dtype.kind in "US":
+                v = nc.createVariable(name, str, var.dims)
+                v[:] = np.asarray(var.values, dtype=object)
+            else:
+                chunks = None
+                if "member" in var.dims and var.ndim > 1:
+                    other = int(np.prod([ds.sizes[d] for d in var.dims if d != "member"]))
+                    m = max(1, min(self.n_members, CHUNK_BYTES // max(1, other * var.dtype.itemsize)))
+                    chunks = [m if d == "member" else ds.sizes[d] for d in var.dims]
+                v = nc.createVariable(name, var.dtype, var.dims, chunksizes=chunks)
+                if "member" not in var.dims:
+                    v[...] = var.values
+            v.setncatts({k: _nc_attr(a) for k, a in var.attrs.items()})
+        nc.setncatts({k: _nc_attr(a) for k, a in self.attrs.items()})
+
+    def write(self, ds: xr.Dataset, offset: int) -> None:
+        if self.nc is None:
+            self._define(ds)
+        n = ds.sizes["member"]
+        if offset < 0 or offset + n > self.n_members:
+            raise ValueError(f"chunk [{offset}, {offset + n}) outside 0..{self.n_members}")
+        for name, var in list(ds.coords.items()) + list(ds.data_vars.items()):
+            if "member" in var.dims:
+                if var.dims[0] != "member":
+                    raise ValueError(f"variable {name}: 'member' must be its first dimension")
+                self.nc.variables[name][offset:offset + n, ...] = var.values
+        self.written += n
+
+    def set_attrs(self, attrs: dict) -> None:
+        self.attrs.update(attrs)
+        if self.nc is not None:
+            self.nc.setncatts({k: _nc_attr(a) for k, a in attrs.items()})
+
+    def close(self) -> None:
+        if self.nc is None:
+            raise RuntimeError("nothing was written")
+        if self.written != self.n_members:
+            self.abort()
+            raise RuntimeError(f"only {self.written} of {self.n_members} members were written")
+        self.nc.close()
+        self.nc = None
+        os.replace(self.tmp, self.path)
+
+    def abort(self) -> None:
+        if self.nc is not None:
+            try:
+                self.nc.close()
+            except Exception:  # pragma: no cover
+                pass
+            self.nc = None
+        try:
+            self.tmp.unlink()
+        except FileNotFoundError:
+            pass
+
+
+def write_dataset(ds: xr.Dataset, path: str | os.PathLike) -> Path:
+    """Write an in-memory dataset atomically (same layout as a chunked run)."""
+    with ChunkedWriter(path, ds.sizes.get("member", 0), ds.attrs) as w:
+        w.write(ds, 0)
+    return Path(path)

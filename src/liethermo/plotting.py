@@ -1,0 +1,141 @@
+"""Figures of a run: what the paper shows, for member 0 of each method.
+
+``scene_figures({method: path.nc}, folder)`` writes four PNGs:
+
+* ``<stem>_center_of_mass.png``: the path ℓRχ of the centre of mass in 3-D;
+* ``<stem>_energies.png``: kinetic, potential and internal energy (U − U₀);
+* ``<stem>_total_energy.png``: relative total energy (E_k − E₀)/E₀ as in the
+  paper, and |E_k − E₀| over the initial mechanical energy on a log scale;
+* ``<stem>_entropy.png``: entropy over time.
+
+A method whose member failed (e.g. RK2 blowing up) is plotted up to its last
+finite value and the failure time is marked.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import xarray as xr  # noqa: E402
+
+STYLE = {"vi": dict(color="C0", lw=1.6), "rk2": dict(color="C3", lw=1.2, ls="--"),
+         "rk4": dict(color="C2", lw=1.2, ls="-."), "reference": dict(color="k", lw=0.8, ls=":")}
+CLIP = 1e3  # relative energy errors above this are drawn at the top of the log panel
+LABEL = {"vi": "variational integrator", "rk2": "RK2 (explicit midpoint)", "rk4": "RK4",
+         "reference": "reference (DOP853)"}
+
+
+def _failure_note(ds, ax, method):
+    st = int(ds["status"].values)
+    if st != 0:
+        k = int(ds["failed_at_step"].values)
+        t = k * float(ds.attrs["h"])
+        meaning = ds["status"].attrs["flag_meanings"].split()[st]
+        ax.axvline(t, color=STYLE.get(method, {}).get("color", "k"), lw=0.8, alpha=0.6)
+        ax.annotate(f"{method.upper()}: {meaning}\nat t = {t:g} s", xy=(t, 0.5), xycoords=("data", "axes fraction"),
+                    fontsize=8, ha="right", va="center", rotation=90,
+                    color=STYLE.get(method, {}).get("color", "k"))
+
+
+def scene_figures(outputs: dict, folder, stem: str = "run", member: int = 0) -> list[Path]:
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    data = {m: xr.open_dataset(p).isel(member=member).load() for m, p in outputs.items()}
+    for ds in data.values():
+        ds.close()
+    first = next(iter(data.values()))
+    h = float(first.attrs["h"])
+    title = f"{stem}: h = {h:g} s, member {member}"
+    files = []
+
+    # 1. centre of mass in 3-D
+    if all("center_of_mass" in ds for ds in data.values()):
+        fig = plt.figure(figsize=(6.4, 5.6))
+        ax = fig.add_subplot(projection="3d")
+        for m, ds in data.items():
+            x = ds["center_of_mass"].values * 1e3
+            ok = np.all(np.isfinite(x), axis=1) & (np.abs(x).max(axis=1) < 10 * np.abs(x[0]).max() + 10)
+            x = x[ok]
+            ax.plot(x[:, 0], x[:, 1], x[:, 2], label=LABEL.get(m, m), **STYLE.get(m, {}))
+            ax.scatter(*x[0], color=STYLE.get(m, {}).get("color", "k"), s=12)
+        ax.set_xlabel("x (mm)")
+        ax.set_ylabel("y (mm)")
+        ax.set_zlabel("z (mm)")
+        ax.set_title(f"centre of mass l R chi\n{title}", fontsize=10)
+        ax.legend(fontsize=8)
+        files.append(_save(fig, folder / f"{stem}_center_of_mass.png"))
+
+    # 2. energies
+    fig, axes = plt.subplots(3, 1, figsize=(7, 7.5), sharex=True)
+    for m, ds in data.items():
+        t = ds["time"].values
+        axes[0].plot(t, ds["kinetic_energy"].values * 1e3, label=LABEL.get(m, m), **STYLE.get(m, {}))
+        axes[1].plot(t, ds["potential_energy"].values * 1e3, **STYLE.get(m, {}))
+        dU = ds["internal_energy"].values - ds["internal_energy"].values[0]
+        axes[2].plot(t, dU * 1e3, **STYLE.get(m, {}))
+        _failure_note(ds, axes[0], m)
+    axes[0].set_ylabel("kinetic K (mJ)")
+    axes[1].set_ylabel("potential V (mJ)")
+    axes[2].set_ylabel("internal U - U0 (mJ)")
+    axes[2].set_xlabel("time t (s)")
+    axes[0].legend(fontsize=8)
+    # limits from the methods that completed, so a blow-up does not flatten the rest
+    good = [ds for ds in data.values() if int(ds["status"].values) == 0] or list(data.values())
+    for ax, name in zip(axes, ["kinetic_energy", "potential_energy", "internal_energy"]):
+        vals = np.concatenate([(ds[name].values - (ds[name].values[0] if name == "internal_energy" else 0)) * 1e3
+                               for ds in good])
+        lo, hi = np.nanmin(vals), np.nanmax(vals)
+        pad = 0.15 * (hi - lo) + 1e-9
+        ax.set_ylim(lo - pad, hi + pad)
+    fig.suptitle(f"energies — {title}", fontsize=10)
+    files.append(_save(fig, folder / f"{stem}_energies.png"))
+
+    # 3. total energy
+    fig, axes = plt.subplots(2, 1, figsize=(7, 6.5), sharex=True)
+    for m, ds in data.items():
+        t = ds["time"].values
+        E0 = float(ds["total_energy"].values[0]) - float(ds["energy_error"].values[0])
+        rel = ds["energy_error"].values / E0
+        if int(ds["status"].values) == 0:
+            axes[0].plot(t, rel, label=LABEL.get(m, m), **STYLE.get(m, {}))
+        emech = float(ds["mechanical_energy_initial"].values)
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            err = np.abs(ds["energy_error"].values) / emech
+        err = np.where(err > CLIP, CLIP, err)  # a blow-up is drawn up to the top of the panel
+        axes[1].semilogy(t, err, label=LABEL.get(m, m), **STYLE.get(m, {}))
+        _failure_note(ds, axes[1], m)
+    axes[0].axhline(0.0, color="g", lw=0.8, label="exact (E conserved)")
+    axes[0].set_ylabel("(E_k - E_0) / E_0")
+    axes[0].legend(fontsize=8)
+    axes[0].set_title("relative total energy (methods that completed)", fontsize=9)
+    axes[1].set_ylim(top=CLIP)
+    axes[1].set_ylabel("|E_k - E_0| / E_mech,0")
+    axes[1].set_xlabel("time t (s)")
+    axes[1].set_title("energy error over the initial mechanical energy (log scale)", fontsize=9)
+    axes[1].legend(fontsize=8)
+    fig.suptitle(f"total energy — {title}", fontsize=10)
+    files.append(_save(fig, folder / f"{stem}_total_energy.png"))
+
+    # 4. entropy
+    fig, ax = plt.subplots(figsize=(7, 3.8))
+    for m, ds in data.items():
+        ax.plot(ds["time"].values, ds["entropy"].values * 1e6, label=LABEL.get(m, m), **STYLE.get(m, {}))
+        _failure_note(ds, ax, m)
+    ax.set_xlabel("time t (s)")
+    ax.set_ylabel("entropy S (uJ/K)")
+    ax.legend(fontsize=8)
+    ax.set_title(f"entropy — {title}", fontsize=10)
+    files.append(_save(fig, folder / f"{stem}_entropy.png"))
+    return files
+
+
+def _save(fig, path: Path) -> Path:
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path

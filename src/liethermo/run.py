@@ -1,0 +1,171 @@
+"""Run a scene: initial conditions → kernels → labelled dataset → netCDF.
+
+:func:`run_scene` is what ``liethermo run`` calls.  Members are simulated in
+chunks of ``output.member_chunk`` and each chunk is labelled and (with an
+output path) written before the next starts, so memory is bounded by one
+chunk whatever the ensemble size.
+"""
+
+from __future__ import annotations
+
+import copy
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import xarray as xr
+
+from .dataset import global_attrs, trajectory_dataset
+from .initial import initial_conditions, initial_states
+from .io import ChunkedWriter
+from .scene import body, load_scene, physical_parameters, scene_to_toml
+from .simulate import STATUS_MEANINGS, simulate
+
+
+@dataclass
+class RunSummary:
+    """What a run did, for the one-screen report."""
+
+    scene_name: str
+    method: str
+    members: int
+    steps: int
+    h: float
+    wall_time: float = 0.0
+    kernel_time: float = 0.0
+    status_counts: dict = field(default_factory=dict)
+    max_abs_energy_error: float = float("nan")
+    max_rel_energy_error: float = float("nan")
+    max_gamma_defect: float = float("nan")
+    newton_mean: float = float("nan")
+    newton_max: int = 0
+    max_h_omega: float = float("nan")
+    path: Path | None = None
+
+    @property
+    def throughput(self) -> float:
+        """member-steps per second of kernel time."""
+        return self.members * self.steps / self.kernel_time if self.kernel_time > 0 else float("nan")
+
+    def lines(self) -> list[str]:
+        st = ", ".join(f"{k}: {v}" for k, v in self.status_counts.items())
+        out = [
+            f"scene {self.scene_name!r}, method {self.method}: {self.members} member(s) x {self.steps} steps, h = {self.h:g} s",
+            f"  wall time {self.wall_time:.2f} s (kernels {self.kernel_time:.2f} s), "
+            f"throughput {self.throughput:,.0f} member-steps/s",
+            f"  status   {st}",
+            f"  over the {self.status_counts.get('ok', 0)} member(s) that completed:",
+            f"  max |E_k - E_0|           {self.max_abs_energy_error:.3e} J "
+            f"({self.max_rel_energy_error:.3e} of the initial mechanical energy)",
+            f"  max ||Gamma| - 1|         {self.max_gamma_defect:.3e}",
+            f"  max h|Omega|              {self.max_h_omega:.3f} rad",
+        ]
+        if self.method == "vi":
+            out.append(f"  Newton iterations/step    mean {self.newton_mean:.2f}, max {self.newton_max}")
+        if self.path is not None:
+            out.append(f"  wrote {self.path}")
+        return out
+
+
+def _nanmax(a) -> float:
+    a = np.asarray(a, dtype=float)
+    a = a[np.isfinite(a)]
+    return float(a.max()) if a.size else float("nan")
+
+
+def run_scene(scene: dict | str, out: str | Path | None = None, *, overrides=None,
+              progress: bool | None = None, kernel: str | None = None) -> tuple[xr.Dataset | None, RunSummary]:
+    """Run one scene with its own method.
+
+    With ``out``: streams member chunks into the netCDF file (atomically) and
+    returns ``(None, summary)``; without: returns the in-memory dataset.
+    """
+    if not isinstance(scene, dict) or overrides:
+        scene = load_scene(scene, overrides)
+    scene = copy.deepcopy(scene)
+    integ = scene["integrator"]
+    method, h, steps = integ["method"], float(integ["h"]), int(integ["steps"])
+    every = int(scene["output"]["every"])
+    members = int(scene["ensemble"]["members"])
+    attitude = bool(scene["output"]["attitude"])
+    chunk = int(scene["output"]["member_chunk"])
+    bd = body(scene)
+    p = physical_parameters(scene)
+    start = integ["start"] if method == "vi" else "node"
+    attrs = global_attrs(scene_to_toml(scene), method=method, h=h, friction=integ["friction"], start=start)
+    summ = RunSummary(scene["scene"]["name"], method, members, steps, h)
+    t_wall = time.perf_counter()
+    bar = _progress_bar(members * steps, progress, f"{scene['scene']['name']} [{method}]")
+    counts = np.zeros(len(STATUS_MEANINGS), dtype=np.int64)
+    e_abs = e_rel = gdef = hw = -np.inf
+    nit_total = nsteps_total = 0
+    nmax = 0
+    pieces = []
+    writer = ChunkedWriter(out, members, attrs) if out is not None else None
+    try:
+        for lo in range(0, members, chunk):
+            hi = min(lo + chunk, members)
+            om0, R0 = initial_conditions(scene, lo, hi)
+            y0 = initial_states(om0, R0, attitude)
+            P = np.repeat(p[None], hi - lo, 0)
+            traj = simulate(y0, P, h, steps, method, friction=integ["friction"], start=integ["start"],
+                            every=every, newton_tol=float(integ["newton_tol"]),
+                            newton_maxiter=int(integ["newton_maxiter"]),
+                            progress=(lambda n, k=hi - lo: bar.update(n * k)) if bar else None,
+                            **({"kernel": kernel} if kernel else {}))
+            summ.kernel_time += traj.wall_time
+            ds = trajectory_dataset(traj, S0=bd.S0, omega0=om0, R0=R0,
+                                    center_of_mass=np.repeat(bd.center_of_mass[None], hi - lo, 0),
+                                    member_offset=lo)
+            counts += np.bincount(traj.status, minlength=len(counts))[: len(counts)]
+            ok = traj.status == 0  # accuracy figures are over members that completed
+            ee = np.abs(ds["energy_error"].values[ok])
+            e_abs = max(e_abs, _nanmax(ee))
+            em = np.abs(ds["mechanical_energy_initial"].values[ok])[:, None]
+            with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+                e_rel = max(e_rel, _nanmax(ee / em))
+                gdef = max(gdef, _nanmax(np.abs(np.linalg.norm(traj.gamma[ok], axis=-1) - 1.0)))
+            hw = max(hw, _nanmax(traj.max_h_omega[ok]))
+            nit_total += int(traj.newton_iterations.sum())
+            nsteps_total += int(traj.steps_done.sum())
+            nmax = max(nmax, int(traj.newton_max.max(initial=0)))
+            if writer is not None:
+                writer.write(ds, lo)
+            else:
+                pieces.append(ds)
+        if writer is not None:
+            writer.close()
+    except BaseException:
+        if writer is not None:
+            writer.abort()
+        raise
+    finally:
+        if bar:
+            bar.close()
+    summ.wall_time = time.perf_counter() - t_wall
+    summ.status_counts = {STATUS_MEANINGS[k]: int(counts[k]) for k in range(len(counts))}
+    nan = float("nan")
+    summ.max_abs_energy_error = e_abs if np.isfinite(e_abs) else nan
+    summ.max_rel_energy_error = e_rel if np.isfinite(e_rel) else nan
+    summ.max_gamma_defect = gdef if np.isfinite(gdef) else nan
+    summ.max_h_omega = hw if np.isfinite(hw) else nan
+    summ.newton_mean = nit_total / nsteps_total if (method == "vi" and nsteps_total) else float("nan")
+    summ.newton_max = nmax
+    if writer is not None:
+        summ.path = Path(out)
+        return None, summ
+    ds = xr.concat(pieces, dim="member", data_vars="minimal", coords="minimal", compat="override",
+                   join="override") if len(pieces) > 1 else pieces[0]
+    ds.attrs.update(attrs)
+    return ds, summ
+
+
+def _progress_bar(total: int, progress: bool | None, desc: str):
+    """A tqdm bar over member-steps (auto: only on a terminal and for long runs)."""
+    if progress is False:
+        return None
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, desc=desc, unit="member-step", unit_scale=True, leave=False,
+                disable=None if progress is None else False, mininterval=0.5)
