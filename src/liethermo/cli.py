@@ -50,7 +50,12 @@ def cmd_run(args) -> int:
     for method, path in outputs.items():
         sc = copy.deepcopy(scene)
         sc["integrator"]["method"] = method
-        _, summ = run_scene(sc, path, progress=progress)
+        if args.dask:
+            from .distributed import run_scene_dask  # issue 5
+
+            _, summ = run_scene_dask(sc, path, address=args.dask, progress=progress)
+        else:
+            _, summ = run_scene(sc, path, progress=progress)
         summaries.append(summ)
         print("\n".join(summ.lines()))
     if scene["output"]["figures"]:
@@ -80,8 +85,40 @@ def build_parser() -> argparse.ArgumentParser:
                    help="override a scene key with a TOML value, e.g. --set integrator.h=0.05 "
                    "--set 'initial.omega=[2,-1,0.5]' (repeatable)")
     r.add_argument("--no-progress", action="store_true", help="no progress bar")
+    r.add_argument("--dask", metavar="local|ADDRESS", default=None,
+                   help="run member chunks as tasks on a Dask cluster: 'local' starts a LocalCluster "
+                   "sized to this machine, otherwise the scheduler address (tcp://host:8786)")
     r.set_defaults(func=cmd_run)
+
+    s = sub.add_parser("study", help="run a study (sweeps, convergence tables, statistics, figures)",
+                       description="Run a study file from studies/ and write its folder: netCDF, "
+                       "markdown report with tables (and CSV copies), PNG figures. An interrupted "
+                       "study resumes: finished sweep points are not recomputed.")
+    s.add_argument("study", metavar="STUDY.toml", help="study definition, e.g. studies/convergence.toml")
+    s.add_argument("-o", "--outdir", metavar="DIR", help="output folder (default data/runs/<study name>)")
+    s.add_argument("--reduced", action="store_true", help="reduced-size mode (what the test suite runs)")
+    s.add_argument("--no-progress", action="store_true", help="no progress bar")
+    s.add_argument("--dask", metavar="local|ADDRESS", default=None,
+                   help="run sweep points as tasks on a Dask cluster ('local' or a scheduler address)")
+    s.set_defaults(func=cmd_study)
+
+    b = sub.add_parser("bench", help="benchmark the kernels (ns per member-step, start-up, memory)",
+                       add_help=False)
+    b.add_argument("bench_args", nargs=argparse.REMAINDER)
+    b.set_defaults(func=cmd_bench)
     return ap
+
+
+def cmd_study(args) -> int:
+    from .studies.runner import main_study  # issue 3
+
+    return main_study(args)
+
+
+def cmd_bench(args) -> int:
+    from .bench import main as bench_main  # issue 4
+
+    return bench_main(args.bench_args)
 
 
 def main(argv=None) -> int:
