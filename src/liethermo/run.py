@@ -74,6 +74,119 @@ def _nanmax(a) -> float:
     return float(a.max()) if a.size else float("nan")
 
 
+@dataclass
+class ChunkStats:
+    """What one member chunk contributes to a :class:`RunSummary`.
+
+    Mergeable (``merge``) and JSON-serialisable (``to_dict``/``from_dict``), so
+    a chunk computed elsewhere (a Dask task, a chunk file from an earlier run)
+    is summarised exactly like one computed in-process.
+    """
+
+    members: int = 0
+    kernel_time: float = 0.0
+    counts: list = field(default_factory=lambda: [0] * len(STATUS_MEANINGS))
+    e_abs: float = -np.inf
+    e_rel: float = -np.inf
+    gdef: float = -np.inf
+    hw: float = -np.inf
+    nit_total: int = 0
+    nsteps_total: int = 0
+    nmax: int = 0
+
+    def merge(self, other: "ChunkStats") -> "ChunkStats":
+        self.members += other.members
+        self.kernel_time += other.kernel_time
+        self.counts = [a + b for a, b in zip(self.counts, other.counts)]
+        self.e_abs = max(self.e_abs, other.e_abs)
+        self.e_rel = max(self.e_rel, other.e_rel)
+        self.gdef = max(self.gdef, other.gdef)
+        self.hw = max(self.hw, other.hw)
+        self.nit_total += other.nit_total
+        self.nsteps_total += other.nsteps_total
+        self.nmax = max(self.nmax, other.nmax)
+        return self
+
+    def to_dict(self) -> dict:
+        # -inf (no completed member yet) is not JSON: store it as None
+        return {k: (None if isinstance(v, float) and not np.isfinite(v) else v)
+                for k, v in self.__dict__.items()}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "ChunkStats":
+        kw = {k: (-np.inf if v is None else v) for k, v in d.items()}
+        return cls(**kw)
+
+
+def scene_setup(scene: dict | str, overrides=None) -> tuple[dict, dict, RunSummary]:
+    """Resolve a scene: ``(scene, global attributes, empty RunSummary)``."""
+    if not isinstance(scene, dict) or overrides:
+        scene = load_scene(scene, overrides)
+    scene = copy.deepcopy(scene)
+    integ = scene["integrator"]
+    method, h, steps = integ["method"], float(integ["h"]), int(integ["steps"])
+    members = int(scene["ensemble"]["members"])
+    start = integ["start"] if method == "vi" else "node"
+    attrs = global_attrs(scene_to_toml(scene), method=method, h=h, friction=integ["friction"], start=start)
+    return scene, attrs, RunSummary(scene["scene"]["name"], method, members, steps, h)
+
+
+def run_chunk(scene: dict, lo: int, hi: int, *, progress_cb=None, kernel: str | None = None,
+              threads: int | None = None) -> tuple[xr.Dataset, ChunkStats]:
+    """Simulate members ``lo:hi`` of a resolved scene: the labelled chunk and its stats.
+
+    The one code path shared by :func:`run_scene` and the Dask tasks of
+    :mod:`liethermo.distributed`; member i's result depends only on (scene, i).
+    ``progress_cb(n)`` gets the number of member-steps just done.
+    """
+    integ = scene["integrator"]
+    method, h, steps = integ["method"], float(integ["h"]), int(integ["steps"])
+    every = int(scene["output"]["every"])
+    attitude = bool(scene["output"]["attitude"])
+    bd = body(scene)
+    p = physical_parameters(scene)
+    om0, R0 = initial_conditions(scene, lo, hi)
+    y0 = initial_states(om0, R0, attitude)
+    P = np.repeat(p[None], hi - lo, 0)
+    traj = simulate(y0, P, h, steps, method, friction=integ["friction"], start=integ["start"],
+                    every=every, newton_tol=float(integ["newton_tol"]),
+                    newton_maxiter=int(integ["newton_maxiter"]),
+                    progress=(lambda n, k=hi - lo: progress_cb(n * k)) if progress_cb else None,
+                    threads=threads, **({"kernel": kernel} if kernel else {}))
+    ds = trajectory_dataset(traj, S0=bd.S0, omega0=om0, R0=R0,
+                            center_of_mass=np.repeat(bd.center_of_mass[None], hi - lo, 0),
+                            member_offset=lo)
+    st = ChunkStats(members=hi - lo, kernel_time=traj.wall_time)
+    ncounts = len(STATUS_MEANINGS)
+    st.counts = [int(c) for c in np.bincount(traj.status, minlength=ncounts)[:ncounts]]
+    ok = traj.status == 0  # accuracy figures are over members that completed
+    ee = np.abs(ds["energy_error"].values[ok])
+    st.e_abs = max(st.e_abs, _nanmax(ee))
+    em = np.abs(ds["mechanical_energy_initial"].values[ok])[:, None]
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        st.e_rel = max(st.e_rel, _nanmax(ee / em))
+        st.gdef = max(st.gdef, _nanmax(np.abs(np.linalg.norm(traj.gamma[ok], axis=-1) - 1.0)))
+    st.hw = max(st.hw, _nanmax(traj.max_h_omega[ok]))
+    st.nit_total = int(traj.newton_iterations.sum())
+    st.nsteps_total = int(traj.steps_done.sum())
+    st.nmax = int(traj.newton_max.max(initial=0))
+    return ds, st
+
+
+def finish_summary(summ: RunSummary, st: ChunkStats) -> RunSummary:
+    """Fill ``summ`` from the merged stats of all chunks (wall time and path are the caller's)."""
+    summ.kernel_time = st.kernel_time
+    summ.status_counts = {STATUS_MEANINGS[k]: int(st.counts[k]) for k in range(len(st.counts))}
+    nan = float("nan")
+    summ.max_abs_energy_error = st.e_abs if np.isfinite(st.e_abs) else nan
+    summ.max_rel_energy_error = st.e_rel if np.isfinite(st.e_rel) else nan
+    summ.max_gamma_defect = st.gdef if np.isfinite(st.gdef) else nan
+    summ.max_h_omega = st.hw if np.isfinite(st.hw) else nan
+    summ.newton_mean = st.nit_total / st.nsteps_total if (summ.method == "vi" and st.nsteps_total) else nan
+    summ.newton_max = st.nmax
+    return summ
+
+
 def run_scene(scene: dict | str, out: str | Path | None = None, *, overrides=None,
               progress: bool | None = None, kernel: str | None = None) -> tuple[xr.Dataset | None, RunSummary]:
     """Run one scene with its own method.
@@ -81,55 +194,19 @@ def run_scene(scene: dict | str, out: str | Path | None = None, *, overrides=Non
     With ``out``: streams member chunks into the netCDF file (atomically) and
     returns ``(None, summary)``; without: returns the in-memory dataset.
     """
-    if not isinstance(scene, dict) or overrides:
-        scene = load_scene(scene, overrides)
-    scene = copy.deepcopy(scene)
-    integ = scene["integrator"]
-    method, h, steps = integ["method"], float(integ["h"]), int(integ["steps"])
-    every = int(scene["output"]["every"])
-    members = int(scene["ensemble"]["members"])
-    attitude = bool(scene["output"]["attitude"])
+    scene, attrs, summ = scene_setup(scene, overrides)
+    members, steps = summ.members, summ.steps
     chunk = int(scene["output"]["member_chunk"])
-    bd = body(scene)
-    p = physical_parameters(scene)
-    start = integ["start"] if method == "vi" else "node"
-    attrs = global_attrs(scene_to_toml(scene), method=method, h=h, friction=integ["friction"], start=start)
-    summ = RunSummary(scene["scene"]["name"], method, members, steps, h)
     t_wall = time.perf_counter()
-    bar = _progress_bar(members * steps, progress, f"{scene['scene']['name']} [{method}]")
-    counts = np.zeros(len(STATUS_MEANINGS), dtype=np.int64)
-    e_abs = e_rel = gdef = hw = -np.inf
-    nit_total = nsteps_total = 0
-    nmax = 0
+    bar = _progress_bar(members * steps, progress, f"{scene['scene']['name']} [{summ.method}]")
+    total = ChunkStats()
     pieces = []
     writer = ChunkedWriter(out, members, attrs) if out is not None else None
     try:
         for lo in range(0, members, chunk):
             hi = min(lo + chunk, members)
-            om0, R0 = initial_conditions(scene, lo, hi)
-            y0 = initial_states(om0, R0, attitude)
-            P = np.repeat(p[None], hi - lo, 0)
-            traj = simulate(y0, P, h, steps, method, friction=integ["friction"], start=integ["start"],
-                            every=every, newton_tol=float(integ["newton_tol"]),
-                            newton_maxiter=int(integ["newton_maxiter"]),
-                            progress=(lambda n, k=hi - lo: bar.update(n * k)) if bar else None,
-                            **({"kernel": kernel} if kernel else {}))
-            summ.kernel_time += traj.wall_time
-            ds = trajectory_dataset(traj, S0=bd.S0, omega0=om0, R0=R0,
-                                    center_of_mass=np.repeat(bd.center_of_mass[None], hi - lo, 0),
-                                    member_offset=lo)
-            counts += np.bincount(traj.status, minlength=len(counts))[: len(counts)]
-            ok = traj.status == 0  # accuracy figures are over members that completed
-            ee = np.abs(ds["energy_error"].values[ok])
-            e_abs = max(e_abs, _nanmax(ee))
-            em = np.abs(ds["mechanical_energy_initial"].values[ok])[:, None]
-            with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-                e_rel = max(e_rel, _nanmax(ee / em))
-                gdef = max(gdef, _nanmax(np.abs(np.linalg.norm(traj.gamma[ok], axis=-1) - 1.0)))
-            hw = max(hw, _nanmax(traj.max_h_omega[ok]))
-            nit_total += int(traj.newton_iterations.sum())
-            nsteps_total += int(traj.steps_done.sum())
-            nmax = max(nmax, int(traj.newton_max.max(initial=0)))
+            ds, st = run_chunk(scene, lo, hi, progress_cb=bar.update if bar else None, kernel=kernel)
+            total.merge(st)
             if writer is not None:
                 writer.write(ds, lo)
             else:
@@ -144,14 +221,7 @@ def run_scene(scene: dict | str, out: str | Path | None = None, *, overrides=Non
         if bar:
             bar.close()
     summ.wall_time = time.perf_counter() - t_wall
-    summ.status_counts = {STATUS_MEANINGS[k]: int(counts[k]) for k in range(len(counts))}
-    nan = float("nan")
-    summ.max_abs_energy_error = e_abs if np.isfinite(e_abs) else nan
-    summ.max_rel_energy_error = e_rel if np.isfinite(e_rel) else nan
-    summ.max_gamma_defect = gdef if np.isfinite(gdef) else nan
-    summ.max_h_omega = hw if np.isfinite(hw) else nan
-    summ.newton_mean = nit_total / nsteps_total if (method == "vi" and nsteps_total) else float("nan")
-    summ.newton_max = nmax
+    finish_summary(summ, total)
     if writer is not None:
         summ.path = Path(out)
         return None, summ
