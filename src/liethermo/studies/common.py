@@ -1,0 +1,324 @@
+"""Helpers shared by the study modules: sweeps, resume cache, tables, reports.
+
+Contract of a study module ``liethermo.studies.<kind>``:
+
+1. It exposes ``run(study, outdir, *, reduced, progress, dask=None) -> Path``
+   returning the path of its markdown report (``outdir/report.md``).
+   ``study`` is the parsed TOML as given (the ``[reduced]`` table still in
+   it); the module calls :func:`resolve_study` to apply the reduced mode.
+2. It may expose ``EXTRA_KEYS`` (top-level TOML keys it accepts besides
+   :data:`BASE_KEYS`) and ``validate(study)`` raising :class:`StudyError`;
+   the runner calls both before any work starts.
+3. Each sweep point (and method) is computed through :func:`cached_point`,
+   so an interrupted study resumes without recomputing finished points.
+4. It writes one netCDF (:func:`study_netcdf_path`: sweep keys as dimensions
+   named by :func:`dim_name`, SPEC §7 variable names plus the study's
+   statistics), tables as CSV (:func:`write_table`), PNG figures, and the
+   report; the first table of the report is its key table, which the
+   command line prints.
+
+Study TOML layout::
+
+    [study]
+    kind = "convergence"
+    name = "convergence"
+    base_scene = "paper"          # or a scene file (relative to the study file) or an inline table
+    [scene.integrator]            # optional: scene keys applied on top of the base scene
+    steps = 100
+    [sweep]
+    "integrator.h" = [0.1, 0.05]
+    methods = ["vi", "rk2"]       # (top-level key, before any table)
+    [reduced.sweep]               # reduced mode: tables merge key by key, other values replace
+    "integrator.h" = [0.1]
+"""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+import itertools
+import json
+import math
+import os
+from pathlib import Path
+from typing import Any, Callable, Iterable
+
+import numpy as np
+import xarray as xr
+
+from ..scene import load_scene
+
+#: Top-level keys every study accepts.
+BASE_KEYS = frozenset({"study", "scene", "sweep", "methods", "report", "reduced", "options"})
+#: Keys of the ``[study]`` table.
+STUDY_KEYS = frozenset({"kind", "name", "base_scene", "description", "title"})
+
+
+class StudyError(ValueError):
+    """An invalid study file: the message names the key and the rule."""
+
+
+# ----------------------------------------------------------------------------- study resolution
+
+def _deep_merge(base: dict, new: dict) -> None:
+    for key, value in new.items():
+        if isinstance(value, dict) and isinstance(base.get(key), dict):
+            _deep_merge(base[key], value)
+        else:
+            base[key] = copy.deepcopy(value)
+
+
+def resolve_study(study: dict, reduced: bool) -> dict:
+    """A copy of ``study`` with the ``[reduced]`` table applied (if ``reduced``)
+    and removed (always).  Idempotent."""
+    out = copy.deepcopy(study)
+    red = out.pop("reduced", None) or {}
+    if reduced:
+        _deep_merge(out, red)
+    return out
+
+
+def nested(overrides: dict | None) -> dict:
+    """``{"section.key": v}`` (or already nested ``{section: {key: v}}``) → nested dict."""
+    out: dict[str, dict[str, Any]] = {}
+    for k, v in (overrides or {}).items():
+        if isinstance(v, dict) and "." not in k:
+            out.setdefault(k, {}).update(v)
+            continue
+        if k.count(".") != 1:
+            raise StudyError(f"sweep/override key {k!r} must read 'section.key'")
+        section, key = k.split(".")
+        out.setdefault(section, {})[key] = v
+    return out
+
+
+def study_scene(study: dict, overrides: dict | None = None) -> dict:
+    """The validated scene of a study point: base scene ← inline ``[scene]``
+    table ← ``overrides`` (``{"section.key": value}`` or nested)."""
+    st = study.get("study", {})
+    base = st.get("base_scene", "paper")
+    if isinstance(base, str) and base != "paper":
+        p = Path(base)
+        src = study.get("_source")
+        if not p.is_absolute() and src is not None and not p.is_file():
+            p = Path(src).parent / p
+        base = str(p)
+    scene = load_scene(base, study.get("scene") or None, validate_scene=False)
+    return load_scene(scene, nested(overrides) or None)
+
+
+def study_name(study: dict) -> str:
+    return str(study.get("study", {}).get("name") or study.get("study", {}).get("kind", "study"))
+
+
+def study_netcdf_path(study: dict, outdir: Path) -> Path:
+    """Where a study writes its netCDF: ``outdir/<study name>.nc``."""
+    return Path(outdir) / f"{study_name(study)}.nc"
+
+
+# ----------------------------------------------------------------------------- sweeps
+
+def expand_sweep(sweep: dict | None) -> list[dict]:
+    """Cartesian product of ``{"section.key": [values]}``, in the order given
+    (the last key varies fastest).  An empty sweep is one empty point."""
+    sweep = sweep or {}
+    keys = list(sweep)
+    for k in keys:
+        if not isinstance(sweep[k], list) or not sweep[k]:
+            raise StudyError(f"sweep key {k!r} must map to a non-empty list of values")
+    return [dict(zip(keys, combo)) for combo in itertools.product(*(sweep[k] for k in keys))]
+
+
+def point_key(d: dict) -> str:
+    """Stable hash of a sweep point (plus method and anything else in ``d``)."""
+    text = json.dumps(d, sort_keys=True, default=str, separators=(",", ":"))
+    return hashlib.sha1(text.encode()).hexdigest()[:16]
+
+
+def dim_name(key: str) -> str:
+    """netCDF dimension name of a sweep key: ``"fluid.viscosity"`` → ``"fluid_viscosity"``."""
+    return key.replace(".", "_")
+
+
+def coord_value(v):
+    """A sweep value as a coordinate value (lists become their TOML-ish text)."""
+    if isinstance(v, (bool, int, float, str)):
+        return v
+    return json.dumps(v)
+
+
+# ----------------------------------------------------------------------------- files
+
+def _clean_attrs(attrs: dict) -> dict:
+    out = {}
+    for k, v in attrs.items():
+        if isinstance(v, (bool, np.bool_)):
+            v = int(v)
+        elif v is None:
+            v = ""
+        elif isinstance(v, (dict, list, tuple)) and not (isinstance(v, (list, tuple)) and v
+                                                         and all(isinstance(x, (int, float)) for x in v)):
+            v = json.dumps(v, default=str)
+        out[k] = v
+    return out
+
+
+def write_netcdf_atomic(ds: xr.Dataset, path: str | os.PathLike) -> Path:
+    """Write ``ds`` to a temporary file next to ``path``, then rename it onto
+    ``path``: a killed process leaves no file or a complete one."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    ds = ds.copy()
+    ds.attrs = _clean_attrs(ds.attrs)
+    for name in list(ds.variables):
+        ds[name].attrs = _clean_attrs(ds[name].attrs)
+    try:
+        ds.to_netcdf(tmp, engine="netcdf4", format="NETCDF4")
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return path
+
+
+def write_text_atomic(text: str, path: str | os.PathLike) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+    return path
+
+
+def cached_point(outdir: str | os.PathLike, key: str, compute: Callable[[], xr.Dataset]) -> xr.Dataset:
+    """Resume cache: load ``outdir/points/<key>.nc`` if present, else compute
+    the point's dataset and write it there atomically."""
+    path = Path(outdir) / "points" / f"{key}.nc"
+    if path.is_file():
+        try:
+            return xr.load_dataset(path)
+        except (OSError, ValueError):  # unreadable leftover: recompute
+            path.unlink()
+    ds = compute()
+    write_netcdf_atomic(ds, path)
+    return xr.load_dataset(path)
+
+
+def point_is_cached(outdir: str | os.PathLike, key: str) -> bool:
+    return (Path(outdir) / "points" / f"{key}.nc").is_file()
+
+
+# ----------------------------------------------------------------------------- tables and reports
+
+def fmt(v) -> str:
+    """A table cell: integers as such, floats to 3–4 significant digits."""
+    if v is None:
+        return "—"
+    if isinstance(v, (bool, np.bool_)):
+        return "yes" if v else "no"
+    if isinstance(v, (int, np.integer)):
+        return str(int(v))
+    if isinstance(v, (float, np.floating)):
+        v = float(v)
+        if math.isnan(v):
+            return "—"
+        if math.isinf(v):
+            return "inf" if v > 0 else "-inf"
+        if v == 0.0:
+            return "0"
+        if 1e-3 <= abs(v) < 1e4:
+            return f"{v:.4g}"
+        return f"{v:.3e}"
+    return str(v).replace("|", "\\|")
+
+
+def write_table(df_or_records, outdir: str | os.PathLike, name: str, title: str) -> str:
+    """Write ``outdir/<name>.csv`` and return the table as markdown (with a
+    ``### title`` heading and a link to the CSV)."""
+    import pandas as pd
+
+    df = df_or_records if isinstance(df_or_records, pd.DataFrame) else pd.DataFrame(list(df_or_records))
+    outdir = Path(outdir)
+    outdir.mkdir(parents=True, exist_ok=True)
+    tmp = outdir / f".{name}.csv.{os.getpid()}.tmp"
+    df.to_csv(tmp, index=False)
+    os.replace(tmp, outdir / f"{name}.csv")
+    cols = [str(c) for c in df.columns]
+    lines = [f"### {title}", "", "| " + " | ".join(c.replace("|", "\\|") for c in cols) + " |",
+             "|" + "|".join("---" for _ in cols) + "|"]
+    for row in df.itertuples(index=False):
+        lines.append("| " + " | ".join(fmt(v) for v in row) + " |")
+    lines += ["", f"(CSV: `{name}.csv`)", ""]
+    return "\n".join(lines)
+
+
+def write_report(outdir: str | os.PathLike, title: str, sections: Iterable[str]) -> Path:
+    """Write ``outdir/report.md`` (atomically) and return its path."""
+    text = f"# {title}\n\n" + "\n\n".join(s.strip("\n") for s in sections) + "\n"
+    return write_text_atomic(text, Path(outdir) / "report.md")
+
+
+def first_table(report: str | os.PathLike) -> str:
+    """The first table of a markdown report, with its heading (the key table)."""
+    lines = Path(report).read_text().splitlines()
+    start = next((i for i, ln in enumerate(lines) if ln.startswith("|")), None)
+    if start is None:
+        return ""
+    head = start - 2 if start >= 2 and lines[start - 2].startswith("#") else start
+    end = start
+    while end < len(lines) and lines[end].startswith("|"):
+        end += 1
+    return "\n".join(lines[head:end])
+
+
+def progress_bar(total: int, progress: bool | None, desc: str):
+    """A tqdm bar over sweep points (``progress=None``: only on a terminal)."""
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, desc=desc, unit="point", leave=False,
+                disable=None if progress is None else not progress)
+
+
+# ----------------------------------------------------------------------------- assembling
+
+def stack_points(datasets: list[xr.Dataset], points: list[dict], keys: list[str] | None = None) -> xr.Dataset:
+    """Combine per-point datasets into one with the sweep keys as dimensions
+    (named :func:`dim_name`, attribute ``scene_key``).  ``points`` are the
+    point dicts (e.g. from :func:`expand_sweep`, possibly with a ``method``
+    entry); every dataset must have the same variables and shapes."""
+    keys = list(points[0]) if keys is None else keys
+    if not keys:
+        return datasets[0]
+    dims = [dim_name(k) for k in keys]
+    ds = xr.concat(datasets, dim="point", data_vars="all", coords="minimal", compat="override",
+                   join="override")
+    ds = ds.assign_coords({d: ("point", [coord_value(p[k]) for p in points]) for d, k in zip(dims, keys)})
+    ds = ds.set_index(point=dims).unstack("point").transpose(*dims, ...)
+    for d, k in zip(dims, keys):
+        ds[d].attrs.update({"scene_key": k, "long_name": f"sweep over {k}"})
+    return ds
+
+
+# ----------------------------------------------------------------------------- method variants
+
+def parse_method(spec: str) -> dict:
+    """``"vi"``, ``"vi:staggered"``, ``"vi:endpoint"``, ``"vi:endpoint:staggered"``,
+    ``"rk4"`` … → ``{"label", "method", "start", "friction"}`` (defaults: node
+    start, trapezoid friction).  Explicit methods ignore start and friction."""
+    from ..methods import FRICTION, METHODS, STARTS
+
+    parts = spec.split(":")
+    method = parts[0]
+    if method not in METHODS:
+        raise StudyError(f"methods: unknown method {spec!r}; known methods: {', '.join(sorted(METHODS))}")
+    start, friction = "node", "trapezoid"
+    for p in parts[1:]:
+        if p in STARTS:
+            start = p
+        elif p in FRICTION:
+            friction = p
+        else:
+            raise StudyError(f"methods: {spec!r}: unknown variant {p!r} (starts: {', '.join(STARTS)}; "
+                             f"friction: {', '.join(FRICTION)})")
+    return {"label": spec, "method": method, "start": start, "friction": friction}

@@ -1,0 +1,111 @@
+"""``liethermo study STUDY.toml``: load, validate, dispatch, print the key table.
+
+Invalid studies (unreadable TOML, unknown kind or keys, sweeps over unknown
+scene keys, invalid scene values) are reported as one line
+``liethermo: error: ...`` with exit status 2, no traceback and no output.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+from ..scene import SceneError
+from . import KINDS, get_study
+from .common import BASE_KEYS, STUDY_KEYS, StudyError, expand_sweep, first_table, parse_method, resolve_study, study_scene
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+EXIT_INVALID = 2
+
+
+def load_study(path: str | Path) -> dict:
+    """Parse a study file; ``_source`` records its path (for relative scene files)."""
+    path = Path(path)
+    if not path.is_file():
+        raise StudyError(f"no such study file: {path}")
+    try:
+        study = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise StudyError(f"{path} is not valid TOML: {exc}") from None
+    study["_source"] = str(path)
+    return study
+
+
+def validate_study(study: dict) -> None:
+    """Check kind, keys, sweeps and every sweep point's scene (full and reduced)."""
+    st = study.get("study")
+    if not isinstance(st, dict):
+        raise StudyError("the study file needs a [study] table with kind = ...")
+    kind = st.get("kind")
+    if kind not in KINDS:
+        raise StudyError(f"study.kind: unknown study kind {kind!r}; known kinds: {', '.join(KINDS)}")
+    for k in st:
+        if k not in STUDY_KEYS:
+            raise StudyError(f"study.{k}: unknown key; known keys of [study]: {', '.join(sorted(STUDY_KEYS))}")
+    mod = get_study(kind)
+    allowed = BASE_KEYS | frozenset(getattr(mod, "EXTRA_KEYS", ()))
+    for k in study:
+        if not k.startswith("_") and k not in allowed:
+            raise StudyError(f"{k}: unknown key in a {kind} study; known keys: {', '.join(sorted(allowed))}")
+    red = study.get("reduced", {})
+    if not isinstance(red, dict):
+        raise StudyError("reduced: must be a table")
+    for k in red:
+        if k not in allowed:
+            raise StudyError(f"reduced.{k}: unknown key in a {kind} study; known keys: {', '.join(sorted(allowed))}")
+    for reduced in (False, True):
+        s = resolve_study(study, reduced)
+        methods = s.get("methods", [])
+        if not isinstance(methods, list):
+            raise StudyError("methods: must be a list")
+        for m in methods:
+            if not isinstance(m, str):
+                raise StudyError(f"methods: {m!r} is not a method name")
+            parse_method(m)
+        sweep = s.get("sweep", {})
+        if not isinstance(sweep, dict):
+            raise StudyError("sweep: must be a table of \"section.key\" = [values]")
+        points = expand_sweep(sweep)
+        # every value of every sweep key must give a valid scene
+        for key, values in sweep.items():
+            for v in values:
+                try:
+                    study_scene(s, {key: v})
+                except SceneError as exc:
+                    raise StudyError(f"sweep {key!r}: {exc}") from None
+        if not points:
+            study_scene(s)
+        if hasattr(mod, "validate"):
+            mod.validate(s)
+
+
+def default_outdir(study: dict, reduced: bool) -> Path:
+    name = study["study"].get("name") or study["study"]["kind"]
+    return Path("data") / "runs" / (f"{name}-reduced" if reduced else str(name))
+
+
+def main_study(args) -> int:
+    try:
+        study = load_study(args.study)
+        validate_study(study)
+    except (StudyError, SceneError) as exc:
+        print(f"liethermo: error: {exc}", file=sys.stderr)
+        return EXIT_INVALID
+    reduced = bool(getattr(args, "reduced", False))
+    outdir = Path(args.outdir) if getattr(args, "outdir", None) else default_outdir(study, reduced)
+    progress = False if getattr(args, "no_progress", False) else None
+    mod = get_study(study["study"]["kind"])
+    t0 = time.perf_counter()
+    report = mod.run(study, outdir, reduced=reduced, progress=progress, dask=getattr(args, "dask", None))
+    wall = time.perf_counter() - t0
+    table = first_table(report)
+    if table:
+        print(table)
+    print(f"study {study['study'].get('name', study['study']['kind'])!r}"
+          f"{' (reduced)' if reduced else ''}: {wall:.1f} s, report {report}")
+    return 0
