@@ -1,0 +1,368 @@
+"""Scale out on a Dask cluster: ensembles split into member-chunk tasks.
+
+``liethermo run SCENE --dask local|ADDRESS`` calls :func:`run_scene_dask`.
+The ensemble is cut into member ranges ``[lo, hi)``; each range is one Dask
+task (:func:`compute_part`) that runs the *same* code as an in-process run
+(:func:`liethermo.run.run_chunk`) and writes its own chunk file
+``<OUT>.parts/part-<lo>-<hi>.nc`` atomically (temporary name, then
+``os.replace``).  Member i's initial condition depends only on (seed, i)
+(:mod:`liethermo.initial`) and members never interact in the kernels, so the
+numbers do not depend on the split nor on the number of workers or threads:
+the combined file is identical to the in-process one.
+
+Failure containment, all provided by Dask and by the file layout — there is
+no scheduler here:
+
+* a task that raises is retried by Dask (``retries``); a task whose worker
+  dies (killed, out of memory, lost node) is rescheduled on another worker
+  (Dask's ``distributed.scheduler.allowed-failures``, default 3);
+* a chunk file is either absent or complete (atomic rename), is named by its
+  member range and tagged with a hash of the resolved scene, so a task that
+  runs twice (worker lost after writing) rewrites the same content and never
+  duplicates members; the combine step reads exactly one file per range;
+* a rerun after an interruption finds ``<OUT>.parts/index.json`` (the layout
+  and scene hash) and submits only the ranges without a valid chunk file.
+
+At the end the chunk files are streamed, one at a time (bounded memory),
+into the single output file through :class:`liethermo.io.ChunkedWriter`
+(atomic as well), and the ``.parts`` folder is removed unless
+``keep_parts=True`` — the kept folder, with its ``index.json``, is also an
+``xarray.open_mfdataset``-ready set.
+
+The client, the workers and the output path must share a filesystem (the
+tasks write where the client reads).  See docs/distributed.md.
+
+:func:`map_tasks` is the generic helper for other fan-outs (study sweep
+points): ``Client.map`` with pure keys and retries, results in input order.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import math
+import os
+import shutil
+import threading
+import time
+import uuid
+from pathlib import Path
+from typing import Any, Callable, Iterable
+
+import numpy as np
+
+from . import __version__
+from .initial import BLOCK
+from .io import ChunkedWriter
+from .run import ChunkStats, RunSummary, _progress_bar, finish_summary, run_chunk, scene_setup
+from .scene import scene_to_toml
+
+INDEX_NAME = "index.json"
+PARTS_FORMAT = "liethermo-parts-1"
+#: Tasks per worker thread the default split aims at (load balance vs per-task overhead).
+TASKS_PER_THREAD = 4
+
+# one kernel at a time per worker process: a worker with several threads runs
+# its chunks one after the other, each with that many numba threads (numba's
+# default threading layer does not allow concurrent parallel launches)
+_KERNEL_LOCK = threading.Lock()
+
+
+# ---------------------------------------------------------------- clients
+def make_client(address: Any = "local"):
+    """A dask.distributed Client.
+
+    ``"local"``: a LocalCluster owned by the client (closed with it), one
+    worker process per core, one thread per worker, numba limited to one
+    thread in each worker.  Otherwise ``address`` is a scheduler address
+    (``tcp://host:8786``) or a scheduler file path (``*.json``).
+    """
+    from distributed import Client, LocalCluster
+
+    if address in (None, "local"):
+        n = os.cpu_count() or 1
+        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                               dashboard_address=None,
+                               env={"NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"})
+        client = Client(cluster)
+        client._liethermo_cluster = cluster  # closed by close_client
+        return client
+    if str(address).endswith(".json"):
+        return Client(scheduler_file=str(address))
+    return Client(address)
+
+
+def close_client(client) -> None:
+    """Close a client made by :func:`make_client` (and its LocalCluster)."""
+    cluster = getattr(client, "_liethermo_cluster", None)
+    client.close()
+    if cluster is not None:
+        cluster.close()
+
+
+@contextlib.contextmanager
+def client_for(address: Any = "local"):
+    """Yield a Client: ``address`` may already be a Client (left open) or what
+    :func:`make_client` accepts (closed on exit)."""
+    from distributed import Client
+
+    if isinstance(address, Client):
+        yield address
+        return
+    client = make_client(address)
+    try:
+        yield client
+    finally:
+        close_client(client)
+
+
+def map_tasks(func: Callable, items: Iterable, address: Any = "local", *, retries: int = 2,
+              progress: bool | None = None, desc: str = "tasks") -> list:
+    """``[func(x) for x in items]`` as Dask tasks, results in input order.
+
+    Keys are pure (``tokenize(func, item)``), so resubmitting the same items on
+    the same cluster reuses the results; a task that raises is retried up to
+    ``retries`` times, one whose worker dies is rescheduled by Dask.  ``func``
+    and the items must be picklable and importable on the workers.  The first
+    task that still fails raises here, after the others have finished (so
+    their side effects, e.g. files, are complete).
+    """
+    from distributed import as_completed
+
+    items = list(items)
+    if not items:
+        return []
+    with client_for(address) as client:
+        futures = client.map(func, items, pure=True, retries=retries)
+        bar = _progress_bar(len(items), progress, desc)
+        first_error = None
+        try:
+            for fut in as_completed(futures):
+                if fut.status == "error" and first_error is None:
+                    first_error = fut
+                if bar:
+                    bar.update(1)
+        finally:
+            if bar:
+                bar.close()
+        if first_error is not None:
+            first_error.result()  # raises the task's exception
+        return client.gather(futures)
+
+
+# ---------------------------------------------------------------- chunk files
+def scene_key(scene: dict) -> str:
+    """Hash of the resolved scene and software version: chunk files of another
+    scene (or version) are never reused."""
+    text = f"{__version__}\n{scene_to_toml(scene)}"
+    return hashlib.sha256(text.encode()).hexdigest()[:20]
+
+
+def parts_dir(out: str | os.PathLike) -> Path:
+    out = Path(out)
+    return out.with_name(out.name + ".parts")
+
+
+def part_path(parts: Path, lo: int, hi: int) -> Path:
+    return parts / f"part-{lo:012d}-{hi:012d}.nc"
+
+
+def plan_chunks(members: int, task_members: int) -> list[tuple[int, int]]:
+    return [(lo, min(lo + task_members, members)) for lo in range(0, members, task_members)]
+
+
+def default_task_members(scene: dict, nthreads: int) -> int:
+    """Members per task: at most ``output.member_chunk`` (memory bound), else
+    about TASKS_PER_THREAD tasks per worker thread, a multiple of the
+    initial-condition block (1024) when the ensemble is larger than a block."""
+    members = int(scene["ensemble"]["members"])
+    cap = int(scene["output"]["member_chunk"])
+    want = math.ceil(members / max(1, TASKS_PER_THREAD * max(1, nthreads)))
+    if members > BLOCK:
+        want = BLOCK * math.ceil(want / BLOCK)
+    return max(1, min(cap, want))
+
+
+def read_part_stats(path: Path, key: str, lo: int, hi: int) -> ChunkStats | None:
+    """The stats stored in a finished chunk file, or None if it is missing,
+    unreadable, or belongs to another scene/range."""
+    import netCDF4
+
+    try:
+        with netCDF4.Dataset(path, "r") as nc:
+            if (nc.getncattr("liethermo_part_key") != key
+                    or int(nc.getncattr("liethermo_part_lo")) != lo
+                    or int(nc.getncattr("liethermo_part_hi")) != hi
+                    or len(nc.dimensions["member"]) != hi - lo):
+                return None
+            return ChunkStats.from_dict(json.loads(nc.getncattr("liethermo_part_stats")))
+    except (OSError, KeyError, AttributeError, ValueError, RuntimeError):
+        return None
+
+
+def compute_part(scene: dict, lo: int, hi: int, path: str, key: str, attrs: dict,
+                 numba_threads: int | None = None) -> dict:
+    """The Dask task: members ``lo:hi`` → chunk file ``path`` (atomic).
+
+    Returns ``{"stats": ChunkStats dict, "task_time": s, "skipped": bool}``.
+    If a valid chunk file is already there (the task ran before, e.g. on a
+    worker that was lost before reporting), it is not recomputed.
+    """
+    t0 = time.perf_counter()
+    path = Path(path)
+    st = read_part_stats(path, key, lo, hi)
+    if st is not None:
+        return {"stats": st.to_dict(), "task_time": time.perf_counter() - t0, "skipped": True}
+    if numba_threads is None:
+        try:
+            from distributed import get_worker
+
+            numba_threads = int(get_worker().state.nthreads)
+        except (ImportError, ValueError, AttributeError):
+            numba_threads = None
+    with _KERNEL_LOCK:
+        ds, st = run_chunk(scene, lo, hi, threads=numba_threads)
+    part_attrs = dict(attrs)
+    part_attrs.update({
+        "liethermo_part_key": key, "liethermo_part_lo": int(lo), "liethermo_part_hi": int(hi),
+        "liethermo_part_stats": json.dumps(st.to_dict()),
+    })
+    path.parent.mkdir(parents=True, exist_ok=True)
+    w = ChunkedWriter(path, hi - lo, part_attrs)
+    # unique temporary name: two copies of one task (a worker presumed lost
+    # that is still running) never write the same temporary file
+    w.tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex}.tmp")
+    with w:
+        w.write(ds, 0)
+    return {"stats": st.to_dict(), "task_time": time.perf_counter() - t0, "skipped": False}
+
+
+def _load_index(parts: Path, key: str, members: int) -> list[tuple[int, int]] | None:
+    try:
+        idx = json.loads((parts / INDEX_NAME).read_text())
+    except (OSError, ValueError):
+        return None
+    if idx.get("format") != PARTS_FORMAT or idx.get("scene_key") != key or idx.get("members") != members:
+        return None
+    return [tuple(b) for b in idx["chunks"]]
+
+
+def _write_index(parts: Path, key: str, members: int, chunks, out: Path) -> None:
+    parts.mkdir(parents=True, exist_ok=True)
+    idx = {
+        "format": PARTS_FORMAT, "scene_key": key, "members": members, "output": out.name,
+        "chunks": [list(c) for c in chunks],
+        "files": [part_path(parts, lo, hi).name for lo, hi in chunks],
+        "concat_dim": "member",
+    }
+    tmp = parts / f".{INDEX_NAME}.{uuid.uuid4().hex}.tmp"
+    tmp.write_text(json.dumps(idx, indent=1))
+    os.replace(tmp, parts / INDEX_NAME)
+
+
+def _read_part(path: Path):
+    """A chunk file as an in-memory dataset with the raw stored values."""
+    import xarray as xr
+
+    with xr.open_dataset(path, engine="netcdf4", decode_cf=False) as ds:
+        ds = ds.load()
+    for name in list(ds.variables):
+        v = ds.variables[name]
+        if v.dtype.kind == "O":  # netCDF vlen strings come back as objects
+            new = xr.Variable(v.dims, np.asarray(v.values).astype(str), v.attrs)
+            if name in ds.coords:
+                ds = ds.assign_coords({name: new})
+            else:
+                ds[name] = new
+    return ds
+
+
+def combine_parts(parts: Path, chunks, out: Path, members: int, attrs: dict) -> Path:
+    """Stream the chunk files, one at a time, into the single output file."""
+    w = ChunkedWriter(out, members, attrs)
+    with w:
+        for lo, hi in chunks:
+            w.write(_read_part(part_path(parts, lo, hi)), lo)
+    return out
+
+
+# ---------------------------------------------------------------- ensembles
+def run_scene_dask(scene: dict | str, out: str | os.PathLike, *, address: Any = "local",
+                   progress: bool | None = None, overrides=None, task_members: int | None = None,
+                   keep_parts: bool = False, retries: int = 2, numba_threads: int | None = None,
+                   task: Callable = compute_part) -> tuple[None, RunSummary]:
+    """Run a scene's ensemble as Dask tasks; same output file as :func:`liethermo.run.run_scene`.
+
+    ``address``: ``"local"``, a scheduler address, or an existing Client.
+    ``task_members``: members per task (default: :func:`default_task_members`;
+    on a rerun, the layout recorded in ``<OUT>.parts/index.json``).
+    ``task``: the task function (same signature as :func:`compute_part`; tests
+    inject faults with it).  Returns ``(None, summary)``; the summary also
+    carries ``tasks``, ``tasks_skipped`` (finished before this call) and
+    ``task_overhead`` (mean task wall time minus kernel time, s).
+    """
+    from distributed import as_completed
+
+    scene, attrs, summ = scene_setup(scene, overrides)
+    out = Path(out)
+    members, steps = summ.members, summ.steps
+    key = scene_key(scene)
+    parts = parts_dir(out)
+    t_wall = time.perf_counter()
+    with client_for(address) as client:
+        chunks = _load_index(parts, key, members)
+        if chunks is None or (task_members is not None and chunks != plan_chunks(members, task_members)):
+            if task_members is None:
+                nthreads = sum(client.nthreads().values()) or 1
+                task_members = default_task_members(scene, nthreads)
+            chunks = plan_chunks(members, task_members)
+            _write_index(parts, key, members, chunks, out)
+        total = ChunkStats()
+        todo = []
+        for lo, hi in chunks:
+            st = read_part_stats(part_path(parts, lo, hi), key, lo, hi)
+            if st is None:
+                todo.append((lo, hi))
+            else:
+                total.merge(st)
+        bar = _progress_bar(members * steps, progress, f"{summ.scene_name} [{summ.method}, dask]")
+        if bar:
+            bar.update(sum(hi - lo for lo, hi in chunks if (lo, hi) not in todo) * steps)
+        futures = {}
+        for lo, hi in todo:
+            f = client.submit(task, scene, lo, hi, str(part_path(parts, lo, hi)), key, attrs, numba_threads,
+                              key=f"liethermo-part-{key}-{lo}-{hi}", pure=True, retries=retries)
+            futures[f] = (lo, hi)
+        first_error = None
+        overhead = []
+        try:
+            # wait for every task (a failure does not stop the others: their
+            # chunk files are what a rerun resumes from)
+            for fut in as_completed(list(futures)):
+                lo, hi = futures[fut]
+                if fut.status == "error":
+                    first_error = first_error or fut
+                    continue
+                res = fut.result()
+                st = ChunkStats.from_dict(res["stats"])
+                total.merge(st)
+                if not res["skipped"]:
+                    overhead.append(res["task_time"] - st.kernel_time)
+                if bar:
+                    bar.update((hi - lo) * steps)
+        finally:
+            if bar:
+                bar.close()
+        if first_error is not None:
+            first_error.result()  # raise the task's error; finished chunks stay for a rerun
+    combine_parts(parts, chunks, out, members, attrs)
+    if not keep_parts:
+        shutil.rmtree(parts, ignore_errors=True)
+    summ.wall_time = time.perf_counter() - t_wall
+    finish_summary(summ, total)
+    summ.path = out
+    summ.tasks = len(chunks)
+    summ.tasks_skipped = len(chunks) - len(todo)
+    summ.task_overhead = float(np.mean(overhead)) if overhead else float("nan")
+    return None, summ
