@@ -1,0 +1,237 @@
+"""Scenes, validation (SPEC §5), the command line and the written dataset (SPEC §7)."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import xarray as xr
+
+from liethermo.cli import main
+from liethermo.run import run_scene
+from liethermo.scene import SceneError, load_scene
+
+# (override, key named in the message) — one case per rule of SPEC §5
+INVALID = [
+    ("body.inertia=[1e-3, 1e-3, 0.0]", "body.inertia"),       # non-positive inertia
+    ("body.inertia=[1e-3, -1e-3, 1e-3]", "body.inertia"),
+    ("body.inertia=[1e-3, nan, 1e-3]", "body.inertia"),       # non-finite inertia
+    ("body.inertia=[1e-3, 1e-3, inf]", "body.inertia"),
+    ("body.inertia=[1e-3, 1e-3, 5e-3]", "body.inertia"),      # violates the triangle inequality
+    ("integrator.h=0", "integrator.h"),                        # h ≤ 0
+    ("integrator.h=-0.1", "integrator.h"),
+    ("integrator.h=nan", "integrator.h"),
+    ("fluid.viscosity=-0.1", "fluid.viscosity"),               # μ < 0
+    ("thermo.T0=0", "thermo.T0"),                              # T0 ≤ 0
+    ("thermo.T0=-5", "thermo.T0"),
+    ("initial.R=[[1,0,0],[0,0,-1],[0,0,1]]", "initial.R"),     # the paper's printed (singular) R0, erratum E1
+    ("initial.R=[[1,0,0],[0,1,0],[0,0,-1]]", "initial.R"),     # orthogonal but a reflection
+    ("initial.omega=[0, nan, 1]", "initial.omega"),            # non-finite initial data
+    ("initial.omega=[0, 1]", "initial.omega"),
+    ("integrator.wobble=3", "integrator.wobble"),              # unknown key
+    ("physics.g=3", "physics.g"),                              # unknown section
+    ("integrator.method=rk5", "integrator.method"),
+    ("integrator.friction=sideways", "integrator.friction"),
+    ("integrator.start=late", "integrator.start"),
+    ("integrator.steps=0", "integrator.steps"),
+    ("integrator.steps=1.5", "integrator.steps"),
+    ("output.every=7", "output.every"),                        # must divide steps (300)
+    ("ensemble.members=0", "ensemble.members"),
+    ("body.radius=0", "body.radius"),
+    ("body.upper_mass_fraction=1.2", "body.upper_mass_fraction"),
+    ("gravity.g=-9.81", "gravity.g"),
+    ("output.compare=['rk9']", "output.compare"),
+]
+
+
+@pytest.mark.parametrize("override,key", INVALID)
+def test_invalid_input_is_rejected_naming_the_key(override, key, tmp_path, capsys):
+    """Every invalid input: exit status 2, one line naming the key, no output file, no traceback."""
+    out = tmp_path / "x.nc"
+    rc = main(["run", "paper", "-o", str(out), "--set", override])
+    err = capsys.readouterr().err
+    assert rc == 2
+    assert f"'{key}'" in err, err
+    assert "Traceback" not in err
+    assert not out.exists()
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_invalid_input_subprocess_exit_code(tmp_path):
+    """The console command itself: non-zero exit, the message, no file (SPEC §5)."""
+    out = tmp_path / "bad.nc"
+    p = subprocess.run([sys.executable, "-m", "liethermo.cli", "run", "paper", "-o", str(out),
+                        "--set", "integrator.h=-1"], capture_output=True, text=True)
+    assert p.returncode == 2
+    assert "scene key 'integrator.h': must be > 0" in p.stderr
+    assert "Traceback" not in p.stderr
+    assert not out.exists()
+
+
+def test_missing_scene_file_is_reported(tmp_path, capsys):
+    assert main(["run", str(tmp_path / "nope.toml")]) == 2
+    assert "no such scene file" in capsys.readouterr().err
+
+
+def test_toml_scene_file_and_overrides(tmp_path):
+    f = tmp_path / "spin.toml"
+    f.write_text('[integrator]\nmethod = "rk4"\nh = 0.05\nsteps = 40\n[initial]\nomega = [2.0, -1.0, 0.5]\n')
+    sc = load_scene(f, ["integrator.h=0.025", "integrator.friction=endpoint"])
+    assert sc["scene"]["name"] == "spin"
+    assert sc["integrator"]["method"] == "rk4"
+    assert sc["integrator"]["h"] == 0.025            # --set wins over the file
+    assert sc["integrator"]["friction"] == "endpoint"  # bare word taken as a string
+    assert sc["initial"]["omega"] == [2.0, -1.0, 0.5]
+    assert sc["fluid"]["viscosity"] == 0.1            # defaults are the paper's values
+
+
+def test_unknown_key_in_file(tmp_path):
+    f = tmp_path / "typo.toml"
+    f.write_text("[fluid]\nviscosoty = 0.2\n")
+    with pytest.raises(SceneError, match="'fluid.viscosoty'"):
+        load_scene(f)
+
+
+def test_paper_scene_derived_values():
+    """SPEC §2's derived values."""
+    from liethermo.scene import body
+
+    b = body(load_scene("paper"))
+    assert b.mass == pytest.approx(1.4137166941154071, rel=1e-15)
+    assert b.ell == pytest.approx(0.00125, rel=1e-12)
+    assert b.stokes_coefficient == pytest.approx(3.1415926535897936e-4, rel=1e-15)
+    assert b.heat_capacity == pytest.approx(1306.9263327416309, rel=1e-15)
+    np.testing.assert_allclose(b.inertia, [6.6783e-4, 6.6783e-4, 1.31947e-3], rtol=1e-4)
+
+
+def _small(members=1, **kw):
+    over = {"integrator": {"steps": 40}, "ensemble": {"members": members}}
+    for k, v in kw.items():
+        s, key = k.split("__")
+        over.setdefault(s, {})[key] = v
+    return load_scene("paper", over)
+
+
+def test_members_1_uses_the_scene_initial_data_exactly():
+    ds, _ = run_scene(_small(initial__omega=[0.3, -0.2, 1.7]), progress=False)
+    np.testing.assert_array_equal(ds["initial_omega"].values[0], [0.3, -0.2, 1.7])
+    np.testing.assert_array_equal(ds["omega"].values[0, 0], [0.3, -0.2, 1.7])
+    np.testing.assert_array_equal(ds["gamma"].values[0, 0], [0.0, 1.0, 0.0])  # Γ0 = R0ᵀe3 (E1)
+
+
+def test_seed_reproducible_and_distribution():
+    a, _ = run_scene(_small(members=64, ensemble__seed=7), progress=False)
+    b, _ = run_scene(_small(members=64, ensemble__seed=7), progress=False)
+    c, _ = run_scene(_small(members=64, ensemble__seed=8), progress=False)
+    np.testing.assert_array_equal(a["omega"].values, b["omega"].values)
+    assert not np.array_equal(a["initial_omega"].values, c["initial_omega"].values)
+    w = np.linalg.norm(a["initial_omega"].values, axis=1)
+    assert np.all((w >= 0.5 * np.sqrt(2)) & (w <= 1.5 * np.sqrt(2)))  # spin_range × |Ω0|
+    R = a["initial_attitude"].values
+    np.testing.assert_allclose(np.einsum("nij,nkj->nik", R, R), np.broadcast_to(np.eye(3), R.shape), atol=1e-14)
+    np.testing.assert_allclose(np.linalg.det(R), 1.0, atol=1e-14)
+
+
+def test_member_chunking_does_not_change_results():
+    """Chunked runs (bounded memory) give the same numbers as one chunk."""
+    a, _ = run_scene(_small(members=50, output__member_chunk=7), progress=False)
+    b, _ = run_scene(_small(members=50), progress=False)
+    np.testing.assert_array_equal(a["omega"].values, b["omega"].values)
+    np.testing.assert_array_equal(a["member"].values, np.arange(50))
+
+
+def test_energy_error_without_cancellation():
+    """E_k − E_0 computed from differences agrees with the naive difference of totals
+    to the naive difference's own round-off, and is far more precise."""
+    ds, _ = run_scene(_small(), progress=False)
+    naive = ds["total_energy"] - ds["total_energy"].isel(time=0)
+    E = float(ds["total_energy"].values[0, 0])
+    assert E == pytest.approx(3.9e5, rel=0.02)  # c_v T0 dominates (SPEC §4)
+    assert np.abs(ds["energy_error"] - naive).max() < 8 * np.finfo(float).eps * E
+    assert ds["energy_error"].values[0, 0] == 0.0
+
+
+def test_paper_command_writes_files_and_figures(tmp_path):
+    """`liethermo run paper`: VI completes, RK2 at h = 0.1 is flagged non-finite, 4 figures."""
+    out = tmp_path / "paper.nc"
+    assert main(["run", "paper", "-o", str(out), "--no-progress"]) == 0
+    vi = xr.open_dataset(out)
+    rk2 = xr.open_dataset(tmp_path / "paper_rk2.nc")
+    assert vi.attrs["method"] == "vi" and rk2.attrs["method"] == "rk2"
+    assert int(vi["status"].values[0]) == 0
+    assert rk2["status"].attrs["flag_meanings"].split()[int(rk2["status"].values[0])] == "non_finite"
+    k = int(rk2["failed_at_step"].values[0])
+    assert 0 < k <= 300
+    assert np.all(np.isnan(rk2["omega"].values[0, k:]))            # stops advancing: NaN after
+    assert np.all(np.isfinite(rk2["omega"].values[0, :k]))
+    assert np.isfinite(vi["omega"].values).all()
+    assert vi.sizes["time"] == 301 and float(vi["time"][-1]) == pytest.approx(30.0)
+    for name in ("center_of_mass", "energies", "total_energy", "entropy"):
+        png = tmp_path / f"paper_{name}.png"
+        assert png.stat().st_size > 10_000
+    vi.close()
+    rk2.close()
+
+
+def test_dataset_contract_plain_xarray(tmp_path):
+    """Opened by plain xarray without importing liethermo; units and long_name on every
+    variable; CF flags on status; provenance attributes (SPEC §7)."""
+    out = tmp_path / "r.nc"
+    _, summ = run_scene(_small(members=3, integrator__method="rk4"), out, progress=False)
+    code = f"""
+import sys, xarray as xr
+ds = xr.open_dataset({str(out)!r})
+assert 'liethermo' not in sys.modules
+missing = [v for v in ds.variables if 'units' not in ds[v].attrs or 'long_name' not in ds[v].attrs]
+assert not missing, missing
+for v in ['omega','gamma','entropy','temperature','kinetic_energy','potential_energy','internal_energy',
+          'total_energy','energy_error','status']:
+    assert v in ds, v
+assert ds['omega'].dims == ('member','time','axis') and list(ds['axis'].values) == ['x','y','z']
+assert ds['energy_error'].dims == ('member','time')
+assert ds['omega'].attrs['units'] == 'rad s-1' and ds['time'].attrs['units'] == 's'
+assert list(ds['status'].attrs['flag_values']) == [0, 1, 2]
+assert ds['status'].attrs['flag_meanings'] == 'ok newton_not_converged non_finite'
+for a in ['Conventions','method','h','friction','start','scene','software_version','created']:
+    assert a in ds.attrs, a
+assert ds.attrs['method'] == 'rk4' and '[integrator]' in ds.attrs['scene']
+print('OK')
+"""
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert p.returncode == 0 and "OK" in p.stdout, p.stderr
+    assert summ.path == out
+
+
+def test_killed_run_leaves_no_file_at_the_output_path(tmp_path):
+    """A run killed mid-way leaves no file at the output path (atomic write, SPEC §5)."""
+    out = tmp_path / "long.nc"
+    p = subprocess.Popen([sys.executable, "-m", "liethermo.cli", "run", "paper", "-o", str(out),
+                          "--no-progress", "--set", "ensemble.members=20000", "--set", "integrator.steps=100000",
+                          "--set", "output.every=50000", "--set", "output.member_chunk=100",
+                          "--set", "output.compare=[]", "--set", "output.figures=false",
+                          "--set", "output.attitude=false"],
+                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.time() + 120
+    while time.time() < deadline and not any(tmp_path.glob(".long.nc.*.tmp")):
+        assert p.poll() is None, "the run ended before it was killed"
+        time.sleep(0.2)
+    assert any(tmp_path.glob(".long.nc.*.tmp")), "the run never started writing"
+    os.kill(p.pid, signal.SIGKILL)
+    p.wait()
+    assert not out.exists()
+
+
+def test_progress_summary_is_printed(tmp_path, capsys):
+    out = tmp_path / "s.nc"
+    assert main(["run", "paper", "-o", str(out), "--no-progress", "--set", "output.compare=[]",
+                 "--set", "output.figures=false", "--set", "ensemble.members=4"]) == 0
+    text = capsys.readouterr().out
+    for needle in ("4 member(s) x 300 steps", "member-steps/s", "ok: 4", "max |E_k - E_0|",
+                   "max ||Gamma| - 1|", "Newton iterations/step", "wrote"):
+        assert needle in text, needle
