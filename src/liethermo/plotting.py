@@ -59,9 +59,15 @@ def scene_figures(outputs: dict, folder, stem: str = "run", member: int = 0) -> 
         ax = fig.add_subplot(projection="3d")
         for m, ds in data.items():
             x = ds["center_of_mass"].values * 1e3
-            ok = np.all(np.isfinite(x), axis=1) & (np.abs(x).max(axis=1) < 10 * np.abs(x[0]).max() + 10)
-            x = x[ok]
-            ax.plot(x[:, 0], x[:, 1], x[:, 2], label=LABEL.get(m, m), **STYLE.get(m, {}))
+            # |RG| = l exactly; a method that loses orthogonality (RK2 near its blow-up) is
+            # drawn only up to the first point where |RG| departs from l by 20 %
+            with np.errstate(over="ignore", invalid="ignore"):
+                r = np.sqrt(np.sum(x * x, axis=1))
+                bad = ~np.isfinite(r) | (np.abs(r - r[0]) > 0.2 * r[0])
+            stop = int(np.argmax(bad)) if bad.any() else len(x)
+            label = LABEL.get(m, m) + (f" (to t = {float(ds['time'][stop - 1]):g} s)" if stop < len(x) else "")
+            x = x[:stop]
+            ax.plot(x[:, 0], x[:, 1], x[:, 2], label=label, **STYLE.get(m, {}))
             ax.scatter(*x[0], color=STYLE.get(m, {}).get("color", "k"), s=12)
         ax.set_xlabel("x (mm)")
         ax.set_ylabel("y (mm)")
