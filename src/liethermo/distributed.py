@@ -302,6 +302,7 @@ def run_scene_dask(scene: dict | str, out: str | os.PathLike, *, address: Any = 
     carries ``tasks``, ``tasks_skipped`` (finished before this call) and
     ``task_overhead`` (mean task wall time minus kernel time, s).
     """
+    from dask.base import tokenize
     from distributed import as_completed
 
     scene, attrs, summ = scene_setup(scene, overrides)
@@ -331,8 +332,12 @@ def run_scene_dask(scene: dict | str, out: str | os.PathLike, *, address: Any = 
             bar.update(sum(hi - lo for lo, hi in chunks if (lo, hi) not in todo) * steps)
         futures = {}
         for lo, hi in todo:
-            f = client.submit(task, scene, lo, hi, str(part_path(parts, lo, hi)), key, attrs, numba_threads,
-                              key=f"liethermo-part-{key}-{lo}-{hi}", pure=True, retries=retries)
+            ppath = str(part_path(parts, lo, hi).resolve())
+            # deterministic key per (task function, scene, range, file): resubmitting
+            # the same work dedupes on the scheduler, other work never collides
+            tkey = f"liethermo-part-{lo}-{hi}-{tokenize(task, key, ppath)}"
+            f = client.submit(task, scene, lo, hi, ppath, key, attrs, numba_threads,
+                              key=tkey, pure=True, retries=retries)
             futures[f] = (lo, hi)
         first_error = None
         overhead = []

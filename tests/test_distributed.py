@@ -1,0 +1,207 @@
+"""Dask scale-out (issue 5): a 2-worker LocalCluster run equals the in-process run.
+
+One LocalCluster (2 worker processes with nannies, 1 thread each) serves the
+whole module.  Faults are injected through ``run_scene_dask(task=...)`` with
+module-level wrappers around :func:`liethermo.distributed.compute_part` (the
+workers import this module by name: spawned workers inherit ``sys.path``),
+using marker files to act only once.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+import xarray as xr
+
+distributed = pytest.importorskip("distributed")
+
+from liethermo import distributed as ld  # noqa: E402
+from liethermo.run import run_scene  # noqa: E402
+
+BASE = ["ensemble.members=600", "ensemble.seed=7", "output.every=10", "output.compare=[]",
+        "output.figures=false"]
+VI = BASE + ["integrator.steps=60"]
+# RK2 at the paper's h blows up for part of the ensemble: non-trivial status flags
+RK2 = BASE + ["integrator.steps=100", "integrator.method='rk2'"]
+TASK = 128  # members per task: 5 tasks, the last one short
+
+
+@pytest.fixture(scope="module")
+def client():
+    from distributed import Client, LocalCluster
+
+    cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
+                           env={"NUMBA_NUM_THREADS": "1"})
+    c = Client(cluster)
+    c.wait_for_workers(2)
+    yield c
+    c.close()
+    cluster.close()
+
+
+def _reference(path: Path, overrides) -> Path:
+    # the RK2 blow-ups overflow in the energy diagnostics (values are then
+    # flagged non_finite): the floating-point warnings are expected here
+    with np.errstate(over="ignore", invalid="ignore"):
+        run_scene("paper", path, overrides=overrides, progress=False)
+    return path
+
+
+@pytest.fixture(scope="module")
+def ref_vi(tmp_path_factory) -> Path:
+    return _reference(tmp_path_factory.mktemp("ref") / "vi.nc", VI)
+
+
+@pytest.fixture(scope="module")
+def ref_rk2(tmp_path_factory) -> Path:
+    return _reference(tmp_path_factory.mktemp("ref") / "rk2.nc", RK2)
+
+
+def assert_same_run(path: Path, ref: Path) -> None:
+    """Every variable within 1e-14 relative (NaN where the reference has NaN),
+    integer variables and status flags equal, attributes equal but 'created'."""
+    with xr.open_dataset(path) as a, xr.open_dataset(ref) as b:
+        assert set(a.variables) == set(b.variables)
+        assert a.sizes == b.sizes
+        for name in b.variables:
+            va, vb = a[name].values, b[name].values
+            assert va.dtype == vb.dtype, name
+            assert a[name].attrs.keys() == b[name].attrs.keys(), name
+            if va.dtype.kind == "f":
+                assert np.array_equal(np.isnan(va), np.isnan(vb)), name
+                fin = np.isfinite(vb)
+                assert np.array_equal(va[~fin], vb[~fin], equal_nan=True), name
+                scale = np.maximum(np.abs(vb[fin]), np.finfo(float).tiny)
+                assert np.all(np.abs(va[fin] - vb[fin]) <= 1e-14 * scale), name
+            else:
+                np.testing.assert_array_equal(va, vb, err_msg=name)
+        np.testing.assert_array_equal(a["status"].values, b["status"].values)
+        assert {k for k in a.attrs if k != "created"} == {k for k in b.attrs if k != "created"}
+        for k in b.attrs:
+            if k != "created":
+                np.testing.assert_array_equal(a.attrs[k], b.attrs[k], err_msg=k)
+
+
+# ---------------------------------------------------------------- fault injection
+def _marker(path: str, what: str, lo: int) -> Path:
+    return Path(path).parent.parent / f"{what}-{lo}"  # next to <OUT>, outside <OUT>.parts
+
+
+def die_once(scene, lo, hi, path, key, attrs, numba_threads=None):
+    """Kill the worker process the first time chunk 128 runs."""
+    m = _marker(path, "died", lo)
+    if lo == TASK and not m.exists():
+        m.touch()
+        os._exit(13)
+    return ld.compute_part(scene, lo, hi, path, key, attrs, numba_threads)
+
+
+def raise_once(scene, lo, hi, path, key, attrs, numba_threads=None):
+    m = _marker(path, "raised", lo)
+    if lo == 2 * TASK and not m.exists():
+        m.touch()
+        raise RuntimeError("injected task failure")
+    return ld.compute_part(scene, lo, hi, path, key, attrs, numba_threads)
+
+
+def fail_256(scene, lo, hi, path, key, attrs, numba_threads=None):
+    if lo == 2 * TASK:
+        raise RuntimeError("injected interruption")
+    return ld.compute_part(scene, lo, hi, path, key, attrs, numba_threads)
+
+
+def count_calls(scene, lo, hi, path, key, attrs, numba_threads=None):
+    _marker(path, "called", lo).touch()
+    return ld.compute_part(scene, lo, hi, path, key, attrs, numba_threads)
+
+
+# ---------------------------------------------------------------- tests
+@pytest.mark.parametrize("which", ["vi", "rk2"])
+def test_two_workers_equal_in_process(client, tmp_path, which, ref_vi, ref_rk2):
+    ref, ov = (ref_vi, VI) if which == "vi" else (ref_rk2, RK2)
+    out = tmp_path / f"{which}.nc"
+    _, summ = ld.run_scene_dask("paper", out, overrides=ov, address=client, task_members=TASK,
+                                progress=False)
+    assert summ.tasks == 5 and summ.tasks_skipped == 0
+    assert not ld.parts_dir(out).exists()
+    assert_same_run(out, ref)
+    _, ref_summ = run_scene("paper", None, overrides=ov, progress=False) if which == "vi" else (None, None)
+    if ref_summ is not None:
+        assert summ.status_counts == ref_summ.status_counts
+        assert summ.max_abs_energy_error == ref_summ.max_abs_energy_error
+        assert summ.newton_mean == ref_summ.newton_mean
+    else:
+        with xr.open_dataset(ref) as b:
+            assert summ.status_counts["non_finite"] == int((b["status"].values != 0).sum()) > 0
+
+
+def test_killed_worker_task_is_retried(client, tmp_path, ref_vi):
+    out = tmp_path / "killed.nc"
+    _, summ = ld.run_scene_dask("paper", out, overrides=VI, address=client, task_members=TASK,
+                                progress=False, task=die_once)
+    assert (tmp_path / f"died-{TASK}").exists()  # the worker really died once
+    assert summ.tasks == 5
+    assert_same_run(out, ref_vi)
+    client.wait_for_workers(2)  # the nanny restarted it
+
+
+def test_raising_task_is_retried(client, tmp_path, ref_vi):
+    out = tmp_path / "raised.nc"
+    ld.run_scene_dask("paper", out, overrides=VI, address=client, task_members=TASK, progress=False,
+                      task=raise_once, retries=1)
+    assert (tmp_path / f"raised-{2 * TASK}").exists()
+    assert_same_run(out, ref_vi)
+
+
+def test_resume_recomputes_nothing_finished(client, tmp_path, ref_vi):
+    out = tmp_path / "resume.nc"
+    parts = ld.parts_dir(out)
+    with pytest.raises(RuntimeError, match="injected interruption"):
+        ld.run_scene_dask("paper", out, overrides=VI, address=client, task_members=TASK, progress=False,
+                          task=fail_256, retries=0)
+    assert not out.exists()  # no partial output file
+    idx = json.loads((parts / ld.INDEX_NAME).read_text())
+    done = {f: (parts / f).stat().st_mtime_ns for f in idx["files"] if (parts / f).exists()}
+    assert len(done) == 4 and not any(f"-{2 * TASK:012d}-" in f for f in done)
+
+    # the rerun does not need task_members: the layout comes from index.json
+    _, summ = ld.run_scene_dask("paper", out, overrides=VI, address=client, progress=False,
+                                task=count_calls, keep_parts=True)
+    assert sorted(p.name for p in tmp_path.glob("called-*")) == [f"called-{2 * TASK}"]
+    assert summ.tasks == 5 and summ.tasks_skipped == 4
+    assert {f: (parts / f).stat().st_mtime_ns for f in done} == done  # untouched
+    assert_same_run(out, ref_vi)
+
+    # the kept parts are an open_mfdataset-ready set, listed by index.json
+    with xr.open_mfdataset([parts / f for f in idx["files"]], combine="nested", concat_dim="member",
+                           data_vars="minimal", coords="minimal", compat="override", join="override") as mf, \
+            xr.open_dataset(ref_vi) as b:
+        np.testing.assert_array_equal(mf["omega"].values, b["omega"].values)
+        np.testing.assert_array_equal(mf["member"].values, np.arange(600))
+
+    # a different scene never reuses these chunk files
+    other = VI + ["ensemble.seed=8"]
+    _, summ2 = ld.run_scene_dask("paper", out, overrides=other, address=client, task_members=TASK,
+                                 progress=False, keep_parts=True)
+    assert summ2.tasks_skipped == 0
+
+
+def test_map_tasks_in_order(client):
+    assert ld.map_tasks(abs, [-3, 2, -1, 0], client, progress=False) == [3, 2, 1, 0]
+    assert ld.map_tasks(abs, [], client) == []
+
+
+def test_cli_dask_address(client, tmp_path, ref_vi, capsys):
+    from liethermo.cli import main
+
+    out = tmp_path / "cli.nc"
+    args = ["run", "paper", "-o", str(out), "--no-progress", "--dask", client.scheduler.address]
+    for s in VI:
+        args += ["--set", s]
+    assert main(args) == 0
+    assert "wrote" in capsys.readouterr().out
+    assert_same_run(out, ref_vi)
