@@ -31,6 +31,8 @@ STATUS_MEANINGS = {
 #: Reference substep: h_ref · ω_bound ≤ this (measured: ≤ 1e-15 on the paper scene).
 REFERENCE_STEP_ANGLE = 0.05
 DEFAULT_NEWTON_TOL = 1e-14
+CHUNK_MEMBER_STEPS = 2_000_000
+SMALL_ENSEMBLE = 64
 DEFAULT_NEWTON_MAXITER = 30
 
 
@@ -169,11 +171,15 @@ def simulate(
     IS = np.zeros((N, _ens.NISTAT), np.int64)
     FS = np.zeros((N, _ens.NFSTAT))
     if chunk_steps is None:
-        chunk_steps = max(every, steps // 100)
+        # one kernel call per ~2e6 member-steps (≈0.1 s): frequent enough for a progress
+        # bar, rare enough that the thread-pool launch per call does not show
+        chunk_steps = max(every, min(steps, CHUNK_MEMBER_STEPS // max(N, 1)))
     out_per_chunk = max(1, chunk_steps // every)
     old_threads = numba.get_num_threads()
+    if threads is None and N < SMALL_ENSEMBLE:
+        threads = 1  # a few members: waking threads costs more than it gains
     if threads is not None:
-        numba.set_num_threads(threads)
+        numba.set_num_threads(min(threads, old_threads))
     import time
 
     t0 = time.perf_counter()
