@@ -16,6 +16,9 @@ Contract of a study module ``liethermo.studies.<kind>``:
    statistics), tables as CSV (:func:`write_table`), PNG figures, and the
    report; the first table of the report is its key table, which the
    command line prints.
+5. The method axis of a study dataset is called ``scheme`` (a dimension
+   named ``method`` clashes with ``DataArray.sel(method=...)``); its labels
+   are the method specs of :func:`parse_method` (``"vi:staggered"``, …).
 
 Study TOML layout::
 
@@ -295,6 +298,10 @@ def stack_points(datasets: list[xr.Dataset], points: list[dict], keys: list[str]
                    join="override")
     ds = ds.assign_coords({d: ("point", [coord_value(p[k]) for p in points]) for d, k in zip(dims, keys)})
     ds = ds.set_index(point=dims).unstack("point").transpose(*dims, ...)
+    order = {}
+    for d, k in zip(dims, keys):  # keep the order of the study file, not the sorted one
+        order[d] = list(dict.fromkeys(coord_value(p[k]) for p in points))
+    ds = ds.reindex(order)
     for d, k in zip(dims, keys):
         ds[d].attrs.update({"scene_key": k, "long_name": f"sweep over {k}"})
     return ds

@@ -174,8 +174,8 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
                     by_h.append(cached_point(outdir, key, lambda: _errors(scene, spec, h, opt, ref)))
                     bar.update(1)
                 by_method.append(xr.concat(by_h, dim="h", data_vars="all", coords="minimal", compat="override"))
-            ds = xr.concat(by_method, dim="method", data_vars="all", coords="minimal", compat="override")
-            ds = ds.assign_coords(method=[s["label"] for s in specs], h=hs)
+            ds = xr.concat(by_method, dim="scheme", data_vars="all", coords="minimal", compat="override")
+            ds = ds.assign_coords(scheme=[s["label"] for s in specs], h=hs)
             scales = {"omega": float(np.abs(ref["omega"]).max()), "gamma": 1.0,
                       "entropy": float(np.abs(ref["sigma"]).max()) or 1.0,
                       "total_energy": float(np.abs(ref["sigma"]).max() * float(scene["thermo"]["T0"])
@@ -203,9 +203,9 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
                 row["levels fitted (Omega, Gamma, S, E)"] = ", ".join(str(nused[v][-1]) for v in VARIABLES)
                 rows.append(row)
             for v in VARIABLES:
-                ds[f"observed_order_{v}"] = (("method",), np.array(orders[v]))
-                ds[f"error_constant_{v}"] = (("method",), np.array(consts[v]))
-                ds[f"levels_fitted_{v}"] = (("method",), np.array(nused[v], dtype=np.int64))
+                ds[f"observed_order_{v}"] = (("scheme",), np.array(orders[v]))
+                ds[f"error_constant_{v}"] = (("scheme",), np.array(consts[v]))
+                ds[f"levels_fitted_{v}"] = (("scheme",), np.array(nused[v], dtype=np.int64))
             per_point.append(ds)
             label = ", ".join(f"{k} = {v}" for k, v in pt.items()) or "base scene"
             suffix = ("_" + point_key(pt)[:8]) if keys else ""
@@ -260,7 +260,7 @@ def _figures(ds: xr.Dataset, outdir: Path, keys) -> list[Path]:
     fig, axes = plt.subplots(2, 2, figsize=(10, 8))
     hs = ds["h"].values
     for ax, v in zip(axes.ravel(), VARIABLES):
-        for i, m in enumerate(ds["method"].values):
+        for i, m in enumerate(ds["scheme"].values):
             e = ds[f"error_{v}"].values[i]
             p = float(ds[f"observed_order_{v}"].values[i])
             ax.loglog(hs, e, "o-", label=f"{m} (p = {p:.2f})")

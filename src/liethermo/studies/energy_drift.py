@@ -150,7 +150,7 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
     specs = [parse_method(m) for m in study["methods"]]
     points = expand_sweep(study.get("sweep"))
     keys = list(points[0])
-    allpts = [dict(pt, method=s["label"]) for pt in points for s in specs]
+    allpts = [dict(pt, scheme=s["label"]) for pt in points for s in specs]
     bar = progress_bar(len(allpts), progress, f"{study_name(study)} points")
     t_start = time.perf_counter()
     dsets, rows = [], []
@@ -170,7 +170,7 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
                 bar.update(1)
     finally:
         bar.close()
-    ds = stack_points(dsets, allpts, keys + ["method"])
+    ds = stack_points(dsets, allpts, keys + ["scheme"])
     ds["relative_energy_error_quantiles"].attrs.update(
         units="1", long_name="quantiles over members of |E_k - E_0| / E_mech,0 (failed members: +inf)")
     ds["max_relative_energy_error"].attrs.update(units="1", long_name="max_k |E_k - E_0| / E_mech,0")
@@ -209,7 +209,7 @@ def _figures(ds: xr.Dataset, outdir: Path, keys) -> list[Path]:
     if other:
         ds = ds.isel(other)
     hs = ds[hdim].values
-    methods = ds["method"].values
+    methods = ds["scheme"].values
     fig, axes = plt.subplots(1, len(hs), figsize=(4.2 * len(hs), 4), sharey=True, squeeze=False)
     colors = {"vi": "C0", "rk2": "C3", "rk4": "C2"}
     for ax, h in zip(axes[0], hs):
