@@ -183,11 +183,16 @@ def test_resume_recomputes_nothing_finished(client, tmp_path, ref_vi):
         np.testing.assert_array_equal(mf["omega"].values, b["omega"].values)
         np.testing.assert_array_equal(mf["member"].values, np.arange(600))
 
-    # a different scene never reuses these chunk files
+    # a different scene never reuses these chunk files; combine=False leaves
+    # the result as the indexed set of chunk files (out is not touched)
     other = VI + ["ensemble.seed=8"]
+    before = out.stat().st_mtime_ns
     _, summ2 = ld.run_scene_dask("paper", out, overrides=other, address=client, task_members=TASK,
-                                 progress=False, keep_parts=True)
-    assert summ2.tasks_skipped == 0
+                                 progress=False, combine=False)
+    assert summ2.tasks_skipped == 0 and summ2.path == parts / ld.INDEX_NAME
+    assert out.stat().st_mtime_ns == before
+    idx2 = json.loads((parts / ld.INDEX_NAME).read_text())
+    assert idx2["scene_key"] != idx["scene_key"] and all((parts / f).exists() for f in idx2["files"])
 
 
 def test_map_tasks_in_order(client):

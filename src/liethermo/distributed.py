@@ -41,6 +41,7 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import json
+import logging
 import math
 import os
 import shutil
@@ -53,7 +54,6 @@ from typing import Any, Callable, Iterable
 import numpy as np
 
 from . import __version__
-from .initial import BLOCK
 from .io import ChunkedWriter
 from .run import ChunkStats, RunSummary, _progress_bar, finish_summary, run_chunk, scene_setup
 from .scene import scene_to_toml
@@ -83,7 +83,7 @@ def make_client(address: Any = "local"):
     if address in (None, "local"):
         n = os.cpu_count() or 1
         cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                               dashboard_address=None,
+                               dashboard_address=None, silence_logs=logging.ERROR,
                                env={"NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"})
         client = Client(cluster)
         client._liethermo_cluster = cluster  # closed by close_client
@@ -173,14 +173,12 @@ def plan_chunks(members: int, task_members: int) -> list[tuple[int, int]]:
 
 
 def default_task_members(scene: dict, nthreads: int) -> int:
-    """Members per task: at most ``output.member_chunk`` (memory bound), else
-    about TASKS_PER_THREAD tasks per worker thread, a multiple of the
-    initial-condition block (1024) when the ensemble is larger than a block."""
+    """Members per task: at most ``output.member_chunk`` (the memory bound),
+    else about TASKS_PER_THREAD equal tasks per worker thread (load balance).
+    Any split gives the same numbers (member i depends only on (seed, i))."""
     members = int(scene["ensemble"]["members"])
     cap = int(scene["output"]["member_chunk"])
     want = math.ceil(members / max(1, TASKS_PER_THREAD * max(1, nthreads)))
-    if members > BLOCK:
-        want = BLOCK * math.ceil(want / BLOCK)
     return max(1, min(cap, want))
 
 
@@ -290,13 +288,16 @@ def combine_parts(parts: Path, chunks, out: Path, members: int, attrs: dict) -> 
 # ---------------------------------------------------------------- ensembles
 def run_scene_dask(scene: dict | str, out: str | os.PathLike, *, address: Any = "local",
                    progress: bool | None = None, overrides=None, task_members: int | None = None,
-                   keep_parts: bool = False, retries: int = 2, numba_threads: int | None = None,
-                   task: Callable = compute_part) -> tuple[None, RunSummary]:
+                   keep_parts: bool = False, combine: bool = True, retries: int = 2,
+                   numba_threads: int | None = None, task: Callable = compute_part) -> tuple[None, RunSummary]:
     """Run a scene's ensemble as Dask tasks; same output file as :func:`liethermo.run.run_scene`.
 
     ``address``: ``"local"``, a scheduler address, or an existing Client.
     ``task_members``: members per task (default: :func:`default_task_members`;
     on a rerun, the layout recorded in ``<OUT>.parts/index.json``).
+    ``combine=False``: leave the result as the chunk files plus
+    ``<OUT>.parts/index.json`` (an ``open_mfdataset``-ready set; for
+    ensembles too large to funnel through one writer) instead of one file.
     ``task``: the task function (same signature as :func:`compute_part`; tests
     inject faults with it).  Returns ``(None, summary)``; the summary also
     carries ``tasks``, ``tasks_skipped`` (finished before this call) and
@@ -361,12 +362,15 @@ def run_scene_dask(scene: dict | str, out: str | os.PathLike, *, address: Any = 
                 bar.close()
         if first_error is not None:
             first_error.result()  # raise the task's error; finished chunks stay for a rerun
-    combine_parts(parts, chunks, out, members, attrs)
-    if not keep_parts:
-        shutil.rmtree(parts, ignore_errors=True)
+    t_comb = time.perf_counter()
+    if combine:
+        combine_parts(parts, chunks, out, members, attrs)
+        if not keep_parts:
+            shutil.rmtree(parts, ignore_errors=True)
+    summ.combine_time = time.perf_counter() - t_comb
     summ.wall_time = time.perf_counter() - t_wall
     finish_summary(summ, total)
-    summ.path = out
+    summ.path = out if combine else parts / INDEX_NAME
     summ.tasks = len(chunks)
     summ.tasks_skipped = len(chunks) - len(todo)
     summ.task_overhead = float(np.mean(overhead)) if overhead else float("nan")
