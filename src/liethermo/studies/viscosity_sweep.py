@@ -1,0 +1,321 @@
+"""Viscosity sweep: entropy production and settling-time statistics over an ensemble.
+
+For each viscosity μ of the ``[sweep]`` (``"fluid.viscosity"``) the same
+ensemble of random initial conditions (``ensemble.members``, ``ensemble.seed``
+of the scene) is integrated until it has settled.  Per member:
+
+* settling time — the time after which the mechanical energy above the resting
+  state, E_mech = K + V + mgℓ, stays below ``threshold`` × its initial value
+  (linear interpolation between stored steps; members that have not settled
+  by t_end are counted as censored, never dropped silently);
+* entropy produced by fixed times ``entropy_times`` and by t_end, and the
+  check T₀ΔS / ΔE_mech (≈ 1: the heat is the mechanical energy lost, with
+  T ≈ T₀ because c_v is large);
+* the initial entropy production rate c|Ω₀|²/T₀.
+
+The run length adapts to μ: t_end = ``t_end_factor`` × max(I_max/c, c/mgℓ) —
+the slowest relaxation time of an under-damped (I/c) and of an over-damped
+(c/mgℓ) top — clipped to [``t_end_min``, ``t_end_max``].
+
+Options: ``method`` (default "vi"; staggered start), ``h``, ``threshold``,
+``entropy_times``, ``t_end_factor``, ``t_end_min``, ``t_end_max``,
+``outputs`` (stored steps per run, about).
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+import xarray as xr
+
+from ..initial import initial_conditions, initial_states
+from ..kernels.model import P_C, P_CV, P_GX, P_GY, P_GZ, P_I1, P_I2, P_I3, P_T0
+from ..scene import physical_parameters
+from ..simulate import simulate
+from .common import (StudyError, cached_point, expand_sweep, point_key, progress_bar, resolve_study,
+                     dim_name, study_name, study_netcdf_path, study_scene, write_netcdf_atomic,
+                     write_report, write_table)
+
+EXTRA_KEYS = ()
+SWEEP_KEY = "fluid.viscosity"
+DEFAULT_OPTIONS = {
+    "method": "vi",
+    "h": 0.02,
+    "threshold": 0.01,
+    "entropy_times": [1.0, 10.0],
+    "t_end_factor": 10.0,
+    "t_end_min": 5.0,
+    "t_end_max": 5000.0,
+    "outputs": 4000,
+}
+
+
+def options(study: dict) -> dict:
+    opt = copy.deepcopy(DEFAULT_OPTIONS)
+    for k, v in (study.get("options", {}) or {}).items():
+        if k not in DEFAULT_OPTIONS:
+            raise StudyError(f"options.{k}: unknown option of a viscosity_sweep study; known: "
+                             f"{', '.join(sorted(DEFAULT_OPTIONS))}")
+        opt[k] = v
+    return opt
+
+
+def validate(study: dict) -> None:
+    opt = options(study)
+    sweep = study.get("sweep", {}) or {}
+    if list(sweep) != [SWEEP_KEY]:
+        raise StudyError(f"sweep: a viscosity_sweep study sweeps exactly one key, {SWEEP_KEY!r}")
+    if any(not isinstance(v, (int, float)) or v <= 0 for v in sweep[SWEEP_KEY]):
+        raise StudyError(f"sweep.{SWEEP_KEY}: viscosities must be > 0 (a settling time needs friction)")
+    for k in ("h", "threshold", "t_end_factor", "t_end_min", "t_end_max"):
+        if not (isinstance(opt[k], (int, float)) and opt[k] > 0):
+            raise StudyError(f"options.{k}: must be a number > 0")
+    if not 0 < opt["threshold"] < 1:
+        raise StudyError("options.threshold: must lie in (0, 1)")
+    if opt["method"] not in ("vi", "rk2", "rk4", "reference"):
+        raise StudyError("options.method: must be one of vi, rk2, rk4, reference")
+    if not (isinstance(opt["outputs"], int) and opt["outputs"] >= 10):
+        raise StudyError("options.outputs: must be an integer ≥ 10")
+
+
+# ----------------------------------------------------------------------------- numerics
+
+def run_length(p: np.ndarray, opt: dict) -> float:
+    """t_end = factor × max(I_max/c, c/mgℓ), clipped."""
+    c = p[P_C]
+    Imax = p[[P_I1, P_I2, P_I3]].max()
+    g = float(np.linalg.norm(p[[P_GX, P_GY, P_GZ]]))
+    tau = Imax / c
+    if g > 0:
+        tau = max(tau, c / g)
+    lo = max(float(opt["t_end_min"]), max(opt["entropy_times"], default=0.0))
+    return float(np.clip(opt["t_end_factor"] * tau, lo, max(lo, float(opt["t_end_max"]))))
+
+
+def mech_energy(omega, gamma, P):
+    I = P[..., [P_I1, P_I2, P_I3]]
+    g = P[..., [P_GX, P_GY, P_GZ]]
+    return (0.5 * np.sum(I * omega * omega, axis=-1) + np.sum(g * gamma, axis=-1)
+            + np.linalg.norm(g, axis=-1))
+
+
+def settling_times(t: np.ndarray, E: np.ndarray, E0: np.ndarray, threshold: float) -> np.ndarray:
+    """First time after which E stays below threshold·E0 (per member; NaN: not settled
+    by the last stored time, or a failed member)."""
+    thr = threshold * E0[:, None]
+    above = ~(E < thr)  # NaN counts as above
+    out = np.full(E.shape[0], np.nan)
+    for m in range(E.shape[0]):
+        idx = np.flatnonzero(above[m])
+        if idx.size == 0:
+            out[m] = t[0]
+            continue
+        j = idx[-1]
+        if j == t.size - 1:
+            continue
+        e1, e2 = E[m, j], E[m, j + 1]
+        s = (e1 - thr[m, 0]) / (e1 - e2) if e1 > e2 else 1.0
+        out[m] = t[j] + np.clip(s, 0.0, 1.0) * (t[j + 1] - t[j])
+    return out
+
+
+def sweep_point(scene: dict, opt: dict) -> xr.Dataset:
+    p = physical_parameters(scene)
+    N = int(scene["ensemble"]["members"])
+    om, R = initial_conditions(scene)
+    y0 = initial_states(om, R, False)
+    P = np.repeat(p[None], N, 0)
+    h = float(opt["h"])
+    t_end = run_length(p, opt)
+    every = max(1, int(round(t_end / h / int(opt["outputs"]))))
+    every = min(every, max(1, int(math.floor(min(opt["entropy_times"]) / h + 1e-9))))  # resolve t*
+    steps = int(math.ceil(t_end / (h * every))) * every
+    method = opt["method"]
+    t0 = time.perf_counter()
+    tr = simulate(y0, P, h, steps, method, start="staggered" if method == "vi" else "node", every=every)
+    wall = time.perf_counter() - t0
+    t = tr.times
+    E = mech_energy(tr.omega, tr.gamma, P[:, None, :])
+    E0 = mech_energy(om, y0[:, 3:6], P)
+    ts = settling_times(t, E, E0, float(opt["threshold"]))
+    sig = tr.sigma
+    T0 = p[P_T0]
+    cv = p[P_CV]
+    data = {
+        "settling_time": ("member", ts),
+        "entropy_produced": ("member", sig[:, -1]),
+        "mech_energy_initial": ("member", E0),
+        "mech_energy_final": ("member", E[:, -1]),
+        # heat check: T0 * (entropy) against the mechanical energy lost, with T = T0 exp(sigma/cv)
+        "heat_ratio": ("member", cv * T0 * np.expm1(sig[:, -1] / cv) / (E0 - E[:, -1])),
+        "entropy_rate_initial": ("member", p[P_C] * np.sum(om * om, axis=1) / T0),
+        "status": ("member", tr.status.astype(np.int8)),
+    }
+    for ti in opt["entropy_times"]:
+        data[f"entropy_at_{_tname(ti)}"] = ("member", _interp_rows(t, sig, float(ti)))
+    ds = xr.Dataset(data, coords={"member": np.arange(N)})
+    ds.attrs.update(t_end=float(t[-1]), steps=steps, every=every, wall=wall, h=h,
+                    newton_max=int(tr.newton_max.max(initial=0)))
+    ds["t_end"] = ((), float(t[-1]))
+    ds["wall_time"] = ((), wall)
+    return ds
+
+
+def _tname(t: float) -> str:
+    return f"{t:g}s".replace(".", "p")
+
+
+def _interp_rows(t, Y, ti):
+    if ti > t[-1]:
+        return np.full(Y.shape[0], np.nan)
+    return np.array([np.interp(ti, t, y) for y in Y])
+
+
+# ----------------------------------------------------------------------------- study
+
+UNITS = {
+    "settling_time": ("s", "time after which K + V + mgl stays below threshold x its initial value (NaN: censored)"),
+    "entropy_produced": ("J K-1", "entropy produced by t_end"),
+    "mech_energy_initial": ("J", "initial mechanical energy above the resting state K0 + V0 + mgl"),
+    "mech_energy_final": ("J", "mechanical energy above the resting state at t_end"),
+    "heat_ratio": ("1", "heat U - U0 produced by t_end over the mechanical energy lost (1 = exact balance)"),
+    "entropy_rate_initial": ("W K-2", "initial entropy production rate c |Omega0|^2 / T0"),
+    "status": ("1", "member status (0 ok, 1 newton_not_converged, 2 non_finite)"),
+    "t_end": ("s", "simulated time (adapted to the viscosity)"),
+    "wall_time": ("s", "wall time of the simulation"),
+}
+
+
+def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask: str | None = None) -> Path:
+    import pandas as pd
+
+    s = resolve_study(study, reduced)
+    validate(s)
+    opt = options(s)
+    outdir = Path(outdir)
+    outdir.mkdir(parents=True, exist_ok=True)
+    points = sorted(expand_sweep(s["sweep"]), key=lambda d: d[SWEEP_KEY])
+    t_wall = time.perf_counter()
+    bar = progress_bar(len(points), progress, study_name(s))
+    dss = []
+    try:
+        for pt in points:
+            sc = study_scene(s, pt)
+            key = point_key({"study": study_name(s), "scene": sc, "options": opt})
+            dss.append(cached_point(outdir, key, lambda sc=sc: sweep_point(sc, opt)))
+            if bar:
+                bar.update(1)
+    finally:
+        if bar:
+            bar.close()
+    dim = dim_name(SWEEP_KEY)
+    ds = xr.concat(dss, dim=dim, data_vars="all", coords="minimal", compat="override", join="override")
+    ds = ds.assign_coords({dim: (dim, [float(pt[SWEEP_KEY]) for pt in points])})
+    ds[dim].attrs.update(units="kg m-1 s-1", long_name="fluid viscosity mu (sweep)", scene_key=SWEEP_KEY)
+    for k in ds.data_vars:
+        if k in UNITS:
+            ds[k].attrs.update(units=UNITS[k][0], long_name=UNITS[k][1])
+        elif k.startswith("entropy_at_"):
+            ds[k].attrs.update(units="J K-1", long_name=f"entropy produced by t = {k[len('entropy_at_'):].replace('p', '.')}")
+    scene0 = study_scene(s, points[0])
+    ds.attrs.update(study=study_name(s), method=opt["method"], h=float(opt["h"]),
+                    threshold=float(opt["threshold"]), members=int(scene0["ensemble"]["members"]),
+                    seed=int(scene0["ensemble"]["seed"]))
+    nc = write_netcdf_atomic(ds, study_netcdf_path(s, outdir))
+
+    rows = []
+    mus = ds[dim].values
+    tkeys = [f"entropy_at_{_tname(t)}" for t in opt["entropy_times"]]
+    for i, mu in enumerate(mus):
+        d = ds.isel({dim: i})
+        ts = d["settling_time"].values
+        ok = np.isfinite(ts)
+        row = {"μ (kg m⁻¹ s⁻¹)": float(mu), "t_end (s)": float(d["t_end"]),
+               "settling time median (s)": float(np.median(ts[ok])) if ok.any() else float("nan"),
+               "q25 (s)": float(np.quantile(ts[ok], 0.25)) if ok.any() else float("nan"),
+               "q75 (s)": float(np.quantile(ts[ok], 0.75)) if ok.any() else float("nan"),
+               "μ × median (kg m⁻¹)": float(mu * np.median(ts[ok])) if ok.any() else float("nan"),
+               "censored": int((~ok).sum()), "failed": int(np.sum(d["status"].values != 0))}
+        for tk, tv in zip(tkeys, opt["entropy_times"]):
+            v = d[tk].values
+            row[f"mean ΔS by {tv:g} s (J/K)"] = float(np.mean(v[np.isfinite(v)])) if np.isfinite(v).any() else float("nan")
+        row["mean ΔS total (J/K)"] = float(np.mean(d["entropy_produced"].values))
+        row["T₀ΔS/ΔE_mech (mean)"] = float(np.mean(d["heat_ratio"].values))
+        row["wall (s)"] = float(d["wall_time"])
+        rows.append(row)
+    df = pd.DataFrame(rows)
+    fig = _figure(ds, dim, opt, tkeys, outdir)
+    wall = time.perf_counter() - t_wall
+    E0 = ds["mech_energy_initial"].isel({dim: 0}).values
+    T0 = float(scene0["thermo"]["T0"])
+    g = np.linalg.norm(physical_parameters(scene0)[[P_GX, P_GY, P_GZ]])
+    Imin = physical_parameters(scene0)[[P_I1, P_I2, P_I3]].min()
+    a = float(scene0["body"]["radius"])
+    mu_crit = 2 * math.sqrt(Imin * g) / (8 * math.pi * a ** 3) if g > 0 else float("inf")
+    sections = [
+        write_table(df, outdir, "viscosity_sweep", "Settling time and entropy production against viscosity"),
+        f"Scene `{scene0['scene']['name']}`, method {opt['method']} (staggered start), h = {opt['h']:g} s; "
+        f"{int(scene0['ensemble']['members'])} members with random initial conditions (seed "
+        f"{int(scene0['ensemble']['seed'])}), the **same** for every μ. Settling time: after it, the mechanical "
+        f"energy above rest stays below {opt['threshold']:g} × its initial value; *censored* members had not "
+        f"settled by t_end = {opt['t_end_factor']:g} × max(I_max/c, c/mgℓ) (clipped to "
+        f"[max({opt['t_end_min']:g}, the entropy times), {opt['t_end_max']:g}] s). The heat balance "
+        f"T₀ΔS/ΔE_mech drifts from 1 when κ = ch/I_min is no longer small (the VI's entropy update is explicit "
+        f"while its friction is trapezoidal; their dissipations differ at O(κ)).",
+        f"**Physics.** (i) The total entropy produced by settling is fixed by the initial data, not by μ: "
+        f"ΔS ≈ ΔE_mech/T₀ (T ≈ T₀ since c_v is large), here ensemble mean E_mech(0)/T₀ = "
+        f"{np.mean(E0) / T0:.4e} J/K — viscosity changes how *fast* the entropy is produced (the initial rate "
+        f"c|Ω₀|²/T₀ ∝ μ, and ΔS by a fixed early time grows with μ), not how much. (ii) In the under-damped "
+        f"regime the energy decays like e^(−ct/I), so the settling time scales like I/c ∝ 1/μ (μ × t_settle ≈ "
+        f"const); the gravity (pendulum) mode becomes over-damped above μ_crit = 2√(I_min mgℓ)/(8πa³) ≈ "
+        f"{mu_crit:.3g} kg m⁻¹ s⁻¹, beyond which the top creeps down at rate mgℓ/c and the settling time grows "
+        f"∝ μ again.",
+        f"![viscosity sweep]({fig.name})",
+        f"netCDF: `{nc.name}` (dims `{dim}` × `member`). Study wall time {wall:.1f} s.",
+    ]
+    return write_report(outdir, "Viscosity sweep: entropy production and settling times", sections)
+
+
+def _figure(ds, dim, opt, tkeys, outdir: Path) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    mus = ds[dim].values.astype(float)
+    ts = ds["settling_time"].values
+    med = np.array([np.nanmedian(r) if np.isfinite(r).any() else np.nan for r in ts])
+    q25 = np.array([np.nanquantile(r, 0.25) if np.isfinite(r).any() else np.nan for r in ts])
+    q75 = np.array([np.nanquantile(r, 0.75) if np.isfinite(r).any() else np.nan for r in ts])
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.3))
+    ax = axes[0]
+    ax.fill_between(mus, q25, q75, alpha=0.3, label="interquartile range")
+    ax.loglog(mus, med, "o-", label="median settling time")
+    i = np.nanargmin(np.abs(np.log(mus) - np.log(0.1))) if mus.size else 0
+    if np.isfinite(med[i]):
+        ax.loglog(mus, med[i] * mus[i] / mus, "k--", lw=0.8, label="∝ 1/μ")
+    ax.set_xlabel("viscosity μ (kg m⁻¹ s⁻¹)")
+    ax.set_ylabel("settling time (s)")
+    ax.set_title(f"time until E_mech < {opt['threshold']:g} E_mech(0)")
+    ax.legend(fontsize=8)
+    ax.grid(True, which="both", alpha=0.3)
+    ax = axes[1]
+    for tk in tkeys:
+        v = ds[tk].values
+        mean = np.array([np.mean(r[np.isfinite(r)]) if np.isfinite(r).any() else np.nan for r in v])
+        ax.loglog(mus, mean, "o-", label=f"mean ΔS by t = {tk[11:].replace('p', '.')}")
+    ax.loglog(mus, np.mean(ds["entropy_produced"].values, axis=1), "s-", label="mean ΔS by t_end (settled)")
+    ax.set_xlabel("viscosity μ (kg m⁻¹ s⁻¹)")
+    ax.set_ylabel("entropy produced (J/K)")
+    ax.set_title("entropy production")
+    ax.legend(fontsize=8)
+    ax.grid(True, which="both", alpha=0.3)
+    fig.tight_layout()
+    path = Path(outdir) / "viscosity_sweep.png"
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
