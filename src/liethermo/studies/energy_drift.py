@@ -36,6 +36,7 @@ from .common import (StudyError, cached_point, dim_name, expand_sweep, parse_met
 EXTRA_KEYS = ()
 DEFAULT_OPTIONS = {"t_end": 30.0, "band_dt": 0.2, "member_chunk": 1024, "diverged_above": 1.0}
 QUANTILES = (0.05, 0.5, 0.95)
+CLIP = 1e3  # relative energy errors above this are drawn at the top of the band figure
 
 
 def options(study: dict) -> dict:
@@ -217,10 +218,12 @@ def _figures(ds: xr.Dataset, outdir: Path, keys) -> list[Path]:
             q = ds["relative_energy_error_quantiles"].sel({hdim: h}).values[i]
             t = ds["time"].values
             c = colors.get(str(m).split(":")[0], f"C{i + 4}")
-            lo, med, hi = (np.where(np.isfinite(x), x, np.nan) for x in q)
-            ax.fill_between(t, np.maximum(lo, 1e-17), np.maximum(hi, 1e-17), color=c, alpha=0.25, lw=0)
-            ax.plot(t, np.maximum(med, 1e-17), color=c, label=f"{m} (median, 5–95 %)")
+            # blown-up members (inf, or finite but astronomically large) are drawn at the top, CLIP
+            lo, med, hi = (np.clip(np.where(np.isnan(x), CLIP, x), 1e-17, CLIP) for x in q)
+            ax.fill_between(t, lo, hi, color=c, alpha=0.25, lw=0)
+            ax.plot(t, med, color=c, label=f"{m} (median, 5–95 %)")
         ax.set_yscale("log")
+        ax.set_ylim(1e-9, 3 * CLIP)
         ax.set_xlabel("t (s)")
         ax.set_title(f"h = {h:g} s")
         ax.grid(True, which="both", alpha=0.3)
