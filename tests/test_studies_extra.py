@@ -1,0 +1,233 @@
+"""Reduced-size runs of the work_precision, stability and viscosity_sweep studies.
+
+Each study runs once (module-scoped fixture, via the study runner's own
+loading and validation) and the tests check the numbers it produced against
+what is known to be true: convergence slopes, where explicit methods blow up,
+where the VI's Newton iteration stops converging, and the physics of damping.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import xarray as xr
+
+from liethermo.studies.common import StudyError
+from liethermo.studies.runner import load_study, validate_study
+
+ROOT = Path(__file__).resolve().parents[1]
+STUDIES = ROOT / "studies"
+
+
+def _run(kind: str, outdir: Path) -> Path:
+    from liethermo.studies import get_study
+
+    study = load_study(STUDIES / f"{kind}.toml")
+    validate_study(study)
+    return get_study(kind).run(study, outdir, reduced=True, progress=False)
+
+
+@pytest.fixture(scope="module")
+def wp(tmp_path_factory):
+    out = tmp_path_factory.mktemp("work_precision")
+    return _run("work_precision", out), out
+
+
+@pytest.fixture(scope="module")
+def stab(tmp_path_factory):
+    out = tmp_path_factory.mktemp("stability")
+    return _run("stability", out), out
+
+
+@pytest.fixture(scope="module")
+def visc(tmp_path_factory):
+    out = tmp_path_factory.mktemp("viscosity_sweep")
+    return _run("viscosity_sweep", out), out
+
+
+# ----------------------------------------------------------------------------- work–precision
+
+def test_work_precision_outputs(wp):
+    report, out = wp
+    text = report.read_text()
+    assert report.name == "report.md" and "serially" in text and "staggered" in text
+    assert (out / "work_precision.png").is_file()
+    ds = xr.open_dataset(out / "work_precision.nc")
+    for v in ds.data_vars:
+        assert "units" in ds[v].attrs and "long_name" in ds[v].attrs, v
+    assert set(ds["method"].values) == {"vi", "rk2", "rk4", "scipy RK45", "scipy DOP853"}
+    ttr = pd.read_csv(out / "time_to_error.csv")
+    assert len(ttr) == 5
+
+
+def test_work_precision_slopes(wp):
+    """Errors fall with h at the methods' orders (VI: 2 with the staggered start)."""
+    _, out = wp
+    df = pd.read_csv(out / "work_precision.csv")
+    expected = {"vi": 2.0, "rk2": 2.0, "rk4": 4.0}
+    for m, order in expected.items():
+        d = df[df["method"] == m].sort_values("h (s)", ascending=False)
+        e = d["error at t_end (max)"].to_numpy()
+        h = d["h (s)"].to_numpy()
+        assert np.all(np.diff(e) < 0), (m, e)
+        assert (d["failed members"] == 0).all()
+        slope = np.polyfit(np.log(h[-3:]), np.log(e[-3:]), 1)[0]
+        assert abs(slope - order) < 0.35, (m, slope)
+
+
+def test_work_precision_scipy_tolerances(wp):
+    _, out = wp
+    df = pd.read_csv(out / "work_precision.csv")
+    for m in ("scipy RK45", "scipy DOP853"):
+        d = df[df["method"] == m].sort_values("rtol", ascending=False)
+        e = d["error at t_end (max)"].to_numpy()
+        assert np.all(np.diff(e) < 0), (m, e)
+        assert e[-1] < 1e-8
+        # evaluations grow as the tolerance shrinks
+        assert np.all(np.diff(d["evals/member"].to_numpy()) > 0)
+
+
+def test_time_to_error_interpolation():
+    from liethermo.studies.work_precision import time_to_error
+
+    errs = [1e-2, 1e-4, 1e-6]
+    times = [1.0, 10.0, 100.0]
+    t, how = time_to_error(errs, times, 1e-3)
+    assert how == "interpolated" and t == pytest.approx(math.sqrt(10.0), rel=1e-12)
+    assert time_to_error(errs, times, 1e-1) == (1.0, "coarsest")
+    t, how = time_to_error(errs, times, 1e-9)
+    assert math.isnan(t) and how == "not reached"
+    # a failed (inf) coarse level does not stop the interpolation
+    t, how = time_to_error([np.inf, 1e-4], [1.0, 2.0], 1e-3)
+    assert (t, how) == (2.0, "interpolated")
+
+
+# ----------------------------------------------------------------------------- stability
+
+def test_stability_map(stab):
+    report, out = stab
+    ds = xr.open_dataset(out / "stability.nc")
+    for v in ds.data_vars:
+        assert "units" in ds[v].attrs and "long_name" in ds[v].attrs, v
+    reg = ds["regime"]
+    hw = ds["h_omega"].values
+    big = hw.max()
+    assert big >= 10
+    # the VI stays bounded everywhere (both friction variants); Newton never fails on the map
+    for m in ("vi", "vi:endpoint"):
+        r = reg.sel({"method": m}).values
+        assert np.all(r <= 1), (m, r)
+        assert np.all(ds["status"].sel({"method": m}).values == 0)
+        assert int(ds["newton_max"].sel({"method": m}).max()) <= 12
+        # and it is accurate at small step angles and small friction per step
+        assert reg.sel({"method": m, "h_omega": hw.min(), "kappa": ds["kappa"].values.min()}).item() == 0
+    # RK2 and RK4 blow up (unbounded or non-finite) at the largest h|Ω| for every κ
+    for m in ("rk2", "rk4"):
+        assert np.all(reg.sel({"method": m, "h_omega": big}).values >= 2), m
+    # explicit methods are non-finite once κ exceeds their real-axis stability limit (2, 2.79)
+    for m in ("rk2", "rk4"):
+        assert np.all(ds["status"].sel({"method": m, "kappa": 5.0}).values == 2), m
+    # RK4 is accurate at small steps and moderate friction
+    assert reg.sel({"method": "rk4", "h_omega": hw.min(), "kappa": 0.1}).item() == 0
+    assert (out / "stability_map.png").is_file()
+    summ = pd.read_csv(out / "stability_summary.csv")
+    assert summ[["accurate", "bounded", "unbounded", "newton_not_converged", "non_finite"]].sum(axis=1).eq(
+        hw.size * ds["kappa"].size).all()
+
+
+def test_stability_named_cases(stab):
+    _, out = stab
+    df = pd.read_csv(out / "named_cases.csv")
+    assert set(df["case"]) >= {"dzhanibekov", "sleeping_top", "near_flat", "high_viscosity", "cayley_10"}
+    vi = df[df["method"].str.startswith("vi")]
+    assert (vi["status"] == "ok").all()
+    assert (vi["||Γ|−1| max"] < 1e-13).all()  # unit |Γ| to round-off, in every hard case
+    hv = df[df["case"] == "high_viscosity"].set_index("method")
+    assert hv.loc["rk2", "status"] == "non_finite" and hv.loc["rk4", "status"] == "non_finite"
+    assert hv.loc["vi", "error max"] < 0.1
+    c10 = df[df["case"] == "cayley_10"].set_index("method")
+    assert c10.loc["rk2", "status"] == "non_finite"
+    assert c10.loc["vi", "E_mech growth"] <= 1.0 + 1e-9  # bounded, but the phase is lost
+    assert c10.loc["vi", "error max"] > 0.5
+    # non-failed runs keep a finite max h|Ω|; failed explicit runs report where they broke
+    failed = df[df["status"] != "ok"]
+    assert (failed["failed at step"] != "—").all()
+
+
+def test_stability_newton_limit(stab):
+    """Newton fails only from a predictor far from the root, not from conditioning."""
+    _, out = stab
+    lim = pd.read_csv(out / "newton_limit.csv")
+    ok = lim[lim["status"] == "ok"]
+    bad = lim[lim["status"] != "ok"]
+    assert ok["h|Ω₀|"].max() >= 1e4
+    assert len(bad) >= 1 and bad["h|Ω₀|"].min() > ok["h|Ω₀|"].max()
+    assert (bad["status"] == "newton_not_converged").all()
+    assert ok["cond(J) max"].max() < 3.2
+    # iterations grow logarithmically in h|Ω| (≈ log(10)/log(1.5) per decade)
+    big = ok[ok["h|Ω₀|"] >= 10]
+    slope = np.polyfit(np.log10(big["h|Ω₀|"]), big["Newton max"], 1)[0]
+    assert 4.5 < slope < 7.0
+
+
+# ----------------------------------------------------------------------------- viscosity sweep
+
+def test_viscosity_sweep_physics(visc):
+    report, out = visc
+    ds = xr.open_dataset(out / "viscosity_sweep.nc")
+    for v in ds.data_vars:
+        assert "units" in ds[v].attrs and "long_name" in ds[v].attrs, v
+    mu = ds["fluid_viscosity"].values
+    assert list(mu) == sorted(mu) and mu.min() <= 0.01 and mu.max() >= 10
+    assert int((ds["status"] != 0).sum()) == 0
+    ts = ds["settling_time"].values
+    assert np.all(np.isfinite(ts)), "no member may be censored at reduced size"
+    med = np.median(ts, axis=1)
+    under = mu <= 1.0
+    # under-damped: settling time falls like 1/μ (μ × t_settle constant to ±20 %)
+    assert np.all(np.diff(med[under]) < 0)
+    prod = mu[under] * med[under]
+    assert prod.max() / prod.min() < 1.2
+    # over-damped gravity mode (μ above μ_crit ≈ 2): settling time grows again
+    assert med[mu == mu.max()][0] > med[mu == 1.0][0]
+    # the entropy produced by settling is set by the initial data, not by μ
+    S = ds["entropy_produced"].mean("member").values
+    assert S.max() / S.min() - 1 < 0.02
+    assert np.all(np.abs(ds["heat_ratio"].values[under] - 1) < 5e-3)
+    # ...but it is produced faster with more viscosity (initial rate ∝ μ exactly;
+    # by t = 1 s more is produced at larger μ while under-damped)
+    rate = ds["entropy_rate_initial"].values
+    np.testing.assert_allclose(rate / mu[:, None], np.broadcast_to(rate[0] / mu[0], rate.shape), rtol=1e-12)
+    s1 = ds["entropy_at_1s"].mean("member").values
+    assert np.all(np.diff(s1[under]) > 0)
+    assert (out / "viscosity_sweep.png").is_file() and (out / "viscosity_sweep.csv").is_file()
+
+
+def test_resume_does_not_recompute(visc, monkeypatch):
+    """A second run loads every sweep point from the cache."""
+    from liethermo.studies import viscosity_sweep
+
+    _, out = visc
+
+    def boom(*a, **k):
+        raise AssertionError("a finished sweep point was recomputed")
+
+    monkeypatch.setattr(viscosity_sweep, "sweep_point", boom)
+    study = load_study(STUDIES / "viscosity_sweep.toml")
+    viscosity_sweep.run(study, out, reduced=True, progress=False)
+
+
+def test_invalid_options_rejected(tmp_path):
+    src = (STUDIES / "stability.toml").read_text().replace("growth_limit = 2.0", "growth_limit = 2.0\nbogus = 1")
+    p = tmp_path / "bad.toml"
+    p.write_text(src)
+    with pytest.raises(StudyError, match="options.bogus"):
+        validate_study(load_study(p))
+    src = (STUDIES / "viscosity_sweep.toml").read_text().replace("[0.01, 0.1, 1.0, 10.0]", "[0.0, 0.1]")
+    p.write_text(src)
+    with pytest.raises(StudyError, match="viscosit"):
+        validate_study(load_study(p))
