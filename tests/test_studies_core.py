@@ -253,7 +253,8 @@ def test_paper_study_figures_and_errata(paper):
     df = pd.read_csv(out / "errata.csv").set_index("variant")
     assert set(df["erratum"].dropna()) >= {"E1", "E2", "E3", "E4", "E5"}
     # E4: the staggered start is closer to the reference than the paper's node start
-    assert df.loc["staggered_start", "|Gamma - Gamma_ref|(t_end)"] < df.loc["paper", "|Gamma - Gamma_ref|(t_end)"]
+    col = "max_t |Gamma - Gamma_ref|"
+    assert df.loc["staggered_start", col] < 0.6 * df.loc["paper", col]  # measured: 0.27 vs 0.54
     # E3 and E5 change the motion visibly
     assert df.loc["endpoint_friction", "|ΔOmega| vs paper"] > 1e-3
     assert df.loc["corrected_inertia", "|ΔOmega| vs paper"] > 1e-2
