@@ -47,7 +47,10 @@ def validate_study(study: dict) -> None:
     for k in st:
         if k not in STUDY_KEYS:
             raise StudyError(f"study.{k}: unknown key; known keys of [study]: {', '.join(sorted(STUDY_KEYS))}")
-    mod = get_study(kind)
+    try:
+        mod = get_study(kind)
+    except ModuleNotFoundError as exc:
+        raise StudyError(f"study.kind: the {kind!r} study is not available ({exc})") from None
     allowed = BASE_KEYS | frozenset(getattr(mod, "EXTRA_KEYS", ()))
     for k in study:
         if not k.startswith("_") and k not in allowed:
