@@ -220,7 +220,9 @@ def compute_part(scene: dict, lo: int, hi: int, path: str, key: str, attrs: dict
         except (ImportError, ValueError, AttributeError):
             numba_threads = None
     with _KERNEL_LOCK:
+        t1 = time.perf_counter()
         ds, st = run_chunk(scene, lo, hi, threads=numba_threads)
+        t_run = time.perf_counter() - t1
     part_attrs = dict(attrs)
     part_attrs.update({
         "liethermo_part_key": key, "liethermo_part_lo": int(lo), "liethermo_part_hi": int(hi),
@@ -231,9 +233,12 @@ def compute_part(scene: dict, lo: int, hi: int, path: str, key: str, attrs: dict
     # unique temporary name: two copies of one task (a worker presumed lost
     # that is still running) never write the same temporary file
     w.tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex}.tmp")
+    t2 = time.perf_counter()
     with w:
         w.write(ds, 0)
-    return {"stats": st.to_dict(), "task_time": time.perf_counter() - t0, "skipped": False}
+    t_write = time.perf_counter() - t2
+    return {"stats": st.to_dict(), "task_time": time.perf_counter() - t0, "skipped": False,
+            "run_time": t_run, "write_time": t_write}
 
 
 def _load_index(parts: Path, key: str, members: int) -> list[tuple[int, int]] | None:
@@ -301,7 +306,8 @@ def run_scene_dask(scene: dict | str, out: str | os.PathLike, *, address: Any = 
     ``task``: the task function (same signature as :func:`compute_part`; tests
     inject faults with it).  Returns ``(None, summary)``; the summary also
     carries ``tasks``, ``tasks_skipped`` (finished before this call) and
-    ``task_overhead`` (mean task wall time minus kernel time, s).
+    ``task_overhead`` (mean task wall time minus kernel time, s) and
+    ``task_timings`` (per computed task: task, kernel, run_chunk and write times, s).
     """
     from dask.base import tokenize
     from distributed import as_completed
@@ -342,6 +348,7 @@ def run_scene_dask(scene: dict | str, out: str | os.PathLike, *, address: Any = 
             futures[f] = (lo, hi)
         first_error = None
         overhead = []
+        timings = []
         try:
             # wait for every task (a failure does not stop the others: their
             # chunk files are what a rerun resumes from)
@@ -355,6 +362,8 @@ def run_scene_dask(scene: dict | str, out: str | os.PathLike, *, address: Any = 
                 total.merge(st)
                 if not res["skipped"]:
                     overhead.append(res["task_time"] - st.kernel_time)
+                    timings.append({"lo": lo, "hi": hi, "task": res["task_time"], "kernel": st.kernel_time,
+                                    "run": res.get("run_time"), "write": res.get("write_time")})
                 if bar:
                     bar.update((hi - lo) * steps)
         finally:
@@ -374,4 +383,5 @@ def run_scene_dask(scene: dict | str, out: str | os.PathLike, *, address: Any = 
     summ.tasks = len(chunks)
     summ.tasks_skipped = len(chunks) - len(todo)
     summ.task_overhead = float(np.mean(overhead)) if overhead else float("nan")
+    summ.task_timings = timings
     return None, summ
