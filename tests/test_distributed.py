@@ -200,6 +200,18 @@ def test_map_tasks_in_order(client):
     assert ld.map_tasks(abs, [], client) == []
 
 
+def small_point(h: float):
+    return xr.Dataset({"h2": ((), h * h)})
+
+
+def test_map_cached_points(client, tmp_path):
+    pts = [(f"h{i}", small_point, (0.1 * i,)) for i in range(1, 4)]
+    assert ld.map_cached_points(tmp_path, pts, client, progress=False) == ["h1", "h2", "h3"]
+    assert ld.map_cached_points(tmp_path, pts, client, progress=False) == []  # resume: nothing to do
+    with xr.open_dataset(tmp_path / "points" / "h2.nc") as ds:
+        assert float(ds["h2"]) == 0.2 * 0.2
+
+
 def test_cli_dask_address(client, tmp_path, ref_vi, capsys):
     from liethermo.cli import main
 

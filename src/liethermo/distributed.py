@@ -151,6 +151,33 @@ def map_tasks(func: Callable, items: Iterable, address: Any = "local", *, retrie
         return client.gather(futures)
 
 
+def _cached_point_task(item) -> str:
+    from .studies.common import cached_point
+
+    outdir, key, func, args = item
+    cached_point(outdir, key, lambda: func(*args))  # writes outdir/points/<key>.nc atomically
+    return key
+
+
+def map_cached_points(outdir: str | os.PathLike, points: Iterable[tuple[str, Callable, tuple]],
+                      address: Any = "local", *, retries: int = 2, progress: bool | None = None) -> list[str]:
+    """Compute study sweep points as Dask tasks into the studies' resume cache.
+
+    ``points``: ``(key, func, args)`` with ``func(*args) -> xr.Dataset``.  Each
+    point not yet in ``outdir/points/<key>.nc`` becomes a task that runs
+    :func:`liethermo.studies.common.cached_point` on a worker (``outdir`` must
+    be on the shared filesystem); only keys travel back.  Afterwards the
+    study's usual ``cached_point`` loop loads every point without recomputing.
+    Returns the keys that were computed.
+    """
+    from .studies.common import point_is_cached
+
+    outdir = str(Path(outdir).resolve())
+    todo = [(outdir, k, f, tuple(a)) for k, f, a in points if not point_is_cached(outdir, k)]
+    return map_tasks(_cached_point_task, todo, address, retries=retries, progress=progress,
+                     desc="sweep points")
+
+
 # ---------------------------------------------------------------- chunk files
 def scene_key(scene: dict) -> str:
     """Hash of the resolved scene and software version: chunk files of another
