@@ -243,7 +243,9 @@ def compute_part(scene: dict, lo: int, hi: int, path: str, key: str, attrs: dict
         try:
             from distributed import get_worker
 
-            numba_threads = int(get_worker().state.nthreads)
+            import numba
+
+            numba_threads = min(int(get_worker().state.nthreads), numba.config.NUMBA_NUM_THREADS)
         except (ImportError, ValueError, AttributeError):
             numba_threads = None
     with _KERNEL_LOCK:
