@@ -1,0 +1,201 @@
+"""Shared fixtures of the kernel-level tests.
+
+The paper scene is rebuilt here from the raw numbers of SPEC §2 (not from any
+scene code in ``src/``), so that the tests check the kernels against the
+specification and not against themselves:
+
+    m = 4/3 π a³ ρ,  m₁ = 0.6 m,  m₂ = m − m₁,
+    G_z = 3m₁a/(8m) − m₂a/(2m),  ℓ = |G_z|,  χ = e₃,
+    𝕀 ("paper") = diag(83a²m₁/320 + a²m₂/12, same, 2a²m₁/5 + a²m₂/3),
+    c = 8πμa³,  c_v = 3 (m/M) R_gas,  g⃗ = m g ℓ χ,
+    Ω₀ = (0, 1, 1),  R₀ = [[1,0,0],[0,0,−1],[0,1,0]],  Γ₀ = R₀ᵀe₃,  σ₀ = 0.
+
+Flat layouts (liethermo.kernels.model): y = [Ω(3), Γ(3), σ, (R row-major 9)],
+p = [I₁, I₂, I₃, c, g_x, g_y, g_z, c_v, T₀].
+
+Other helpers: the spherical top (g = 0, 𝕀 = I₀·Id) with its exact solution
+(SPEC §4), random non-symmetric bodies with a tilted χ, and the least-squares
+fit of an observed order of convergence.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from liethermo.kernels.model import NPARAM
+
+# ---------------------------------------------------------------- SPEC §2 numbers
+A_RADIUS = 0.05  # m
+MU = 0.1  # kg m^-1 s^-1
+RHO = 2700.0  # kg m^-3
+MOLAR_MASS = 26.981539e-3  # kg mol^-1
+G_ACC = 9.81  # m s^-2
+R_GAS = 8.314462618  # J mol^-1 K^-1
+T0 = 300.0  # K
+H_PAPER = 0.1  # s
+OMEGA0 = np.array([0.0, 1.0, 1.0])
+R0 = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+E3 = np.array([0.0, 0.0, 1.0])
+
+
+def paper_numbers() -> dict:
+    """The derived quantities of the paper scene, from SPEC §2."""
+    a = A_RADIUS
+    m = 4.0 / 3.0 * math.pi * a**3 * RHO
+    m1 = 0.6 * m
+    m2 = m - m1
+    Gz = 3.0 * m1 * a / (8.0 * m) - m2 * a / (2.0 * m)
+    ell = abs(Gz)
+    chi = E3.copy()
+    I12 = 83.0 * a * a * m1 / 320.0 + a * a * m2 / 12.0
+    I3 = 2.0 * a * a * m1 / 5.0 + a * a * m2 / 3.0
+    c = 8.0 * math.pi * MU * a**3
+    cv = 3.0 * (m / MOLAR_MASS) * R_GAS
+    gvec = m * G_ACC * ell * chi
+    return dict(m=m, m1=m1, m2=m2, Gz=Gz, ell=ell, chi=chi, inertia=np.array([I12, I12, I3]),
+                c=c, cv=cv, gvec=gvec)
+
+
+def make_params(inertia, c, gvec, cv, T0_=T0) -> np.ndarray:
+    p = np.empty(NPARAM)
+    p[0:3] = inertia
+    p[3] = c
+    p[4:7] = gvec
+    p[7] = cv
+    p[8] = T0_
+    return p
+
+
+def make_state(omega, R, sigma=0.0, attitude=False) -> np.ndarray:
+    """Flat state with Γ = Rᵀe₃ (and R row-major if ``attitude``)."""
+    R = np.asarray(R, dtype=float)
+    y = np.concatenate([np.asarray(omega, float), R.T @ E3, [sigma]])
+    if attitude:
+        y = np.concatenate([y, R.ravel()])
+    return y
+
+
+@pytest.fixture
+def paper_params() -> np.ndarray:
+    d = paper_numbers()
+    return make_params(d["inertia"], d["c"], d["gvec"], d["cv"])
+
+
+@pytest.fixture
+def paper_y0() -> np.ndarray:
+    """(Ω₀, Γ₀ = R₀ᵀe₃ = (0,1,0), σ₀ = 0), width 7."""
+    return make_state(OMEGA0, R0)
+
+
+@pytest.fixture
+def paper_y0_attitude() -> np.ndarray:
+    """Paper initial state with the attitude R₀ appended, width 16."""
+    return make_state(OMEGA0, R0, attitude=True)
+
+
+# ---------------------------------------------------------------- spherical top
+@dataclass
+class SphericalTop:
+    """g = 0, 𝕀 = I₀·Id: Ω(t) = Ω₀e^{−ct/I₀}; Γ turns about Ω₀ by
+    φ(t) = (I₀|Ω₀|/c)(1 − e^{−ct/I₀}) in the sense of Γ̇ = −Ω×Γ (i.e. by −φ
+    with the right-hand rule); σ(t) = c_v ln(1 + I₀|Ω₀|²(1 − e^{−2ct/I₀})/(2c_vT₀))."""
+
+    I0: float
+    c: float
+    cv: float
+    T0: float
+    omega0: np.ndarray
+    gamma0: np.ndarray
+
+    @property
+    def params(self) -> np.ndarray:
+        return make_params([self.I0] * 3, self.c, [0.0, 0.0, 0.0], self.cv, self.T0)
+
+    @property
+    def y0(self) -> np.ndarray:
+        return np.concatenate([self.omega0, self.gamma0, [0.0]])
+
+    def omega(self, t):
+        t = np.asarray(t, float)
+        return np.exp(-self.c * t / self.I0)[..., None] * self.omega0
+
+    def angle(self, t):
+        t = np.asarray(t, float)
+        return self.I0 * np.linalg.norm(self.omega0) / self.c * (-np.expm1(-self.c * t / self.I0))
+
+    def gamma(self, t):
+        """Rodrigues rotation of Γ₀ about k = Ω₀/|Ω₀| by −φ(t)."""
+        k = self.omega0 / np.linalg.norm(self.omega0)
+        ang = -self.angle(t)[..., None]
+        v = self.gamma0
+        return v * np.cos(ang) + np.cross(k, v) * np.sin(ang) + k * (k @ v) * (1.0 - np.cos(ang))
+
+    def sigma(self, t):
+        t = np.asarray(t, float)
+        w2 = float(self.omega0 @ self.omega0)
+        return self.cv * np.log1p(self.I0 * w2 * (-np.expm1(-2.0 * self.c * t / self.I0))
+                                  / (2.0 * self.cv * self.T0))
+
+
+@pytest.fixture
+def spherical_top() -> SphericalTop:
+    """Paper friction and thermodynamics, I₀ = 1e-3 kg m², Ω₀ = (0,1,1),
+    Γ₀ = (0,1,0) (not parallel to Ω₀, so Γ really moves)."""
+    d = paper_numbers()
+    return SphericalTop(I0=1.0e-3, c=d["c"], cv=d["cv"], T0=T0, omega0=OMEGA0.copy(),
+                        gamma0=np.array([0.0, 1.0, 0.0]))
+
+
+# ---------------------------------------------------------------- random bodies
+def random_rotation(rng) -> np.ndarray:
+    q = rng.normal(size=4)
+    q /= np.linalg.norm(q)
+    w, x, y, z = q
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+def random_body(seed: int, *, omega_scale: float = 2.0, attitude: bool = False):
+    """A non-symmetric body (three distinct moments) with a tilted χ, paper-sized
+    friction and gravity torque, a random attitude and spin.  Returns (y0, p)."""
+    rng = np.random.default_rng(seed)
+    d = paper_numbers()
+    inertia = rng.uniform(0.5e-3, 2.0e-3, 3)
+    chi = rng.normal(size=3)
+    chi /= np.linalg.norm(chi)
+    gvec = rng.uniform(0.005, 0.03) * chi
+    c = d["c"] * rng.uniform(0.5, 2.0)
+    p = make_params(inertia, c, gvec, d["cv"])
+    R = random_rotation(rng)
+    y0 = make_state(omega_scale * rng.normal(size=3), R, attitude=attitude)
+    return y0, p
+
+
+@pytest.fixture
+def random_body_factory():
+    return random_body
+
+
+# ---------------------------------------------------------------- order fit
+def fit_order(hs, errors, floor: float = 1e-11, min_levels: int = 5) -> float:
+    """Slope of log(error) against log(h) by least squares, dropping the levels
+    whose error is below the round-off ``floor``; at least ``min_levels``
+    levels (≥ 4 halvings) must remain."""
+    hs = np.asarray(hs, float)
+    errors = np.asarray(errors, float)
+    assert np.all(np.isfinite(errors)), errors
+    keep = errors >= floor
+    assert keep.sum() >= min_levels, f"only {keep.sum()} levels above {floor}: {errors}"
+    return float(np.polyfit(np.log(hs[keep]), np.log(errors[keep]), 1)[0])
+
+
+@pytest.fixture
+def observed_order():
+    return fit_order
