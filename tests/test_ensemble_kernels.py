@@ -64,11 +64,6 @@ def test_member_equals_solo_run(method, start, friction, kw, paper_y0_attitude, 
         assert solo.newton_iterations[0] == tr.newton_iterations[m]
 
 
-@pytest.mark.xfail(strict=True, raises=AssertionError, reason=(
-    "src/liethermo/simulate.py: staggered_omega() (line 116) and the 'reference' method "
-    "(simulate(), line 167) take the DOP853 substep count from omega_bound() of the WHOLE "
-    "ensemble, so a member's numbers depend on the other members (measured: up to 1.8e-14 "
-    "relative here, 6e-14 on other ensembles)"))
 @pytest.mark.parametrize("method,start", [("vi", "staggered"), ("reference", "node")])
 def test_member_equals_solo_run_with_automatic_substeps(method, start, paper_y0_attitude,
                                                         paper_params):

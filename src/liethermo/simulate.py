@@ -91,34 +91,34 @@ class Trajectory:
         return self.states[..., 7:16].reshape(self.states.shape[:-1] + (3, 3))
 
 
-def omega_bound(y0: np.ndarray, params: np.ndarray) -> float:
-    """Upper bound (rad s⁻¹) on |Ω(t)| of the continuous flow: the mechanical
-    energy can only decrease, so K(t) ≤ K₀ + 2|g⃗|; plus the friction rate."""
+def omega_bound(y0: np.ndarray, params: np.ndarray) -> np.ndarray:
+    """Per-member upper bound (rad s⁻¹) on |Ω(t)| of the continuous flow: the
+    mechanical energy can only decrease, so K(t) ≤ K₀ + 2|g⃗|; plus the
+    friction and pendulum rates."""
     I = params[:, [P_I1, P_I2, P_I3]]
     Imin = I.min(axis=1)
     K0 = 0.5 * np.sum(I * y0[:, 0:3] ** 2, axis=1)
     g = np.linalg.norm(params[:, [P_GX, P_GY, P_GZ]], axis=1)
-    w = np.sqrt(2.0 * (K0 + 2.0 * g) / Imin) + params[:, P_C] / Imin + np.sqrt(g / Imin)
-    return float(np.max(w)) if w.size else 0.0
+    return np.sqrt(2.0 * (K0 + 2.0 * g) / Imin) + params[:, P_C] / Imin + np.sqrt(g / Imin)
 
 
-def reference_substeps(h: float, y0: np.ndarray, params: np.ndarray) -> int:
+def reference_substeps(h: float, y0: np.ndarray, params: np.ndarray) -> np.ndarray:
+    """Per-member DOP853 substep count for a step h, from each member's own data."""
     wb = omega_bound(y0, params)
-    if not np.isfinite(wb) or wb <= 0.0:
-        return 1
-    return max(1, int(math.ceil(h * wb / REFERENCE_STEP_ANGLE)))
+    n = np.ceil(h * np.where(np.isfinite(wb), wb, 0.0) / REFERENCE_STEP_ANGLE)
+    return np.maximum(1, n).astype(np.int64)
 
 
 def staggered_omega(y0: np.ndarray, params: np.ndarray, h: float) -> np.ndarray:
     """Ω(h/2) from the initial data, by the high-accuracy reference (N, 3)."""
     Y = np.array(y0[:, :NSTATE_BASE], dtype=np.float64, order="C")
     N, n = Y.shape
-    nsub = reference_substeps(0.5 * h, Y, params)
     OUT = np.full((N, 1, n), np.nan)
     IS = np.zeros((N, _ens.NISTAT), np.int64)
+    IS[:, _ens.IS_NSUB] = reference_substeps(0.5 * h, Y, params)
     FS = np.zeros((N, _ens.NFSTAT))
     _ens.advance_ensemble(_ens.METHOD_REFERENCE, Y, np.ascontiguousarray(params), 0.5 * h, 1, 1,
-                          0.5, 0.5, DEFAULT_NEWTON_TOL, 1, nsub, DOP853_A, DOP853_B, OUT, IS, FS)
+                          0.5, 0.5, DEFAULT_NEWTON_TOL, 1, 0, DOP853_A, DOP853_B, OUT, IS, FS)
     return OUT[:, 0, 0:3].copy()
 
 
@@ -164,11 +164,13 @@ def simulate(
     Y = y0.copy()
     if eff_start == "staggered" and N:
         Y[:, 0:3] = staggered_omega(y0, params, h)
-    nsub = ref_substeps or (reference_substeps(h, y0, params) if m.name == "reference" else 1)
+    # reference: per-member substeps (ISTAT[:, IS_NSUB], nsub argument 0) unless fixed
+    nsub = int(ref_substeps) if ref_substeps else 0
     n_out = steps // every
     states = np.full((N, n_out + 1, n), np.nan)
     states[:, 0] = Y
     IS = np.zeros((N, _ens.NISTAT), np.int64)
+    IS[:, _ens.IS_NSUB] = reference_substeps(h, y0, params) if m.name == "reference" else 1
     FS = np.zeros((N, _ens.NFSTAT))
     if chunk_steps is None:
         # one kernel call per ~2e6 member-steps (≈0.1 s): frequent enough for a progress
@@ -204,5 +206,7 @@ def simulate(
         status=IS[:, _ens.IS_STATUS].astype(np.int8), fail_step=IS[:, _ens.IS_FAIL_STEP].copy(),
         newton_iterations=IS[:, _ens.IS_NEWTON_TOTAL].copy(), newton_max=IS[:, _ens.IS_NEWTON_MAX].copy(),
         steps_done=IS[:, _ens.IS_STEPS].copy(), max_h_omega=FS[:, _ens.FS_MAX_H_OMEGA].copy(),
-        wall_time=wall, reference_substeps=nsub if m.name == "reference" else 0,
+        wall_time=wall,
+        reference_substeps=(int(nsub) if nsub else int(IS[:, _ens.IS_NSUB].max(initial=0)))
+        if m.name == "reference" else 0,
     )

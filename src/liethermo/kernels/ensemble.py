@@ -9,7 +9,11 @@ place on caller-allocated arrays so that a long run can be advanced in chunks
 * ``P``     (N, NPARAM)     parameters, layout of model.py
 * ``OUT``   (N, n_out, n)   receives the state after every ``every`` steps
 * ``ISTAT`` (N, NISTAT)     int64: status, failing step, Newton iterations
-                            (total, max per step), steps done
+                            (total, max per step), steps done, and the
+                            member's own reference substep count (read
+                            when the ``nsub`` argument is ≤ 0; set by the
+                            caller from the member's initial data, so a
+                            member never depends on its neighbours)
 * ``FSTAT`` (N, NFSTAT)     float64: max h|Ω_k| over the steps taken
 
 Status codes (per member, never per ensemble): ``STATUS_OK``,
@@ -32,8 +36,8 @@ METHOD_VI, METHOD_RK2, METHOD_RK4, METHOD_REFERENCE = 0, 1, 2, 3
 
 STATUS_OK, STATUS_NEWTON, STATUS_NONFINITE = 0, 1, 2
 
-IS_STATUS, IS_FAIL_STEP, IS_NEWTON_TOTAL, IS_NEWTON_MAX, IS_STEPS = range(5)
-NISTAT = 5
+IS_STATUS, IS_FAIL_STEP, IS_NEWTON_TOTAL, IS_NEWTON_MAX, IS_STEPS, IS_NSUB = range(6)
+NISTAT = 6
 FS_MAX_H_OMEGA = 0
 NFSTAT = 1
 
@@ -56,6 +60,8 @@ def advance_member(method, y, p, h, n, every, n_out, alpha, beta, tol, maxiter,
     ynew = np.empty(n)
     work = np.empty((DOP853_STAGES, n))
     tmp = np.empty(n)
+    if nsub <= 0:
+        nsub = istat[IS_NSUB]
     hs = h / nsub
     for j in range(n_out):
         for _ in range(every):
