@@ -235,3 +235,14 @@ def test_progress_summary_is_printed(tmp_path, capsys):
     for needle in ("4 member(s) x 300 steps", "member-steps/s", "ok: 4", "max |E_k - E_0|",
                    "max ||Gamma| - 1|", "Newton iterations/step", "wrote"):
         assert needle in text, needle
+
+
+def test_blow_up_ensemble_labels_without_warnings():
+    """RK2 at the paper's h: members blow up through huge finite values; labelling them
+    must not warn (pytest runs with warnings as errors) and must keep healthy members."""
+    ds, summ = run_scene(_small(members=64, integrator__method="rk2", integrator__steps=300), progress=False)
+    st = ds["status"].values
+    assert 0 < np.sum(st == 2) < 64, "expected a mixed ensemble at h = 0.1"
+    assert summ.status_counts["non_finite"] == int(np.sum(st == 2))
+    ok = st == 0
+    assert np.isfinite(ds["energy_error"].values[ok]).all()

@@ -44,6 +44,13 @@ def trajectory_dataset(traj: Trajectory, *, S0: float, omega0: np.ndarray, R0: n
     omega0, R0: the members' initial data at t = 0 (N, 3), (N, 3, 3);
     center_of_mass: G in the body frame (N, 3) in m, to store ℓRχ = R G.
     """
+    # a member that blew up (explicit RK2) has huge-but-finite values before its NaNs:
+    # the energies of those values overflow to inf, which is the truthful answer
+    with np.errstate(over="ignore", invalid="ignore"):
+        return _trajectory_dataset(traj, S0, omega0, R0, center_of_mass, member_offset)
+
+
+def _trajectory_dataset(traj, S0, omega0, R0, center_of_mass, member_offset):
     N, n_t, _ = traj.states.shape
     p = traj.params[:, None, :]
     om, ga, sg = traj.omega, traj.gamma, traj.sigma
