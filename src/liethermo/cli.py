@@ -53,11 +53,16 @@ def cmd_run(args) -> int:
         if args.dask:
             from .distributed import run_scene_dask  # issue 5
 
-            _, summ = run_scene_dask(sc, path, address=args.dask, progress=progress)
+            _, summ = run_scene_dask(sc, path, address=args.dask, progress=progress,
+                                     keep_parts=args.keep_parts, combine=not args.no_combine)
+
         else:
             _, summ = run_scene(sc, path, progress=progress)
         summaries.append(summ)
         print("\n".join(summ.lines()))
+        if args.dask:
+            print(f"  dask: {summ.tasks} task(s), {summ.tasks_skipped} already done (resumed); "
+                  f"overhead {summ.task_overhead:.3f} s per task; combine {summ.combine_time:.2f} s")
     if scene["output"]["figures"]:
         from .plotting import scene_figures
 
@@ -88,6 +93,11 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--dask", metavar="local|ADDRESS", default=None,
                    help="run member chunks as tasks on a Dask cluster: 'local' starts a LocalCluster "
                    "sized to this machine, otherwise the scheduler address (tcp://host:8786)")
+    r.add_argument("--keep-parts", action="store_true",
+                   help="with --dask: keep the per-task chunk files (OUT.nc.parts/) after combining")
+    r.add_argument("--no-combine", action="store_true",
+                   help="with --dask: leave the chunk files and their index.json (open_mfdataset-ready) "
+                   "instead of one combined file")
     r.set_defaults(func=cmd_run)
 
     s = sub.add_parser("study", help="run a study (sweeps, convergence tables, statistics, figures)",
