@@ -183,6 +183,16 @@ def test_convergence_vi_node_start_is_first_order(convergence):
     assert abs(_order(ds, "vi", "total_energy") - 1.0) <= 0.15
 
 
+def test_convergence_endpoint_friction_is_not_second_order(convergence):
+    """Endpoint friction f = cX (E3) puts the friction half a step off the centre of the
+    momentum equation: first order even with the staggered start (declared order 1)."""
+    out, _, ds = convergence
+    assert _order(ds, "vi:endpoint:staggered", "gamma") < 1.5
+    assert _order(ds, "vi:staggered", "gamma") > 1.85
+    df = pd.read_csv(out / "orders.csv").set_index("method")
+    assert df.loc["vi:endpoint:staggered", "declared order"] == 1
+
+
 def test_convergence_runge_kutta_orders(convergence):
     _, _, ds = convergence
     for var in ("omega", "gamma", "total_energy"):

@@ -124,7 +124,7 @@ def global_attrs(scene_toml: str, *, method: str, h: float, friction: str, start
         "title": "liethermo ensemble: heavy top in Stokes flow",
         "method": method,
         "method_description": METHODS[method].description,
-        "method_order": METHODS[method].order(start),
+        "method_order": METHODS[method].order(start, friction),
         "h": h,
         "h_units": "s",
         "friction": friction,

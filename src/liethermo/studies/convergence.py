@@ -22,6 +22,7 @@ decreases, ends the fit); the error constant is C in error ≈ C h^p.
 from __future__ import annotations
 
 import time
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -32,9 +33,9 @@ from ..initial import initial_conditions, initial_states
 from ..methods import METHODS
 from ..scene import physical_parameters
 from ..simulate import simulate
-from .common import (StudyError, cached_point, dim_name, expand_sweep, parse_method, point_key, progress_bar,
-                     resolve_study, stack_points, study_name, study_netcdf_path, study_scene, write_netcdf_atomic,
-                     write_report, write_table)
+from .common import (StudyError, cached_point, dim_name, expand_sweep, parse_method, point_is_cached, point_key,
+                     progress_bar, resolve_study, stack_points, study_name, study_netcdf_path, study_scene,
+                     write_netcdf_atomic, write_report, write_table)
 
 EXTRA_KEYS = ()
 VARIABLES = ("omega", "gamma", "entropy", "total_energy")
@@ -144,6 +145,26 @@ def fit_order(hs, errors, scale: float, floor_rel: float):
     return float(slope), float(np.exp(icept)), used
 
 
+def _dask_points(outdir, dask, progress, opt, specs, hs, points, scenes, ref_keys, err_keys) -> None:
+    """Compute the missing points as Dask tasks into the cache: the references
+    first, then the errors (each needs its sweep point's reference)."""
+    from ..distributed import client_for, map_cached_points
+
+    with client_for(dask) as client:
+        map_cached_points(outdir, [(k, _reference, (sc, opt)) for k, sc in zip(ref_keys, scenes)], client,
+                          progress=progress)
+        tasks = []
+        for pt, scene, ref_key, ekeys in zip(points, scenes, ref_keys, err_keys):
+            todo = [(i, h) for i in range(len(specs)) for h in hs if not point_is_cached(outdir, ekeys[i, h])]
+            if not todo:
+                continue
+            ref = cached_point(outdir, ref_key, partial(_reference, scene, opt))
+            if int(ref["status"]) != 0:
+                raise RuntimeError(f"the reference failed at sweep point {pt}")
+            tasks += [(ekeys[i, h], _errors, (scene, specs[i], h, opt, ref)) for i, h in todo]
+        map_cached_points(outdir, tasks, client, progress=progress)
+
+
 def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask: str | None = None) -> Path:
     study = resolve_study(study, reduced)
     validate(study)
@@ -154,24 +175,27 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
     specs = [parse_method(m) for m in study["methods"]]
     points = expand_sweep(study.get("sweep"))
     keys = list(points[0])
-    bar = progress_bar(len(points) * (1 + len(specs) * len(hs)), progress, f"{study_name(study)} points")
     per_point = []
     tables = []
     t_start = time.perf_counter()
+    scenes = [study_scene(study, pt) for pt in points]
+    ref_keys = [point_key({"ref": pt, "opt": opt, "scene": scene}) for pt, scene in zip(points, scenes)]
+    err_keys = [{(i, h): point_key({"pt": pt, "spec": spec, "h": h, "opt": opt, "scene": scene})
+                 for i, spec in enumerate(specs) for h in hs} for pt, scene in zip(points, scenes)]
+    if dask is not None:
+        _dask_points(outdir, dask, progress, opt, specs, hs, points, scenes, ref_keys, err_keys)
+    bar = progress_bar(len(points) * (1 + len(specs) * len(hs)), progress, f"{study_name(study)} points")
     try:
-        for pt in points:
-            scene = study_scene(study, pt)
-            ref = cached_point(outdir, point_key({"ref": pt, "opt": opt, "scene": scene}),
-                               lambda: _reference(scene, opt))
+        for pt, scene, ref_key, ekeys in zip(points, scenes, ref_keys, err_keys):
+            ref = cached_point(outdir, ref_key, partial(_reference, scene, opt))
             bar.update(1)
             if int(ref["status"]) != 0:
                 raise RuntimeError(f"the reference failed at sweep point {pt}")
             by_method = []
-            for spec in specs:
+            for i, spec in enumerate(specs):
                 by_h = []
                 for h in hs:
-                    key = point_key({"pt": pt, "spec": spec, "h": h, "opt": opt, "scene": scene})
-                    by_h.append(cached_point(outdir, key, lambda: _errors(scene, spec, h, opt, ref)))
+                    by_h.append(cached_point(outdir, ekeys[i, h], partial(_errors, scene, spec, h, opt, ref)))
                     bar.update(1)
                 by_method.append(xr.concat(by_h, dim="h", data_vars="all", coords="minimal", compat="override"))
             ds = xr.concat(by_method, dim="scheme", data_vars="all", coords="minimal", compat="override")
@@ -191,7 +215,7 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
                 row = {"method": spec["label"], "start": start if m.name == "vi" else "—",
                        "friction": spec["friction"] if m.name == "vi" else "—",
                        "Omega compared at": "t_k + h/2" if start == "staggered" else "t_k",
-                       "declared order": m.order(start)}
+                       "declared order": m.order(start, spec.get("friction", "trapezoid"))}
                 for v in VARIABLES:
                     p_, c_, n_ = fit_order(hs, ds[f"error_{v}"].values[i], scales[v], opt["floor_rel"])
                     orders[v].append(p_)
