@@ -297,7 +297,10 @@ def stack_points(datasets: list[xr.Dataset], points: list[dict], keys: list[str]
     ds = xr.concat(datasets, dim="point", data_vars="all", coords="minimal", compat="override",
                    join="override")
     ds = ds.assign_coords({d: ("point", [coord_value(p[k]) for p in points]) for d, k in zip(dims, keys)})
-    ds = ds.set_index(point=dims).unstack("point").transpose(*dims, ...)
+    if len(dims) == 1:  # set_index on one level makes no MultiIndex: nothing to unstack
+        ds = ds.swap_dims({"point": dims[0]}).transpose(*dims, ...)
+    else:
+        ds = ds.set_index(point=dims).unstack("point").transpose(*dims, ...)
     order = {}
     for d, k in zip(dims, keys):  # keep the order of the study file, not the sorted one
         order[d] = list(dict.fromkeys(coord_value(p[k]) for p in points))

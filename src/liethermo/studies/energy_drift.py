@@ -20,6 +20,7 @@ Figures show the quantile bands of |E_k − E₀| / E_mech,0 over time.
 from __future__ import annotations
 
 import time
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -152,23 +153,30 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
     points = expand_sweep(study.get("sweep"))
     keys = list(points[0])
     allpts = [dict(pt, scheme=s["label"]) for pt in points for s in specs]
-    bar = progress_bar(len(allpts), progress, f"{study_name(study)} points")
     t_start = time.perf_counter()
+    tasks = []  # (pt, spec, scene, key): one per point and method
+    for pt in points:
+        for spec in specs:
+            scene = study_scene(study, dict(pt, **{"integrator.method": spec["method"],
+                                                   "integrator.friction": spec["friction"],
+                                                   "integrator.start": spec["start"],
+                                                   "integrator.steps": int(round(opt["t_end"] / pt.get(
+                                                       "integrator.h", 0.1)))}))
+            tasks.append((pt, spec, scene, point_key({"pt": pt, "spec": spec, "opt": opt, "scene": scene})))
+    if dask is not None:  # compute the missing points as Dask tasks into the same cache
+        from ..distributed import map_cached_points
+
+        map_cached_points(outdir, [(key, _point, (scene, spec, opt)) for _, spec, scene, key in tasks], dask,
+                          progress=progress)
+    bar = progress_bar(len(allpts), progress, f"{study_name(study)} points")
     dsets, rows = [], []
     try:
-        for pt in points:
-            for spec in specs:
-                scene = study_scene(study, dict(pt, **{"integrator.method": spec["method"],
-                                                       "integrator.friction": spec["friction"],
-                                                       "integrator.start": spec["start"],
-                                                       "integrator.steps": int(round(opt["t_end"] / pt.get(
-                                                           "integrator.h", 0.1)))}))
-                key = point_key({"pt": pt, "spec": spec, "opt": opt, "scene": scene})
-                ds = cached_point(outdir, key, lambda: _point(scene, spec, opt))
-                dsets.append(ds)
-                rows.append(_summary_row(ds, spec["label"], float(scene["integrator"]["h"]), opt)
-                            | {k: v for k, v in pt.items() if k != "integrator.h"})
-                bar.update(1)
+        for pt, spec, scene, key in tasks:
+            ds = cached_point(outdir, key, partial(_point, scene, spec, opt))
+            dsets.append(ds)
+            rows.append(_summary_row(ds, spec["label"], float(scene["integrator"]["h"]), opt)
+                        | {k: v for k, v in pt.items() if k != "integrator.h"})
+            bar.update(1)
     finally:
         bar.close()
     ds = stack_points(dsets, allpts, keys + ["scheme"])

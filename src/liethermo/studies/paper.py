@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 import time
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -67,6 +68,11 @@ def _variant_scene(study: dict, name: str, method: str = "vi") -> dict:
     return study_scene(study, over)
 
 
+def _scene_dataset(scene: dict) -> xr.Dataset:
+    """One run of the study: the scene's dataset (module level: a Dask task)."""
+    return run_scene(scene, progress=False)[0]
+
+
 def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask: str | None = None) -> Path:
     study = resolve_study(study, reduced)
     outdir = Path(outdir)
@@ -75,38 +81,43 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
     specs = [parse_method(m) for m in study.get("methods", ["vi", "rk2"])]
     if study.get("sweep"):
         raise StudyError("sweep: the paper study has no sweep (it runs the paper scene and its errata variants)")
-    n = len(specs) + len(VARIANTS) - 1 + 2
-    bar = progress_bar(n, progress, f"{study_name(study)} runs")
+    # every run of the study: (name in runs, key, scene); the figure runs keep their file for the figures
+    figure_runs, tasks = [], []
+    for spec in specs:
+        scene = study_scene(study, {"integrator.method": spec["method"], "integrator.start": spec["start"],
+                                    "integrator.friction": spec["friction"], "output.compare": [],
+                                    "output.figures": False})
+        key = point_key({"figure_run": spec, "scene": scene})
+        figure_runs.append((spec, key))
+        tasks.append((f"paper_{spec['label']}", key, scene))
+    have_paper_vi = any(f"paper_{spec['label']}" == "paper_vi" for spec in specs)
+    for name in VARIANTS:
+        if name == "paper" and have_paper_vi:
+            tasks.append(("vi_paper", None, None))  # the figure run is this variant
+            continue
+        scene = _variant_scene(study, name)
+        tasks.append((f"vi_{name}", point_key({"variant": name, "scene": scene}), scene))
+    for name in ("paper", "corrected_inertia"):
+        scene = _variant_scene(study, name, "reference")
+        tasks.append((f"reference_{name}", point_key({"reference": name, "scene": scene}), scene))
+    if dask is not None:  # compute the missing runs as Dask tasks into the same cache
+        from ..distributed import map_cached_points
+
+        map_cached_points(outdir, [(key, _scene_dataset, (scene,)) for _, key, scene in tasks if key], dask,
+                          progress=progress)
+    bar = progress_bar(sum(1 for t in tasks if t[1]), progress, f"{study_name(study)} runs")
     runs: dict[str, xr.Dataset] = {}
     try:
-        # 1. the paper's figures: each method on the paper scene (full dataset, member kept)
-        fig_paths = {}
-        for spec in specs:
-            scene = study_scene(study, {"integrator.method": spec["method"], "integrator.start": spec["start"],
-                                        "integrator.friction": spec["friction"], "output.compare": [],
-                                        "output.figures": False})
-            key = point_key({"figure_run": spec, "scene": scene})
-            ds = cached_point(outdir, key, lambda: run_scene(scene, progress=False)[0])
-            fig_paths[spec["method"]] = outdir / "points" / f"{key}.nc"
-            runs[f"paper_{spec['label']}"] = ds.isel(member=0)
-            bar.update(1)
-        # 2. one variant per runnable erratum (VI), plus references
-        for name in VARIANTS:
-            if name == "paper" and "paper_vi" in runs:
-                runs["vi_paper"] = runs["paper_vi"]
+        for name, key, scene in tasks:
+            if key is None:
+                runs[name] = runs["paper_vi"]
                 continue
-            scene = _variant_scene(study, name)
-            key = point_key({"variant": name, "scene": scene})
-            runs[f"vi_{name}"] = cached_point(outdir, key, lambda: run_scene(scene, progress=False)[0]).isel(member=0)
-            bar.update(1)
-        for name in ("paper", "corrected_inertia"):
-            scene = _variant_scene(study, name, "reference")
-            key = point_key({"reference": name, "scene": scene})
-            runs[f"reference_{name}"] = cached_point(outdir, key,
-                                                     lambda: run_scene(scene, progress=False)[0]).isel(member=0)
+            runs[name] = cached_point(outdir, key, partial(_scene_dataset, scene)).isel(member=0)
             bar.update(1)
     finally:
         bar.close()
+    # 1. the paper's figures: each method on the paper scene (full dataset, member kept)
+    fig_paths = {spec["method"]: outdir / "points" / f"{key}.nc" for spec, key in figure_runs}
 
     from ..plotting import scene_figures
 

@@ -29,6 +29,7 @@ from __future__ import annotations
 import copy
 import math
 import time
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -323,6 +324,12 @@ def _attrs(ds: xr.Dataset) -> xr.Dataset:
     return ds
 
 
+def _one_thread(func, *args):
+    """``func(*args)`` with numba on one thread (a Dask task: module level)."""
+    with single_thread():
+        return func(*args)
+
+
 def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask: str | None = None) -> Path:
     import pandas as pd
 
@@ -336,6 +343,28 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
     h = float(opt["h"])
     t_wall = time.perf_counter()
     cases = opt["cases"]
+    # every point: (key, func, args), module-level func (Dask tasks)
+    map_tasks = {}
+    for m in methods:
+        key = point_key({"study": study_name(s), "kind": "map", "scene": scene, "method": m,
+                         **{k: opt[k] for k in ("h", "steps", "h_omega", "kappa", "error_threshold", "growth_limit")}})
+        map_tasks[m] = (key, map_point, (scene, opt, m))
+    case_tasks = []
+    for c in cases:
+        sc = study_scene(s, c.get("scene", {}))
+        for m in methods:
+            key = point_key({"study": study_name(s), "kind": "case", "scene": sc, "case": c, "method": m})
+            case_tasks.append((c, m, (key, case_point, (sc, c, m))))
+    vi_methods = [m for m in methods if parse_method(m)[0] == "vi"]
+    limit_task = None
+    if vi_methods:
+        key = point_key({"study": study_name(s), "kind": "newton_limit", "scene": scene, "h": h})
+        limit_task = (key, newton_limit, (scene, h, vi_methods[0]))
+    if dask is not None:  # compute the missing points as Dask tasks (one numba thread each) into the cache
+        from ..distributed import map_cached_points
+
+        alltasks = list(map_tasks.values()) + [t for _, _, t in case_tasks] + ([limit_task] if limit_task else [])
+        map_cached_points(outdir, [(k, _one_thread, (f, *a)) for k, f, a in alltasks], dask, progress=progress)
     bar = progress_bar(len(methods) * (1 + len(cases)) + 1, progress, study_name(s))
     maps = {}
     case_rows = []
@@ -343,40 +372,34 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
     threads = single_thread()
     threads.__enter__()
     try:
-        for m in methods:
-            key = point_key({"study": study_name(s), "kind": "map", "scene": scene, "method": m,
-                             **{k: opt[k] for k in ("h", "steps", "h_omega", "kappa", "error_threshold", "growth_limit")}})
-            maps[m] = cached_point(outdir, key, lambda m=m: map_point(scene, opt, m))
+        for m, (key, f, a) in map_tasks.items():
+            maps[m] = cached_point(outdir, key, partial(f, *a))
             if bar:
                 bar.update(1)
-        for c in cases:
-            sc = study_scene(s, c.get("scene", {}))
-            for m in methods:
-                key = point_key({"study": study_name(s), "kind": "case", "scene": sc, "case": c, "method": m})
-                ds = cached_point(outdir, key, lambda sc=sc, c=c, m=m: case_point(sc, c, m))
-                case_ds.append((c["name"], m, ds))
-                v = {k: ds[k].values[0] for k in ds.data_vars}
-                st = int(v["status"])
-                name = parse_method(m)[0]
-                case_rows.append({
-                    "case": c["name"], "method": m, "h (s)": float(c["h"]), "steps": int(c["steps"]),
-                    "h|Ω₀|": float(v["h_omega0"]), "κ = ch/I_min": float(v["kappa"]),
-                    "status": ["ok", "newton_not_converged", "non_finite"][st],
-                    "failed at step": int(v["failed_at_step"]) if st else "—",
-                    "max h|Ω|": float(v["max_h_omega"]),
-                    "Newton max": int(v["newton_max"]) if name == "vi" else "—",
-                    "Newton mean": float(v["newton_mean"]) if name == "vi" else float("nan"),
-                    "cond(J) max": float(v["jacobian_cond_max"]),
-                    "error max": float(v["error_max"]), "error end": float(v["error_end"]),
-                    "E_mech growth": float(v["energy_growth"]), "||Γ|−1| max": float(v["gamma_defect"]),
-                })
-                if bar:
-                    bar.update(1)
-        vi_methods = [m for m in methods if parse_method(m)[0] == "vi"]
+        for c, m, (key, f, a) in case_tasks:
+            ds = cached_point(outdir, key, partial(f, *a))
+            case_ds.append((c["name"], m, ds))
+            v = {k: ds[k].values[0] for k in ds.data_vars}
+            st = int(v["status"])
+            name = parse_method(m)[0]
+            case_rows.append({
+                "case": c["name"], "method": m, "h (s)": float(c["h"]), "steps": int(c["steps"]),
+                "h|Ω₀|": float(v["h_omega0"]), "κ = ch/I_min": float(v["kappa"]),
+                "status": ["ok", "newton_not_converged", "non_finite"][st],
+                "failed at step": int(v["failed_at_step"]) if st else "—",
+                "max h|Ω|": float(v["max_h_omega"]),
+                "Newton max": int(v["newton_max"]) if name == "vi" else "—",
+                "Newton mean": float(v["newton_mean"]) if name == "vi" else float("nan"),
+                "cond(J) max": float(v["jacobian_cond_max"]),
+                "error max": float(v["error_max"]), "error end": float(v["error_end"]),
+                "E_mech growth": float(v["energy_growth"]), "||Γ|−1| max": float(v["gamma_defect"]),
+            })
+            if bar:
+                bar.update(1)
         limit = None
-        if vi_methods:
-            key = point_key({"study": study_name(s), "kind": "newton_limit", "scene": scene, "h": h})
-            limit = cached_point(outdir, key, lambda: newton_limit(scene, h, vi_methods[0]))
+        if limit_task is not None:
+            key, f, a = limit_task
+            limit = cached_point(outdir, key, partial(f, *a))
         if bar:
             bar.update(1)
     finally:

@@ -27,6 +27,7 @@ from __future__ import annotations
 import copy
 import math
 import time
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -37,7 +38,7 @@ from ..kernels.model import P_C, P_CV, P_GX, P_GY, P_GZ, P_I1, P_I2, P_I3, P_T0
 from ..scene import physical_parameters
 from ..simulate import simulate
 from .common import (StudyError, cached_point, expand_sweep, point_key, progress_bar, resolve_study,
-                     dim_name, study_name, study_netcdf_path, study_scene, write_netcdf_atomic,
+                     dim_name, stack_points, study_name, study_netcdf_path, study_scene, write_netcdf_atomic,
                      write_report, write_table)
 
 EXTRA_KEYS = ()
@@ -200,22 +201,27 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
     outdir.mkdir(parents=True, exist_ok=True)
     points = sorted(expand_sweep(s["sweep"]), key=lambda d: d[SWEEP_KEY])
     t_wall = time.perf_counter()
+    tasks = []  # (key, func, args): module-level func, picklable args (Dask tasks)
+    for pt in points:
+        sc = study_scene(s, pt)
+        tasks.append((point_key({"study": study_name(s), "scene": sc, "options": opt}), sweep_point, (sc, opt)))
+    if dask is not None:  # compute the missing points as Dask tasks into the same cache
+        from ..distributed import map_cached_points
+
+        map_cached_points(outdir, tasks, dask, progress=progress)
     bar = progress_bar(len(points), progress, study_name(s))
     dss = []
     try:
-        for pt in points:
-            sc = study_scene(s, pt)
-            key = point_key({"study": study_name(s), "scene": sc, "options": opt})
-            dss.append(cached_point(outdir, key, lambda sc=sc: sweep_point(sc, opt)))
+        for key, func, args in tasks:
+            dss.append(cached_point(outdir, key, partial(func, *args)))
             if bar:
                 bar.update(1)
     finally:
         if bar:
             bar.close()
     dim = dim_name(SWEEP_KEY)
-    ds = xr.concat(dss, dim=dim, data_vars="all", coords="minimal", compat="override", join="override")
-    ds = ds.assign_coords({dim: (dim, [float(pt[SWEEP_KEY]) for pt in points])})
-    ds[dim].attrs.update(units="kg m-1 s-1", long_name="fluid viscosity mu (sweep)", scene_key=SWEEP_KEY)
+    ds = stack_points(dss, [{SWEEP_KEY: float(pt[SWEEP_KEY])} for pt in points])
+    ds[dim].attrs = {"units": "kg m-1 s-1", "long_name": "fluid viscosity mu (sweep)", "scene_key": SWEEP_KEY}
     for k in ds.data_vars:
         if k in UNITS:
             ds[k].attrs.update(units=UNITS[k][0], long_name=UNITS[k][1])

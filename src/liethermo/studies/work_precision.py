@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import copy
 import math
+import sys
 import time
 from pathlib import Path
 
@@ -58,6 +59,12 @@ DEFAULT_OPTIONS = {
     "min_timing": 0.2,
 }
 SCIPY_METHODS = ("RK23", "RK45", "DOP853")
+
+
+#: Printed (and added to the report) when the study is asked to use Dask.
+DASK_NOTE = ("work_precision ignores --dask and runs in-process: its wall times per member-step are the "
+             "measurement, and tasks on Dask workers (shared cores, other tasks, worker overhead) would "
+             "distort them.")
 
 
 def options(study: dict) -> dict:
@@ -257,6 +264,8 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
     s = resolve_study(study, reduced)
     validate(s)
     opt = options(s)
+    if dask is not None:  # the wall times are the measurement: never on Dask workers
+        print(DASK_NOTE, file=sys.stderr)
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
     methods = list(s.get("methods", ["vi", "rk2", "rk4"]))
@@ -409,6 +418,8 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
         f"![work–precision]({fig.name})",
         f"netCDF: `{nc.name}`. Study wall time {wall:.1f} s (points loaded from the resume cache are not re-timed).",
     ]
+    if dask is not None:
+        sections.append(f"**Note.** {DASK_NOTE}")
     return write_report(outdir, "Work–precision: wall time and evaluations against error at t_end", sections)
 
 
