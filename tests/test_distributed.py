@@ -222,3 +222,93 @@ def test_cli_dask_address(client, tmp_path, ref_vi, capsys):
     assert main(args) == 0
     assert "wrote" in capsys.readouterr().out
     assert_same_run(out, ref_vi)
+
+
+# ---------------------------------------------------------------- studies (--dask)
+STUDIES = Path(__file__).resolve().parents[1] / "studies"
+# timings, not results: they differ between any two runs
+TIMING = {"wall_time", "kernel_time", "wall"}
+
+
+def _study(kind: str) -> dict:
+    from liethermo.studies.runner import load_study
+
+    study = load_study(STUDIES / f"{kind}.toml")
+    if kind == "energy_drift":  # RK2 at the paper's h: part of the ensemble blows up (non-zero status)
+        study["reduced"]["methods"] = ["vi", "rk2"]
+    return study
+
+
+def assert_same_study(a_dir: Path, b_dir: Path, name: str) -> None:
+    """The study netCDFs agree to 1e-14 relative (timings aside), status flags
+    and integers exactly; the key-table CSVs agree on every non-timing column."""
+    import pandas as pd
+
+    with xr.open_dataset(a_dir / f"{name}.nc") as a, xr.open_dataset(b_dir / f"{name}.nc") as b:
+        assert set(a.variables) == set(b.variables) and a.sizes == b.sizes
+        for v in b.variables:
+            if v in TIMING:
+                continue
+            va, vb = a[v].values, b[v].values
+            assert va.dtype == vb.dtype and a[v].dims == b[v].dims, v
+            if va.dtype.kind == "f":
+                fin = np.isfinite(vb)
+                assert np.array_equal(va[~fin], vb[~fin], equal_nan=True), v
+                scale = np.maximum(np.abs(vb[fin]), np.finfo(float).tiny)
+                assert np.all(np.abs(va[fin] - vb[fin]) <= 1e-14 * scale), v
+            else:
+                np.testing.assert_array_equal(va, vb, err_msg=v)
+        np.testing.assert_array_equal(a["status"].values, b["status"].values)
+        assert {k: str(x) for k, x in a.attrs.items() if k not in TIMING} == \
+            {k: str(x) for k, x in b.attrs.items() if k not in TIMING}
+    csvs = sorted(p.name for p in b_dir.glob("*.csv"))
+    assert csvs and csvs == sorted(p.name for p in a_dir.glob("*.csv"))
+    for f in csvs:
+        ta, tb = pd.read_csv(a_dir / f), pd.read_csv(b_dir / f)
+        cols = [c for c in tb.columns if "wall" not in c]
+        pd.testing.assert_frame_equal(ta[cols], tb[cols], check_exact=False, rtol=1e-14)
+
+
+@pytest.mark.parametrize("kind", ["energy_drift", "viscosity_sweep"])
+def test_study_on_dask_equals_in_process(client, tmp_path, kind):
+    from liethermo.studies import get_study
+
+    mod = get_study(kind)
+    study = _study(kind)
+    mod.run(study, tmp_path / "inproc", reduced=True, progress=False)
+    mod.run(study, tmp_path / "dask", reduced=True, progress=False, dask=client)
+    assert_same_study(tmp_path / "dask", tmp_path / "inproc", kind)
+    if kind == "energy_drift":
+        with xr.open_dataset(tmp_path / "dask" / "energy_drift.nc") as ds:
+            assert int((ds["status"].sel(scheme="rk2") != 0).sum()) > 0  # failure counts were compared
+    points = sorted((tmp_path / "dask" / "points").glob("*.nc"))
+    assert [p.name for p in points] == sorted(p.name for p in (tmp_path / "inproc" / "points").glob("*.nc"))
+    # a rerun recomputes nothing: every point is in the cache (no task is even submitted)
+    stamps = {p.name: p.stat().st_mtime_ns for p in points}
+    mod.run(study, tmp_path / "dask", reduced=True, progress=False, dask=client)
+    assert {p.name: p.stat().st_mtime_ns for p in (tmp_path / "dask" / "points").glob("*.nc")} == stamps
+    assert_same_study(tmp_path / "dask", tmp_path / "inproc", kind)
+
+
+def test_cli_study_dask_address(client, tmp_path, capsys):
+    """``liethermo study … --dask ADDRESS`` on a study with two rounds of tasks
+    (convergence: references, then the errors against them)."""
+    from liethermo.cli import main
+
+    study = STUDIES / "convergence.toml"
+    base = ["study", str(study), "--reduced", "--no-progress"]
+    assert main(base + ["-o", str(tmp_path / "inproc")]) == 0
+    assert main(base + ["-o", str(tmp_path / "dask"), "--dask", client.scheduler.address]) == 0
+    assert "convergence" in capsys.readouterr().out
+    assert_same_study(tmp_path / "dask", tmp_path / "inproc", "convergence")
+
+
+def test_work_precision_ignores_dask(tmp_path, capsys):
+    """Its wall times are the measurement: it runs in-process (an unreachable
+    scheduler address is never contacted) and says so, on stderr and in the report."""
+    from liethermo.studies import get_study, work_precision
+
+    report = get_study("work_precision").run(_study("work_precision"), tmp_path, reduced=True, progress=False,
+                                             dask="tcp://127.0.0.1:9")
+    assert work_precision.DASK_NOTE in capsys.readouterr().err
+    assert work_precision.DASK_NOTE in report.read_text()
