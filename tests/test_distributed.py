@@ -312,3 +312,16 @@ def test_work_precision_ignores_dask(tmp_path, capsys):
                                              dask="tcp://127.0.0.1:9")
     assert work_precision.DASK_NOTE in capsys.readouterr().err
     assert work_precision.DASK_NOTE in report.read_text()
+
+
+def test_stack_points_single_key():
+    """One sweep key (no MultiIndex to unstack): the key becomes the dimension,
+    in the order of the study file."""
+    from liethermo.studies.common import stack_points
+
+    pts = [{"fluid.viscosity": v} for v in (1.0, 0.1, 10.0)]
+    ds = stack_points([xr.Dataset({"x": ("member", [v, 2 * v])}) for v in (1.0, 0.1, 10.0)], pts)
+    assert ds["x"].dims == ("fluid_viscosity", "member")
+    np.testing.assert_array_equal(ds["fluid_viscosity"].values, [1.0, 0.1, 10.0])
+    np.testing.assert_array_equal(ds["x"].values[:, 1], [2.0, 0.2, 20.0])
+    assert ds["fluid_viscosity"].attrs["scene_key"] == "fluid.viscosity"
