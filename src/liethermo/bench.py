@@ -18,6 +18,13 @@ over ``simple``, whether the results agree bitwise with ``simple`` (and the
 largest relative difference otherwise), and memory: the bytes of the arrays
 the call works on and the process's peak resident set size.
 
+Start-up is reported too: ``import liethermo.simulate`` in a fresh
+interpreter (nothing is compiled at import), and the first call of each
+kernel (loading it from numba's on-disk cache, or compiling it on a cold
+cache).  ``--asm`` compiles fresh copies of the fast kernel's lane loops and
+counts packed double-precision instructions (``v*pd`` on ymm/zmm registers)
+to confirm that LLVM vectorized them.
+
 The table goes to stdout, the numbers to a JSON file (``--json``).
 """
 
@@ -153,6 +160,8 @@ def main(argv=None) -> int:
     ap.add_argument("--threads", type=int, default=None, help="numba threads (default: all)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--json", default="bench_results.json", help="output JSON path ('' = none)")
+    ap.add_argument("--asm", action="store_true",
+                    help="count packed SIMD instructions in the fast kernel's lane loops")
     args = ap.parse_args(argv)
     if args.steps % args.every:
         ap.error("--steps must be a multiple of --every")
@@ -163,6 +172,11 @@ def main(argv=None) -> int:
         numba.set_num_threads(args.threads)
     threads = numba.get_num_threads()
 
+    import subprocess
+
+    t0 = time.perf_counter()
+    subprocess.run([sys.executable, "-c", "import liethermo.simulate"], check=True)
+    import_s = time.perf_counter() - t0
     # warm-up: compile or load every kernel once on a tiny ensemble
     compile_s = {}
     Yw, Pw = random_ensemble(64, seed=1, attitude=args.attitude)
@@ -215,8 +229,15 @@ def main(argv=None) -> int:
                 print(f"{kernel:<7}{method:<7}{N:>8}{best:>9.3f}{row['ns_per_member_step']:>10.2f}"
                       f"{row['speedup']:>9.2f}{agree:>10}{row['arrays_mb']:>10.1f}"
                       f"{row['peak_rss_mb']:>11.0f}")
-    print("(warm-up incl. compile/cache load, s: "
-          + ", ".join(f"{k} {v:.1f}" for k, v in compile_s.items()) + ")")
+    print(f"start-up: import liethermo.simulate {import_s:.2f} s (fresh interpreter); first call "
+          "of each kernel (cache load or compile), all methods: "
+          + ", ".join(f"{k} {v:.2f} s" for k, v in compile_s.items()))
+    asm = asm_report() if args.asm else None
+    if asm:
+        print("packed double-precision ops in the fast kernel's lane loops (fresh compile):")
+        for name, c in asm.items():
+            print(f"  {name:<16} zmm {c['zmm']:>4}  ymm {c['ymm']:>4}  scalar {c['scalar']:>4}"
+                  f"  fma {c['fma']}")
     if args.json:
         import numba as _nb
 
@@ -227,7 +248,8 @@ def main(argv=None) -> int:
                          cpu=_cpu_name(), cores=os.cpu_count(), threads=threads,
                          numba=_nb.__version__, numpy=np.__version__, python=sys.version.split()[0]),
             liethermo=__version__, created=time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-            scene="paper (SPEC §2), random ensemble", warmup_s=compile_s, results=rows,
+            scene="paper (SPEC §2), random ensemble", import_s=import_s, warmup_s=compile_s,
+            asm=asm, results=rows,
         )
         tmp = args.json + ".tmp"
         with open(tmp, "w") as f:
@@ -235,6 +257,39 @@ def main(argv=None) -> int:
         os.replace(tmp, args.json)
         print(f"wrote {args.json}")
     return 0
+
+
+def asm_report() -> dict:
+    """Counts of packed (zmm/ymm) and scalar double-precision arithmetic
+    instructions in fresh (uncached) compilations of the fast lane loops."""
+    import re
+
+    import numba
+
+    from .kernels import fast as F
+
+    S = np.ones(F.NROWS * F.BLOCK)
+    pp = F._load_params(S, 0)
+    pq = (1.0, 1.0, 1.0, 1.0)
+    cases = {
+        "_rk_first": (F._rk_first, (S, 8, 0.1, True, True, pp)),
+        "_rk4_mid": (F._rk4_mid, (S, 8, 0.1, True, pp)),
+        "_rk_last": (F._rk_last, (S, 8, 0.1, True, True, pp)),
+        "_vi_prepare": (F._vi_prepare, (S, 8, 0.1, 0.5, True, pp)),
+        "_newton_sweep": (F._newton_sweep, (S, 8, 0.1, 1e-14, 1, True, pp, pq)),
+        "_vi_commit": (F._vi_commit, (S, 8)),
+    }
+    op = r"v(?:mul|div|add|sub|sqrt)"
+    out = {}
+    for name, (f, a) in cases.items():
+        g = numba.njit(fastmath=False, error_model="numpy")(f.py_func)
+        g(*a)
+        text = g.inspect_asm(g.signatures[0])
+        out[name] = dict(zmm=len(re.findall(op + r"pd\s+[^\n]*%zmm", text)),
+                         ymm=len(re.findall(op + r"pd\s+[^\n]*%ymm", text)),
+                         scalar=len(re.findall(op + r"sd\s", text)),
+                         fma=len(re.findall(r"vfn?m(?:add|sub)", text)))
+    return out
 
 
 def _cpu_name() -> str:

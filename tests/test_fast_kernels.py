@@ -1,0 +1,243 @@
+"""The fast (structure-of-arrays, vectorized) ensemble kernel computes exactly
+what the straightforward one-member-per-iteration kernel computes.
+
+Every comparison is bitwise (``assert_array_equal`` on states, outputs,
+status flags, failing steps, Newton iteration counts and max h|Ω|): the fast
+kernel performs the same floating-point operations in the same order.  The
+ensembles mix uniform blocks (all members on the paper scene's parameters,
+which the fast kernel keeps in registers) with non-uniform ones (random
+bodies), partial blocks, members that diverge (explicit RK2 at the paper's
+h), members whose Newton iteration fails (iteration cap, NaN data), and
+members whose entropy leaves the range of the inline exp.
+"""
+
+from __future__ import annotations
+
+import math
+import platform
+import re
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from conftest import random_body
+
+from liethermo.kernels import ensemble as E
+from liethermo.kernels import fast as F
+from liethermo.kernels.model import P_CV
+from liethermo.kernels.rk import DOP853_A, DOP853_B
+from liethermo.simulate import simulate
+
+METHODS = {"vi": E.METHOD_VI, "rk2": E.METHOD_RK2, "rk4": E.METHOD_RK4}
+
+
+def _random_rotations(rng, N):
+    q = rng.standard_normal((N, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    w, x, y, z = q.T
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+    ], 1)
+
+
+def mixed_ensemble(paper_params, n_paper=2 * F.BLOCK + 10, n_random=40, seed=0,
+                   attitude=False):
+    """n_paper random members on the paper scene (uniform attitude, spin
+    direction uniform, |Ω| in [0.5, 1.5]·√2 rad/s), then n_random random
+    bodies (each with its own parameters)."""
+    rng = np.random.default_rng(seed)
+    n = 16 if attitude else 7
+    R = _random_rotations(rng, n_paper)
+    d = rng.standard_normal((n_paper, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    Y = np.zeros((n_paper, n))
+    Y[:, 0:3] = d * (rng.uniform(0.5, 1.5, n_paper) * math.sqrt(2.0))[:, None]
+    Y[:, 3:6] = R[:, 2, :]
+    if attitude:
+        Y[:, 7:16] = R.reshape(-1, 9)
+    P = np.tile(paper_params, (n_paper, 1))
+    if n_random == 0:
+        return Y, P
+    ys, ps = zip(*(random_body(seed * 1000 + k, attitude=attitude) for k in range(n_random)))
+    return np.vstack([Y, np.array(ys)]), np.vstack([P, np.array(ps)])
+
+
+def run(kernel, method, Y0, P, h, steps, every, alpha=0.5, beta=0.5, tol=1e-14, maxiter=30,
+        ISTAT=None):
+    fn = F.advance_ensemble_fast if kernel == "fast" else E.advance_ensemble
+    N, n = Y0.shape
+    Y = Y0.copy()
+    OUT = np.full((N, steps // every, n), np.nan)
+    IS = np.zeros((N, E.NISTAT), np.int64) if ISTAT is None else ISTAT.copy()
+    FS = np.zeros((N, E.NFSTAT))
+    fn(METHODS.get(method, E.METHOD_REFERENCE), Y, np.ascontiguousarray(P), h, every,
+       steps // every, alpha, beta, tol, maxiter, 2, DOP853_A, DOP853_B, OUT, IS, FS)
+    return Y, OUT, IS, FS
+
+
+def assert_same(a, b):
+    for x, y, name in zip(a, b, ("Y", "OUT", "ISTAT", "FSTAT")):
+        np.testing.assert_array_equal(x, y, err_msg=name)
+
+
+@pytest.mark.parametrize("attitude", [False, True])
+@pytest.mark.parametrize("friction", [(0.5, 0.5), (1.0, 0.0)])
+@pytest.mark.parametrize("method", ["vi", "rk2", "rk4"])
+def test_fast_equals_simple_on_random_ensembles(method, friction, attitude, paper_params):
+    Y, P = mixed_ensemble(paper_params, attitude=attitude, seed=1 + attitude)
+    args = (method, Y, P, 0.1, 200, 20, *friction)
+    fast, simple = run("fast", *args), run("simple", *args)
+    assert_same(fast, simple)
+    status = simple[2][:, E.IS_STATUS]
+    if method == "rk2":  # the paper's h: most paper members blow up, at various steps
+        assert (status == E.STATUS_NONFINITE).sum() > 20
+        assert len(set(simple[2][status != 0, E.IS_FAIL_STEP])) > 5
+    else:
+        assert np.all(status == E.STATUS_OK)
+
+
+def test_newton_failures_and_nan_members(paper_params):
+    """An iteration cap below what some steps need, a member with NaN data
+    (singular Jacobian at once) and a huge spin: the same members fail at the
+    same steps with the same flags and Newton counts."""
+    Y, P = mixed_ensemble(paper_params, seed=3)
+    Y[7, 0] = np.nan
+    Y[F.BLOCK + 3, 0:3] = [0.0, 300.0, 300.0]
+    for maxiter in (2, 3, 30):
+        fast = run("fast", "vi", Y, P, 0.1, 100, 10, maxiter=maxiter)
+        simple = run("simple", "vi", Y, P, 0.1, 100, 10, maxiter=maxiter)
+        assert_same(fast, simple)
+        status = simple[2][:, E.IS_STATUS]
+        assert status[7] == E.STATUS_NEWTON and simple[2][7, E.IS_FAIL_STEP] == 1
+        if maxiter < 30:
+            assert (status == E.STATUS_NEWTON).sum() > 10
+    # tol = 0 never converges: everybody fails its first step with the cap
+    fast = run("fast", "vi", Y, P, 0.1, 10, 10, tol=0.0, maxiter=5)
+    assert_same(fast, run("simple", "vi", Y, P, 0.1, 10, 10, tol=0.0, maxiter=5))
+    assert np.all(fast[2][:, E.IS_STATUS] == E.STATUS_NEWTON)
+
+
+@pytest.mark.parametrize("method", ["vi", "rk2", "rk4"])
+def test_failing_member_does_not_corrupt_its_block(method, paper_params):
+    """One member of a full block fails at its first step; every other member
+    of the block is bitwise what it is in an ensemble without that member
+    (where it sits in another lane) and what the simple kernel gives."""
+    Y, P = mixed_ensemble(paper_params, n_paper=F.BLOCK, n_random=0, seed=4)
+    h = 0.02 if method == "rk2" else 0.1  # RK2 stable: only the bad member fails
+    bad = 5
+    Y[bad, 0:3] = [0.0, 3000.0, 3000.0] if method != "vi" else [np.nan, 0.0, 0.0]
+    fast = run("fast", method, Y, P, h, 60, 10)
+    assert_same(fast, run("simple", method, Y, P, h, 60, 10))
+    assert fast[2][bad, E.IS_STATUS] != E.STATUS_OK
+    keep = np.arange(len(Y)) != bad
+    assert np.all(fast[2][keep, E.IS_STATUS] == E.STATUS_OK)
+    without = run("fast", method, Y[keep], P[keep], h, 60, 10)
+    for a, b in zip(fast, without):
+        np.testing.assert_array_equal(a[keep], b)
+
+
+@pytest.mark.parametrize("method", ["vi", "rk2", "rk4"])
+def test_entropy_outside_inline_exp_range(method, paper_params):
+    """Members whose σ/c_v is beyond EXP_SMALL (or straddles it) take the
+    math.exp path, per lane, and still agree bitwise."""
+    Y, P = mixed_ensemble(paper_params, n_paper=F.BLOCK + 5, n_random=5, seed=5)
+    cv = P[:, P_CV]
+    Y[::3, 6] = 0.3 * cv[::3]
+    Y[1::7, 6] = F.EXP_SMALL * cv[1::7] * (1 - 1e-9)  # crosses the limit while stepping
+    Y[2::11, 6] = -2.0 * F.EXP_SMALL * cv[2::11]
+    h = 0.02 if method == "rk2" else 0.1
+    fast = run("fast", method, Y, P, h, 60, 10)
+    assert_same(fast, run("simple", method, Y, P, h, 60, 10))
+
+
+def test_inline_exp_equals_libm():
+    """The inline exp reproduces math.exp bitwise on its range (glibc's
+    evaluation for tiny arguments)."""
+    from numba import njit
+
+    @njit
+    def mismatches(xs):
+        n = 0
+        for x in xs:
+            n += F._exp_small(x) != math.exp(x)
+        return n
+
+    rng = np.random.default_rng(6)
+    for hi in (1e-12, 1e-9, 1e-6, F.EXP_SMALL):
+        assert mismatches(rng.uniform(-hi, hi, 200_000)) == 0
+
+
+def test_entry_states_and_partial_calls(paper_params):
+    """Members that already failed are skipped, members enter with their own
+    step counters, a run in pieces equals one call; edge sizes."""
+    Y, P = mixed_ensemble(paper_params, n_paper=F.BLOCK + 3, n_random=3, seed=7)
+    IS = np.zeros((len(Y), E.NISTAT), np.int64)
+    IS[::4, E.IS_STATUS] = E.STATUS_NONFINITE
+    IS[1::4, E.IS_STEPS] = 17
+    IS[1::4, E.IS_NEWTON_TOTAL] = 40
+    for method in ("vi", "rk2", "rk4"):
+        assert_same(run("fast", method, Y, P, 0.1, 30, 3, ISTAT=IS),
+                    run("simple", method, Y, P, 0.1, 30, 3, ISTAT=IS))
+        one = run("fast", method, Y, P, 0.1, 40, 10)
+        a = run("fast", method, Y, P, 0.1, 20, 10)
+        Yb, OUTb, ISb, FSb = a
+        fn_out = np.full((len(Y), 2, Y.shape[1]), np.nan)
+        F.advance_ensemble_fast(METHODS[method], Yb, P, 0.1, 10, 2, 0.5, 0.5, 1e-14, 30, 1,
+                                DOP853_A, DOP853_B, fn_out, ISb, FSb)
+        np.testing.assert_array_equal(np.concatenate([OUTb, fn_out], 1), one[1])
+        np.testing.assert_array_equal(Yb, one[0])
+        np.testing.assert_array_equal(ISb, one[2])
+    for N in (0, 1, F.BLOCK + 1):
+        assert_same(run("fast", "vi", Y[:N], P[:N], 0.1, 10, 1),
+                    run("simple", "vi", Y[:N], P[:N], 0.1, 10, 1))
+    assert_same(run("fast", "rk4", Y, P, 0.1, 0, 1), run("simple", "rk4", Y, P, 0.1, 0, 1))
+
+
+def test_reference_method_falls_back(paper_params):
+    Y, P = mixed_ensemble(paper_params, n_paper=20, n_random=4, seed=8)
+    assert_same(run("fast", "reference", Y, P, 0.05, 4, 2),
+                run("simple", "reference", Y, P, 0.05, 4, 2))
+
+
+@pytest.mark.parametrize("method,start", [("vi", "staggered"), ("vi", "node"), ("rk2", "node"),
+                                          ("rk4", "node")])
+def test_simulate_kernel_switch(method, start, paper_params):
+    Y, P = mixed_ensemble(paper_params, n_paper=150, n_random=10, seed=9, attitude=True)
+    kw = dict(start=start, every=5, chunk_steps=15)
+    fast = simulate(Y, P, 0.1, 60, method, kernel="fast", **kw)
+    simple = simulate(Y, P, 0.1, 60, method, kernel="simple", **kw)
+    auto = simulate(Y, P, 0.1, 60, method, threads=1, **kw)
+    for t in (fast, auto):
+        for name in ("states", "status", "fail_step", "newton_iterations", "newton_max",
+                     "steps_done", "max_h_omega"):
+            np.testing.assert_array_equal(getattr(t, name), getattr(simple, name), err_msg=name)
+    with pytest.raises(ValueError, match="kernel"):
+        simulate(Y, P, 0.1, 10, method, kernel="vectorised")
+
+
+def test_kernels_are_vectorized():
+    """The lane loops compile to packed double-precision arithmetic (checked on
+    fresh, uncached compilations of two sweeps)."""
+    if platform.machine().lower() not in ("x86_64", "amd64"):
+        pytest.skip("packed-op check written for x86-64")
+    import numba
+
+    S = np.ones(F.NROWS * F.BLOCK)
+    pp = F._load_params(S, 0)
+    packed = re.compile(r"\b(v?(mul|div|add|sub)pd)\s+[^\n]*%(x|y|z)mm")
+    for f, args in ((F._rk_last, (S, 8, 0.1, True, True, pp)),
+                    (F._newton_sweep, (S, 8, 0.1, 1e-14, 1, False, pp, (1.0, 1.0, 1.0, 1.0)))):
+        g = numba.njit(fastmath=False, error_model="numpy")(f.py_func)
+        g(*args)
+        asm = g.inspect_asm(g.signatures[0])
+        assert len(packed.findall(asm)) >= 20, f.__name__
+        assert "vfmadd" not in asm  # no contraction: same rounding as the simple kernel
+
+
+def test_import_compiles_nothing():
+    code = ("import liethermo.kernels.fast as F, liethermo.simulate;"
+            "assert not F.advance_ensemble_fast.overloads and not F._advance_block.overloads")
+    subprocess.run([sys.executable, "-c", code], check=True)
