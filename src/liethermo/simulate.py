@@ -138,14 +138,24 @@ def simulate(
     chunk_steps: int | None = None,
     progress: Callable[[int], None] | None = None,
     threads: int | None = None,
+    kernel: str = "auto",
 ) -> Trajectory:
     """Integrate an ensemble.
 
     y0: (N, 7) or (N, 16) initial states (model.py layout; 16 = with attitude);
     params: (N, NPARAM); h in s; ``steps`` steps, keeping every ``every``-th.
     ``progress(n)`` is called with the number of steps just advanced.
+    ``kernel``: "fast" (vectorized blocks, :mod:`liethermo.kernels.fast`),
+    "simple" (one member per prange iteration) or "auto" (= "fast"); both
+    give bitwise the same results.
     """
     m = get_method(method)
+    if kernel not in ("auto", "fast", "simple"):
+        raise ValueError(f"unknown kernel {kernel!r}: expected 'auto', 'fast' or 'simple'")
+    if kernel == "simple":
+        advance = _ens.advance_ensemble
+    else:
+        from .kernels.fast import advance_ensemble_fast as advance
     if friction not in FRICTION:
         raise ValueError(f"unknown integrator.friction {friction!r}: expected one of {sorted(FRICTION)}")
     if start not in STARTS:
@@ -190,7 +200,7 @@ def simulate(
         while j < n_out:
             nj = min(out_per_chunk, n_out - j)
             OUT = states[:, 1 + j: 1 + j + nj]  # strided view, written in place
-            _ens.advance_ensemble(m.kernel_id, Y, params, float(h), int(every), int(nj),
+            advance(m.kernel_id, Y, params, float(h), int(every), int(nj),
                                   alpha, beta, float(newton_tol), int(newton_maxiter), int(nsub),
                                   DOP853_A, DOP853_B, OUT, IS, FS)
             j += nj
