@@ -79,8 +79,12 @@ def run(kernel, method, Y0, P, h, steps, every, alpha=0.5, beta=0.5, tol=1e-14, 
 
 
 def assert_same(a, b):
+    """Bit-for-bit equality (signed zeros and NaN payloads included)."""
     for x, y, name in zip(a, b, ("Y", "OUT", "ISTAT", "FSTAT")):
         np.testing.assert_array_equal(x, y, err_msg=name)
+        if x.dtype == np.float64:
+            np.testing.assert_array_equal(np.ascontiguousarray(x).view(np.uint64),
+                                          np.ascontiguousarray(y).view(np.uint64), err_msg=name)
 
 
 @pytest.mark.parametrize("attitude", [False, True])

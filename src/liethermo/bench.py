@@ -13,10 +13,14 @@ direction with |Ω₀| uniform in [0.5, 1.5]·√2 rad s⁻¹ — at h = 0.1 s, 
 
 Reported per (kernel, method, members): wall time of one kernel call (best of
 ``--repeat``, after a warm-up call that compiles or loads the numba cache),
-ns per member-step = wall / (members · steps) with all cores, the speed-up
+ns per member-step = wall / (members · steps) with all cores, ``cpu%`` = CPU
+time of the process / (wall · threads) for that call (well below 100 % means
+other processes took the cores or the threads were idle; OpenMP workers spin
+briefly after a call, so very short calls can show more than 100 %), the speed-up
 over ``simple``, whether the results agree bitwise with ``simple`` (and the
 largest relative difference otherwise), and memory: the bytes of the arrays
-the call works on and the process's peak resident set size.
+the call works on and the process's peak resident set size during the case
+(reset before each case where Linux allows it, else the process's peak).
 
 Start-up is reported too: ``import liethermo.simulate`` in a fresh
 interpreter (nothing is compiled at import), and the first call of each
@@ -129,6 +133,12 @@ def run_kernel(kernel: str, method: str, Y0: np.ndarray, P: np.ndarray, h: float
     return time.perf_counter() - t0, Y, OUT, IS, FS
 
 
+def _bits_equal(a: np.ndarray, b: np.ndarray) -> bool:
+    """Bit-for-bit equality of two float64 arrays (signed zeros and NaNs included)."""
+    return a.shape == b.shape and np.array_equal(np.ascontiguousarray(a).view(np.uint64),
+                                                 np.ascontiguousarray(b).view(np.uint64))
+
+
 def _max_rel_diff(a: np.ndarray, b: np.ndarray) -> float:
     fa, fb = np.isfinite(a), np.isfinite(b)
     if not np.array_equal(fa, fb) or not np.array_equal(a[~fa], b[~fb], equal_nan=True):
@@ -142,7 +152,25 @@ def _max_rel_diff(a: np.ndarray, b: np.ndarray) -> float:
     return float(rel.max())
 
 
+def _reset_peak_rss() -> bool:
+    """Reset the process's peak RSS (Linux: VmHWM via /proc/self/clear_refs)."""
+    try:
+        with open("/proc/self/clear_refs", "w") as f:
+            f.write("5")
+        return True
+    except OSError:
+        return False
+
+
 def _peak_rss_mb() -> float:
+    """Peak resident set size in MiB (since the last reset where supported)."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
     kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     return kb / 1024.0 if sys.platform != "darwin" else kb / 2**20
 
@@ -188,26 +216,35 @@ def main(argv=None) -> int:
 
     rows = []
     hdr = (f"{'kernel':<7}{'method':<7}{'members':>8}{'wall s':>9}{'ns/mstep':>10}"
-           f"{'speedup':>9}{'agree':>10}{'arrays MB':>10}{'peakRSS MB':>11}")
+           f"{'speedup':>9}{'agree':>10}{'arrays MB':>10}{'peakRSS MB':>11}{'cpu%':>6}")
     print(f"liethermo bench: paper scene, random ensemble, h={args.h}, {args.steps} steps, "
           f"every {args.every}, {threads} threads, state width {7 + 9 * args.attitude}")
     print(hdr)
     print("-" * len(hdr))
+    if os.getloadavg()[0] > 0.5:
+        print(f"note: 1-min load average {os.getloadavg()[0]:.1f} before the run: other processes "
+              "may compete for the cores and inflate wall times")
     for N in args.members:
         Y0, P = random_ensemble(N, seed=args.seed, attitude=args.attitude)
         for method in args.methods:
             ref = None
             for kernel in args.kernels:
                 best = math.inf
+                _reset_peak_rss()
                 for _ in range(max(1, args.repeat)):
+                    Y = OUT = IS = FS = None  # free the previous call's arrays first
+                    c0 = time.process_time()
                     dt, Y, OUT, IS, FS = run_kernel(kernel, method, Y0, P, args.h, args.steps,
                                                     args.every)
-                    best = min(best, dt)
+                    if dt < best:
+                        best = dt
+                        util = (time.process_time() - c0) / (dt * threads)
                 nbytes = Y.nbytes + P.nbytes + OUT.nbytes + IS.nbytes + FS.nbytes
                 row = dict(kernel=kernel, method=method, members=N, steps=args.steps,
                            every=args.every, h=args.h, threads=threads, wall_s=best,
                            ns_per_member_step=best / (N * args.steps) * 1e9,
                            arrays_mb=nbytes / 2**20, peak_rss_mb=_peak_rss_mb(),
+                           cpu_util=util,
                            n_ok=int((IS[:, 0] == 0).sum()),
                            newton_mean=float(IS[:, 2].sum() / max(1, IS[:, 4].sum())))
                 if ref is None:
@@ -218,9 +255,8 @@ def main(argv=None) -> int:
                 else:
                     r0, Yr, OUTr, ISr, FSr = ref
                     row["speedup"] = r0["wall_s"] / best
-                    row["bitwise"] = bool(np.array_equal(OUT, OUTr, equal_nan=True)
-                                          and np.array_equal(Y, Yr, equal_nan=True)
-                                          and np.array_equal(IS, ISr) and np.array_equal(FS, FSr))
+                    row["bitwise"] = bool(_bits_equal(OUT, OUTr) and _bits_equal(Y, Yr)
+                                          and np.array_equal(IS, ISr) and _bits_equal(FS, FSr))
                     row["max_rel_diff"] = max(_max_rel_diff(OUT, OUTr), _max_rel_diff(Y, Yr),
                                               _max_rel_diff(FS, FSr),
                                               0.0 if np.array_equal(IS, ISr) else math.inf)
@@ -228,7 +264,7 @@ def main(argv=None) -> int:
                 agree = ("bitwise" if row["bitwise"] else f"{row['max_rel_diff']:.1e}")
                 print(f"{kernel:<7}{method:<7}{N:>8}{best:>9.3f}{row['ns_per_member_step']:>10.2f}"
                       f"{row['speedup']:>9.2f}{agree:>10}{row['arrays_mb']:>10.1f}"
-                      f"{row['peak_rss_mb']:>11.0f}")
+                      f"{row['peak_rss_mb']:>11.0f}{100 * util:>6.0f}")
     print(f"start-up: import liethermo.simulate {import_s:.2f} s (fresh interpreter); first call "
           "of each kernel (cache load or compile), all methods: "
           + ", ".join(f"{k} {v:.2f} s" for k, v in compile_s.items()))
