@@ -19,8 +19,10 @@ other processes took the cores or the threads were idle; OpenMP workers spin
 briefly after a call, so very short calls can show more than 100 %), the speed-up
 over ``simple``, whether the results agree bitwise with ``simple`` (and the
 largest relative difference otherwise), and memory: the bytes of the arrays
-the call works on and the process's peak resident set size during the case
-(reset before each case where Linux allows it, else the process's peak).
+the call works on, the process's peak resident set size during the case
+(reset before each case where Linux allows it, else the process's peak) and
+its increase over the resident size at the start of the case (``+MB``: what
+the case itself allocated, the kernel's scratch included).
 
 Start-up is reported too: ``import liethermo.simulate`` in a fresh
 interpreter (nothing is compiled at import), and the first call of each
@@ -162,15 +164,23 @@ def _reset_peak_rss() -> bool:
         return False
 
 
-def _peak_rss_mb() -> float:
-    """Peak resident set size in MiB (since the last reset where supported)."""
+def _rss_mb(field: str = "VmRSS") -> float:
+    """Current (VmRSS) or peak (VmHWM) resident set size in MiB; NaN if unknown."""
     try:
         with open("/proc/self/status") as f:
             for line in f:
-                if line.startswith("VmHWM:"):
+                if line.startswith(field + ":"):
                     return int(line.split()[1]) / 1024.0
     except OSError:
         pass
+    return math.nan
+
+
+def _peak_rss_mb() -> float:
+    """Peak resident set size in MiB (since the last reset where supported)."""
+    peak = _rss_mb("VmHWM")
+    if peak == peak:
+        return peak
     kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     return kb / 1024.0 if sys.platform != "darwin" else kb / 2**20
 
@@ -216,7 +226,7 @@ def main(argv=None) -> int:
 
     rows = []
     hdr = (f"{'kernel':<7}{'method':<7}{'members':>8}{'wall s':>9}{'ns/mstep':>10}"
-           f"{'speedup':>9}{'agree':>10}{'arrays MB':>10}{'peakRSS MB':>11}{'cpu%':>6}")
+           f"{'speedup':>9}{'agree':>10}{'arrays MB':>10}{'peakRSS MB':>11}{'(+MB)':>7}{'cpu%':>6}")
     print(f"liethermo bench: paper scene, random ensemble, h={args.h}, {args.steps} steps, "
           f"every {args.every}, {threads} threads, state width {7 + 9 * args.attitude}")
     print(hdr)
@@ -231,6 +241,7 @@ def main(argv=None) -> int:
             for kernel in args.kernels:
                 best = math.inf
                 _reset_peak_rss()
+                rss0 = _rss_mb()
                 for _ in range(max(1, args.repeat)):
                     Y = OUT = IS = FS = None  # free the previous call's arrays first
                     c0 = time.process_time()
@@ -244,6 +255,7 @@ def main(argv=None) -> int:
                            every=args.every, h=args.h, threads=threads, wall_s=best,
                            ns_per_member_step=best / (N * args.steps) * 1e9,
                            arrays_mb=nbytes / 2**20, peak_rss_mb=_peak_rss_mb(),
+                           peak_rss_increase_mb=_peak_rss_mb() - rss0,
                            cpu_util=util,
                            n_ok=int((IS[:, 0] == 0).sum()),
                            newton_mean=float(IS[:, 2].sum() / max(1, IS[:, 4].sum())))
@@ -264,7 +276,7 @@ def main(argv=None) -> int:
                 agree = ("bitwise" if row["bitwise"] else f"{row['max_rel_diff']:.1e}")
                 print(f"{kernel:<7}{method:<7}{N:>8}{best:>9.3f}{row['ns_per_member_step']:>10.2f}"
                       f"{row['speedup']:>9.2f}{agree:>10}{row['arrays_mb']:>10.1f}"
-                      f"{row['peak_rss_mb']:>11.0f}{100 * util:>6.0f}")
+                      f"{row['peak_rss_mb']:>11.0f}{row['peak_rss_increase_mb']:>7.0f}{100 * util:>6.0f}")
     print(f"start-up: import liethermo.simulate {import_s:.2f} s (fresh interpreter); first call "
           "of each kernel (cache load or compile), all methods: "
           + ", ".join(f"{k} {v:.2f} s" for k, v in compile_s.items()))
