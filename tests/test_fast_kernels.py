@@ -159,7 +159,8 @@ def test_entropy_outside_inline_exp_range(method, paper_params):
 
 def test_inline_exp_equals_libm():
     """The inline exp reproduces math.exp bitwise on its range (glibc's
-    evaluation for tiny arguments)."""
+    evaluation for tiny arguments), for both signs: the kernels evaluate
+    exp(−σ/c_v) with σ ≥ 0 in practice, i.e. at negative arguments."""
     from numba import njit
 
     @njit
@@ -170,8 +171,14 @@ def test_inline_exp_equals_libm():
         return n
 
     rng = np.random.default_rng(6)
-    for hi in (1e-12, 1e-9, 1e-6, F.EXP_SMALL):
+    for hi in (1e-18, 1e-15, 1e-12, 1e-9, 1e-6, F.EXP_SMALL):
         assert mismatches(rng.uniform(-hi, hi, 200_000)) == 0
+        assert mismatches(-rng.uniform(0.0, hi, 200_000)) == 0
+    # the kernels' argument −(σ·(1/c_v)), on entropies of the paper scene's size
+    sigma = rng.uniform(0.0, 1e-3, 200_000)
+    for cv in (1.0, 3.0 * 6.02214076e23 * 1.380649e-23 * 1e3, 1e9):
+        assert mismatches(-(sigma * (1.0 / cv))) == 0
+    assert mismatches(np.array([0.0, -0.0, -F.EXP_SMALL, F.EXP_SMALL, -5e-324])) == 0
 
 
 def test_entry_states_and_partial_calls(paper_params):
@@ -232,8 +239,9 @@ def test_kernels_are_vectorized():
     S = np.ones(F.NROWS * F.BLOCK)
     pp = F._load_params(S, 0)
     packed = re.compile(r"\b(v?(mul|div|add|sub)pd)\s+[^\n]*%(x|y|z)mm")
-    for f, args in ((F._rk_last, (S, 8, 0.1, True, True, pp)),
-                    (F._newton_sweep, (S, 8, 0.1, 1e-14, 1, False, pp, (1.0, 1.0, 1.0, 1.0)))):
+    pv = F._load_recips(S, 0)
+    for f, args in ((F._rk_last, (S, 8, 0.1, True, True, pp, pv)),
+                    (F._newton_sweep, (S, 8, 0.1, 10.0, 1e-14, 1, False, pp, (1.0, 1.0, 1.0, 1.0)))):
         g = numba.njit(fastmath=False, error_model="numpy")(f.py_func)
         g(*args)
         asm = g.inspect_asm(g.signatures[0])

@@ -108,7 +108,8 @@ R_TMP = 45  # 7 rows: RK stage state (shares R_RN's rows: RK has no R there)
 R_ACC = 54  # 7 rows: RK4 sum of stages
 R_IH = 61  # 3 rows: I_k/h (VI Jacobian diagonal, hoisted: same value)
 R_AC = 64  # αc (VI, hoisted)
-NROWS = 65
+R_INV = 65  # 5 rows: 1/I₁, 1/I₂, 1/I₃, 1/c_v, 1/T₀ (hoisted: same values)
+NROWS = 70
 
 # offsets (compile-time constants inside the kernels)
 O_Y = R_Y * BLOCK
@@ -132,6 +133,7 @@ O_TMP = R_TMP * BLOCK
 O_ACC = R_ACC * BLOCK
 O_IH = R_IH * BLOCK
 O_AC = R_AC * BLOCK
+O_INV = R_INV * BLOCK
 B1 = BLOCK  # row stride
 
 # per-step outcome flags (R_FLAG)
@@ -158,37 +160,39 @@ def _finite(x):
 
 
 @jit(inline="always")
-def _rhs7(w0, w1, w2, G0, G1, G2, s, I1, I2, I3, c, gx, gy, gz, cv, T0):
-    """model.rhs for the 7-wide state, inline exp; returns (dy0..dy6, small)."""
+def _rhs7(w0, w1, w2, G0, G1, G2, s, I1, I2, I3, c, gx, gy, gz, iI1, iI2, iI3, icv, iT0):
+    """model.rhs for the 7-wide state, inline exp; returns (dy0..dy6, small).
+    iI_k = 1/I_k, icv = 1/c_v, iT0 = 1/T₀ are loop invariants (hoisted)."""
     P0 = I1 * w0
     P1 = I2 * w1
     P2 = I3 * w2
-    d0 = ((P1 * w2 - P2 * w1) - c * w0 + (G1 * gz - G2 * gy)) / I1
-    d1 = ((P2 * w0 - P0 * w2) - c * w1 + (G2 * gx - G0 * gz)) / I2
-    d2 = ((P0 * w1 - P1 * w0) - c * w2 + (G0 * gy - G1 * gx)) / I3
+    d0 = ((P1 * w2 - P2 * w1) - c * w0 + (G1 * gz - G2 * gy)) * iI1
+    d1 = ((P2 * w0 - P0 * w2) - c * w1 + (G2 * gx - G0 * gz)) * iI2
+    d2 = ((P0 * w1 - P1 * w0) - c * w2 + (G0 * gy - G1 * gx)) * iI3
     d3 = G1 * w2 - G2 * w1
     d4 = G2 * w0 - G0 * w2
     d5 = G0 * w1 - G1 * w0
-    x = s / cv
+    x = -(s * icv)  # model.inverse_temperature
     small = abs(x) <= EXP_SMALL
-    d6 = c * (w0 * w0 + w1 * w1 + w2 * w2) / (T0 * _exp_small(x))
+    d6 = c * (w0 * w0 + w1 * w1 + w2 * w2) * (_exp_small(x) * iT0)
     return d0, d1, d2, d3, d4, d5, d6, small
 
 
 @jit(inline="always")
-def _newton_iter(x0, x1, x2, b0, b1, b2, I1, I2, I3, Ih0, Ih1, Ih2, ac, h):
+def _newton_iter(x0, x1, x2, b0, b1, b2, I1, I2, I3, Ih0, Ih1, Ih2, ac, h, ih):
     """One Newton correction d = J(X)⁻¹F(X) of vi.newton_momentum, same
     operations (momentum_residual, momentum_jacobian, solve3); returns
     (d0, d1, d2, det).  d is meaningless when det is 0 or not finite.
-    Ih_k = I_k/h and ac = αc are loop invariants computed once per block."""
+    Ih_k = I_k·(1/h), ac = αc and ih = 1/h are loop invariants computed once
+    per block."""
     # momentum_residual
     Q0 = I1 * x0
     Q1 = I2 * x1
     Q2 = I3 * x2
     xQ = x0 * Q0 + x1 * Q1 + x2 * Q2
-    F0 = Q0 / h + 0.5 * (x1 * Q2 - x2 * Q1) + 0.25 * h * xQ * x0 + ac * x0 + b0
-    F1 = Q1 / h + 0.5 * (x2 * Q0 - x0 * Q2) + 0.25 * h * xQ * x1 + ac * x1 + b1
-    F2 = Q2 / h + 0.5 * (x0 * Q1 - x1 * Q0) + 0.25 * h * xQ * x2 + ac * x2 + b2
+    F0 = Q0 * ih + 0.5 * (x1 * Q2 - x2 * Q1) + 0.25 * h * xQ * x0 + ac * x0 + b0
+    F1 = Q1 * ih + 0.5 * (x2 * Q0 - x0 * Q2) + 0.25 * h * xQ * x1 + ac * x1 + b1
+    F2 = Q2 * ih + 0.5 * (x0 * Q1 - x1 * Q0) + 0.25 * h * xQ * x2 + ac * x2 + b2
     # momentum_jacobian (J[i, j] = off-diagonal part + 0.5 h X_i Q_j, + diagonal)
     J00 = 0.0 + 0.5 * h * x0 * Q0
     J01 = 0.5 * (-x2 * I2 + Q2) + 0.5 * h * x0 * Q1
@@ -199,7 +203,7 @@ def _newton_iter(x0, x1, x2, b0, b1, b2, I1, I2, I3, Ih0, Ih1, Ih2, ac, h):
     J20 = 0.5 * (-x1 * I1 + Q1) + 0.5 * h * x2 * Q0
     J21 = 0.5 * (x0 * I2 - Q0) + 0.5 * h * x2 * Q1
     J22 = 0.0 + 0.5 * h * x2 * Q2
-    J00 += Ih0 + 0.25 * h * xQ + ac  # Ih_k = I_k/h
+    J00 += Ih0 + 0.25 * h * xQ + ac  # Ih_k = I_k·(1/h)
     J11 += Ih1 + 0.25 * h * xQ + ac
     J22 += Ih2 + 0.25 * h * xQ + ac
     # solve3 (columns a, b, c)
@@ -251,6 +255,21 @@ def _load7(S, off, i):
 
 
 @jit(inline="always")
+def _load_recips(S, i):
+    return (S[O_INV + i], S[O_INV + B1 + i], S[O_INV + 2 * B1 + i], S[O_INV + 3 * B1 + i],
+            S[O_INV + 4 * B1 + i])
+
+
+@jit(inline="always")
+def _recips(S, i, uni, pv):
+    """Lane i's (1/I₁, 1/I₂, 1/I₃, 1/c_v, 1/T₀): the tuple pv when the block
+    is uniform, else its rows."""
+    if uni:
+        return pv
+    return _load_recips(S, i)
+
+
+@jit(inline="always")
 def _params(S, i, uni, pp):
     """Lane i's parameters: the tuple pp when the block is uniform (all
     lanes share them; they then live in registers), else its rows."""
@@ -260,18 +279,19 @@ def _params(S, i, uni, pp):
 
 
 @jit
-def _rk_first(S, nb, h, rk4, uni, pp):
+def _rk_first(S, nb, h, rk4, uni, pp, pv):
     """max h|Ω_k|; k1 = f(y); tmp = y + (h/2)k1; acc = k1 (RK4).  R_FLAG is
     set to FLAG_EXACT where an exp argument is out of range, else FLAG_OK."""
     a = 0.5 * h
     for i in range(nb):
         I1, I2, I3, c, gx, gy, gz, cv, T0 = _params(S, i, uni, pp)
+        iI1, iI2, iI3, icv, iT0 = _recips(S, i, uni, pv)
         y0, y1, y2, y3, y4, y5, y6 = _load7(S, O_Y, i)
         hw = h * np.sqrt(y0 * y0 + y1 * y1 + y2 * y2)
         hm = S[O_HW + i]
         S[O_HW + i] = hw if hw > hm else hm
         k0, k1, k2, k3, k4, k5, k6, small = _rhs7(
-            y0, y1, y2, y3, y4, y5, y6, I1, I2, I3, c, gx, gy, gz, cv, T0)
+            y0, y1, y2, y3, y4, y5, y6, I1, I2, I3, c, gx, gy, gz, iI1, iI2, iI3, icv, iT0)
         S[O_TMP + i] = y0 + a * k0
         S[O_TMP + B1 + i] = y1 + a * k1
         S[O_TMP + 2 * B1 + i] = y2 + a * k2
@@ -291,13 +311,14 @@ def _rk_first(S, nb, h, rk4, uni, pp):
 
 
 @jit
-def _rk4_mid(S, nb, a, uni, pp):
+def _rk4_mid(S, nb, a, uni, pp, pv):
     """RK4 stage 2 or 3: k = f(tmp); acc += 2k; tmp = y + a k."""
     for i in range(nb):
         I1, I2, I3, c, gx, gy, gz, cv, T0 = _params(S, i, uni, pp)
+        iI1, iI2, iI3, icv, iT0 = _recips(S, i, uni, pv)
         u0, u1, u2, u3, u4, u5, u6 = _load7(S, O_TMP, i)
         k0, k1, k2, k3, k4, k5, k6, small = _rhs7(
-            u0, u1, u2, u3, u4, u5, u6, I1, I2, I3, c, gx, gy, gz, cv, T0)
+            u0, u1, u2, u3, u4, u5, u6, I1, I2, I3, c, gx, gy, gz, iI1, iI2, iI3, icv, iT0)
         S[O_ACC + i] = S[O_ACC + i] + 2.0 * k0
         S[O_ACC + B1 + i] = S[O_ACC + B1 + i] + 2.0 * k1
         S[O_ACC + 2 * B1 + i] = S[O_ACC + 2 * B1 + i] + 2.0 * k2
@@ -317,26 +338,27 @@ def _rk4_mid(S, nb, a, uni, pp):
 
 
 @jit
-def _rk_last(S, nb, h, rk4, uni, pp):
-    """k = f(tmp); y_new = y + h k (RK2) or y + h(acc + k)/6 (RK4).  A lane
+def _rk_last(S, nb, h, rk4, uni, pp, pv):
+    """k = f(tmp); y_new = y + h k (RK2) or y + h(acc + k)·(1/6) (RK4).  A lane
     is updated only if y_new is finite and no exp argument was out of range;
     otherwise y is left as it was and R_FLAG says why (FLAG_NONFINITE or
     FLAG_EXACT).  Returns the number of flagged lanes."""
     nflag = 0
     for i in range(nb):
         I1, I2, I3, c, gx, gy, gz, cv, T0 = _params(S, i, uni, pp)
+        iI1, iI2, iI3, icv, iT0 = _recips(S, i, uni, pv)
         u0, u1, u2, u3, u4, u5, u6 = _load7(S, O_TMP, i)
         k0, k1, k2, k3, k4, k5, k6, small = _rhs7(
-            u0, u1, u2, u3, u4, u5, u6, I1, I2, I3, c, gx, gy, gz, cv, T0)
+            u0, u1, u2, u3, u4, u5, u6, I1, I2, I3, c, gx, gy, gz, iI1, iI2, iI3, icv, iT0)
         y0, y1, y2, y3, y4, y5, y6 = _load7(S, O_Y, i)
         if rk4:
-            n0 = y0 + h * (S[O_ACC + i] + k0) / 6.0
-            n1 = y1 + h * (S[O_ACC + B1 + i] + k1) / 6.0
-            n2 = y2 + h * (S[O_ACC + 2 * B1 + i] + k2) / 6.0
-            n3 = y3 + h * (S[O_ACC + 3 * B1 + i] + k3) / 6.0
-            n4 = y4 + h * (S[O_ACC + 4 * B1 + i] + k4) / 6.0
-            n5 = y5 + h * (S[O_ACC + 5 * B1 + i] + k5) / 6.0
-            n6 = y6 + h * (S[O_ACC + 6 * B1 + i] + k6) / 6.0
+            n0 = y0 + h * (S[O_ACC + i] + k0) * (1.0 / 6.0)
+            n1 = y1 + h * (S[O_ACC + B1 + i] + k1) * (1.0 / 6.0)
+            n2 = y2 + h * (S[O_ACC + 2 * B1 + i] + k2) * (1.0 / 6.0)
+            n3 = y3 + h * (S[O_ACC + 3 * B1 + i] + k3) * (1.0 / 6.0)
+            n4 = y4 + h * (S[O_ACC + 4 * B1 + i] + k4) * (1.0 / 6.0)
+            n5 = y5 + h * (S[O_ACC + 5 * B1 + i] + k5) * (1.0 / 6.0)
+            n6 = y6 + h * (S[O_ACC + 6 * B1 + i] + k6) * (1.0 / 6.0)
         else:
             n0 = y0 + h * k0
             n1 = y1 + h * k1
@@ -362,14 +384,14 @@ def _rk_last(S, nb, h, rk4, uni, pp):
 
 
 @jit
-def _rk_sweep(S, nb, h, rk4, uni, pp):
+def _rk_sweep(S, nb, h, rk4, uni, pp, pv):
     """One RK2 (rk4=False) or RK4 step of lanes [0, nb), in place (see
     _rk_last for the flags).  Returns the number of flagged lanes."""
-    _rk_first(S, nb, h, rk4, uni, pp)
+    _rk_first(S, nb, h, rk4, uni, pp, pv)
     if rk4:
-        _rk4_mid(S, nb, 0.5 * h, uni, pp)
-        _rk4_mid(S, nb, h, uni, pp)
-    return _rk_last(S, nb, h, rk4, uni, pp)
+        _rk4_mid(S, nb, 0.5 * h, uni, pp, pv)
+        _rk4_mid(S, nb, h, uni, pp, pv)
+    return _rk_last(S, nb, h, rk4, uni, pp, pv)
 
 
 @jit
@@ -410,13 +432,14 @@ def _hw_sweep(S, nb, h):
 
 
 @jit
-def _vi_prepare(S, nb, h, beta, uni, pp):
+def _vi_prepare(S, nb, h, ih, beta, uni, pp, pv):
     """Per lane: max h|Ω_k|, Γ_{k+1} (Cayley), σ_{k+1}, b, predictor X,
     |Ω_k|∞, and resets the Newton mask.  Returns the number of lanes whose
     exp argument needs math.exp (R_FLAG = FLAG_EXACT)."""
     nexact = 0
     for i in range(nb):
         I1, I2, I3, c, gx, gy, gz, cv, T0 = _params(S, i, uni, pp)
+        iI1, iI2, iI3, icv, iT0 = _recips(S, i, uni, pv)
         w0 = S[O_Y + i]
         w1 = S[O_Y + B1 + i]
         w2 = S[O_Y + 2 * B1 + i]
@@ -445,9 +468,9 @@ def _vi_prepare(S, nb, h, beta, uni, pp):
         S[O_GN + B1 + i] = G1
         S[O_GN + 2 * B1 + i] = G2
         # explicit entropy update
-        x = sg / cv
+        x = -(sg * icv)  # model.inverse_temperature
         small = abs(x) <= EXP_SMALL
-        S[O_SN + i] = sg + h * c * (w0 * w0 + w1 * w1 + w2 * w2) / (T0 * _exp_small(x))
+        S[O_SN + i] = sg + h * c * (w0 * w0 + w1 * w1 + w2 * w2) * (_exp_small(x) * iT0)
         S[O_FLAG + i] = FLAG_OK if small else FLAG_EXACT
         nexact += 0 if small else 1
         # vi.momentum_constant
@@ -458,13 +481,13 @@ def _vi_prepare(S, nb, h, beta, uni, pp):
         r0 = G1 * gz - G2 * gy
         r1 = G2 * gx - G0 * gz
         r2 = G0 * gy - G1 * gx
-        S[O_B + i] = -P0 / h + 0.5 * (w1 * P2 - w2 * P1) - 0.25 * h * wP * w0 - r0 + beta * c * w0
-        S[O_B + B1 + i] = -P1 / h + 0.5 * (w2 * P0 - w0 * P2) - 0.25 * h * wP * w1 - r1 + beta * c * w1
-        S[O_B + 2 * B1 + i] = -P2 / h + 0.5 * (w0 * P1 - w1 * P0) - 0.25 * h * wP * w2 - r2 + beta * c * w2
+        S[O_B + i] = -P0 * ih + 0.5 * (w1 * P2 - w2 * P1) - 0.25 * h * wP * w0 - r0 + beta * c * w0
+        S[O_B + B1 + i] = -P1 * ih + 0.5 * (w2 * P0 - w0 * P2) - 0.25 * h * wP * w1 - r1 + beta * c * w1
+        S[O_B + 2 * B1 + i] = -P2 * ih + 0.5 * (w0 * P1 - w1 * P0) - 0.25 * h * wP * w2 - r2 + beta * c * w2
         # vi.predictor
-        S[O_X + i] = w0 + h * ((P1 * w2 - P2 * w1) - c * w0 + (G1 * gz - G2 * gy)) / I1
-        S[O_X + B1 + i] = w1 + h * ((P2 * w0 - P0 * w2) - c * w1 + (G2 * gx - G0 * gz)) / I2
-        S[O_X + 2 * B1 + i] = w2 + h * ((P0 * w1 - P1 * w0) - c * w2 + (G0 * gy - G1 * gx)) / I3
+        S[O_X + i] = w0 + h * ((P1 * w2 - P2 * w1) - c * w0 + (G1 * gz - G2 * gy)) * iI1
+        S[O_X + B1 + i] = w1 + h * ((P2 * w0 - P0 * w2) - c * w1 + (G2 * gx - G0 * gz)) * iI2
+        S[O_X + 2 * B1 + i] = w2 + h * ((P0 * w1 - P1 * w0) - c * w2 + (G0 * gy - G1 * gx)) * iI3
         S[O_SC0 + i] = max(abs(w0), abs(w1), abs(w2))
         S[O_RUN + i] = 1.0
         S[O_CODE + i] = NEWTON_MAXITER
@@ -483,8 +506,8 @@ def _vi_sigma_exact(S, nb, h):
         w2 = S[O_Y + 2 * B1 + i]
         sg = S[O_Y + 6 * B1 + i]
         c = S[O_P + 3 * B1 + i]
-        T = S[O_P + 8 * B1 + i] * math.exp(sg / S[O_P + 7 * B1 + i])
-        S[O_SN + i] = sg + h * c * (w0 ** 2 + w1 ** 2 + w2 ** 2) / T
+        iT = math.exp(-(sg * (1.0 / S[O_P + 7 * B1 + i]))) * (1.0 / S[O_P + 8 * B1 + i])
+        S[O_SN + i] = sg + h * c * (w0 ** 2 + w1 ** 2 + w2 ** 2) * iT
         S[O_FLAG + i] = FLAG_OK
 
 
@@ -524,14 +547,14 @@ def _vi_attitude(S, nb, h):
 
 @jit(inline="always")
 def _invariants(S, i, uni, pq):
-    """(I₁/h, I₂/h, I₃/h, αc) of lane i: pq when the block is uniform."""
+    """(I₁·(1/h), I₂·(1/h), I₃·(1/h), αc) of lane i: pq when the block is uniform."""
     if uni:
         return pq
     return S[O_IH + i], S[O_IH + B1 + i], S[O_IH + 2 * B1 + i], S[O_AC + i]
 
 
 @jit
-def _newton_sweep(S, nb, h, tol, it, uni, pp, pq):
+def _newton_sweep(S, nb, h, ih, tol, it, uni, pp, pq):
     """Newton iteration number ``it`` on every lane whose mask is set
     (vi.newton_momentum's stopping rules, per lane).  Returns the number of
     lanes still running."""
@@ -545,7 +568,7 @@ def _newton_sweep(S, nb, h, tol, it, uni, pp, pq):
         Ih0, Ih1, Ih2, ac = _invariants(S, i, uni, pq)
         d0, d1, d2, det = _newton_iter(
             x0, x1, x2, S[O_B + i], S[O_B + B1 + i], S[O_B + 2 * B1 + i],
-            I1, I2, I3, Ih0, Ih1, Ih2, ac, h)
+            I1, I2, I3, Ih0, Ih1, Ih2, ac, h, ih)
         sing = (det == 0.0) | (not _finite(det))
         n0 = x0 - d0
         n1 = x1 - d1
@@ -570,7 +593,7 @@ def _newton_sweep(S, nb, h, tol, it, uni, pp, pq):
 
 
 @jit
-def _newton_lane(S, i, h, tol, it0, maxiter):
+def _newton_lane(S, i, h, ih, tol, it0, maxiter):
     """Finish lane i's Newton iteration from iteration it0 on, in scalar code
     (same operations as _newton_sweep / vi.newton_momentum)."""
     x0 = S[O_X + i]
@@ -590,7 +613,8 @@ def _newton_lane(S, i, h, tol, it0, maxiter):
     code = NEWTON_MAXITER
     its = maxiter
     for it in range(it0, maxiter + 1):
-        d0, d1, d2, det = _newton_iter(x0, x1, x2, b0, b1, b2, I1, I2, I3, Ih0, Ih1, Ih2, ac, h)
+        d0, d1, d2, det = _newton_iter(x0, x1, x2, b0, b1, b2, I1, I2, I3, Ih0, Ih1, Ih2, ac, h,
+                                     ih)
         if det == 0.0 or not np.isfinite(det):
             code = NEWTON_SINGULAR
             its = it
@@ -670,23 +694,23 @@ def _vi_attitude_commit(S, nb):
 
 
 @jit
-def _vi_step_block(S, nb, n, h, beta, tol, maxiter, uni, pp, pq):
+def _vi_step_block(S, nb, n, h, ih, beta, tol, maxiter, uni, pp, pv, pq):
     """One VI step of lanes [0, nb).  Returns the number of failed lanes
     (R_FLAG = FLAG_NEWTON or FLAG_NONFINITE); the others have stepped."""
-    nexact = _vi_prepare(S, nb, h, beta, uni, pp)
+    nexact = _vi_prepare(S, nb, h, ih, beta, uni, pp, pv)
     if nexact:
         _vi_sigma_exact(S, nb, h)
     if n > NSTATE_BASE:
         _vi_attitude(S, nb, h)
     it = np.int64(1)  # np.int64: no Literal[int] overloads of the callees
     while it <= maxiter:
-        nrun = _newton_sweep(S, nb, h, tol, it, uni, pp, pq)
+        nrun = _newton_sweep(S, nb, h, ih, tol, it, uni, pp, pq)
         if nrun == 0:
             break
         if nrun <= NEWTON_FALLBACK and it < maxiter:
             for i in range(nb):
                 if S[O_RUN + i] != 0.0:
-                    _newton_lane(S, i, h, tol, it + 1, maxiter)
+                    _newton_lane(S, i, h, ih, tol, it + 1, maxiter)
             break
         it += 1
     if n > NSTATE_BASE:
@@ -757,13 +781,22 @@ def _advance_block(method, Y, P, m0, m1, h, every, n_out, alpha, beta, tol, maxi
         nb += 1
     if nb == 0:
         return
+    # loop invariants: the kernels' only divisions by parameters and h, done
+    # once per call (the simple kernel's 1.0/x gives the same bits)
+    ih = 1.0 / h
     for i in range(nb):
-        S[O_IH + i] = S[O_P + i] / h
-        S[O_IH + B1 + i] = S[O_P + B1 + i] / h
-        S[O_IH + 2 * B1 + i] = S[O_P + 2 * B1 + i] / h
+        S[O_IH + i] = S[O_P + i] * ih
+        S[O_IH + B1 + i] = S[O_P + B1 + i] * ih
+        S[O_IH + 2 * B1 + i] = S[O_P + 2 * B1 + i] * ih
         S[O_AC + i] = alpha * S[O_P + 3 * B1 + i]
+        S[O_INV + i] = 1.0 / S[O_P + i]
+        S[O_INV + B1 + i] = 1.0 / S[O_P + B1 + i]
+        S[O_INV + 2 * B1 + i] = 1.0 / S[O_P + 2 * B1 + i]
+        S[O_INV + 3 * B1 + i] = 1.0 / S[O_P + 7 * B1 + i]
+        S[O_INV + 4 * B1 + i] = 1.0 / S[O_P + 8 * B1 + i]
     uni = _uniform(S, nb)
     pp = _load_params(S, 0)
+    pv = _load_recips(S, 0)
     pq = (S[O_IH], S[O_IH + B1], S[O_IH + 2 * B1], S[O_AC])
     rk4 = method == METHOD_RK4
     vec_rk = n == NSTATE_BASE
@@ -775,9 +808,9 @@ def _advance_block(method, Y, P, m0, m1, h, every, n_out, alpha, beta, tol, maxi
     for j in range(n_out):
         for _ in range(every):
             if method == METHOD_VI:
-                nfail = _vi_step_block(S, nb, n, h, beta, tol, maxiter, uni, pp, pq)
+                nfail = _vi_step_block(S, nb, n, h, ih, beta, tol, maxiter, uni, pp, pv, pq)
             elif vec_rk:
-                nfail = _rk_sweep(S, nb, h, rk4, uni, pp)
+                nfail = _rk_sweep(S, nb, h, rk4, uni, pp, pv)
                 if nfail:
                     for i in range(nb):
                         if S[O_FLAG + i] == FLAG_EXACT:

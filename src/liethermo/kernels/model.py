@@ -16,6 +16,12 @@ Equations (SPEC §1):
     Γ̇ = Γ×Ω
     σ̇ = c|Ω|² / T(σ),       T(σ) = T₀ exp(σ/c_v)
     Ṙ = R Ω̂                  (only with the attitude)
+
+The kernels divide by nothing that changes from step to step: 𝕀⁻¹ enters as
+the products with 1/I_k, and 1/T(σ) as exp(−σ·(1/c_v))·(1/T₀) (see
+:func:`inverse_temperature`).  The reciprocals 1/I_k, 1/c_v, 1/T₀ are
+correctly rounded, so the fast kernel (kernels/fast.py), which computes them
+once per block, gets the same bits.
 """
 
 from __future__ import annotations
@@ -37,6 +43,13 @@ def temperature(sigma, p):
 
 
 @jit
+def inverse_temperature(sigma, p):
+    """1/T = exp(−σ·(1/c_v))·(1/T₀) in K⁻¹ — the form every kernel uses (no
+    per-step division; within round-off of 1/temperature(σ, p))."""
+    return math.exp(-(sigma * (1.0 / p[P_CV]))) * (1.0 / p[P_T0])
+
+
+@jit
 def rhs(y, p, n, dy):
     """dy = f(y) for the continuous system; n = 7 or 16 (with attitude)."""
     I1 = p[P_I1]
@@ -55,15 +68,18 @@ def rhs(y, p, n, dy):
     P0 = I1 * w0
     P1 = I2 * w1
     P2 = I3 * w2
+    iI1 = 1.0 / I1
+    iI2 = 1.0 / I2
+    iI3 = 1.0 / I3
     # Π̇ = Π×Ω − cΩ + Γ×g
-    dy[0] = ((P1 * w2 - P2 * w1) - c * w0 + (G1 * gz - G2 * gy)) / I1
-    dy[1] = ((P2 * w0 - P0 * w2) - c * w1 + (G2 * gx - G0 * gz)) / I2
-    dy[2] = ((P0 * w1 - P1 * w0) - c * w2 + (G0 * gy - G1 * gx)) / I3
+    dy[0] = ((P1 * w2 - P2 * w1) - c * w0 + (G1 * gz - G2 * gy)) * iI1
+    dy[1] = ((P2 * w0 - P0 * w2) - c * w1 + (G2 * gx - G0 * gz)) * iI2
+    dy[2] = ((P0 * w1 - P1 * w0) - c * w2 + (G0 * gy - G1 * gx)) * iI3
     # Γ̇ = Γ×Ω
     dy[3] = G1 * w2 - G2 * w1
     dy[4] = G2 * w0 - G0 * w2
     dy[5] = G0 * w1 - G1 * w0
-    dy[6] = c * (w0 * w0 + w1 * w1 + w2 * w2) / temperature(y[6], p)
+    dy[6] = c * (w0 * w0 + w1 * w1 + w2 * w2) * inverse_temperature(y[6], p)
     if n > NSTATE_BASE:
         # Ṙ = R Ω̂ ; row i of R is y[7+3i : 10+3i]; (RΩ̂)_i = R_i × ... : row·Ω̂
         for i in range(3):

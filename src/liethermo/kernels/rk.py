@@ -57,7 +57,7 @@ def rk4_step(y, p, h, n, work, ynew):
         tmp[i] = y[i] + h * k3[i]
     rhs(tmp, p, n, k4)
     for i in range(n):
-        ynew[i] = y[i] + h * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]) / 6.0
+        ynew[i] = y[i] + h * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]) * (1.0 / 6.0)
 
 
 @jit

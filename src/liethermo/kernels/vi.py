@@ -32,7 +32,7 @@ from __future__ import annotations
 import numpy as np
 
 from ._jit import jit
-from .model import P_C, P_GX, P_GY, P_GZ, P_I1, P_I2, P_I3, temperature
+from .model import P_C, P_GX, P_GY, P_GZ, P_I1, P_I2, P_I3, inverse_temperature
 from .so3 import attitude_update, cayley_apply
 
 # Newton outcome codes
@@ -62,9 +62,10 @@ def momentum_constant(omega, gamma_next, p, h, beta, b):
     t0 = G1 * p[P_GZ] - G2 * p[P_GY]
     t1 = G2 * p[P_GX] - G0 * p[P_GZ]
     t2 = G0 * p[P_GY] - G1 * p[P_GX]
-    b[0] = -P0 / h + 0.5 * (w1 * P2 - w2 * P1) - 0.25 * h * wP * w0 - t0 + beta * c * w0
-    b[1] = -P1 / h + 0.5 * (w2 * P0 - w0 * P2) - 0.25 * h * wP * w1 - t1 + beta * c * w1
-    b[2] = -P2 / h + 0.5 * (w0 * P1 - w1 * P0) - 0.25 * h * wP * w2 - t2 + beta * c * w2
+    ih = 1.0 / h
+    b[0] = -P0 * ih + 0.5 * (w1 * P2 - w2 * P1) - 0.25 * h * wP * w0 - t0 + beta * c * w0
+    b[1] = -P1 * ih + 0.5 * (w2 * P0 - w0 * P2) - 0.25 * h * wP * w1 - t1 + beta * c * w1
+    b[2] = -P2 * ih + 0.5 * (w0 * P1 - w1 * P0) - 0.25 * h * wP * w2 - t2 + beta * c * w2
 
 
 @jit
@@ -81,9 +82,10 @@ def momentum_residual(X, b, p, h, alpha, F):
     Q1 = I2 * x1
     Q2 = I3 * x2
     xQ = x0 * Q0 + x1 * Q1 + x2 * Q2
-    F[0] = Q0 / h + 0.5 * (x1 * Q2 - x2 * Q1) + 0.25 * h * xQ * x0 + ac * x0 + b[0]
-    F[1] = Q1 / h + 0.5 * (x2 * Q0 - x0 * Q2) + 0.25 * h * xQ * x1 + ac * x1 + b[1]
-    F[2] = Q2 / h + 0.5 * (x0 * Q1 - x1 * Q0) + 0.25 * h * xQ * x2 + ac * x2 + b[2]
+    ih = 1.0 / h
+    F[0] = Q0 * ih + 0.5 * (x1 * Q2 - x2 * Q1) + 0.25 * h * xQ * x0 + ac * x0 + b[0]
+    F[1] = Q1 * ih + 0.5 * (x2 * Q0 - x0 * Q2) + 0.25 * h * xQ * x1 + ac * x1 + b[1]
+    F[2] = Q2 * ih + 0.5 * (x0 * Q1 - x1 * Q0) + 0.25 * h * xQ * x2 + ac * x2 + b[2]
 
 
 @jit
@@ -105,10 +107,11 @@ def momentum_jacobian(X, p, h, alpha, J):
     J[2, 0] = 0.5 * (-X[1] * I[0] + Q[1])
     J[2, 1] = 0.5 * (X[0] * I[1] - Q[0])
     J[2, 2] = 0.0
+    ih = 1.0 / h
     for i in range(3):
         for j in range(3):
             J[i, j] += 0.5 * h * X[i] * Q[j]
-        J[i, i] += I[i] / h + 0.25 * h * xQ + ac
+        J[i, i] += I[i] * ih + 0.25 * h * xQ + ac
 
 
 @jit
@@ -162,9 +165,12 @@ def predictor(omega, gamma_next, p, h, out):
     G0 = gamma_next[0]
     G1 = gamma_next[1]
     G2 = gamma_next[2]
-    out[0] = w0 + h * ((P1 * w2 - P2 * w1) - c * w0 + (G1 * p[P_GZ] - G2 * p[P_GY])) / I1
-    out[1] = w1 + h * ((P2 * w0 - P0 * w2) - c * w1 + (G2 * p[P_GX] - G0 * p[P_GZ])) / I2
-    out[2] = w2 + h * ((P0 * w1 - P1 * w0) - c * w2 + (G0 * p[P_GY] - G1 * p[P_GX])) / I3
+    iI1 = 1.0 / I1
+    iI2 = 1.0 / I2
+    iI3 = 1.0 / I3
+    out[0] = w0 + h * ((P1 * w2 - P2 * w1) - c * w0 + (G1 * p[P_GZ] - G2 * p[P_GY])) * iI1
+    out[1] = w1 + h * ((P2 * w0 - P0 * w2) - c * w1 + (G2 * p[P_GX] - G0 * p[P_GZ])) * iI2
+    out[2] = w2 + h * ((P0 * w1 - P1 * w0) - c * w2 + (G0 * p[P_GY] - G1 * p[P_GX])) * iI3
 
 
 @jit
@@ -211,7 +217,8 @@ def vi_step(y, p, h, n, alpha, beta, tol, maxiter, ynew):
     gnew = ynew[3:6]
     cayley_apply(w, gamma, gnew)
     c = p[P_C]
-    ynew[6] = y[6] + h * c * (omega[0] ** 2 + omega[1] ** 2 + omega[2] ** 2) / temperature(y[6], p)
+    ynew[6] = y[6] + h * c * (omega[0] ** 2 + omega[1] ** 2 + omega[2] ** 2) * inverse_temperature(
+        y[6], p)
     if n > 7:
         w[0] = -w[0]
         w[1] = -w[1]
