@@ -285,7 +285,7 @@ def main(argv=None) -> int:
         print("packed double-precision ops in the fast kernel's lane loops (fresh compile):")
         for name, c in asm.items():
             print(f"  {name:<16} zmm {c['zmm']:>4}  ymm {c['ymm']:>4}  scalar {c['scalar']:>4}"
-                  f"  fma {c['fma']}")
+                  f"  div {c['div']:>3}  fma {c['fma']}")
     if args.json:
         import numba as _nb
 
@@ -309,7 +309,8 @@ def main(argv=None) -> int:
 
 def asm_report() -> dict:
     """Counts of packed (zmm/ymm) and scalar double-precision arithmetic
-    instructions in fresh (uncached) compilations of the fast lane loops."""
+    instructions (and, among them, packed divisions) in fresh (uncached)
+    compilations of the fast lane loops."""
     import re
 
     import numba
@@ -318,13 +319,14 @@ def asm_report() -> dict:
 
     S = np.ones(F.NROWS * F.BLOCK)
     pp = F._load_params(S, 0)
+    pv = F._load_recips(S, 0)
     pq = (1.0, 1.0, 1.0, 1.0)
     cases = {
-        "_rk_first": (F._rk_first, (S, 8, 0.1, True, True, pp)),
-        "_rk4_mid": (F._rk4_mid, (S, 8, 0.1, True, pp)),
-        "_rk_last": (F._rk_last, (S, 8, 0.1, True, True, pp)),
-        "_vi_prepare": (F._vi_prepare, (S, 8, 0.1, 0.5, True, pp)),
-        "_newton_sweep": (F._newton_sweep, (S, 8, 0.1, 1e-14, 1, True, pp, pq)),
+        "_rk_first": (F._rk_first, (S, 8, 0.1, True, True, pp, pv)),
+        "_rk4_mid": (F._rk4_mid, (S, 8, 0.1, True, pp, pv)),
+        "_rk_last": (F._rk_last, (S, 8, 0.1, True, True, pp, pv)),
+        "_vi_prepare": (F._vi_prepare, (S, 8, 0.1, 10.0, 0.5, True, pp, pv)),
+        "_newton_sweep": (F._newton_sweep, (S, 8, 0.1, 10.0, 1e-14, 1, True, pp, pq)),
         "_vi_commit": (F._vi_commit, (S, 8)),
     }
     op = r"v(?:mul|div|add|sub|sqrt)"
@@ -336,6 +338,7 @@ def asm_report() -> dict:
         out[name] = dict(zmm=len(re.findall(op + r"pd\s+[^\n]*%zmm", text)),
                          ymm=len(re.findall(op + r"pd\s+[^\n]*%ymm", text)),
                          scalar=len(re.findall(op + r"sd\s", text)),
+                         div=len(re.findall(r"vdivpd\s", text)),
                          fma=len(re.findall(r"vfn?m(?:add|sub)", text)))
     return out
 
