@@ -207,6 +207,32 @@ def test_entry_states_and_partial_calls(paper_params):
     assert_same(run("fast", "rk4", Y, P, 0.1, 0, 1), run("simple", "rk4", Y, P, 0.1, 0, 1))
 
 
+@pytest.mark.parametrize("method", ["vi", "rk2", "rk4"])
+def test_max_h_omega_entry_values_and_step_sign(method, paper_params):
+    """max h|Ω| matches the simple kernel's per-step running max bitwise,
+    whatever the entry values (larger than any step's, ±0, negative, NaN),
+    for failing members, with no step, and for h ≤ 0."""
+    Y, P = mixed_ensemble(paper_params, n_paper=F.BLOCK + 9, n_random=6, seed=10)
+    N = len(Y)
+    Y[4, 0] = np.nan
+    FS0 = np.zeros((N, E.NFSTAT))
+    FS0[1::5, 0] = 1e3
+    FS0[2::5, 0] = -0.0
+    FS0[3::5, 0] = -1.0
+    FS0[4::5, 0] = np.nan
+    FS0[::7, 0] = 0.1 * math.sqrt(2.0)  # likely ties with a step's h|Ω|
+    for h, steps in ((0.1, 30), (0.05, 0), (-0.05, 10), (0.0, 5)):
+        res = []
+        for fn in (F.advance_ensemble_fast, E.advance_ensemble):
+            Yc, FS = Y.copy(), FS0.copy()
+            OUT = np.full((N, max(steps, 1), Y.shape[1]), np.nan)
+            IS = np.zeros((N, E.NISTAT), np.int64)
+            fn(METHODS[method], Yc, P, h, 1, steps, 0.5, 0.5, 1e-14, 30, 1,
+               DOP853_A, DOP853_B, OUT, IS, FS)
+            res.append((Yc, OUT, IS, FS))
+        assert_same(*res)
+
+
 def test_reference_method_falls_back(paper_params):
     Y, P = mixed_ensemble(paper_params, n_paper=20, n_random=4, seed=8)
     assert_same(run("fast", "reference", Y, P, 0.05, 4, 2),
