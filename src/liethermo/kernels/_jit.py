@@ -1,7 +1,12 @@
 """All numba options of liethermo in one place.
 
 * ``cache=True`` so that a second process does not recompile (set
-  ``LIETHERMO_NUMBA_CACHE=0`` to switch it off, e.g. on a read-only install);
+  ``LIETHERMO_NUMBA_CACHE=0`` to switch it off, e.g. on a read-only install).
+  Numba checks only the timestamp and size of the file that defines a
+  cached function, not of the files of the functions it calls: after
+  editing e.g. model.py, the cached ``ensemble.advance_ensemble`` still runs
+  the old right-hand side.  When changing a kernel, delete
+  ``kernels/__pycache__/*.nbi`` / ``*.nbc`` (or touch the calling modules);
 * ``fastmath`` stays off: the kernels promise round-off-level invariants and
   must propagate NaN/inf, which the no-NaN/no-inf fast-math flags would break;
 * ``error_model="numpy"``: a division by zero yields inf/NaN (caught by the

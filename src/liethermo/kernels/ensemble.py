@@ -22,6 +22,9 @@ singular Jacobian: the step was not accepted), ``STATUS_NONFINITE`` (the
 state became inf/NaN, e.g. explicit RK2 blowing up).  A failed member stops
 advancing; its later outputs are left untouched (callers pre-fill NaN) and
 the other members go on.
+
+(No division by a run constant happens per step in the kernels this module
+calls: model.rhs, rk, vi multiply by precomputed reciprocals.)
 """
 
 from __future__ import annotations
