@@ -19,3 +19,25 @@ print('OK', len(jitted))
 """
     p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert p.returncode == 0 and "OK" in p.stdout, p.stdout + p.stderr
+
+
+def test_stale_kernel_cache_is_dropped(tmp_path, monkeypatch):
+    """numba checks only the defining file of a cached function; liethermo stamps a hash of
+    all kernel sources beside the cache and drops the cache when any source changes."""
+    import numba
+
+    from liethermo.kernels._jit import _drop_stale_cache
+
+    monkeypatch.setattr(numba.config, "CACHE_DIR", "")
+    (tmp_path / "model.py").write_text("x = 1\n")
+    cache = tmp_path / "__pycache__"
+    cache.mkdir()
+    (cache / "ensemble.f-1.py311.nbi").write_text("old")
+    _drop_stale_cache(tmp_path)                       # no stamp yet: unknown provenance, dropped
+    assert not (cache / "ensemble.f-1.py311.nbi").exists()
+    (cache / "ensemble.f-1.py311.nbi").write_text("fresh")
+    _drop_stale_cache(tmp_path)                       # sources unchanged: kept
+    assert (cache / "ensemble.f-1.py311.nbi").exists()
+    (tmp_path / "model.py").write_text("x = 2\n")     # a callee's source changes
+    _drop_stale_cache(tmp_path)
+    assert not (cache / "ensemble.f-1.py311.nbi").exists()

@@ -4,9 +4,12 @@
   ``LIETHERMO_NUMBA_CACHE=0`` to switch it off, e.g. on a read-only install).
   Numba checks only the timestamp and size of the file that defines a
   cached function, not of the files of the functions it calls: after
-  editing e.g. model.py, the cached ``ensemble.advance_ensemble`` still runs
-  the old right-hand side.  When changing a kernel, delete
-  ``kernels/__pycache__/*.nbi`` / ``*.nbc`` (or touch the calling modules);
+  editing e.g. model.py, the cached ``ensemble.advance_ensemble`` would
+  still run the old right-hand side.  :func:`_drop_stale_cache` guards
+  against that: at import it hashes every kernel source (and the numba
+  version) and, when the hash differs from the one stamped beside the cache,
+  deletes the kernels' cache files, so a pull or an edit never runs stale
+  machine code;
 * ``fastmath`` stays off: the kernels promise round-off-level invariants and
   must propagate NaN/inf, which the no-NaN/no-inf fast-math flags would break;
 * ``error_model="numpy"``: a division by zero yields inf/NaN (caught by the
@@ -19,11 +22,50 @@ useful for debugging and for checking that the jitted code means what it says).
 from __future__ import annotations
 
 import functools
+import hashlib
 import os
+from pathlib import Path
 
 import numba
 
 CACHE = os.environ.get("LIETHERMO_NUMBA_CACHE", "1") not in ("0", "false", "no")
+
+
+def _cache_dirs(here: Path) -> list[Path]:
+    """Where numba puts this package's kernel caches: beside the sources, or
+    under NUMBA_CACHE_DIR (in a folder numba names after the source folder)."""
+    if numba.config.CACHE_DIR:
+        root = Path(numba.config.CACHE_DIR)
+        return [d for d in root.glob("*") if d.is_dir() and d.name.startswith(here.name + "_")]
+    return [here / "__pycache__"]
+
+
+def _drop_stale_cache(here: Path | None = None) -> None:
+    here = Path(__file__).resolve().parent if here is None else here
+    digest = hashlib.sha256(numba.__version__.encode())
+    for src in sorted(here.glob("*.py")):
+        digest.update(src.name.encode() + b"\0" + src.read_bytes())
+    stamp_text = digest.hexdigest()
+    for cache in _cache_dirs(here):
+        stamp = cache / "liethermo-kernels.sha256"
+        try:
+            if stamp.read_text() == stamp_text:
+                continue
+        except OSError:
+            pass
+        try:
+            for f in list(cache.glob("*.nbi")) + list(cache.glob("*.nbc")):
+                f.unlink(missing_ok=True)
+            cache.mkdir(parents=True, exist_ok=True)
+            tmp = cache / f".liethermo-kernels.{os.getpid()}.tmp"
+            tmp.write_text(stamp_text)
+            os.replace(tmp, stamp)
+        except OSError:  # read-only install: numba then cannot cache either
+            pass
+
+
+if CACHE:
+    _drop_stale_cache()
 
 jit = functools.partial(numba.njit, cache=CACHE, fastmath=False, error_model="numpy")
 pjit = functools.partial(
