@@ -32,10 +32,10 @@ def test_stale_kernel_cache_is_dropped(tmp_path, monkeypatch):
     (tmp_path / "model.py").write_text("x = 1\n")
     cache = tmp_path / "__pycache__"
     cache.mkdir()
-    (cache / "ensemble.f-1.py311.nbi").write_text("old")
-    _drop_stale_cache(tmp_path)                       # no stamp yet: unknown provenance, dropped
-    assert not (cache / "ensemble.f-1.py311.nbi").exists()
     (cache / "ensemble.f-1.py311.nbi").write_text("fresh")
+    _drop_stale_cache(tmp_path)                       # no stamp yet: adopted and stamped
+    assert (cache / "liethermo-kernels.sha256").exists()
+    assert (cache / "ensemble.f-1.py311.nbi").exists()
     _drop_stale_cache(tmp_path)                       # sources unchanged: kept
     assert (cache / "ensemble.f-1.py311.nbi").exists()
     (tmp_path / "model.py").write_text("x = 2\n")     # a callee's source changes

@@ -49,13 +49,15 @@ def _drop_stale_cache(here: Path | None = None) -> None:
     for cache in _cache_dirs(here):
         stamp = cache / "liethermo-kernels.sha256"
         try:
-            if stamp.read_text() == stamp_text:
-                continue
+            old = stamp.read_text()
         except OSError:
-            pass
+            old = None  # first import beside this cache (numba made it after our import): adopt it
+        if old == stamp_text:
+            continue
         try:
-            for f in list(cache.glob("*.nbi")) + list(cache.glob("*.nbc")):
-                f.unlink(missing_ok=True)
+            if old is not None:
+                for f in list(cache.glob("*.nbi")) + list(cache.glob("*.nbc")):
+                    f.unlink(missing_ok=True)
             cache.mkdir(parents=True, exist_ok=True)
             tmp = cache / f".liethermo-kernels.{os.getpid()}.tmp"
             tmp.write_text(stamp_text)
