@@ -16,7 +16,7 @@ import numpy as np
 
 from .kernels import ensemble as _ens
 from .kernels.model import NPARAM, NSTATE_ATTITUDE, NSTATE_BASE, P_C, P_GX, P_GY, P_GZ, P_I1, P_I2, P_I3
-from .kernels.rk import DOP853_A, DOP853_B
+from .kernels import rk as _rk
 from .methods import FRICTION, STARTS, get_method
 
 STATUS_OK = _ens.STATUS_OK
@@ -118,7 +118,7 @@ def staggered_omega(y0: np.ndarray, params: np.ndarray, h: float) -> np.ndarray:
     IS[:, _ens.IS_NSUB] = reference_substeps(0.5 * h, Y, params)
     FS = np.zeros((N, _ens.NFSTAT))
     _ens.advance_ensemble(_ens.METHOD_REFERENCE, Y, np.ascontiguousarray(params), 0.5 * h, 1, 1,
-                          0.5, 0.5, DEFAULT_NEWTON_TOL, 1, 0, DOP853_A, DOP853_B, OUT, IS, FS)
+                          0.5, 0.5, DEFAULT_NEWTON_TOL, 1, 0, _rk.DOP853_A, _rk.DOP853_B, OUT, IS, FS)
     return OUT[:, 0, 0:3].copy()
 
 
@@ -181,6 +181,10 @@ def simulate(
     states[:, 0] = Y
     IS = np.zeros((N, _ens.NISTAT), np.int64)
     IS[:, _ens.IS_NSUB] = reference_substeps(h, y0, params) if m.name == "reference" else 1
+    if m.name == "reference":
+        tab_a, tab_b = _rk.DOP853_A, _rk.DOP853_B
+    else:  # never read: spares the scipy import on the common path
+        tab_a, tab_b = _rk.NO_TABLEAU_A, _rk.NO_TABLEAU_B
     FS = np.zeros((N, _ens.NFSTAT))
     if chunk_steps is None:
         # one kernel call per ~2e6 member-steps (≈0.1 s): frequent enough for a progress
@@ -202,7 +206,7 @@ def simulate(
             OUT = states[:, 1 + j: 1 + j + nj]  # strided view, written in place
             advance(m.kernel_id, Y, params, float(h), int(every), int(nj),
                                   alpha, beta, float(newton_tol), int(newton_maxiter), int(nsub),
-                                  DOP853_A, DOP853_B, OUT, IS, FS)
+                                  tab_a, tab_b, OUT, IS, FS)
             j += nj
             if progress is not None:
                 progress(nj * every)

@@ -12,17 +12,35 @@ None of these preserves |Γ| = 1, RᵀR = I or the discrete Kelvin–Noether law
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
-from scipy.integrate._ivp import dop853_coefficients as _dop
 
 from ._jit import jit
 from .model import rhs
 
-# Tableau of the 8th-order DOP853 solution (first 12 stages).
-DOP853_A = np.ascontiguousarray(_dop.A[:12, :12], dtype=np.float64)
-DOP853_B = np.ascontiguousarray(_dop.B, dtype=np.float64)
-DOP853_C = np.ascontiguousarray(_dop.C[:12], dtype=np.float64)
 DOP853_STAGES = 12
+#: placeholders of the tableau's shapes, for calls that never take a DOP853 step
+NO_TABLEAU_A = np.zeros((DOP853_STAGES, DOP853_STAGES))
+NO_TABLEAU_B = np.zeros(DOP853_STAGES)
+
+
+@functools.cache
+def _dop853_tableau():
+    # scipy.integrate costs ~0.3 s to import: loaded only when the reference is used
+    from scipy.integrate._ivp import dop853_coefficients as dop
+
+    return {"DOP853_A": np.ascontiguousarray(dop.A[:12, :12], dtype=np.float64),
+            "DOP853_B": np.ascontiguousarray(dop.B, dtype=np.float64),
+            "DOP853_C": np.ascontiguousarray(dop.C[:12], dtype=np.float64)}
+
+
+def __getattr__(name):
+    """``DOP853_A``, ``DOP853_B``, ``DOP853_C``: the tableau of the 8th-order DOP853
+    solution (first 12 stages), loaded on first access."""
+    if name in ("DOP853_A", "DOP853_B", "DOP853_C"):
+        return _dop853_tableau()[name]
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 @jit
