@@ -246,3 +246,11 @@ def test_blow_up_ensemble_labels_without_warnings():
     assert summ.status_counts["non_finite"] == int(np.sum(st == 2))
     ok = st == 0
     assert np.isfinite(ds["energy_error"].values[ok]).all()
+
+
+def test_bench_help_reaches_the_bench_parser(capsys):
+    """`liethermo bench --help` shows the benchmark's own options (not the top parser's error)."""
+    with pytest.raises(SystemExit) as exc:
+        main(["bench", "--help"])
+    assert exc.value.code == 0
+    assert "--members" in capsys.readouterr().out
