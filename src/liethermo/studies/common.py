@@ -121,6 +121,17 @@ def study_netcdf_path(study: dict, outdir: Path) -> Path:
 
 # ----------------------------------------------------------------------------- sweeps
 
+def study_options(study: dict, defaults: dict, kind: str) -> dict:
+    """The study's ``[options]`` over its kind's defaults; an unknown option is an error."""
+    opt = copy.deepcopy(defaults)
+    for k, v in (study.get("options", {}) or {}).items():
+        if k not in defaults:
+            raise StudyError(f"options.{k}: unknown option of a {kind} study; known: "
+                             f"{', '.join(sorted(defaults))}")
+        opt[k] = v
+    return opt
+
+
 def expand_sweep(sweep: dict | None) -> list[dict]:
     """Cartesian product of ``{"section.key": [values]}``, in the order given
     (the last key varies fastest).  An empty sweep is one empty point."""

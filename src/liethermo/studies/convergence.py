@@ -33,7 +33,7 @@ from ..initial import initial_conditions, initial_states
 from ..methods import METHODS
 from ..scene import physical_parameters
 from ..simulate import simulate
-from .common import (StudyError, cached_point, dim_name, expand_sweep, parse_method, point_is_cached, point_key,
+from .common import (study_options, StudyError, cached_point, dim_name, expand_sweep, parse_method, point_is_cached, point_key,
                      progress_bar, resolve_study, stack_points, study_name, study_netcdf_path, study_scene,
                      write_netcdf_atomic, write_report, write_table)
 
@@ -44,16 +44,11 @@ DEFAULT_OPTIONS = {"h0": 0.1, "levels": 7, "t_end": 5.0, "floor_rel": 1e-12}
 
 
 def options(study: dict) -> dict:
-    opt = dict(DEFAULT_OPTIONS)
-    opt.update(study.get("options", {}))
-    return opt
+    return study_options(study, DEFAULT_OPTIONS, "convergence")
 
 
 def validate(study: dict) -> None:
     opt = options(study)
-    for k in opt:
-        if k not in DEFAULT_OPTIONS:
-            raise StudyError(f"options.{k}: unknown key; known: {', '.join(DEFAULT_OPTIONS)}")
     if not (isinstance(opt["levels"], int) and opt["levels"] >= 5):
         raise StudyError(f"options.levels: must be an integer ≥ 5 (h halving over ≥ 5 levels), got {opt['levels']!r}")
     n0 = opt["t_end"] / opt["h0"]

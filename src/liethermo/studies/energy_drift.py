@@ -30,7 +30,7 @@ from ..dataset import energies
 from ..initial import initial_conditions, initial_states
 from ..kernels.model import P_GX, P_GY, P_GZ
 from ..scene import physical_parameters
-from .common import (StudyError, cached_point, dim_name, expand_sweep, parse_method, point_key, progress_bar,
+from .common import (study_options, StudyError, cached_point, dim_name, expand_sweep, parse_method, point_key, progress_bar,
                      resolve_study, stack_points, study_name, study_netcdf_path, study_scene, write_netcdf_atomic,
                      write_report, write_table)
 
@@ -41,16 +41,11 @@ CLIP = 1e3  # relative energy errors above this are drawn at the top of the band
 
 
 def options(study: dict) -> dict:
-    opt = dict(DEFAULT_OPTIONS)
-    opt.update(study.get("options", {}))
-    return opt
+    return study_options(study, DEFAULT_OPTIONS, "energy_drift")
 
 
 def validate(study: dict) -> None:
     opt = options(study)
-    for k in opt:
-        if k not in DEFAULT_OPTIONS:
-            raise StudyError(f"options.{k}: unknown key; known: {', '.join(DEFAULT_OPTIONS)}")
     hs = study.get("sweep", {}).get("integrator.h")
     if not hs:
         raise StudyError('sweep."integrator.h": an energy-drift study sweeps the time step')

@@ -26,7 +26,6 @@ accepted steps, errors, the energy growth and the |Γ| defect.
 
 from __future__ import annotations
 
-import copy
 import math
 import time
 from functools import partial
@@ -40,7 +39,7 @@ from ..kernels.model import P_C, P_GX, P_GY, P_GZ, P_I1, P_I2, P_I3
 from ..methods import FRICTION, METHODS
 from ..scene import physical_parameters
 from ..simulate import simulate
-from .common import (StudyError, cached_point, point_key, progress_bar, resolve_study, study_name,
+from .common import (study_options, StudyError, cached_point, point_key, progress_bar, resolve_study, study_name,
                      study_netcdf_path, study_scene, write_netcdf_atomic, write_report, write_table)
 
 EXTRA_KEYS = ()
@@ -59,13 +58,7 @@ DEFAULT_OPTIONS = {
 
 
 def options(study: dict) -> dict:
-    opt = copy.deepcopy(DEFAULT_OPTIONS)
-    for k, v in (study.get("options", {}) or {}).items():
-        if k not in DEFAULT_OPTIONS:
-            raise StudyError(f"options.{k}: unknown option of a stability study; known: "
-                             f"{', '.join(sorted(DEFAULT_OPTIONS))}")
-        opt[k] = v
-    return opt
+    return study_options(study, DEFAULT_OPTIONS, "stability")
 
 
 def parse_method(m: str) -> tuple[str, str]:

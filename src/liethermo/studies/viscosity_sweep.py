@@ -24,7 +24,6 @@ Options: ``method`` (default "vi"; staggered start), ``h``, ``threshold``,
 
 from __future__ import annotations
 
-import copy
 import math
 import time
 from functools import partial
@@ -37,7 +36,7 @@ from ..initial import initial_conditions, initial_states
 from ..kernels.model import P_C, P_CV, P_GX, P_GY, P_GZ, P_I1, P_I2, P_I3, P_T0
 from ..scene import physical_parameters
 from ..simulate import simulate
-from .common import (StudyError, cached_point, expand_sweep, point_key, progress_bar, resolve_study,
+from .common import (study_options, StudyError, cached_point, expand_sweep, point_key, progress_bar, resolve_study,
                      dim_name, stack_points, study_name, study_netcdf_path, study_scene, write_netcdf_atomic,
                      write_report, write_table)
 
@@ -56,13 +55,7 @@ DEFAULT_OPTIONS = {
 
 
 def options(study: dict) -> dict:
-    opt = copy.deepcopy(DEFAULT_OPTIONS)
-    for k, v in (study.get("options", {}) or {}).items():
-        if k not in DEFAULT_OPTIONS:
-            raise StudyError(f"options.{k}: unknown option of a viscosity_sweep study; known: "
-                             f"{', '.join(sorted(DEFAULT_OPTIONS))}")
-        opt[k] = v
-    return opt
+    return study_options(study, DEFAULT_OPTIONS, "viscosity_sweep")
 
 
 def validate(study: dict) -> None:

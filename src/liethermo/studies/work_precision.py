@@ -41,7 +41,7 @@ from ..kernels.model import NSTATE_BASE, rhs
 from ..methods import METHODS
 from ..scene import physical_parameters
 from ..simulate import simulate
-from .common import (StudyError, cached_point, point_key, progress_bar, resolve_study, study_name,
+from .common import (study_options, StudyError, cached_point, point_key, progress_bar, resolve_study, study_name,
                      study_netcdf_path, study_scene, write_netcdf_atomic, write_report, write_table)
 
 EXTRA_KEYS = ()
@@ -68,14 +68,7 @@ DASK_NOTE = ("work_precision ignores --dask and runs in-process: its wall times 
 
 
 def options(study: dict) -> dict:
-    opt = copy.deepcopy(DEFAULT_OPTIONS)
-    given = study.get("options", {}) or {}
-    for k, v in given.items():
-        if k not in DEFAULT_OPTIONS:
-            raise StudyError(f"options.{k}: unknown option of a work_precision study; known: "
-                             f"{', '.join(sorted(DEFAULT_OPTIONS))}")
-        opt[k] = v
-    return opt
+    return study_options(study, DEFAULT_OPTIONS, "work_precision")
 
 
 def validate(study: dict) -> None:
