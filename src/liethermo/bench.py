@@ -74,22 +74,13 @@ def paper_params() -> np.ndarray:
 
 def random_ensemble(N: int, seed: int = 0, attitude: bool = False):
     """(Y, P): N random initial states on the paper scene (see module docstring)."""
+    from .initial import quat_to_matrix
     from .kernels.model import NSTATE_ATTITUDE, NSTATE_BASE
 
     rng = np.random.default_rng(seed)
     q = rng.standard_normal((N, 4))
     q /= np.linalg.norm(q, axis=1, keepdims=True)
-    w, x, y, z = q.T
-    R = np.empty((N, 3, 3))
-    R[:, 0, 0] = 1 - 2 * (y * y + z * z)
-    R[:, 0, 1] = 2 * (x * y - w * z)
-    R[:, 0, 2] = 2 * (x * z + w * y)
-    R[:, 1, 0] = 2 * (x * y + w * z)
-    R[:, 1, 1] = 1 - 2 * (x * x + z * z)
-    R[:, 1, 2] = 2 * (y * z - w * x)
-    R[:, 2, 0] = 2 * (x * z - w * y)
-    R[:, 2, 1] = 2 * (y * z + w * x)
-    R[:, 2, 2] = 1 - 2 * (x * x + y * y)
+    R = quat_to_matrix(q)
     d = rng.standard_normal((N, 3))
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     mag = rng.uniform(0.5, 1.5, N) * math.sqrt(2.0)
@@ -198,6 +189,8 @@ def main(argv=None) -> int:
     ap.add_argument("--threads", type=int, default=None, help="numba threads (default: all)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--json", default="bench_results.json", help="output JSON path ('' = none)")
+    ap.add_argument("--no-startup", action="store_true",
+                    help="skip timing `liethermo run paper` from a cold and a warm numba cache")
     ap.add_argument("--asm", action="store_true",
                     help="count packed SIMD instructions in the fast kernel's lane loops")
     args = ap.parse_args(argv)
@@ -280,6 +273,11 @@ def main(argv=None) -> int:
     print(f"start-up: import liethermo.simulate {import_s:.2f} s (fresh interpreter); first call "
           "of each kernel (cache load or compile), all methods: "
           + ", ".join(f"{k} {v:.2f} s" for k, v in compile_s.items()))
+    startup = None if args.no_startup else startup_report()
+    if startup:
+        print(f"liethermo run paper: cold start {startup['cold_s']:.1f} s (empty numba cache), "
+              f"warm start {startup['warm_s']:.2f} s (best of {len(startup['warm_runs_s'])}), "
+              f"peak RSS {startup['warm_peak_rss_mb']:.0f} MB")
     asm = asm_report() if args.asm else None
     if asm:
         print("packed double-precision ops in the fast kernel's lane loops (fresh compile):")
@@ -297,7 +295,7 @@ def main(argv=None) -> int:
                          numba=_nb.__version__, numpy=np.__version__, python=sys.version.split()[0]),
             liethermo=__version__, created=time.strftime("%Y-%m-%dT%H:%M:%S%z"),
             scene="paper (SPEC §2), random ensemble", import_s=import_s, warmup_s=compile_s,
-            asm=asm, results=rows,
+            asm=asm, startup=startup, results=rows,
         )
         tmp = args.json + ".tmp"
         with open(tmp, "w") as f:
@@ -305,6 +303,30 @@ def main(argv=None) -> int:
         os.replace(tmp, args.json)
         print(f"wrote {args.json}")
     return 0
+
+
+def startup_report(warm_runs: int = 3) -> dict:
+    """Wall time of the whole command ``liethermo run paper`` (VI + RK2 + 4 figures) in a
+    fresh interpreter: once with an empty numba cache (cold: every kernel compiles), then
+    ``warm_runs`` times with that cache (warm: kernels load)."""
+    import resource
+    import subprocess
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        env = dict(os.environ, NUMBA_CACHE_DIR=os.path.join(tmp, "cache"))
+        cmd = [sys.executable, "-m", "liethermo.cli", "run", "paper", "-o",
+               os.path.join(tmp, "paper.nc"), "--no-progress"]
+
+        def once() -> float:
+            t0 = time.perf_counter()
+            subprocess.run(cmd, env=env, check=True, stdout=subprocess.DEVNULL)
+            return time.perf_counter() - t0
+
+        cold = once()
+        warm = [once() for _ in range(warm_runs)]
+    rss = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024.0
+    return dict(cold_s=cold, warm_s=min(warm), warm_runs_s=warm, warm_peak_rss_mb=rss)
 
 
 def asm_report() -> dict:

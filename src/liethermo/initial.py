@@ -19,7 +19,8 @@ from .kernels.model import NSTATE_ATTITUDE, NSTATE_BASE
 BLOCK = 1024
 
 
-def _quat_to_matrix(q: np.ndarray) -> np.ndarray:
+def quat_to_matrix(q: np.ndarray) -> np.ndarray:
+    """Rotation matrices (N, 3, 3) of unit quaternions (N, 4) in (w, x, y, z) order."""
     w, x, y, z = q.T
     R = np.empty((q.shape[0], 3, 3))
     R[:, 0, 0] = 1 - 2 * (y * y + z * z)
@@ -41,7 +42,7 @@ def _draw_block(seed: int, block: int, omega_norm: float, spin_range) -> tuple[n
     d = rng.standard_normal((BLOCK, 3))
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     mag = rng.uniform(spin_range[0], spin_range[1], BLOCK) * omega_norm
-    return d * mag[:, None], _quat_to_matrix(q)
+    return d * mag[:, None], quat_to_matrix(q)
 
 
 def initial_conditions(scene: dict, start: int = 0, stop: int | None = None):
