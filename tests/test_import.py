@@ -41,3 +41,20 @@ def test_stale_kernel_cache_is_dropped(tmp_path, monkeypatch):
     (tmp_path / "model.py").write_text("x = 2\n")     # a callee's source changes
     _drop_stale_cache(tmp_path)
     assert not (cache / "ensemble.f-1.py311.nbi").exists()
+
+
+def test_cache_guard_targets_numbas_own_folder(tmp_path, monkeypatch):
+    """With NUMBA_CACHE_DIR the guard touches exactly the folder numba uses for the kernels
+    (so a shared cache directory's other projects are never deleted)."""
+    from pathlib import Path
+
+    import numba
+    from numba.core.caching import _CacheLocator
+
+    import liethermo.kernels.model as model
+    from liethermo.kernels._jit import _cache_dirs
+
+    monkeypatch.setattr(numba.config, "CACHE_DIR", str(tmp_path))
+    here = Path(model.__file__).resolve().parent
+    expected = tmp_path / _CacheLocator.get_suitable_cache_subpath(str(here / "model.py"))
+    assert _cache_dirs(here) == [expected]

@@ -33,10 +33,13 @@ CACHE = os.environ.get("LIETHERMO_NUMBA_CACHE", "1") not in ("0", "false", "no")
 
 def _cache_dirs(here: Path) -> list[Path]:
     """Where numba puts this package's kernel caches: beside the sources, or
-    under NUMBA_CACHE_DIR (in a folder numba names after the source folder)."""
+    under NUMBA_CACHE_DIR in the one folder numba names after this source
+    folder (its name plus the SHA-1 of its path, as numba's
+    ``_CacheLocator.get_suitable_cache_subpath`` computes it) — never another
+    project's folder in a shared cache directory."""
     if numba.config.CACHE_DIR:
-        root = Path(numba.config.CACHE_DIR)
-        return [d for d in root.glob("*") if d.is_dir() and d.name.startswith(here.name + "_")]
+        sub = f"{here.name}_{hashlib.sha1(str(here).encode()).hexdigest()}"
+        return [Path(numba.config.CACHE_DIR) / sub]
     return [here / "__pycache__"]
 
 
