@@ -7,7 +7,6 @@ the outputs, applies the staggered start, advances the kernels chunk by chunk
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Callable
 

@@ -7,8 +7,8 @@ the same numbers: every floating-point operation of the straightforward
 kernel is done in the same order, without fused multiply-adds or
 reassociation (``fastmath`` stays off), so results agree bitwise — states,
 status flags, failing steps, Newton iteration counts and max h|Ω|.  The one
-place where it does not call the same function is T(σ) = T₀ exp(σ/c_v); see
-below.
+place where it does not call the same function is the exp in
+1/T(σ) = exp(−σ·(1/c_v))·(1/T₀) (model.inverse_temperature); see below.
 
 How it is fast
 --------------
@@ -17,7 +17,8 @@ How it is fast
   quantity r of every lane), advances them for the whole call, and copies
   them back.  Every row sits at a compile-time offset of the same buffer, so
   LLVM sees no possible aliasing and vectorizes the inner loops over lanes
-  (packed ``vmulpd``/``vdivpd``/``vsqrtpd`` on ymm/zmm registers).
+  (packed ``vmulpd``/``vaddpd``/``vsqrtpd`` on ymm/zmm registers; the only
+  packed divisions left are the Cayley factor and the Newton 1/det).
 * A step is a few straight-line sweeps over the lanes; branches become
   selects.  The VI's Newton iterations run in lock-step over the block with a
   per-lane convergence mask: a converged lane keeps its X, and the block
@@ -28,7 +29,7 @@ How it is fast
   once and its lane is filled with the block's last lane (compaction), so
   dead members cost nothing — explicit RK2 loses most of the random paper
   ensemble within ~100 steps — and never touch their neighbours' values.
-* T(σ) = T₀ exp(σ/c_v) without a libm call: for |σ/c_v| ≤ ``EXP_SMALL``
+* 1/T(σ) without a libm call: for |σ/c_v| ≤ ``EXP_SMALL``
   (2⁻¹⁶; in the paper scene σ/c_v ≈ 1e-9) exp is evaluated as glibc's own
   ``exp`` does for such arguments (reduction index 0, so r = x exactly, and
   glibc's degree-5 polynomial coefficients): 1 + (r + r²(C₂ + rC₃) +

@@ -37,15 +37,9 @@ NSTATE_ATTITUDE = 16
 
 
 @jit
-def temperature(sigma, p):
-    """T = T₀ exp(σ/c_v) in K (Dulong–Petit)."""
-    return p[P_T0] * math.exp(sigma / p[P_CV])
-
-
-@jit
 def inverse_temperature(sigma, p):
     """1/T = exp(−σ·(1/c_v))·(1/T₀) in K⁻¹ — the form every kernel uses (no
-    per-step division; within round-off of 1/temperature(σ, p))."""
+    per-step division; within round-off of 1/(T₀ exp(σ/c_v)))."""
     return math.exp(-(sigma * (1.0 / p[P_CV]))) * (1.0 / p[P_T0])
 
 
