@@ -13,7 +13,14 @@
 * ``fastmath`` stays off: the kernels promise round-off-level invariants and
   must propagate NaN/inf, which the no-NaN/no-inf fast-math flags would break;
 * ``error_model="numpy"``: a division by zero yields inf/NaN (caught by the
-  per-member status logic) instead of raising inside a parallel loop.
+  per-member status logic) instead of raising inside a parallel loop;
+* :func:`fma` is the one way the kernels fuse a multiply and an add: an
+  explicit, correctly rounded ``a·b + c`` (LLVM's ``llvm.fma.f64``, one
+  ``vfmadd`` instruction on x86-64 with FMA, packed in vectorized loops).
+  Because it is written out, every kernel that calls the same arithmetic gets
+  the same bits — the simple and the fast ensemble kernels share their
+  arithmetic through inline functions, and LLVM never contracts on its own
+  (``fastmath`` off).
 
 Setting ``NUMBA_DISABLE_JIT=1`` runs every kernel as plain Python (slow, but
 useful for debugging and for checking that the jitted code means what it says).
@@ -23,10 +30,14 @@ from __future__ import annotations
 
 import functools
 import hashlib
+import math
 import os
 from pathlib import Path
 
 import numba
+from llvmlite import ir
+from numba.core import cgutils, types
+from numba.extending import intrinsic
 
 CACHE = os.environ.get("LIETHERMO_NUMBA_CACHE", "1") not in ("0", "false", "no")
 
@@ -77,3 +88,45 @@ pjit = functools.partial(
     numba.njit, cache=CACHE, fastmath=False, error_model="numpy", parallel=True
 )
 prange = numba.prange
+
+
+@intrinsic
+def _fma_intrinsic(typingctx, a, b, c):
+    sig = types.float64(types.float64, types.float64, types.float64)
+
+    def codegen(context, builder, signature, args):
+        d = ir.DoubleType()
+        fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(d, [d, d, d]),
+                                            "llvm.fma.f64")
+        a_, b_, c_ = (context.cast(builder, v, t, types.float64)
+                      for v, t in zip(args, signature.args))
+        return builder.call(fn, [a_, b_, c_])
+
+    return sig, codegen
+
+
+def fma_exact(a: float, b: float, c: float) -> float:
+    """a·b + c rounded once (IEEE 754 fusedMultiplyAdd), in plain Python: the
+    exact value from rational arithmetic, rounded by ``float()``.  Used when
+    numba's JIT is disabled, so that such a run gives the jitted bits."""
+    from fractions import Fraction
+
+    a, b, c = float(a), float(b), float(c)
+    if not (math.isfinite(a) and math.isfinite(b) and math.isfinite(c)):
+        return a * b + c  # inf/NaN: same result as the fused operation
+    exact = Fraction(a) * Fraction(b) + Fraction(c)
+    if exact == 0:
+        # sign of an exact zero: −0 only when a·b and c are both −0 (or
+        # both negative zero-products), as IEEE 754 specifies under rounding to nearest
+        prod_neg = (math.copysign(1.0, a) * math.copysign(1.0, b)) < 0
+        if a * b == 0 and c == 0:
+            return -0.0 if (prod_neg and math.copysign(1.0, c) < 0) else 0.0
+        return 0.0
+    try:
+        return float(exact)
+    except OverflowError:
+        return math.inf if exact > 0 else -math.inf
+
+
+#: ``fma(a, b, c)`` = a·b + c with one rounding (see module docstring)
+fma = fma_exact if numba.config.DISABLE_JIT else _fma_intrinsic

@@ -17,18 +17,28 @@ Equations (SPEC §1):
     σ̇ = c|Ω|² / T(σ),       T(σ) = T₀ exp(σ/c_v)
     Ṙ = R Ω̂                  (only with the attitude)
 
-The kernels divide by nothing that changes from step to step: 𝕀⁻¹ enters as
-the products with 1/I_k, and 1/T(σ) as exp(−σ·(1/c_v))·(1/T₀) (see
-:func:`inverse_temperature`).  The reciprocals 1/I_k, 1/c_v, 1/T₀ are
-correctly rounded, so the fast kernel (kernels/fast.py), which computes them
-once per block, gets the same bits.
+In the kernels the equations take their textbook (Euler) form with per-member
+coefficients computed once (:func:`coefficients`),
+
+    Ω̇₁ = A₁Ω₂Ω₃ − K₁Ω₁ + (g_z/I₁)Γ₂ − (g_y/I₁)Γ₃,  A₁ = (I₂−I₃)/I₁, K₁ = c/I₁
+    (and cyclically),  σ̇ = (c/T₀)|Ω|² exp(−σ/c_v),
+
+evaluated with explicit fused multiply-adds (:func:`liethermo.kernels._jit.fma`)
+by the inline lane functions :func:`rhs7_lane` / :func:`rhs7_lane_poly`, which
+the straightforward kernels (through :func:`rhs`) and the vectorized block
+kernel (kernels/fast.py) both call — so both get the same bits by
+construction.  No division happens per step: the coefficients hold the only
+reciprocals.  exp(x) for |x| ≤ ``EXP_SMALL`` (σ/c_v ≈ 1e-9 in the paper
+scene) is its Taylor polynomial of degree 3 (:func:`exp_small`; the
+truncation error is below 2⁻⁶⁶ relative, far under round-off), else
+``math.exp``.
 """
 
 from __future__ import annotations
 
 import math
 
-from ._jit import jit
+from ._jit import fma, jit
 
 P_I1, P_I2, P_I3, P_C, P_GX, P_GY, P_GZ, P_CV, P_T0 = range(9)
 NPARAM = 9
@@ -36,54 +46,130 @@ NSTATE_BASE = 7
 NSTATE_ATTITUDE = 16
 
 
+#: |x| up to which exp(x) is its cubic Taylor polynomial (exp_small)
+EXP_SMALL = 2.0**-16
+
+# per-member coefficients (coefficients()); Q_* index the tuple
+(Q_A1, Q_A2, Q_A3, Q_K1, Q_K2, Q_K3, Q_GZ1, Q_GY1, Q_GX2, Q_GZ2, Q_GY3, Q_GX3,
+ Q_MICV, Q_CT) = range(14)
+NCOEF = 14
+
+
+@jit(inline="always")
+def coefficients(p):
+    """The rhs coefficients of one member from its parameters p: (A₁, A₂, A₃,
+    K₁, K₂, K₃, g_z/I₁, g_y/I₁, g_x/I₂, g_z/I₂, g_y/I₃, g_x/I₃, −1/c_v, c/T₀)
+    with A₁ = (I₂−I₃)/I₁, A₂ = (I₃−I₁)/I₂, A₃ = (I₁−I₂)/I₃, K_k = c/I_k (all
+    through the correctly rounded reciprocals 1/I_k, 1/c_v, 1/T₀)."""
+    I1 = p[P_I1]
+    I2 = p[P_I2]
+    I3 = p[P_I3]
+    c = p[P_C]
+    iI1 = 1.0 / I1
+    iI2 = 1.0 / I2
+    iI3 = 1.0 / I3
+    return ((I2 - I3) * iI1, (I3 - I1) * iI2, (I1 - I2) * iI3,
+            c * iI1, c * iI2, c * iI3,
+            p[P_GZ] * iI1, p[P_GY] * iI1, p[P_GX] * iI2, p[P_GZ] * iI2,
+            p[P_GY] * iI3, p[P_GX] * iI3,
+            -(1.0 / p[P_CV]), c * (1.0 / p[P_T0]))
+
+
+@jit(inline="always")
+def exp_small(x):
+    """exp(x) for |x| ≤ EXP_SMALL: 1 + x + x²/2 + x³/6 in Horner form with fused
+    multiply-adds (the dropped x⁴/24 is < 2⁻⁶⁸ relative)."""
+    return fma(x, fma(x, fma(x, 1.0 / 6.0, 0.5), 1.0), 1.0)
+
+
+@jit(inline="always")
+def omega_rate(w0, w1, w2, G0, G1, G2, q):
+    """Ω̇ (rad s⁻²) from Ω, Γ and the coefficients q (Euler's equations with
+    Stokes drag and the gravity torque)."""
+    d0 = fma(q[Q_A1] * w1, w2, fma(q[Q_GZ1], G1, fma(-q[Q_GY1], G2, -(q[Q_K1] * w0))))
+    d1 = fma(q[Q_A2] * w2, w0, fma(q[Q_GX2], G2, fma(-q[Q_GZ2], G0, -(q[Q_K2] * w1))))
+    d2 = fma(q[Q_A3] * w0, w1, fma(q[Q_GY3], G0, fma(-q[Q_GX3], G1, -(q[Q_K3] * w2))))
+    return d0, d1, d2
+
+
+@jit(inline="always")
+def cross_lane(a0, a1, a2, b0, b1, b2):
+    """a × b with one fused multiply-add per component."""
+    return (fma(a1, b2, -(a2 * b1)), fma(a2, b0, -(a0 * b2)), fma(a0, b1, -(a1 * b0)))
+
+
+@jit(inline="always")
+def norm2_lane(w0, w1, w2):
+    """|w|² = w·w (fused)."""
+    return fma(w0, w0, fma(w1, w1, w2 * w2))
+
+
+@jit(inline="always")
+def rhs7_lane_poly(w0, w1, w2, G0, G1, G2, s, q):
+    """f(y) for the 7-wide state with exp by exp_small whatever x = −σ/c_v:
+    returns (Ω̇₁, Ω̇₂, Ω̇₃, Γ̇₁, Γ̇₂, Γ̇₃, σ̇, small) where small says whether
+    |x| ≤ EXP_SMALL (if not, σ̇ is not the model's and rhs7_lane must be used)."""
+    d0, d1, d2 = omega_rate(w0, w1, w2, G0, G1, G2, q)
+    d3, d4, d5 = cross_lane(G0, G1, G2, w0, w1, w2)
+    x = s * q[Q_MICV]
+    small = abs(x) <= EXP_SMALL
+    d6 = (q[Q_CT] * norm2_lane(w0, w1, w2)) * exp_small(x)
+    return d0, d1, d2, d3, d4, d5, d6, small
+
+
+@jit(inline="always")
+def sigma_rate(w0, w1, w2, s, q):
+    """σ̇ = (c/T₀)|Ω|² exp(−σ/c_v) in J K⁻¹ s⁻¹ (exp_small or math.exp)."""
+    x = s * q[Q_MICV]
+    e = exp_small(x) if abs(x) <= EXP_SMALL else math.exp(x)
+    return (q[Q_CT] * norm2_lane(w0, w1, w2)) * e
+
+
+@jit(inline="always")
+def sigma_rate_poly(w0, w1, w2, s, q):
+    """(σ̇ with exp_small, small): the vectorizable form of sigma_rate, valid
+    when small (|σ/c_v| ≤ EXP_SMALL) is True."""
+    x = s * q[Q_MICV]
+    return (q[Q_CT] * norm2_lane(w0, w1, w2)) * exp_small(x), abs(x) <= EXP_SMALL
+
+
+@jit(inline="always")
+def rhs7_lane(w0, w1, w2, G0, G1, G2, s, q):
+    """f(y) for the 7-wide state: (Ω̇, Γ̇, σ̇) as a 7-tuple."""
+    d0, d1, d2, d3, d4, d5, d6, small = rhs7_lane_poly(w0, w1, w2, G0, G1, G2, s, q)
+    if not small:
+        d6 = sigma_rate(w0, w1, w2, s, q)
+    return d0, d1, d2, d3, d4, d5, d6
+
+
 @jit
 def inverse_temperature(sigma, p):
-    """1/T = exp(−σ·(1/c_v))·(1/T₀) in K⁻¹ — the form every kernel uses (no
-    per-step division; within round-off of 1/(T₀ exp(σ/c_v)))."""
-    return math.exp(-(sigma * (1.0 / p[P_CV]))) * (1.0 / p[P_T0])
+    """1/T = exp(−σ/c_v)/T₀ in K⁻¹, as the kernels evaluate it."""
+    x = sigma * -(1.0 / p[P_CV])
+    e = exp_small(x) if abs(x) <= EXP_SMALL else math.exp(x)
+    return e * (1.0 / p[P_T0])
 
 
 @jit
 def rhs(y, p, n, dy):
     """dy = f(y) for the continuous system; n = 7 or 16 (with attitude)."""
-    I1 = p[P_I1]
-    I2 = p[P_I2]
-    I3 = p[P_I3]
-    c = p[P_C]
-    gx = p[P_GX]
-    gy = p[P_GY]
-    gz = p[P_GZ]
+    q = coefficients(p)
     w0 = y[0]
     w1 = y[1]
     w2 = y[2]
-    G0 = y[3]
-    G1 = y[4]
-    G2 = y[5]
-    P0 = I1 * w0
-    P1 = I2 * w1
-    P2 = I3 * w2
-    iI1 = 1.0 / I1
-    iI2 = 1.0 / I2
-    iI3 = 1.0 / I3
-    # Π̇ = Π×Ω − cΩ + Γ×g
-    dy[0] = ((P1 * w2 - P2 * w1) - c * w0 + (G1 * gz - G2 * gy)) * iI1
-    dy[1] = ((P2 * w0 - P0 * w2) - c * w1 + (G2 * gx - G0 * gz)) * iI2
-    dy[2] = ((P0 * w1 - P1 * w0) - c * w2 + (G0 * gy - G1 * gx)) * iI3
-    # Γ̇ = Γ×Ω
-    dy[3] = G1 * w2 - G2 * w1
-    dy[4] = G2 * w0 - G0 * w2
-    dy[5] = G0 * w1 - G1 * w0
-    dy[6] = c * (w0 * w0 + w1 * w1 + w2 * w2) * inverse_temperature(y[6], p)
+    d = rhs7_lane(w0, w1, w2, y[3], y[4], y[5], y[6], q)
+    for i in range(7):
+        dy[i] = d[i]
     if n > NSTATE_BASE:
-        # Ṙ = R Ω̂ ; row i of R is y[7+3i : 10+3i]; (RΩ̂)_i = R_i × ... : row·Ω̂
+        # Ṙ = R Ω̂: row i of R is y[7+3i : 10+3i], and a row r times Ω̂ is r × Ω
         for i in range(3):
             r0 = y[7 + 3 * i]
             r1 = y[8 + 3 * i]
             r2 = y[9 + 3 * i]
-            # (r Ω̂)_j = Σ_k r_k Ω̂_kj ; Ω̂ = [[0,-w2,w1],[w2,0,-w0],[-w1,w0,0]]
-            dy[7 + 3 * i] = r1 * w2 - r2 * w1
-            dy[8 + 3 * i] = -r0 * w2 + r2 * w0
-            dy[9 + 3 * i] = r0 * w1 - r1 * w0
+            e0, e1, e2 = cross_lane(r0, r1, r2, w0, w1, w2)
+            dy[7 + 3 * i] = e0
+            dy[8 + 3 * i] = e1
+            dy[9 + 3 * i] = e2
 
 
 @jit

@@ -8,14 +8,17 @@ vector form reads
 
 It rotates by the angle 2·atan(|w|/2) about w (not |w|): the phase error of a
 Cayley step of size h|Ω| is ≈ (h|Ω|)³/12 per step.  All functions write into
-caller-allocated ``out`` arrays; none allocates.
+caller-allocated ``out`` arrays; none allocates.  The ``*_lane`` functions
+are the scalar forms (explicit fused multiply-adds) that the step kernels
+share, so the straightforward and the vectorized kernels get the same bits.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from ._jit import jit
+from ._jit import fma, jit
+from .model import cross_lane, norm2_lane
 
 
 @jit
@@ -45,42 +48,50 @@ def hat(w, out):
     out[2, 2] = 0.0
 
 
+@jit(inline="always")
+def cayley_lane(w0, w1, w2, v0, v1, v2):
+    """cay(ŵ) v as a 3-tuple: v + s(u + ½ w×u), u = w×v, s = 4/(4 + |w|²)."""
+    s = 4.0 / (4.0 + norm2_lane(w0, w1, w2))
+    u0, u1, u2 = cross_lane(w0, w1, w2, v0, v1, v2)
+    q0, q1, q2 = cross_lane(w0, w1, w2, u0, u1, u2)
+    return fma(s, fma(0.5, q0, u0), v0), fma(s, fma(0.5, q1, u1), v1), fma(s, fma(0.5, q2, u2), v2)
+
+
 @jit
 def cayley_apply(w, v, out):
     """out = cay(ŵ) v, computed without forming the matrix.
 
     out may alias v.
     """
-    s = 4.0 / (4.0 + (w[0] * w[0] + w[1] * w[1] + w[2] * w[2]))
-    # u = w × v
-    u0 = w[1] * v[2] - w[2] * v[1]
-    u1 = w[2] * v[0] - w[0] * v[2]
-    u2 = w[0] * v[1] - w[1] * v[0]
-    # q = w × u
-    q0 = w[1] * u2 - w[2] * u1
-    q1 = w[2] * u0 - w[0] * u2
-    q2 = w[0] * u1 - w[1] * u0
-    out[0] = v[0] + s * (u0 + 0.5 * q0)
-    out[1] = v[1] + s * (u1 + 0.5 * q1)
-    out[2] = v[2] + s * (u2 + 0.5 * q2)
+    out[0], out[1], out[2] = cayley_lane(w[0], w[1], w[2], v[0], v[1], v[2])
+
+
+@jit(inline="always")
+def cayley_matrix_lane(w0, w1, w2):
+    """cay(ŵ) = I + s(ŵ + ½ŵ²), s = 4/(4 + |w|²), row-major as a 9-tuple
+    ((ŵ²)_ij = w_i w_j − |w|² δ_ij)."""
+    ww = norm2_lane(w0, w1, w2)
+    s = 4.0 / (4.0 + ww)
+    sh = 0.5 * s
+    return (fma(sh, fma(w0, w0, -ww), 1.0), fma(sh, w0 * w1, -(s * w2)), fma(sh, w0 * w2, s * w1),
+            fma(sh, w1 * w0, s * w2), fma(sh, fma(w1, w1, -ww), 1.0), fma(sh, w1 * w2, -(s * w0)),
+            fma(sh, w2 * w0, -(s * w1)), fma(sh, w2 * w1, s * w0), fma(sh, fma(w2, w2, -ww), 1.0))
+
+
+@jit(inline="always")
+def row_times_lane(r0, r1, r2, C):
+    """The row vector r times the 3×3 matrix C (a row-major 9-tuple)."""
+    return (fma(r0, C[0], fma(r1, C[3], r2 * C[6])), fma(r0, C[1], fma(r1, C[4], r2 * C[7])),
+            fma(r0, C[2], fma(r1, C[5], r2 * C[8])))
 
 
 @jit
 def cayley_matrix(w, out):
     """out = cay(ŵ) = I + 4/(4+|w|²) (ŵ + ½ ŵ²) as a 3×3 matrix."""
-    s = 4.0 / (4.0 + (w[0] * w[0] + w[1] * w[1] + w[2] * w[2]))
-    ww = w[0] * w[0] + w[1] * w[1] + w[2] * w[2]
+    C = cayley_matrix_lane(w[0], w[1], w[2])
     for i in range(3):
         for j in range(3):
-            # (ŵ²)_ij = w_i w_j − |w|² δ_ij
-            sq = w[i] * w[j] - (ww if i == j else 0.0)
-            out[i, j] = (1.0 if i == j else 0.0) + s * 0.5 * sq
-    out[0, 1] += -s * w[2]
-    out[0, 2] += s * w[1]
-    out[1, 0] += s * w[2]
-    out[1, 2] += -s * w[0]
-    out[2, 0] += -s * w[1]
-    out[2, 1] += s * w[0]
+            out[i, j] = C[3 * i + j]
 
 
 @jit
@@ -89,11 +100,9 @@ def attitude_update(R, w, out):
 
     out must not alias R.
     """
-    C = np.empty((3, 3))
-    cayley_matrix(w, C)
+    C = cayley_matrix_lane(w[0], w[1], w[2])
     for i in range(3):
-        for j in range(3):
-            out[i, j] = R[i, 0] * C[0, j] + R[i, 1] * C[1, j] + R[i, 2] * C[2, j]
+        out[i, 0], out[i, 1], out[i, 2] = row_times_lane(R[i, 0], R[i, 1], R[i, 2], C)
 
 
 @jit

@@ -18,6 +18,16 @@ The Jacobian is analytic,
        J(X) = 𝕀/h + ½(X̂𝕀 − \\widehat{𝕀X}) + (h/4)(2 X (𝕀X)ᵀ + (X·𝕀X) Id) + α c Id,
 
 and the 3×3 Newton system is solved in closed form (adjugate / determinant).
+With D₁ = ½(I₃−I₂), D₂ = ½(I₁−I₃), D₃ = ½(I₂−I₁) (so ½X×𝕀X = (D₁x₂x₃, …)),
+M_i = I_i/h + αc and L_i = βc − I_i/h, component 1 reads
+
+       F₁ = M₁x₁ + D₁x₂x₃ + (h/4)(X·𝕀X)x₁ + b₁,
+       b₁ = L₁Ω₁ + D₁Ω₂Ω₃ − (h/4)(Ω·𝕀Ω)Ω₁ − (Γ_{k+1}×g⃗)₁,
+
+which is how the lane functions below evaluate F, J and b, with explicit fused
+multiply-adds.  The straightforward kernel (``vi_step``) and the vectorized
+block kernel (kernels/fast.py) call the same lane functions, so they agree
+bitwise.
 Newton starts from an explicit predictor (one explicit Euler step of the
 continuous equations with Γ_{k+1}) and stops when the step is below
 ``tol · max(|X|∞, |Ω_k|∞)``.  A step that does not converge within
@@ -31,146 +41,163 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._jit import jit
-from .model import P_C, P_GX, P_GY, P_GZ, P_I1, P_I2, P_I3, inverse_temperature
-from .so3 import attitude_update, cayley_apply
+from ._jit import fma, jit
+from .model import (P_C, P_GX, P_GY, P_GZ, P_I1, P_I2, P_I3, coefficients, cross_lane,
+                    omega_rate, sigma_rate)
+from .so3 import attitude_update, cayley_lane
 
 # Newton outcome codes
 NEWTON_OK = 0
 NEWTON_MAXITER = 1
 NEWTON_SINGULAR = 2
 
+# the VI's per-member coefficients (vi_coefficients); V_* index the tuple
+(V_I1, V_I2, V_I3, V_D1, V_D2, V_D3, V_M1, V_M2, V_M3, V_L1, V_L2, V_L3, V_GX, V_GY, V_GZ,
+ V_H2, V_H4) = range(17)
+NVCOEF = 17
 
-@jit
-def momentum_constant(omega, gamma_next, p, h, beta, b):
-    """b: the X-independent part of F (see module docstring)."""
+
+@jit(inline="always")
+def vi_coefficients(p, h, alpha, beta):
+    """(I₁, I₂, I₃, D₁, D₂, D₃, M₁, M₂, M₃, L₁, L₂, L₃, g_x, g_y, g_z, h/2, h/4)
+    of one member (see module docstring)."""
     I1 = p[P_I1]
     I2 = p[P_I2]
     I3 = p[P_I3]
     c = p[P_C]
-    w0 = omega[0]
-    w1 = omega[1]
-    w2 = omega[2]
-    P0 = I1 * w0
-    P1 = I2 * w1
-    P2 = I3 * w2
-    wP = w0 * P0 + w1 * P1 + w2 * P2
-    # Γ_{k+1} × g⃗
-    G0 = gamma_next[0]
-    G1 = gamma_next[1]
-    G2 = gamma_next[2]
-    t0 = G1 * p[P_GZ] - G2 * p[P_GY]
-    t1 = G2 * p[P_GX] - G0 * p[P_GZ]
-    t2 = G0 * p[P_GY] - G1 * p[P_GX]
     ih = 1.0 / h
-    b[0] = -P0 * ih + 0.5 * (w1 * P2 - w2 * P1) - 0.25 * h * wP * w0 - t0 + beta * c * w0
-    b[1] = -P1 * ih + 0.5 * (w2 * P0 - w0 * P2) - 0.25 * h * wP * w1 - t1 + beta * c * w1
-    b[2] = -P2 * ih + 0.5 * (w0 * P1 - w1 * P0) - 0.25 * h * wP * w2 - t2 + beta * c * w2
+    ac = alpha * c
+    bc = beta * c
+    return (I1, I2, I3, 0.5 * (I3 - I2), 0.5 * (I1 - I3), 0.5 * (I2 - I1),
+            fma(I1, ih, ac), fma(I2, ih, ac), fma(I3, ih, ac),
+            fma(-I1, ih, bc), fma(-I2, ih, bc), fma(-I3, ih, bc),
+            p[P_GX], p[P_GY], p[P_GZ], 0.5 * h, 0.25 * h)
+
+
+@jit(inline="always")
+def momentum_constant_lane(w0, w1, w2, G0, G1, G2, v):
+    """b (kg m² s⁻²) from Ω_k and Γ_{k+1}."""
+    h4wP = v[V_H4] * fma(v[V_I1] * w0, w0, fma(v[V_I2] * w1, w1, (v[V_I3] * w2) * w2))
+    t0, t1, t2 = cross_lane(G0, G1, G2, v[V_GX], v[V_GY], v[V_GZ])
+    b0 = fma(v[V_L1], w0, fma(v[V_D1] * w1, w2, fma(-h4wP, w0, -t0)))
+    b1 = fma(v[V_L2], w1, fma(v[V_D2] * w2, w0, fma(-h4wP, w1, -t1)))
+    b2 = fma(v[V_L3], w2, fma(v[V_D3] * w0, w1, fma(-h4wP, w2, -t2)))
+    return b0, b1, b2
+
+
+@jit(inline="always")
+def predictor_lane(w0, w1, w2, G0, G1, G2, q, h):
+    """Explicit Euler step of the continuous Ω̇ with Γ_{k+1}: an O(h²) guess."""
+    d0, d1, d2 = omega_rate(w0, w1, w2, G0, G1, G2, q)
+    return fma(h, d0, w0), fma(h, d1, w1), fma(h, d2, w2)
+
+
+@jit(inline="always")
+def residual_jacobian_lane(x0, x1, x2, b0, b1, b2, v):
+    """F(X) and the rows of J(X): (F₀, F₁, F₂, J00, J01, J02, J10, …, J22)."""
+    Q0 = v[V_I1] * x0
+    Q1 = v[V_I2] * x1
+    Q2 = v[V_I3] * x2
+    h4xQ = v[V_H4] * fma(Q0, x0, fma(Q1, x1, Q2 * x2))
+    F0 = fma(v[V_M1], x0, fma(v[V_D1] * x1, x2, fma(h4xQ, x0, b0)))
+    F1 = fma(v[V_M2], x1, fma(v[V_D2] * x2, x0, fma(h4xQ, x1, b1)))
+    F2 = fma(v[V_M3], x2, fma(v[V_D3] * x0, x1, fma(h4xQ, x2, b2)))
+    hx0 = v[V_H2] * x0
+    hx1 = v[V_H2] * x1
+    hx2 = v[V_H2] * x2
+    J00 = fma(Q0, hx0, v[V_M1] + h4xQ)
+    J01 = fma(Q1, hx0, v[V_D1] * x2)
+    J02 = fma(Q2, hx0, v[V_D1] * x1)
+    J10 = fma(Q0, hx1, v[V_D2] * x2)
+    J11 = fma(Q1, hx1, v[V_M2] + h4xQ)
+    J12 = fma(Q2, hx1, v[V_D2] * x0)
+    J20 = fma(Q0, hx2, v[V_D3] * x1)
+    J21 = fma(Q1, hx2, v[V_D3] * x0)
+    J22 = fma(Q2, hx2, v[V_M3] + h4xQ)
+    return F0, F1, F2, J00, J01, J02, J10, J11, J12, J20, J21, J22
+
+
+@jit(inline="always")
+def solve3_lane(J00, J01, J02, J10, J11, J12, J20, J21, J22, r0, r1, r2):
+    """(J⁻¹r, det J) by Cramer's rule: the rows of J⁻¹ are the cross products
+    of J's columns a, e, c divided by det = a·(e×c).  Meaningless when det is
+    0 or not finite."""
+    bc0, bc1, bc2 = cross_lane(J01, J11, J21, J02, J12, J22)
+    det = fma(J00, bc0, fma(J10, bc1, J20 * bc2))
+    ca0, ca1, ca2 = cross_lane(J02, J12, J22, J00, J10, J20)
+    ab0, ab1, ab2 = cross_lane(J00, J10, J20, J01, J11, J21)
+    inv = 1.0 / det
+    d0 = fma(bc0, r0, fma(bc1, r1, bc2 * r2)) * inv
+    d1 = fma(ca0, r0, fma(ca1, r1, ca2 * r2)) * inv
+    d2 = fma(ab0, r0, fma(ab1, r1, ab2 * r2)) * inv
+    return d0, d1, d2, det
+
+
+@jit(inline="always")
+def newton_lane(x0, x1, x2, b0, b1, b2, v):
+    """One Newton correction d = J(X)⁻¹F(X): (d₀, d₁, d₂, det J)."""
+    F0, F1, F2, J00, J01, J02, J10, J11, J12, J20, J21, J22 = residual_jacobian_lane(
+        x0, x1, x2, b0, b1, b2, v)
+    return solve3_lane(J00, J01, J02, J10, J11, J12, J20, J21, J22, F0, F1, F2)
+
+
+@jit
+def momentum_constant(omega, gamma_next, p, h, beta, b):
+    """b: the X-independent part of F (see module docstring)."""
+    v = vi_coefficients(p, h, 0.0, beta)
+    b[0], b[1], b[2] = momentum_constant_lane(omega[0], omega[1], omega[2], gamma_next[0],
+                                              gamma_next[1], gamma_next[2], v)
 
 
 @jit
 def momentum_residual(X, b, p, h, alpha, F):
     """F = F(X) of the momentum equation, given its constant part b."""
-    I1 = p[P_I1]
-    I2 = p[P_I2]
-    I3 = p[P_I3]
-    ac = alpha * p[P_C]
-    x0 = X[0]
-    x1 = X[1]
-    x2 = X[2]
-    Q0 = I1 * x0
-    Q1 = I2 * x1
-    Q2 = I3 * x2
-    xQ = x0 * Q0 + x1 * Q1 + x2 * Q2
-    ih = 1.0 / h
-    F[0] = Q0 * ih + 0.5 * (x1 * Q2 - x2 * Q1) + 0.25 * h * xQ * x0 + ac * x0 + b[0]
-    F[1] = Q1 * ih + 0.5 * (x2 * Q0 - x0 * Q2) + 0.25 * h * xQ * x1 + ac * x1 + b[1]
-    F[2] = Q2 * ih + 0.5 * (x0 * Q1 - x1 * Q0) + 0.25 * h * xQ * x2 + ac * x2 + b[2]
+    v = vi_coefficients(p, h, alpha, 0.0)
+    r = residual_jacobian_lane(X[0], X[1], X[2], b[0], b[1], b[2], v)
+    F[0] = r[0]
+    F[1] = r[1]
+    F[2] = r[2]
 
 
 @jit
 def momentum_jacobian(X, p, h, alpha, J):
     """J = ∂F/∂X (analytic)."""
-    I = (p[P_I1], p[P_I2], p[P_I3])
-    ac = alpha * p[P_C]
-    Q = (I[0] * X[0], I[1] * X[1], I[2] * X[2])
-    xQ = X[0] * Q[0] + X[1] * Q[1] + X[2] * Q[2]
-    # ½ (X̂ 𝕀 − (𝕀X)^): entries
-    # X̂𝕀 = [[0, -x2 I2, x1 I3], [x2 I1, 0, -x0 I3], [-x1 I1, x0 I2, 0]]
-    # Q̂  = [[0, -Q2, Q1], [Q2, 0, -Q0], [-Q1, Q0, 0]]
-    J[0, 0] = 0.0
-    J[0, 1] = 0.5 * (-X[2] * I[1] + Q[2])
-    J[0, 2] = 0.5 * (X[1] * I[2] - Q[1])
-    J[1, 0] = 0.5 * (X[2] * I[0] - Q[2])
-    J[1, 1] = 0.0
-    J[1, 2] = 0.5 * (-X[0] * I[2] + Q[0])
-    J[2, 0] = 0.5 * (-X[1] * I[0] + Q[1])
-    J[2, 1] = 0.5 * (X[0] * I[1] - Q[0])
-    J[2, 2] = 0.0
-    ih = 1.0 / h
+    v = vi_coefficients(p, h, alpha, 0.0)
+    r = residual_jacobian_lane(X[0], X[1], X[2], 0.0, 0.0, 0.0, v)
     for i in range(3):
         for j in range(3):
-            J[i, j] += 0.5 * h * X[i] * Q[j]
-        J[i, i] += I[i] * ih + 0.25 * h * xQ + ac
+            J[i, j] = r[3 + 3 * i + j]
 
 
 @jit
 def solve3(J, r, out):
-    """out = J⁻¹ r in closed form (rows of the inverse are cross products of
-    columns divided by the determinant).  Returns the determinant; out is
+    """out = J⁻¹ r in closed form (Cramer).  Returns the determinant; out is
     left untouched when it is zero or not finite."""
-    # columns
-    a0 = J[0, 0]
-    a1 = J[1, 0]
-    a2 = J[2, 0]
-    b0 = J[0, 1]
-    b1 = J[1, 1]
-    b2 = J[2, 1]
-    c0 = J[0, 2]
-    c1 = J[1, 2]
-    c2 = J[2, 2]
-    # bc = b × c, ca = c × a, ab = a × b
-    bc0 = b1 * c2 - b2 * c1
-    bc1 = b2 * c0 - b0 * c2
-    bc2 = b0 * c1 - b1 * c0
-    det = a0 * bc0 + a1 * bc1 + a2 * bc2
+    d0, d1, d2, det = solve3_lane(J[0, 0], J[0, 1], J[0, 2], J[1, 0], J[1, 1], J[1, 2],
+                                  J[2, 0], J[2, 1], J[2, 2], r[0], r[1], r[2])
     if det == 0.0 or not np.isfinite(det):
         return det
-    ca0 = c1 * a2 - c2 * a1
-    ca1 = c2 * a0 - c0 * a2
-    ca2 = c0 * a1 - c1 * a0
-    ab0 = a1 * b2 - a2 * b1
-    ab1 = a2 * b0 - a0 * b2
-    ab2 = a0 * b1 - a1 * b0
-    inv = 1.0 / det
-    out[0] = (bc0 * r[0] + bc1 * r[1] + bc2 * r[2]) * inv
-    out[1] = (ca0 * r[0] + ca1 * r[1] + ca2 * r[2]) * inv
-    out[2] = (ab0 * r[0] + ab1 * r[1] + ab2 * r[2]) * inv
+    out[0] = d0
+    out[1] = d1
+    out[2] = d2
     return det
 
 
 @jit
 def predictor(omega, gamma_next, p, h, out):
     """Explicit Euler step of Π̇ = Π×Ω − cΩ + Γ×g⃗ (with Γ_{k+1}): O(h²) guess."""
-    I1 = p[P_I1]
-    I2 = p[P_I2]
-    I3 = p[P_I3]
-    c = p[P_C]
-    w0 = omega[0]
-    w1 = omega[1]
-    w2 = omega[2]
-    P0 = I1 * w0
-    P1 = I2 * w1
-    P2 = I3 * w2
-    G0 = gamma_next[0]
-    G1 = gamma_next[1]
-    G2 = gamma_next[2]
-    iI1 = 1.0 / I1
-    iI2 = 1.0 / I2
-    iI3 = 1.0 / I3
-    out[0] = w0 + h * ((P1 * w2 - P2 * w1) - c * w0 + (G1 * p[P_GZ] - G2 * p[P_GY])) * iI1
-    out[1] = w1 + h * ((P2 * w0 - P0 * w2) - c * w1 + (G2 * p[P_GX] - G0 * p[P_GZ])) * iI2
-    out[2] = w2 + h * ((P0 * w1 - P1 * w0) - c * w2 + (G0 * p[P_GY] - G1 * p[P_GX])) * iI3
+    q = coefficients(p)
+    out[0], out[1], out[2] = predictor_lane(omega[0], omega[1], omega[2], gamma_next[0],
+                                            gamma_next[1], gamma_next[2], q, h)
+
+
+@jit(inline="always")
+def newton_stop(x0, x1, x2, d0, d1, d2, scale0, tol):
+    """(step, converged) of vi.newton_momentum's rule for the iterate X − d:
+    step = |d|∞ ≤ tol·max(|X − d|∞, |Ω_k|∞)."""
+    step = max(abs(d0), abs(d1), abs(d2))
+    scale = max(abs(x0), abs(x1), abs(x2), scale0)
+    return step, step <= tol * scale
 
 
 @jit
@@ -180,54 +207,65 @@ def newton_momentum(omega, gamma_next, p, h, alpha, beta, tol, maxiter, X):
     Returns (code, iterations).  code is NEWTON_OK, NEWTON_MAXITER or
     NEWTON_SINGULAR.
     """
-    b = np.empty(3)
-    F = np.empty(3)
-    J = np.empty((3, 3))
-    d = np.empty(3)
-    momentum_constant(omega, gamma_next, p, h, beta, b)
-    predictor(omega, gamma_next, p, h, X)
-    scale0 = max(abs(omega[0]), abs(omega[1]), abs(omega[2]))
+    q = coefficients(p)
+    v = vi_coefficients(p, h, alpha, beta)
+    w0 = omega[0]
+    w1 = omega[1]
+    w2 = omega[2]
+    G0 = gamma_next[0]
+    G1 = gamma_next[1]
+    G2 = gamma_next[2]
+    b0, b1, b2 = momentum_constant_lane(w0, w1, w2, G0, G1, G2, v)
+    x0, x1, x2 = predictor_lane(w0, w1, w2, G0, G1, G2, q, h)
+    scale0 = max(abs(w0), abs(w1), abs(w2))
+    code = NEWTON_MAXITER
+    its = maxiter
     for it in range(1, maxiter + 1):
-        momentum_residual(X, b, p, h, alpha, F)
-        momentum_jacobian(X, p, h, alpha, J)
-        det = solve3(J, F, d)
+        d0, d1, d2, det = newton_lane(x0, x1, x2, b0, b1, b2, v)
         if det == 0.0 or not np.isfinite(det):
-            return NEWTON_SINGULAR, it
-        X[0] -= d[0]
-        X[1] -= d[1]
-        X[2] -= d[2]
-        step = max(abs(d[0]), abs(d[1]), abs(d[2]))
-        scale = max(abs(X[0]), abs(X[1]), abs(X[2]), scale0)
+            code = NEWTON_SINGULAR
+            its = it
+            break
+        x0 -= d0
+        x1 -= d1
+        x2 -= d2
+        step, conv = newton_stop(x0, x1, x2, d0, d1, d2, scale0, tol)
         if not (step == step):  # NaN step
-            return NEWTON_SINGULAR, it
-        if step <= tol * scale:
-            return NEWTON_OK, it
-    return NEWTON_MAXITER, maxiter
+            code = NEWTON_SINGULAR
+            its = it
+            break
+        if conv:
+            code = NEWTON_OK
+            its = it
+            break
+    X[0] = x0
+    X[1] = x1
+    X[2] = x2
+    return code, its
 
 
 @jit
 def vi_step(y, p, h, n, alpha, beta, tol, maxiter, ynew):
     """One VI step y → ynew (flat state, see model.py).  Returns (code, iters)."""
-    omega = y[0:3]
-    gamma = y[3:6]
-    w = np.empty(3)
-    w[0] = -h * omega[0]
-    w[1] = -h * omega[1]
-    w[2] = -h * omega[2]
-    gnew = ynew[3:6]
-    cayley_apply(w, gamma, gnew)
-    c = p[P_C]
-    ynew[6] = y[6] + h * c * (omega[0] ** 2 + omega[1] ** 2 + omega[2] ** 2) * inverse_temperature(
-        y[6], p)
+    w0 = y[0]
+    w1 = y[1]
+    w2 = y[2]
+    G0, G1, G2 = cayley_lane(-(h * w0), -(h * w1), -(h * w2), y[3], y[4], y[5])
+    ynew[3] = G0
+    ynew[4] = G1
+    ynew[5] = G2
+    q = coefficients(p)
+    ynew[6] = fma(h, sigma_rate(w0, w1, w2, y[6], q), y[6])
     if n > 7:
-        w[0] = -w[0]
-        w[1] = -w[1]
-        w[2] = -w[2]
+        w = np.empty(3)
+        w[0] = h * w0
+        w[1] = h * w1
+        w[2] = h * w2
         R = y[7:16].reshape((3, 3))
         Rn = ynew[7:16].reshape((3, 3))
         attitude_update(R, w, Rn)
     X = ynew[0:3]
-    return newton_momentum(omega, gnew, p, h, alpha, beta, tol, maxiter, X)
+    return newton_momentum(y[0:3], ynew[3:6], p, h, alpha, beta, tol, maxiter, X)
 
 
 @jit
