@@ -282,8 +282,8 @@ def main(argv=None) -> int:
     if asm:
         print("packed double-precision ops in the fast kernel's lane loops (fresh compile):")
         for name, c in asm.items():
-            print(f"  {name:<16} zmm {c['zmm']:>4}  ymm {c['ymm']:>4}  scalar {c['scalar']:>4}"
-                  f"  div {c['div']:>3}  fma {c['fma']}")
+            print(f"  {name:<16} zmm {c['zmm']:>4} (fma {c['fma']:>3}, div {c['div']:>2})"
+                  f"  ymm {c['ymm']:>4}  scalar {c['scalar']:>4}  zmm loads/stores {c['zmm_moves']:>4}")
     if args.json:
         import numba as _nb
 
@@ -339,29 +339,32 @@ def asm_report() -> dict:
 
     from .kernels import fast as F
 
+    from .kernels.model import coefficients
+    from .kernels.vi import vi_coefficients
+
     S = np.ones(F.NROWS * F.BLOCK)
     pp = F._load_params(S, 0)
-    pv = F._load_recips(S, 0)
-    pq = (1.0, 1.0, 1.0, 1.0)
+    qq = coefficients(pp)
+    vv = vi_coefficients(pp, 0.1, 0.5, 0.5)
     cases = {
-        "_rk_first": (F._rk_first, (S, 8, 0.1, True, True, pp, pv)),
-        "_rk4_mid": (F._rk4_mid, (S, 8, 0.1, True, pp, pv)),
-        "_rk_last": (F._rk_last, (S, 8, 0.1, True, True, pp, pv)),
-        "_vi_prepare": (F._vi_prepare, (S, 8, 0.1, 10.0, 0.5, True, pp, pv)),
-        "_newton_sweep": (F._newton_sweep, (S, 8, 0.1, 10.0, 1e-14, 1, True, pp, pq)),
+        "_rk2_sweep": (F._rk2_sweep, (S, 8, 0.1, True, qq)),
+        "_rk4_sweep": (F._rk4_sweep, (S, 8, 0.1, True, qq)),
+        "_vi_prepare": (F._vi_prepare, (S, 8, 0.1, True, qq, vv)),
+        "_newton_sweep": (F._newton_sweep, (S, 8, 1e-14, 1, True, vv)),
         "_vi_commit": (F._vi_commit, (S, 8)),
     }
-    op = r"v(?:mul|div|add|sub|sqrt)"
+    arith = r"v(?:mul|div|add|sub|sqrt|fn?m(?:add|sub)\d*)"
     out = {}
     for name, (f, a) in cases.items():
         g = numba.njit(fastmath=False, error_model="numpy")(f.py_func)
         g(*a)
         text = g.inspect_asm(g.signatures[0])
-        out[name] = dict(zmm=len(re.findall(op + r"pd\s+[^\n]*%zmm", text)),
-                         ymm=len(re.findall(op + r"pd\s+[^\n]*%ymm", text)),
-                         scalar=len(re.findall(op + r"sd\s", text)),
-                         div=len(re.findall(r"vdivpd\s", text)),
-                         fma=len(re.findall(r"vfn?m(?:add|sub)", text)))
+        out[name] = dict(zmm=len(re.findall(arith + r"pd\s+[^\n]*%zmm", text)),
+                         ymm=len(re.findall(arith + r"pd\s+[^\n]*%ymm", text)),
+                         scalar=len(re.findall(arith + r"sd\s", text)),
+                         div=len(re.findall(r"vdivpd\s[^\n]*%zmm", text)),
+                         fma=len(re.findall(r"vfn?m(?:add|sub)\d*pd\s[^\n]*%zmm", text)),
+                         zmm_moves=len(re.findall(r"vmov\w*\s+[^\n]*%zmm", text)))
     return out
 
 

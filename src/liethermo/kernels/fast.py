@@ -178,7 +178,8 @@ def _rows_q(S, i):
             S[O_Q + 4 * B1 + i], S[O_Q + 5 * B1 + i], S[O_Q + 6 * B1 + i],
             S[O_Q + 7 * B1 + i], S[O_Q + 8 * B1 + i], S[O_Q + 9 * B1 + i],
             S[O_Q + 10 * B1 + i], S[O_Q + 11 * B1 + i], S[O_Q + 12 * B1 + i],
-            S[O_Q + 13 * B1 + i])
+            S[O_Q + 13 * B1 + i], S[O_Q + 14 * B1 + i], S[O_Q + 15 * B1 + i],
+            S[O_Q + 16 * B1 + i], S[O_Q + 17 * B1 + i])
 
 
 @jit(inline="always")
@@ -213,15 +214,17 @@ def _track_w2(S, i, y0, y1, y2, down):
 # --------------------------------------------------------------------------
 # explicit Runge–Kutta sweeps (7-wide state): one sweep per step.  A lane
 # is updated only if its new state is finite and no exp argument was out of
-# range; otherwise y is left as it was and R_FLAG says why (FLAG_NONFINITE
-# or FLAG_EXACT).  They return the number of flagged lanes.
+# range; otherwise y is left as it was and R_FLAG = FLAG_EXACT sends it to
+# the straightforward code (_rk_lane_exact), which steps it or flags it
+# FLAG_NONFINITE.  They return the number of flagged lanes.
 
 
 @jit(inline="always")
 def _rk_store(S, i, small, y0, y1, y2, y3, y4, y5, y6, n0, n1, n2, n3, n4, n5, n6):
-    fin = (_finite(n0) & _finite(n1) & _finite(n2) & _finite(n3) & _finite(n4)
-           & _finite(n5) & _finite(n6))
-    upd = fin & small
+    # one test for all seven: their sum is finite if they all are; if it is
+    # not (a component is inf/NaN, or a finite sum overflowed), the lane is
+    # redone by the straightforward code, which decides exactly
+    upd = _finite(((n0 + n1) + (n2 + n3)) + ((n4 + n5) + n6)) & small
     S[O_Y + i] = n0 if upd else y0
     S[O_Y + B1 + i] = n1 if upd else y1
     S[O_Y + 2 * B1 + i] = n2 if upd else y2
@@ -229,7 +232,7 @@ def _rk_store(S, i, small, y0, y1, y2, y3, y4, y5, y6, n0, n1, n2, n3, n4, n5, n
     S[O_Y + 4 * B1 + i] = n4 if upd else y4
     S[O_Y + 5 * B1 + i] = n5 if upd else y5
     S[O_Y + 6 * B1 + i] = n6 if upd else y6
-    S[O_FLAG + i] = FLAG_OK if upd else (FLAG_NONFINITE if small else FLAG_EXACT)
+    S[O_FLAG + i] = FLAG_OK if upd else FLAG_EXACT
     return 0 if upd else 1
 
 

@@ -51,16 +51,19 @@ EXP_SMALL = 2.0**-16
 
 # per-member coefficients (coefficients()); Q_* index the tuple
 (Q_A1, Q_A2, Q_A3, Q_K1, Q_K2, Q_K3, Q_GZ1, Q_GY1, Q_GX2, Q_GZ2, Q_GY3, Q_GX3,
- Q_MICV, Q_CT) = range(14)
-NCOEF = 14
+ Q_MICV, Q_CT, Q_E1, Q_E2, Q_E3, Q_SMAX) = range(18)
+NCOEF = 18
 
 
 @jit(inline="always")
 def coefficients(p):
     """The rhs coefficients of one member from its parameters p: (A₁, A₂, A₃,
-    K₁, K₂, K₃, g_z/I₁, g_y/I₁, g_x/I₂, g_z/I₂, g_y/I₃, g_x/I₃, −1/c_v, c/T₀)
-    with A₁ = (I₂−I₃)/I₁, A₂ = (I₃−I₁)/I₂, A₃ = (I₁−I₂)/I₃, K_k = c/I_k (all
-    through the correctly rounded reciprocals 1/I_k, 1/c_v, 1/T₀)."""
+    K₁, K₂, K₃, g_z/I₁, g_y/I₁, g_x/I₂, g_z/I₂, g_y/I₃, g_x/I₃, m = −1/c_v,
+    c/T₀, e₁, e₂, e₃, σ_max) with A₁ = (I₂−I₃)/I₁, A₂ = (I₃−I₁)/I₂,
+    A₃ = (I₁−I₂)/I₃, K_k = c/I_k (all through the correctly rounded
+    reciprocals 1/I_k, 1/c_v, 1/T₀); e₁ = (c/T₀)m, e₂ = e₁m/2, e₃ = e₂m/3 are
+    the Taylor coefficients of (c/T₀)exp(mσ) (sigma_rate_poly) and
+    σ_max = EXP_SMALL·c_v the |σ| up to which that cubic is used."""
     I1 = p[P_I1]
     I2 = p[P_I2]
     I3 = p[P_I3]
@@ -68,11 +71,15 @@ def coefficients(p):
     iI1 = 1.0 / I1
     iI2 = 1.0 / I2
     iI3 = 1.0 / I3
+    m = -(1.0 / p[P_CV])
+    cT = c * (1.0 / p[P_T0])
+    e1 = cT * m
+    e2 = e1 * m * 0.5
     return ((I2 - I3) * iI1, (I3 - I1) * iI2, (I1 - I2) * iI3,
             c * iI1, c * iI2, c * iI3,
             p[P_GZ] * iI1, p[P_GY] * iI1, p[P_GX] * iI2, p[P_GZ] * iI2,
             p[P_GY] * iI3, p[P_GX] * iI3,
-            -(1.0 / p[P_CV]), c * (1.0 / p[P_T0]))
+            m, cT, e1, e2, e2 * m * (1.0 / 3.0), EXP_SMALL * p[P_CV])
 
 
 @jit(inline="always")
@@ -111,26 +118,28 @@ def rhs7_lane_poly(w0, w1, w2, G0, G1, G2, s, q):
     |x| ≤ EXP_SMALL (if not, σ̇ is not the model's and rhs7_lane must be used)."""
     d0, d1, d2 = omega_rate(w0, w1, w2, G0, G1, G2, q)
     d3, d4, d5 = cross_lane(G0, G1, G2, w0, w1, w2)
-    x = s * q[Q_MICV]
-    small = abs(x) <= EXP_SMALL
-    d6 = (q[Q_CT] * norm2_lane(w0, w1, w2)) * exp_small(x)
+    d6, small = sigma_rate_poly(w0, w1, w2, s, q)
     return d0, d1, d2, d3, d4, d5, d6, small
 
 
 @jit(inline="always")
 def sigma_rate(w0, w1, w2, s, q):
-    """σ̇ = (c/T₀)|Ω|² exp(−σ/c_v) in J K⁻¹ s⁻¹ (exp_small or math.exp)."""
-    x = s * q[Q_MICV]
-    e = exp_small(x) if abs(x) <= EXP_SMALL else math.exp(x)
-    return (q[Q_CT] * norm2_lane(w0, w1, w2)) * e
+    """σ̇ = (c/T₀)|Ω|² exp(−σ/c_v) in J K⁻¹ s⁻¹: sigma_rate_poly where it is
+    valid, else with math.exp."""
+    d, small = sigma_rate_poly(w0, w1, w2, s, q)
+    if small:
+        return d
+    return (q[Q_CT] * norm2_lane(w0, w1, w2)) * math.exp(s * q[Q_MICV])
 
 
 @jit(inline="always")
 def sigma_rate_poly(w0, w1, w2, s, q):
-    """(σ̇ with exp_small, small): the vectorizable form of sigma_rate, valid
-    when small (|σ/c_v| ≤ EXP_SMALL) is True."""
-    x = s * q[Q_MICV]
-    return (q[Q_CT] * norm2_lane(w0, w1, w2)) * exp_small(x), abs(x) <= EXP_SMALL
+    """(σ̇, small): the vectorizable form of sigma_rate, |Ω|²·(c/T₀)exp(−σ/c_v)
+    with the exponential factor as its cubic Taylor polynomial in σ,
+    ((e₃σ + e₂)σ + e₁)σ + c/T₀ (fused); valid when small (|σ| ≤ σ_max, i.e.
+    |σ/c_v| ≤ EXP_SMALL: the dropped quartic term is < 2⁻⁶⁸ relative)."""
+    f = fma(s, fma(s, fma(s, q[Q_E3], q[Q_E2]), q[Q_E1]), q[Q_CT])
+    return norm2_lane(w0, w1, w2) * f, abs(s) <= q[Q_SMAX]
 
 
 @jit(inline="always")
