@@ -110,7 +110,7 @@ def test_newton_failures_and_nan_members(paper_params):
     Y, P = mixed_ensemble(paper_params, seed=3)
     Y[7, 0] = np.nan
     Y[F.BLOCK + 3, 0:3] = [0.0, 300.0, 300.0]
-    for maxiter in (2, 3, 30):
+    for maxiter in (0, 1, 2, 3, 30):
         fast = run("fast", "vi", Y, P, 0.1, 100, 10, maxiter=maxiter)
         simple = run("simple", "vi", Y, P, 0.1, 100, 10, maxiter=maxiter)
         assert_same(fast, simple)
@@ -122,6 +122,13 @@ def test_newton_failures_and_nan_members(paper_params):
     fast = run("fast", "vi", Y, P, 0.1, 10, 10, tol=0.0, maxiter=5)
     assert_same(fast, run("simple", "vi", Y, P, 0.1, 10, 10, tol=0.0, maxiter=5))
     assert np.all(fast[2][:, E.IS_STATUS] == E.STATUS_NEWTON)
+    # a loose tolerance: lanes converge in iteration 1 (done inside _vi_prepare)
+    # or 2, in mixed blocks
+    fast = run("fast", "vi", Y, P, 0.1, 50, 10, tol=1e-4, maxiter=2)
+    simple = run("simple", "vi", Y, P, 0.1, 50, 10, tol=1e-4, maxiter=2)
+    assert_same(fast, simple)
+    its = simple[2][:, E.IS_NEWTON_TOTAL] / np.maximum(simple[2][:, E.IS_STEPS], 1)
+    assert np.any(simple[2][:, E.IS_NEWTON_MAX] == 1) and np.any(its > 1.0)
 
 
 @pytest.mark.parametrize("method", ["vi", "rk2", "rk4"])
@@ -273,7 +280,7 @@ def test_simulate_kernel_switch(method, start, paper_params):
 
 def test_kernels_are_vectorized():
     """The lane loops compile to packed double-precision arithmetic with packed
-    fused multiply-adds (checked on fresh, uncached compilations of three
+    fused multiply-adds (checked on fresh, uncached compilations of four
     sweeps)."""
     if platform.machine().lower() not in ("x86_64", "amd64"):
         pytest.skip("packed-op check written for x86-64")
@@ -290,6 +297,7 @@ def test_kernels_are_vectorized():
     fused = re.compile(r"\bv(fmadd|fmsub|fnmadd|fnmsub)\d+pd\s+[^\n]*%(y|z)mm")
     for f, args in ((F._rk4_sweep, (S, 8, 0.1, True, qq)),
                     (F._rk2_sweep, (S, 8, 0.1, False, qq)),
+                    (F._vi_prepare, (S, 8, 0.1, 1e-14, True, True, qq, vv)),
                     (F._newton_sweep, (S, 8, 1e-14, 1, False, vv))):
         g = numba.njit(fastmath=False, error_model="numpy")(f.py_func)
         g(*args)

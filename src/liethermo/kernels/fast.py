@@ -316,10 +316,12 @@ def _w2_sweep(S, nb, h):
 
 
 @jit
-def _vi_prepare(S, nb, h, uni, qq, vv):
+def _vi_prepare(S, nb, h, tol, first, uni, qq, vv):
     """Per lane: max |Ω_k|², Γ_{k+1} (Cayley), σ_{k+1}, b, predictor X,
-    |Ω_k|∞, and resets the Newton mask.  Returns the number of lanes whose
-    exp argument needs math.exp (R_FLAG = FLAG_EXACT)."""
+    |Ω_k|∞, the Newton mask and, if ``first``, Newton iteration 1 (as
+    _newton_sweep does it; the predictor never leaves the registers).
+    Returns the number of lanes whose exp argument needs math.exp (R_FLAG =
+    FLAG_EXACT)."""
     nexact = 0
     for i in range(nb):
         q = _lane_q(S, i, uni, qq)
@@ -343,13 +345,23 @@ def _vi_prepare(S, nb, h, uni, qq, vv):
         S[O_B + B1 + i] = b1
         S[O_B + 2 * B1 + i] = b2
         x0, x1, x2 = predictor_lane(w0, w1, w2, G0, G1, G2, q, h)
-        S[O_X + i] = x0
-        S[O_X + B1 + i] = x1
-        S[O_X + 2 * B1 + i] = x2
-        S[O_SC0 + i] = max(abs(w0), abs(w1), abs(w2))
-        S[O_RUN + i] = 1.0
-        S[O_CODE + i] = NEWTON_MAXITER
-        S[O_ITS + i] = 0.0
+        sc0 = max(abs(w0), abs(w1), abs(w2))
+        S[O_SC0 + i] = sc0
+        d0, d1, d2, det = newton_lane(x0, x1, x2, b0, b1, b2, v)
+        sing = (det == 0.0) | (not _finite(det))
+        n0 = x0 - d0
+        n1 = x1 - d1
+        n2 = x2 - d2
+        step, conv = newton_stop(n0, n1, n2, d0, d1, d2, sc0, tol)
+        bad = sing | (not (step == step))
+        stay = sing | (not first)
+        S[O_X + i] = x0 if stay else n0
+        S[O_X + B1 + i] = x1 if stay else n1
+        S[O_X + 2 * B1 + i] = x2 if stay else n2
+        code = NEWTON_SINGULAR if bad else (NEWTON_OK if conv else NEWTON_MAXITER)
+        S[O_CODE + i] = code if first else NEWTON_MAXITER
+        S[O_ITS + i] = 1.0 if first else 0.0
+        S[O_RUN + i] = 0.0 if (first & (bad | conv)) else 1.0
     return nexact
 
 
@@ -511,12 +523,27 @@ def _vi_attitude_commit(S, nb):
 def _vi_step_block(S, nb, n, h, tol, maxiter, uni, qq, vv):
     """One VI step of lanes [0, nb).  Returns the number of failed lanes
     (R_FLAG = FLAG_NEWTON or FLAG_NONFINITE); the others have stepped."""
-    nexact = _vi_prepare(S, nb, h, uni, qq, vv)
+    first = maxiter >= 1
+    nexact = _vi_prepare(S, nb, h, tol, first, uni, qq, vv)
     if nexact:
         _vi_sigma_exact(S, nb, h)
     if n > NSTATE_BASE:
         _vi_attitude(S, nb, h)
     it = np.int64(1)  # np.int64: no Literal[int] overloads of the callees
+    if first:
+        # iteration 1 was done by _vi_prepare
+        nrun = 0
+        for i in range(nb):
+            nrun += S[O_RUN + i] != 0.0
+        if nrun == 0:
+            it = maxiter + 1
+        elif nrun <= NEWTON_FALLBACK and 1 < maxiter:
+            for i in range(nb):
+                if S[O_RUN + i] != 0.0:
+                    _newton_lane(S, i, tol, 2, maxiter)
+            it = maxiter + 1
+        else:
+            it = np.int64(2)
     while it <= maxiter:
         nrun = _newton_sweep(S, nb, tol, it, uni, vv)
         if nrun == 0:
