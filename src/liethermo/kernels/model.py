@@ -28,10 +28,11 @@ by the inline lane functions :func:`rhs7_lane` / :func:`rhs7_lane_poly`, which
 the straightforward kernels (through :func:`rhs`) and the vectorized block
 kernel (kernels/fast.py) both call — so both get the same bits by
 construction.  No division happens per step: the coefficients hold the only
-reciprocals.  exp(x) for |x| ≤ ``EXP_SMALL`` (σ/c_v ≈ 1e-9 in the paper
-scene) is its Taylor polynomial of degree 3 (:func:`exp_small`; the
-truncation error is below 2⁻⁶⁶ relative, far under round-off), else
-``math.exp``.
+reciprocals.  For |σ/c_v| ≤ ``EXP_SMALL`` (≈ 1e-9 in the paper scene) the
+factor (c/T₀)exp(−σ/c_v) of σ̇ is its cubic Taylor polynomial in σ
+(:func:`sigma_rate_poly`; the dropped term is below 2⁻⁶⁸ relative, far under
+round-off), else it uses ``math.exp``; :func:`exp_small` is the same cubic for
+exp itself (correctly rounded on every tested argument).
 """
 
 from __future__ import annotations
