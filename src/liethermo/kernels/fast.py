@@ -75,6 +75,7 @@ from .vi import (
     NEWTON_SINGULAR,
     NVCOEF,
     momentum_constant_lane,
+    newton_iterate,
     newton_lane,
     newton_stop,
     predictor_lane,
@@ -437,27 +438,8 @@ def _newton_lane(S, i, tol, it0, maxiter):
     b1 = S[O_B + B1 + i]
     b2 = S[O_B + 2 * B1 + i]
     v = _rows_v(S, i)
-    scale0 = S[O_SC0 + i]
-    code = NEWTON_MAXITER
-    its = maxiter
-    for it in range(it0, maxiter + 1):
-        d0, d1, d2, det = newton_lane(x0, x1, x2, b0, b1, b2, v)
-        if det == 0.0 or not np.isfinite(det):
-            code = NEWTON_SINGULAR
-            its = it
-            break
-        x0 -= d0
-        x1 -= d1
-        x2 -= d2
-        step, conv = newton_stop(x0, x1, x2, d0, d1, d2, scale0, tol)
-        if not (step == step):
-            code = NEWTON_SINGULAR
-            its = it
-            break
-        if conv:
-            code = NEWTON_OK
-            its = it
-            break
+    x0, x1, x2, code, its = newton_iterate(x0, x1, x2, b0, b1, b2, v, S[O_SC0 + i], tol, it0,
+                                           maxiter)
     S[O_X + i] = x0
     S[O_X + B1 + i] = x1
     S[O_X + 2 * B1 + i] = x2

@@ -200,6 +200,34 @@ def newton_stop(x0, x1, x2, d0, d1, d2, scale0, tol):
     return step, step <= tol * scale
 
 
+@jit(inline="always")
+def newton_iterate(x0, x1, x2, b0, b1, b2, v, scale0, tol, it0, maxiter):
+    """Newton iterations it0 … maxiter from X = (x0, x1, x2) with newton_momentum's
+    stopping rules: returns (X, code, iterations).  On a singular or
+    non-finite Jacobian X is the last iterate before it."""
+    code = NEWTON_MAXITER
+    its = maxiter
+    for it in range(it0, maxiter + 1):
+        d0, d1, d2, det = newton_lane(x0, x1, x2, b0, b1, b2, v)
+        if det == 0.0 or not np.isfinite(det):
+            code = NEWTON_SINGULAR
+            its = it
+            break
+        x0 -= d0
+        x1 -= d1
+        x2 -= d2
+        step, conv = newton_stop(x0, x1, x2, d0, d1, d2, scale0, tol)
+        if not (step == step):  # NaN step
+            code = NEWTON_SINGULAR
+            its = it
+            break
+        if conv:
+            code = NEWTON_OK
+            its = it
+            break
+    return x0, x1, x2, code, its
+
+
 @jit
 def newton_momentum(omega, gamma_next, p, h, alpha, beta, tol, maxiter, X):
     """Solve F(X) = 0 for X = Ω_{k+1}; X holds the result.
@@ -218,26 +246,7 @@ def newton_momentum(omega, gamma_next, p, h, alpha, beta, tol, maxiter, X):
     b0, b1, b2 = momentum_constant_lane(w0, w1, w2, G0, G1, G2, v)
     x0, x1, x2 = predictor_lane(w0, w1, w2, G0, G1, G2, q, h)
     scale0 = max(abs(w0), abs(w1), abs(w2))
-    code = NEWTON_MAXITER
-    its = maxiter
-    for it in range(1, maxiter + 1):
-        d0, d1, d2, det = newton_lane(x0, x1, x2, b0, b1, b2, v)
-        if det == 0.0 or not np.isfinite(det):
-            code = NEWTON_SINGULAR
-            its = it
-            break
-        x0 -= d0
-        x1 -= d1
-        x2 -= d2
-        step, conv = newton_stop(x0, x1, x2, d0, d1, d2, scale0, tol)
-        if not (step == step):  # NaN step
-            code = NEWTON_SINGULAR
-            its = it
-            break
-        if conv:
-            code = NEWTON_OK
-            its = it
-            break
+    x0, x1, x2, code, its = newton_iterate(x0, x1, x2, b0, b1, b2, v, scale0, tol, 1, maxiter)
     X[0] = x0
     X[1] = x1
     X[2] = x2
