@@ -164,44 +164,47 @@ def test_entropy_outside_inline_exp_range(method, paper_params):
     assert_same(fast, run("simple", method, Y, P, h, 60, 10))
 
 
-def test_inline_exp_is_exp_to_round_off():
-    """model.exp_small (cubic Taylor polynomial, fused) is exp correctly
-    rounded on its range |x| ≤ EXP_SMALL — checked against exp summed exactly
-    in rational arithmetic — including the kernels' argument −σ/c_v on
-    entropies of the paper scene's size, and within one ulp of libm's exp."""
+def test_inline_entropy_rate_is_exact_to_round_off(paper_params):
+    """model.sigma_rate_poly (cubic Taylor polynomial in σ, fused) gives the
+    factor (c/T₀)·exp(mσ), m = −1/c_v, correctly rounded on its whole range
+    |σ| ≤ σ_max = EXP_SMALL·c_v — checked against the exponential summed
+    exactly in rational arithmetic, for the paper's c_v and two others — and
+    flags exactly the σ beyond σ_max."""
     from fractions import Fraction
 
     from numba import njit
 
-    from liethermo.kernels.model import EXP_SMALL, exp_small
+    from liethermo.kernels.model import Q_CT, Q_MICV, Q_SMAX, coefficients, sigma_rate_poly
 
     @njit
-    def evaluate(xs):
-        out = np.empty_like(xs)
-        for k in range(xs.size):
-            out[k] = exp_small(xs[k])
-        return out
+    def evaluate(ss, p):  # |Ω| = 1: σ̇ is the factor itself
+        q = coefficients(p)
+        out = np.empty_like(ss)
+        small = np.empty(ss.size, np.bool_)
+        for k in range(ss.size):
+            out[k], small[k] = sigma_rate_poly(1.0, 0.0, 0.0, ss[k], q)
+        return out, small, q
 
-    def exact(x):  # Σ xⁿ/n! to n = 8 (|x| ≤ 2⁻¹⁶: the rest is < 2⁻¹⁶⁰), rounded once
-        X = Fraction(x)
+    def exact(s, cT, m):  # cT·Σ (ms)ⁿ/n! to n = 8 (|ms| ≤ 2⁻¹⁶: the rest is < 2⁻¹⁶⁰)
+        X = Fraction(s) * Fraction(m)
         term = total = Fraction(1)
         for n in range(1, 9):
             term = term * X / n
             total += term
-        return float(total)
-
-    def check(xs):
-        got = evaluate(xs)
-        np.testing.assert_array_equal(got, [exact(x) for x in xs])
-        assert np.all(np.abs(got - np.array([math.exp(x) for x in xs])) <= np.spacing(got))
+        return float(Fraction(cT) * total)
 
     rng = np.random.default_rng(6)
-    for hi in (1e-18, 1e-15, 1e-12, 1e-9, 1e-6, EXP_SMALL):
-        check(rng.uniform(-hi, hi, 3000))
-    sigma = rng.uniform(0.0, 1e-3, 3000)
-    for cv in (1e2, 3.0 * 6.02214076e23 * 1.380649e-23 * 1e3, 1e9):
-        check(sigma * -(1.0 / cv))
-    check(np.array([0.0, -0.0, -5e-324, -EXP_SMALL, EXP_SMALL]))
+    for cv in (paper_params[P_CV], 1e2, 1e9):
+        p = paper_params.copy()
+        p[P_CV] = cv
+        smax = evaluate(np.zeros(1), p)[2][Q_SMAX]
+        for hi in (1e-12 * smax, 1e-6 * smax, smax):
+            ss = np.concatenate([rng.uniform(-hi, hi, 2000), [smax, -smax, 0.0, -0.0, 5e-324]])
+            got, small, q = evaluate(ss, p)
+            assert small.all()
+            np.testing.assert_array_equal(got, [exact(s, q[Q_CT], q[Q_MICV]) for s in ss])
+        beyond = np.array([np.nextafter(smax, np.inf), -2.0 * smax, np.nan, np.inf])
+        assert not evaluate(beyond, p)[1].any()
 
 
 def test_entry_states_and_partial_calls(paper_params):

@@ -31,9 +31,10 @@ How it is fast
   once and its lane is filled with the block's last lane (compaction), so
   dead members cost nothing — explicit RK2 loses most of the random paper
   ensemble within ~100 steps — and never touch their neighbours' values.
-* exp(−σ/c_v) is the inline cubic ``model.exp_small`` in the sweeps; a lane
-  whose argument is beyond ``EXP_SMALL`` (or not finite) is flagged and
-  recomputed with the straightforward kernel's own code (``math.exp``).
+* exp(−σ/c_v) is the inline cubic of ``model.sigma_rate_poly`` in the
+  sweeps; a lane whose |σ/c_v| is beyond ``EXP_SMALL`` (or not finite) is
+  flagged and recomputed with the straightforward kernel's own code
+  (``math.exp``).
 * Explicit RK steps *with* the attitude (16-wide state) and the
   ``reference`` method are not vectorized: they run the straightforward
   per-member code (the RK ones inside the block structure).
@@ -65,8 +66,8 @@ from .ensemble import (
     STATUS_OK,
     advance_member,
 )
-from .model import EXP_SMALL, NCOEF, NSTATE_BASE, coefficients, rhs7_lane_poly, sigma_rate
-from .model import sigma_rate_poly
+from .model import (EXP_SMALL, NCOEF, NSTATE_BASE, coefficients, rhs7_lane_poly, sigma_rate_exact,
+                    sigma_rate_poly)
 from .rk import DOP853_STAGES, rk2_step, rk4_combine, rk4_step
 from .so3 import cayley_lane, cayley_matrix_lane, row_times_lane
 from .vi import (
@@ -374,8 +375,8 @@ def _vi_sigma_exact(S, nb, h):
             continue
         sg = S[O_Y + 6 * B1 + i]
         q = _rows_q(S, i)
-        S[O_SN + i] = fma(h, sigma_rate(S[O_Y + i], S[O_Y + B1 + i], S[O_Y + 2 * B1 + i], sg, q),
-                          sg)
+        S[O_SN + i] = fma(h, sigma_rate_exact(S[O_Y + i], S[O_Y + B1 + i], S[O_Y + 2 * B1 + i],
+                                              sg, q), sg)
         S[O_FLAG + i] = FLAG_OK
 
 

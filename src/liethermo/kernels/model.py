@@ -31,8 +31,8 @@ construction.  No division happens per step: the coefficients hold the only
 reciprocals.  For |σ/c_v| ≤ ``EXP_SMALL`` (≈ 1e-9 in the paper scene) the
 factor (c/T₀)exp(−σ/c_v) of σ̇ is its cubic Taylor polynomial in σ
 (:func:`sigma_rate_poly`; the dropped term is below 2⁻⁶⁸ relative, far under
-round-off), else it uses ``math.exp``; :func:`exp_small` is the same cubic for
-exp itself (correctly rounded on every tested argument).
+round-off; correctly rounded on every tested argument), else it uses
+``math.exp`` (:func:`sigma_rate_exact`).
 """
 
 from __future__ import annotations
@@ -47,7 +47,7 @@ NSTATE_BASE = 7
 NSTATE_ATTITUDE = 16
 
 
-#: |x| up to which exp(x) is its cubic Taylor polynomial (exp_small)
+#: |σ/c_v| up to which exp(−σ/c_v) in σ̇ is its cubic Taylor polynomial (sigma_rate_poly)
 EXP_SMALL = 2.0**-16
 
 # per-member coefficients (coefficients()); Q_* index the tuple
@@ -84,13 +84,6 @@ def coefficients(p):
 
 
 @jit(inline="always")
-def exp_small(x):
-    """exp(x) for |x| ≤ EXP_SMALL: 1 + x + x²/2 + x³/6 in Horner form with fused
-    multiply-adds (the dropped x⁴/24 is < 2⁻⁶⁸ relative)."""
-    return fma(x, fma(x, fma(x, 1.0 / 6.0, 0.5), 1.0), 1.0)
-
-
-@jit(inline="always")
 def omega_rate(w0, w1, w2, G0, G1, G2, q):
     """Ω̇ (rad s⁻²) from Ω, Γ and the coefficients q (Euler's equations with
     Stokes drag and the gravity torque)."""
@@ -114,9 +107,9 @@ def norm2_lane(w0, w1, w2):
 
 @jit(inline="always")
 def rhs7_lane_poly(w0, w1, w2, G0, G1, G2, s, q):
-    """f(y) for the 7-wide state with exp by exp_small whatever x = −σ/c_v:
+    """f(y) for the 7-wide state with σ̇ from sigma_rate_poly whatever σ:
     returns (Ω̇₁, Ω̇₂, Ω̇₃, Γ̇₁, Γ̇₂, Γ̇₃, σ̇, small) where small says whether
-    |x| ≤ EXP_SMALL (if not, σ̇ is not the model's and rhs7_lane must be used)."""
+    |σ| ≤ σ_max (if not, σ̇ is not the model's and rhs7_lane must be used)."""
     d0, d1, d2 = omega_rate(w0, w1, w2, G0, G1, G2, q)
     d3, d4, d5 = cross_lane(G0, G1, G2, w0, w1, w2)
     d6, small = sigma_rate_poly(w0, w1, w2, s, q)
@@ -126,10 +119,14 @@ def rhs7_lane_poly(w0, w1, w2, G0, G1, G2, s, q):
 @jit(inline="always")
 def sigma_rate(w0, w1, w2, s, q):
     """σ̇ = (c/T₀)|Ω|² exp(−σ/c_v) in J K⁻¹ s⁻¹: sigma_rate_poly where it is
-    valid, else with math.exp."""
+    valid, else sigma_rate_exact."""
     d, small = sigma_rate_poly(w0, w1, w2, s, q)
-    if small:
-        return d
+    return d if small else sigma_rate_exact(w0, w1, w2, s, q)
+
+
+@jit(inline="always")
+def sigma_rate_exact(w0, w1, w2, s, q):
+    """σ̇ with math.exp, for |σ| beyond σ_max (or σ not finite)."""
     return (q[Q_CT] * norm2_lane(w0, w1, w2)) * math.exp(s * q[Q_MICV])
 
 
@@ -148,16 +145,8 @@ def rhs7_lane(w0, w1, w2, G0, G1, G2, s, q):
     """f(y) for the 7-wide state: (Ω̇, Γ̇, σ̇) as a 7-tuple."""
     d0, d1, d2, d3, d4, d5, d6, small = rhs7_lane_poly(w0, w1, w2, G0, G1, G2, s, q)
     if not small:
-        d6 = sigma_rate(w0, w1, w2, s, q)
+        d6 = sigma_rate_exact(w0, w1, w2, s, q)
     return d0, d1, d2, d3, d4, d5, d6
-
-
-@jit
-def inverse_temperature(sigma, p):
-    """1/T = exp(−σ/c_v)/T₀ in K⁻¹, as the kernels evaluate it."""
-    x = sigma * -(1.0 / p[P_CV])
-    e = exp_small(x) if abs(x) <= EXP_SMALL else math.exp(x)
-    return e * (1.0 / p[P_T0])
 
 
 @jit

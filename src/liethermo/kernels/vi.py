@@ -228,6 +228,16 @@ def newton_iterate(x0, x1, x2, b0, b1, b2, v, scale0, tol, it0, maxiter):
     return x0, x1, x2, code, its
 
 
+@jit(inline="always")
+def newton_solve_lane(w0, w1, w2, G0, G1, G2, q, v, h, tol, maxiter):
+    """Ω_{k+1} from Ω_k and Γ_{k+1}: b, the predictor, then newton_iterate;
+    returns (X, code, iterations)."""
+    b0, b1, b2 = momentum_constant_lane(w0, w1, w2, G0, G1, G2, v)
+    x0, x1, x2 = predictor_lane(w0, w1, w2, G0, G1, G2, q, h)
+    scale0 = max(abs(w0), abs(w1), abs(w2))
+    return newton_iterate(x0, x1, x2, b0, b1, b2, v, scale0, tol, 1, maxiter)
+
+
 @jit
 def newton_momentum(omega, gamma_next, p, h, alpha, beta, tol, maxiter, X):
     """Solve F(X) = 0 for X = Ω_{k+1}; X holds the result.
@@ -237,16 +247,8 @@ def newton_momentum(omega, gamma_next, p, h, alpha, beta, tol, maxiter, X):
     """
     q = coefficients(p)
     v = vi_coefficients(p, h, alpha, beta)
-    w0 = omega[0]
-    w1 = omega[1]
-    w2 = omega[2]
-    G0 = gamma_next[0]
-    G1 = gamma_next[1]
-    G2 = gamma_next[2]
-    b0, b1, b2 = momentum_constant_lane(w0, w1, w2, G0, G1, G2, v)
-    x0, x1, x2 = predictor_lane(w0, w1, w2, G0, G1, G2, q, h)
-    scale0 = max(abs(w0), abs(w1), abs(w2))
-    x0, x1, x2, code, its = newton_iterate(x0, x1, x2, b0, b1, b2, v, scale0, tol, 1, maxiter)
+    x0, x1, x2, code, its = newton_solve_lane(omega[0], omega[1], omega[2], gamma_next[0],
+                                              gamma_next[1], gamma_next[2], q, v, h, tol, maxiter)
     X[0] = x0
     X[1] = x1
     X[2] = x2
@@ -273,8 +275,10 @@ def vi_step(y, p, h, n, alpha, beta, tol, maxiter, ynew):
         R = y[7:16].reshape((3, 3))
         Rn = ynew[7:16].reshape((3, 3))
         attitude_update(R, w, Rn)
-    X = ynew[0:3]
-    return newton_momentum(y[0:3], ynew[3:6], p, h, alpha, beta, tol, maxiter, X)
+    v = vi_coefficients(p, h, alpha, beta)
+    ynew[0], ynew[1], ynew[2], code, its = newton_solve_lane(w0, w1, w2, G0, G1, G2, q, v, h, tol,
+                                                             maxiter)
+    return code, its
 
 
 @jit
