@@ -57,7 +57,6 @@ from .ensemble import (
     IS_NEWTON_TOTAL,
     IS_STATUS,
     IS_STEPS,
-    METHOD_REFERENCE,
     METHOD_RK2,
     METHOD_RK4,
     METHOD_VI,

@@ -15,7 +15,6 @@ share, so the straightforward and the vectorized kernels get the same bits.
 
 from __future__ import annotations
 
-import numpy as np
 
 from ._jit import fma, jit
 from .model import cross_lane, norm2_lane

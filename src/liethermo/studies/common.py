@@ -81,6 +81,19 @@ def resolve_study(study: dict, reduced: bool) -> dict:
     return out
 
 
+def start_study(study: dict, outdir, reduced: bool, validate: Callable[[dict], None],
+                options: Callable[[dict], dict]) -> tuple[dict, Path, dict]:
+    """The opening of every study's ``run``: the resolved study (reduced mode
+    applied), validated, its options, and the output folder (created once the
+    study and its options are known to be valid)."""
+    s = resolve_study(study, reduced)
+    validate(s)
+    opt = options(s)
+    out = Path(outdir)
+    out.mkdir(parents=True, exist_ok=True)
+    return s, out, opt
+
+
 def nested(overrides: dict | None) -> dict:
     """``{"section.key": v}`` (or already nested ``{section: {key: v}}``) → nested dict."""
     out: dict[str, dict[str, Any]] = {}

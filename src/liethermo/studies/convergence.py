@@ -34,8 +34,8 @@ from ..methods import METHODS
 from ..scene import physical_parameters
 from ..simulate import simulate
 from .common import (study_options, StudyError, cached_point, dim_name, expand_sweep, parse_method, point_is_cached, point_key,
-                     progress_bar, resolve_study, stack_points, study_name, study_netcdf_path, study_scene,
-                     write_netcdf_atomic, write_report, write_table)
+                     progress_bar, stack_points, study_name, study_netcdf_path, study_scene,
+                     write_netcdf_atomic, write_report, write_table, start_study)
 
 EXTRA_KEYS = ()
 VARIABLES = ("omega", "gamma", "entropy", "total_energy")
@@ -161,11 +161,7 @@ def _dask_points(outdir, dask, progress, opt, specs, hs, points, scenes, ref_key
 
 
 def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask: str | None = None) -> Path:
-    study = resolve_study(study, reduced)
-    validate(study)
-    outdir = Path(outdir)
-    outdir.mkdir(parents=True, exist_ok=True)
-    opt = options(study)
+    study, outdir, opt = start_study(study, outdir, reduced, validate, options)
     hs = _levels(opt)
     specs = [parse_method(m) for m in study["methods"]]
     points = expand_sweep(study.get("sweep"))

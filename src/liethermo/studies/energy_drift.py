@@ -31,8 +31,8 @@ from ..initial import initial_conditions, initial_states
 from ..kernels.model import P_GX, P_GY, P_GZ
 from ..scene import physical_parameters
 from .common import (study_options, StudyError, cached_point, dim_name, expand_sweep, parse_method, point_key, progress_bar,
-                     resolve_study, stack_points, study_name, study_netcdf_path, study_scene, write_netcdf_atomic,
-                     write_report, write_table)
+                     stack_points, study_name, study_netcdf_path, study_scene, write_netcdf_atomic,
+                     write_report, write_table, start_study)
 
 EXTRA_KEYS = ()
 DEFAULT_OPTIONS = {"t_end": 30.0, "band_dt": 0.2, "member_chunk": 1024, "diverged_above": 1.0}
@@ -139,11 +139,7 @@ def _summary_row(ds: xr.Dataset, label: str, h: float, opt: dict) -> dict:
 
 
 def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask: str | None = None) -> Path:
-    study = resolve_study(study, reduced)
-    validate(study)
-    outdir = Path(outdir)
-    outdir.mkdir(parents=True, exist_ok=True)
-    opt = options(study)
+    study, outdir, opt = start_study(study, outdir, reduced, validate, options)
     specs = [parse_method(m) for m in study["methods"]]
     points = expand_sweep(study.get("sweep"))
     keys = list(points[0])

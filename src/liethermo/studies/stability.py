@@ -36,11 +36,11 @@ import xarray as xr
 
 from ..initial import initial_conditions, initial_states
 from ..kernels.model import P_C, P_GX, P_GY, P_GZ, P_I1, P_I2, P_I3
-from ..methods import FRICTION, METHODS
+from ..methods import FRICTION
 from ..scene import physical_parameters
 from ..simulate import simulate
-from .common import (study_options, StudyError, cached_point, point_key, progress_bar, resolve_study, study_name,
-                     study_netcdf_path, study_scene, write_netcdf_atomic, write_report, write_table)
+from .common import (study_options, StudyError, cached_point, point_key, progress_bar, study_name,
+                     study_netcdf_path, study_scene, write_netcdf_atomic, write_report, write_table, start_study)
 
 EXTRA_KEYS = ()
 
@@ -326,11 +326,7 @@ def _one_thread(func, *args):
 def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask: str | None = None) -> Path:
     import pandas as pd
 
-    s = resolve_study(study, reduced)
-    validate(s)
-    opt = options(s)
-    outdir = Path(outdir)
-    outdir.mkdir(parents=True, exist_ok=True)
+    s, outdir, opt = start_study(study, outdir, reduced, validate, options)
     methods = list(s.get("methods", ["vi", "vi:endpoint", "rk2", "rk4"]))
     scene = study_scene(s, opt["map_scene"])
     h = float(opt["h"])

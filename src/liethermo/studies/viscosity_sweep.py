@@ -36,9 +36,9 @@ from ..initial import initial_conditions, initial_states
 from ..kernels.model import P_C, P_CV, P_GX, P_GY, P_GZ, P_I1, P_I2, P_I3, P_T0
 from ..scene import physical_parameters
 from ..simulate import simulate
-from .common import (study_options, StudyError, cached_point, expand_sweep, point_key, progress_bar, resolve_study,
+from .common import (study_options, StudyError, cached_point, expand_sweep, point_key, progress_bar,
                      dim_name, stack_points, study_name, study_netcdf_path, study_scene, write_netcdf_atomic,
-                     write_report, write_table)
+                     write_report, write_table, start_study)
 
 EXTRA_KEYS = ()
 SWEEP_KEY = "fluid.viscosity"
@@ -187,11 +187,7 @@ UNITS = {
 def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask: str | None = None) -> Path:
     import pandas as pd
 
-    s = resolve_study(study, reduced)
-    validate(s)
-    opt = options(s)
-    outdir = Path(outdir)
-    outdir.mkdir(parents=True, exist_ok=True)
+    s, outdir, opt = start_study(study, outdir, reduced, validate, options)
     points = sorted(expand_sweep(s["sweep"]), key=lambda d: d[SWEEP_KEY])
     t_wall = time.perf_counter()
     tasks = []  # (key, func, args): module-level func, picklable args (Dask tasks)

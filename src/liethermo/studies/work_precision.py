@@ -41,8 +41,8 @@ from ..kernels.model import NSTATE_BASE, rhs
 from ..methods import METHODS
 from ..scene import physical_parameters
 from ..simulate import simulate
-from .common import (study_options, StudyError, cached_point, point_key, progress_bar, resolve_study, study_name,
-                     study_netcdf_path, study_scene, write_netcdf_atomic, write_report, write_table)
+from .common import (study_options, StudyError, cached_point, point_key, progress_bar, study_name,
+                     study_netcdf_path, study_scene, write_netcdf_atomic, write_report, write_table, start_study)
 
 EXTRA_KEYS = ()
 
@@ -254,13 +254,9 @@ def observed_slope(hs, errs, floor: float = 1e-12) -> float:
 # ----------------------------------------------------------------------------- study
 
 def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask: str | None = None) -> Path:
-    s = resolve_study(study, reduced)
-    validate(s)
-    opt = options(s)
+    s, outdir, opt = start_study(study, outdir, reduced, validate, options)
     if dask is not None:  # the wall times are the measurement: never on Dask workers
         print(DASK_NOTE, file=sys.stderr)
-    outdir = Path(outdir)
-    outdir.mkdir(parents=True, exist_ok=True)
     methods = list(s.get("methods", ["vi", "rk2", "rk4"]))
     scene = study_scene(s)
     t_end = float(opt["t_end"])
@@ -280,7 +276,7 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
     curves = {}
     try:
         for m in methods:
-            errs, times, tstep = [], [], []
+            errs, times = [], []
             for h in hs:
                 key = point_key({**tag, "kind": "kernel", "method": m, "h": h, "threads": opt["threads"]})
                 ds = cached_point(outdir, key, lambda m=m, h=h: run_kernel_point(
