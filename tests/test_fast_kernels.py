@@ -296,20 +296,48 @@ def test_kernels_are_vectorized():
     pp = F._load_params(S, 0)
     qq = coefficients(pp)
     vv = vi_coefficients(pp, 0.1, 0.5, 0.5)
-    packed = re.compile(r"\b(v?(mul|div|add|sub|fmadd\d*|fmsub\d*|fnmadd\d*|fnmsub\d*)pd)\s+[^\n]*%(y|z)mm")
-    fused = re.compile(r"\bv(fmadd|fmsub|fnmadd|fnmsub)\d+pd\s+[^\n]*%(y|z)mm")
     for f, args in ((F._rk4_sweep, (S, 8, 0.1, True, qq)),
                     (F._rk2_sweep, (S, 8, 0.1, False, qq)),
                     (F._vi_prepare, (S, 8, 0.1, 1e-14, True, True, qq, vv)),
                     (F._newton_sweep, (S, 8, 1e-14, 1, False, vv))):
         g = numba.njit(fastmath=False, error_model="numpy")(f.py_func)
         g(*args)
-        asm = g.inspect_asm(g.signatures[0])
-        assert len(packed.findall(asm)) >= 20, f.__name__
-        assert len(fused.findall(asm)) >= 10, f.__name__
+        c = hot_loop_counts(g.inspect_asm(g.signatures[0]))
+        assert c and c["packed"] >= 40, (f.__name__, c)
+        assert c["fma"] >= 20, (f.__name__, c)
 
 
 def test_import_compiles_nothing():
     code = ("import liethermo.kernels.fast as F, liethermo.simulate;"
-            "assert not F.advance_ensemble_fast.overloads and not F._advance_block.overloads")
+            "assert not F._advance_blocks.overloads and not F._advance_block.overloads")
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_hot_loop_counts_reads_a_listing():
+    """bench.hot_loop_counts picks the loop with the most packed instructions and
+    counts its arithmetic, memory operands, stack slots and stores."""
+    from liethermo.bench import hot_loop_counts
+
+    asm = """
+        movq %rdi, %rax
+.LBB0_1:
+        vaddsd %xmm0, %xmm1, %xmm1
+        jne .LBB0_1
+.LBB0_2:
+        vmovupd (%rdi,%rax,8), %ymm0
+        vfmadd213pd %ymm1, %ymm2, %ymm0
+        vmulpd 32(%rsp), %ymm0, %ymm3
+        vaddpd %ymm3, %ymm0, %ymm0
+        vdivpd %ymm0, %ymm3, %ymm4
+        vmovupd %ymm4, 64(%rsp)
+        vmovupd %ymm0, (%rsi,%rax,8)
+        addq $4, %rax
+        jne .LBB0_2
+        retq
+"""
+    c = hot_loop_counts(asm)
+    assert c["width"] == "ymm" and c["lanes"] == 4
+    assert c["instructions"] == 9
+    assert (c["packed"], c["fma"], c["mul"], c["addsub"], c["div"]) == (4, 1, 1, 1, 1)
+    assert (c["mem"], c["stack"], c["stores"]) == (4, 2, 2)
+    assert hot_loop_counts("retq\n") == {}
