@@ -28,7 +28,8 @@ Start-up is reported too: ``import liethermo.simulate`` in a fresh
 interpreter (nothing is compiled at import), and the first call of each
 kernel (loading it from numba's on-disk cache, or compiling it on a cold
 cache).  ``--asm`` compiles fresh copies of the fast kernel's lane loops and
-counts packed double-precision instructions (``v*pd`` on ymm/zmm registers)
+counts the instructions of each one's hot loop (packed ``v*pd`` arithmetic on
+ymm/zmm registers, FMAs, memory operands, stack spills)
 to confirm that LLVM vectorized them.
 
 The table goes to stdout, the numbers to a JSON file (``--json``).
@@ -280,10 +281,15 @@ def main(argv=None) -> int:
               f"peak RSS {startup['warm_peak_rss_mb']:.0f} MB")
     asm = asm_report() if args.asm else None
     if asm:
-        print("packed double-precision ops in the fast kernel's lane loops (fresh compile):")
+        print("hot loop of each lane sweep (fresh compile), per iteration = one vector of lanes:")
         for name, c in asm.items():
-            print(f"  {name:<16} zmm {c['zmm']:>4} (fma {c['fma']:>3}, div {c['div']:>2})"
-                  f"  ymm {c['ymm']:>4}  scalar {c['scalar']:>4}  zmm loads/stores {c['zmm_moves']:>4}")
+            if not c:
+                print(f"  {name:<16} no vectorized loop found")
+                continue
+            print(f"  {name:<16} {c['width']} ({c['lanes']} lanes): {c['instructions']:>4} instructions,"
+                  f" packed arithmetic {c['packed']:>3} (fma {c['fma']:>3}, mul {c['mul']:>3},"
+                  f" add/sub {c['addsub']:>3}, div {c['div']}), memory operands {c['mem']:>3}"
+                  f" (stack {c['stack']:>3}, stores {c['stores']:>3})")
     if args.json:
         import numba as _nb
 
@@ -329,16 +335,57 @@ def startup_report(warm_runs: int = 3) -> dict:
     return dict(cold_s=cold, warm_s=min(warm), warm_runs_s=warm, warm_peak_rss_mb=rss)
 
 
-def asm_report() -> dict:
-    """Counts of packed (zmm/ymm) and scalar double-precision arithmetic
-    instructions (and, among them, packed divisions) in fresh (uncached)
-    compilations of the fast lane loops."""
+def hot_loop_counts(asm: str) -> dict:
+    """Instruction counts of the hottest loop of an x86-64 listing: the backward
+    jump whose body holds the most packed (ymm/zmm) instructions.
+
+    ``width``: register width of the packed code (``zmm`` = 8 doubles, ``ymm`` = 4);
+    ``packed``: packed double arithmetic (add/sub/mul/div/sqrt/FMA) of which
+    ``fma``, ``mul``, ``addsub``, ``div``; ``mem``: packed instructions that read or
+    write memory, of which ``stack`` address the stack (spilled registers)
+    and ``stores`` write; ``instructions``: all instructions of the body."""
     import re
 
+    lines = asm.splitlines()
+    labels = {}
+    for k, line in enumerate(lines):
+        m = re.match(r"^\s*(\.?L\w+):", line)
+        if m:
+            labels[m.group(1)] = k
+    best = None
+    for k, line in enumerate(lines):
+        m = re.match(r"\s*j\w+\s+(\.?L\w+)\s*$", line)
+        if m and labels.get(m.group(1), k) < k:
+            body = lines[labels[m.group(1)]:k + 1]
+            npk = sum(("%ymm" in b or "%zmm" in b) for b in body)
+            if best is None or npk > best[0]:
+                best = (npk, body)
+    if best is None:
+        return {}
+    body = [b for b in best[1] if b.strip() and not b.strip().startswith((".", "#"))
+            and not b.strip().endswith(":")]
+    width = "zmm" if any("%zmm" in b for b in body) else "ymm"
+    packed = [b for b in body if f"%{width}" in b]
+
+    def count(pattern, rows=packed):
+        return sum(1 for b in rows if re.match(r"\s*" + pattern + r"\b", b))
+
+    arith = r"v(?:mul|div|add|sub|sqrt|fn?m(?:add|sub)\d*)pd"
+    return dict(width=width, lanes=8 if width == "zmm" else 4, instructions=len(body),
+                packed=count(arith), fma=count(r"vfn?m(?:add|sub)\d*pd"), mul=count("vmulpd"),
+                addsub=count(r"v(?:add|sub)pd"), div=count("vdivpd"),
+                mem=sum(1 for b in packed if "(" in b),
+                stack=sum(1 for b in packed if "(%rsp)" in b),
+                stores=sum(1 for b in packed if re.match(r"\s*vmov\w*\s+%[yz]mm\d+,\s*[^%\s]", b)))
+
+
+def asm_report() -> dict:
+    """Instruction counts (:func:`hot_loop_counts`) of the lane loops of fresh
+    (uncached) compilations of the fast kernel's sweeps, to confirm that LLVM
+    vectorized them and to see what bounds their speed."""
     import numba
 
     from .kernels import fast as F
-
     from .kernels.model import coefficients
     from .kernels.vi import vi_coefficients
 
@@ -353,18 +400,11 @@ def asm_report() -> dict:
         "_newton_sweep": (F._newton_sweep, (S, 8, 1e-14, 1, True, vv)),
         "_vi_commit": (F._vi_commit, (S, 8)),
     }
-    arith = r"v(?:mul|div|add|sub|sqrt|fn?m(?:add|sub)\d*)"
     out = {}
     for name, (f, a) in cases.items():
         g = numba.njit(fastmath=False, error_model="numpy")(f.py_func)
         g(*a)
-        text = g.inspect_asm(g.signatures[0])
-        out[name] = dict(zmm=len(re.findall(arith + r"pd\s+[^\n]*%zmm", text)),
-                         ymm=len(re.findall(arith + r"pd\s+[^\n]*%ymm", text)),
-                         scalar=len(re.findall(arith + r"sd\s", text)),
-                         div=len(re.findall(r"vdivpd\s[^\n]*%zmm", text)),
-                         fma=len(re.findall(r"vfn?m(?:add|sub)\d*pd\s[^\n]*%zmm", text)),
-                         zmm_moves=len(re.findall(r"vmov\w*\s+[^\n]*%zmm", text)))
+        out[name] = hot_loop_counts(g.inspect_asm(g.signatures[0]))
     return out
 
 
