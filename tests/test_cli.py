@@ -7,8 +7,6 @@ import signal
 import subprocess
 import sys
 import time
-from pathlib import Path
-
 import numpy as np
 import pytest
 import xarray as xr
@@ -72,6 +70,27 @@ def test_invalid_input_subprocess_exit_code(tmp_path):
     assert "scene key 'integrator.h': must be > 0" in p.stderr
     assert "Traceback" not in p.stderr
     assert not out.exists()
+
+
+def test_console_run_leaves_complete_files(tmp_path):
+    """The console command (which leaves by os._exit after `run`) exits 0 with its
+    summary printed and every file it wrote complete: both datasets with all
+    their steps, and the four figures."""
+    out = tmp_path / "p.nc"
+    p = subprocess.run([sys.executable, "-m", "liethermo.cli", "run", "paper", "-o", str(out),
+                        "--no-progress", "--set", "integrator.steps=40"],
+                       capture_output=True, text=True)
+    assert p.returncode == 0, p.stderr
+    assert p.stdout.count("wrote ") == 2
+    assert p.stdout.rstrip().endswith(f"{tmp_path / 'p_entropy.png'}")
+    for path in (out, tmp_path / "p_rk2.nc"):
+        with xr.open_dataset(path) as ds:
+            assert ds.sizes["time"] == 41
+            assert np.isfinite(ds["omega"].values[0, :20]).all()
+    pngs = sorted(f.name for f in tmp_path.glob("*.png"))
+    assert len(pngs) == 4
+    for f in tmp_path.glob("*.png"):
+        assert f.read_bytes().endswith(b"IEND\xaeB`\x82")  # PNG trailer: not truncated
 
 
 def test_missing_scene_file_is_reported(tmp_path, capsys):

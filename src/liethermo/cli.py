@@ -7,6 +7,7 @@ status 2 and no output file; no traceback.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
@@ -141,5 +142,22 @@ def main(argv=None) -> int:
     return args.func(args)
 
 
+def entry() -> None:
+    """The ``liethermo`` console script: :func:`main`, then exit.
+
+    After ``liethermo run`` (without ``--dask``) the process leaves with
+    ``os._exit`` once its output is flushed: every file it wrote is closed by
+    then, and the interpreter's own teardown (module and LLVM clean-up, no
+    effect outside the process) took ~0.7 s of a ~4 s warm
+    ``liethermo run paper`` on the 2-core benchmark machine."""
+    argv = sys.argv[1:]
+    rc = main(argv)
+    if argv[:1] == ["run"] and "--dask" not in argv:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(rc or 0)
+    sys.exit(rc)
+
+
 if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
+    entry()
