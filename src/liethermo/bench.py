@@ -398,7 +398,7 @@ def asm_report() -> dict:
         "_rk4_sweep": (F._rk4_sweep, (S, 8, 0.1, True, qq)),
         "_vi_prepare": (F._vi_prepare, (S, 8, 0.1, 1e-14, True, True, qq, vv)),
         "_newton_sweep": (F._newton_sweep, (S, 8, 1e-14, 1, True, vv)),
-        "_vi_commit": (F._vi_commit, (S, 8)),
+        "_vi_check": (F._vi_check, (S, 8)),
     }
     out = {}
     for name, (f, a) in cases.items():

@@ -49,7 +49,7 @@ import math
 
 import numpy as np
 
-from ._jit import fma, jit, pjit, prange
+from ._jit import fma, jit, pjit, prange, select
 from .ensemble import (
     FS_MAX_H_OMEGA,
     IS_FAIL_STEP,
@@ -207,9 +207,11 @@ def _track_w2(S, i, y0, y1, y2, down):
     expression under its sqrt.  Row R_W2 starts at −1 (+inf when down): no
     step yet."""
     ww = y0 * y0 + y1 * y1 + y2 * y2
-    m = S[O_W2 + i]
+    # + 0.0 is exact here (the row never holds −0: it holds −1, +inf or a sum of
+    # squares) and keeps the store unconditional: see _newton_sweep
+    m = S[O_W2 + i] + 0.0
     upd = (ww < m) if down else (ww > m)
-    S[O_W2 + i] = ww if upd else m
+    S[O_W2 + i] = select(upd, ww, m)
 
 
 # --------------------------------------------------------------------------
@@ -226,14 +228,14 @@ def _rk_store(S, i, small, y0, y1, y2, y3, y4, y5, y6, n0, n1, n2, n3, n4, n5, n
     # not (a component is inf/NaN, or a finite sum overflowed), the lane is
     # redone by the straightforward code, which decides exactly
     upd = _finite(((n0 + n1) + (n2 + n3)) + ((n4 + n5) + n6)) & small
-    S[O_Y + i] = n0 if upd else y0
-    S[O_Y + B1 + i] = n1 if upd else y1
-    S[O_Y + 2 * B1 + i] = n2 if upd else y2
-    S[O_Y + 3 * B1 + i] = n3 if upd else y3
-    S[O_Y + 4 * B1 + i] = n4 if upd else y4
-    S[O_Y + 5 * B1 + i] = n5 if upd else y5
-    S[O_Y + 6 * B1 + i] = n6 if upd else y6
-    S[O_FLAG + i] = FLAG_OK if upd else FLAG_EXACT
+    S[O_Y + i] = select(upd, n0, y0)
+    S[O_Y + B1 + i] = select(upd, n1, y1)
+    S[O_Y + 2 * B1 + i] = select(upd, n2, y2)
+    S[O_Y + 3 * B1 + i] = select(upd, n3, y3)
+    S[O_Y + 4 * B1 + i] = select(upd, n4, y4)
+    S[O_Y + 5 * B1 + i] = select(upd, n5, y5)
+    S[O_Y + 6 * B1 + i] = select(upd, n6, y6)
+    S[O_FLAG + i] = select(upd, FLAG_OK, FLAG_EXACT)
     return 0 if upd else 1
 
 
@@ -339,7 +341,7 @@ def _vi_prepare(S, nb, h, tol, first, uni, qq, vv):
         S[O_GN + 2 * B1 + i] = G2
         rate, small = sigma_rate_poly(w0, w1, w2, sg, q)
         S[O_SN + i] = fma(h, rate, sg)
-        S[O_FLAG + i] = FLAG_OK if small else FLAG_EXACT
+        S[O_FLAG + i] = select(small, FLAG_OK, FLAG_EXACT)
         nexact += 0 if small else 1
         b0, b1, b2 = momentum_constant_lane(w0, w1, w2, G0, G1, G2, v)
         S[O_B + i] = b0
@@ -356,13 +358,13 @@ def _vi_prepare(S, nb, h, tol, first, uni, qq, vv):
         step, conv = newton_stop(n0, n1, n2, d0, d1, d2, sc0, tol)
         bad = sing | (not (step == step))
         stay = sing | (not first)
-        S[O_X + i] = x0 if stay else n0
-        S[O_X + B1 + i] = x1 if stay else n1
-        S[O_X + 2 * B1 + i] = x2 if stay else n2
+        S[O_X + i] = select(stay, x0, n0)
+        S[O_X + B1 + i] = select(stay, x1, n1)
+        S[O_X + 2 * B1 + i] = select(stay, x2, n2)
         code = NEWTON_SINGULAR if bad else (NEWTON_OK if conv else NEWTON_MAXITER)
-        S[O_CODE + i] = code if first else NEWTON_MAXITER
-        S[O_ITS + i] = 1.0 if first else 0.0
-        S[O_RUN + i] = 0.0 if (first & (bad | conv)) else 1.0
+        S[O_CODE + i] = select(first, code, NEWTON_MAXITER)
+        S[O_ITS + i] = select(first, 1.0, 0.0)
+        S[O_RUN + i] = select((first & (bad | conv)), 0.0, 1.0)
     return nexact
 
 
@@ -413,16 +415,22 @@ def _newton_sweep(S, nb, tol, it, uni, vv):
         step, conv = newton_stop(n0, n1, n2, d0, d1, d2, S[O_SC0 + i], tol)
         nanstep = not (step == step)
         move = run & (not sing)
-        S[O_X + i] = n0 if move else x0
-        S[O_X + B1 + i] = n1 if move else x1
-        S[O_X + 2 * B1 + i] = n2 if move else x2
+        # A lane that stays keeps its row values.  Written as x − (d or +0), not as
+        # "new if move else old": a store of select(c, new, old-from-that-address)
+        # becomes a masked store (vmaskmovpd), slow microcode on AMD Zen.  Exact:
+        # x − d is n, and x − (+0) is x for every x (−0, inf and NaN included).
+        S[O_X + i] = x0 - select(move, d0, 0.0)
+        S[O_X + B1 + i] = x1 - select(move, d1, 0.0)
+        S[O_X + 2 * B1 + i] = x2 - select(move, d2, 0.0)
         bad = sing | nanstep
-        code = S[O_CODE + i]
-        code = NEWTON_SINGULAR if bad else (NEWTON_OK if conv else code)
-        S[O_CODE + i] = code if run else S[O_CODE + i]
-        S[O_ITS + i] = it if run else S[O_ITS + i]
+        code_old = S[O_CODE + i]
+        code = select(bad, NEWTON_SINGULAR, select(conv, NEWTON_OK, code_old))
+        its_old = S[O_ITS + i]
+        # codes and counts are small integers: old + (new − old) is new exactly
+        S[O_CODE + i] = code_old + select(run, code - code_old, 0.0)
+        S[O_ITS + i] = its_old + select(run, it - its_old, 0.0)
         still = run & (not bad) & (not conv)
-        S[O_RUN + i] = 1.0 if still else 0.0
+        S[O_RUN + i] = select(still, 1.0, 0.0)
         nrun += 1 if still else 0
     return nrun
 
@@ -449,16 +457,20 @@ def _newton_lane(S, i, tol, it0, maxiter):
 
 
 @jit
-def _vi_commit(S, nb):
-    """Accept the step where Newton converged and the new state is finite;
-    accumulate Newton statistics; flag failures.  Returns the number of
-    failed lanes."""
+def _vi_check(S, nb):
+    """After the Newton sweeps: flag the lanes whose step fails (Newton did not
+    converge, or the new state is not finite) and accumulate the Newton
+    statistics of every lane.  Returns the number of failed lanes.  The state
+    rows are not touched: a failed lane is retired with its last accepted
+    state before _vi_accept moves the others on."""
     nfail = 0
     for i in range(nb):
         its = S[O_ITS + i]
         S[O_NTOT + i] += its
         nm = S[O_NMAX + i]
-        S[O_NMAX + i] = its if its > nm else nm
+        # max of two small non-negative integers, exact, without a select on the
+        # row's own value (see _newton_sweep)
+        S[O_NMAX + i] = 0.5 * ((its + nm) + abs(its - nm))
         n0 = S[O_X + i]
         n1 = S[O_X + B1 + i]
         n2 = S[O_X + 2 * B1 + i]
@@ -467,44 +479,49 @@ def _vi_commit(S, nb):
         n5 = S[O_GN + 2 * B1 + i]
         n6 = S[O_SN + i]
         conv = S[O_CODE + i] == NEWTON_OK
-        fin = (_finite(n0) & _finite(n1) & _finite(n2) & _finite(n3) & _finite(n4)
-               & _finite(n5) & _finite(n6) & (S[O_FLAG + i] == FLAG_OK))
-        upd = conv & fin
-        S[O_Y + i] = n0 if upd else S[O_Y + i]
-        S[O_Y + B1 + i] = n1 if upd else S[O_Y + B1 + i]
-        S[O_Y + 2 * B1 + i] = n2 if upd else S[O_Y + 2 * B1 + i]
-        S[O_Y + 3 * B1 + i] = n3 if upd else S[O_Y + 3 * B1 + i]
-        S[O_Y + 4 * B1 + i] = n4 if upd else S[O_Y + 4 * B1 + i]
-        S[O_Y + 5 * B1 + i] = n5 if upd else S[O_Y + 5 * B1 + i]
-        S[O_Y + 6 * B1 + i] = n6 if upd else S[O_Y + 6 * B1 + i]
-        S[O_FLAG + i] = FLAG_OK if upd else (FLAG_NONFINITE if conv else FLAG_NEWTON)
+        # x − x is 0 for finite x and NaN otherwise, so the sum is 0 exactly when all
+        # seven are finite (no overflow: it adds zeros): one compare, no branches
+        zero = (((n0 - n0) + (n1 - n1)) + ((n2 - n2) + (n3 - n3))
+                + (((n4 - n4) + (n5 - n5)) + (n6 - n6)))
+        upd = conv & (zero == 0.0) & (S[O_FLAG + i] == FLAG_OK)
+        S[O_FLAG + i] = select(upd, FLAG_OK, select(conv, FLAG_NONFINITE, FLAG_NEWTON))
         nfail += 0 if upd else 1
     return nfail
 
 
 @jit
+def _vi_accept(S, nb, n):
+    """Move every lane on to its new state (all lanes passed _vi_check: failed
+    ones were retired first)."""
+    for i in range(nb):
+        S[O_Y + i] = S[O_X + i]
+        S[O_Y + B1 + i] = S[O_X + B1 + i]
+        S[O_Y + 2 * B1 + i] = S[O_X + 2 * B1 + i]
+        S[O_Y + 3 * B1 + i] = S[O_GN + i]
+        S[O_Y + 4 * B1 + i] = S[O_GN + B1 + i]
+        S[O_Y + 5 * B1 + i] = S[O_GN + 2 * B1 + i]
+        S[O_Y + 6 * B1 + i] = S[O_SN + i]
+    if n > NSTATE_BASE:
+        for k in range(9):
+            for i in range(nb):
+                S[O_Y + (7 + k) * B1 + i] = S[O_RN + k * B1 + i]
+
+
+@jit
 def _vi_attitude_check(S, nb):
-    """Before _vi_commit (16-wide state): a non-finite R_{k+1} flags the lane."""
+    """Before _vi_check (16-wide state): a non-finite R_{k+1} flags the lane."""
     for i in range(nb):
         fin = True
         for k in range(9):
             fin = fin & _finite(S[O_RN + k * B1 + i])
-        S[O_FLAG + i] = S[O_FLAG + i] if fin else FLAG_NONFINITE
-
-
-@jit
-def _vi_attitude_commit(S, nb):
-    """After _vi_commit: R_k ← R_{k+1} on the lanes that stepped."""
-    for i in range(nb):
-        ok = S[O_FLAG + i] == FLAG_OK
-        for k in range(9):
-            S[O_Y + (7 + k) * B1 + i] = S[O_RN + k * B1 + i] if ok else S[O_Y + (7 + k) * B1 + i]
+        S[O_FLAG + i] = select(fin, S[O_FLAG + i], FLAG_NONFINITE)
 
 
 @jit
 def _vi_step_block(S, nb, n, h, tol, maxiter, uni, qq, vv):
-    """One VI step of lanes [0, nb).  Returns the number of failed lanes
-    (R_FLAG = FLAG_NEWTON or FLAG_NONFINITE); the others have stepped."""
+    """One VI step of lanes [0, nb) up to _vi_check.  Returns the number of
+    failed lanes (R_FLAG = FLAG_NEWTON or FLAG_NONFINITE); the caller retires
+    them, then moves the others on with _vi_accept."""
     first = maxiter >= 1
     nexact = _vi_prepare(S, nb, h, tol, first, uni, qq, vv)
     if nexact:
@@ -539,10 +556,7 @@ def _vi_step_block(S, nb, n, h, tol, maxiter, uni, qq, vv):
     if n > NSTATE_BASE:
         # the flag must also see R, but Newton failure takes precedence
         _vi_attitude_check(S, nb)
-    nfail = _vi_commit(S, nb)
-    if n > NSTATE_BASE:
-        _vi_attitude_commit(S, nb)
-    return nfail
+    return _vi_check(S, nb)
 
 
 # --------------------------------------------------------------------------
@@ -669,6 +683,8 @@ def _advance_block(method, Y, P, m0, m1, h, every, n_out, alpha, beta, tol, maxi
                         i += 1
                 if nb == 0:
                     return
+            if method == METHOD_VI:
+                _vi_accept(S, nb, n)
             done += 1
         for i in range(nb):
             m = int(S[O_MEMBER + i])
