@@ -25,8 +25,9 @@ How it is fast
 * The VI's Newton iterations run in lock-step over the block with a per-lane
   convergence mask: a converged lane keeps its X, and the block stops
   iterating as soon as no lane runs.  Once only a few lanes still run
-  (``NEWTON_FALLBACK``), they finish one by one in scalar code, so one
-  slow or diverging member does not hold the whole block.
+  (``NEWTON_COMPACT``), they are copied to the first lanes of a scratch
+  buffer and finish there, so one slow or diverging member does not hold
+  the whole block.
 * A failed member (Newton failure or non-finite state) is written back at
   once and its lane is filled with the block's last lane (compaction), so
   dead members cost nothing — explicit RK2 loses most of the random paper
@@ -75,7 +76,6 @@ from .vi import (
     NEWTON_SINGULAR,
     NVCOEF,
     momentum_constant_lane,
-    newton_iterate,
     newton_lane,
     newton_stop,
     predictor_lane,
@@ -86,8 +86,8 @@ __all__ = ["advance_ensemble_fast", "BLOCK", "EXP_SMALL"]
 
 #: members per block (lanes); a block's buffer is NROWS·BLOCK doubles
 BLOCK = 128
-#: when at most this many lanes of a block still iterate, they finish in scalar code
-NEWTON_FALLBACK = 16
+#: when at most this many lanes of a block still iterate, they finish on a compact copy
+NEWTON_COMPACT = BLOCK // 4
 
 # Rows of the per-block buffer; lane i of row r is buf[r*BLOCK + i].
 R_Y = 0  # 16 rows: state (model.py layout; 7 or 16 used)
@@ -436,24 +436,31 @@ def _newton_sweep(S, nb, tol, it, uni, vv):
 
 
 @jit
-def _newton_lane(S, i, tol, it0, maxiter):
-    """Finish lane i's Newton iteration from iteration it0 on, in scalar code
-    (same operations as _newton_sweep / vi.newton_momentum)."""
-    x0 = S[O_X + i]
-    x1 = S[O_X + B1 + i]
-    x2 = S[O_X + 2 * B1 + i]
-    b0 = S[O_B + i]
-    b1 = S[O_B + B1 + i]
-    b2 = S[O_B + 2 * B1 + i]
-    v = _rows_v(S, i)
-    x0, x1, x2, code, its = newton_iterate(x0, x1, x2, b0, b1, b2, v, S[O_SC0 + i], tol, it0,
-                                           maxiter)
-    S[O_X + i] = x0
-    S[O_X + B1 + i] = x1
-    S[O_X + 2 * B1 + i] = x2
-    S[O_CODE + i] = code
-    S[O_ITS + i] = its
-    S[O_RUN + i] = 0.0
+def _newton_compact(S, S2, idx, nb, tol, its, maxiter, uni, vv):
+    """Finish the Newton iterations of the few lanes still running (iterations
+    its+1 … maxiter) on a compact copy: their rows go to lanes 0 … k−1 of the
+    scratch buffer S2, _newton_sweep runs there (same arithmetic per lane) and
+    the results come back.  One slow member then costs a sweep over a handful
+    of lanes instead of the whole block."""
+    k = 0
+    for i in range(nb):
+        if S[O_RUN + i] != 0.0:
+            idx[k] = i
+            k += 1
+    for r in range(R_X, R_ITS + 1):  # X, b, |Ω_k|∞, mask, code, iterations
+        for j in range(k):
+            S2[r * B1 + j] = S[r * B1 + idx[j]]
+    if not uni:
+        for r in range(R_V, R_V + NVCOEF):
+            for j in range(k):
+                S2[r * B1 + j] = S[r * B1 + idx[j]]
+    nrun = k
+    while its < maxiter and nrun > 0:
+        its += 1
+        nrun = _newton_sweep(S2, k, tol, its, uni, vv)
+    for r in (R_X, R_X + 1, R_X + 2, R_RUN, R_CODE, R_ITS):
+        for j in range(k):
+            S[r * B1 + idx[j]] = S2[r * B1 + j]
 
 
 @jit
@@ -518,7 +525,7 @@ def _vi_attitude_check(S, nb):
 
 
 @jit
-def _vi_step_block(S, nb, n, h, tol, maxiter, uni, qq, vv):
+def _vi_step_block(S, S2, idx, nb, n, h, tol, maxiter, uni, qq, vv):
     """One VI step of lanes [0, nb) up to _vi_check.  Returns the number of
     failed lanes (R_FLAG = FLAG_NEWTON or FLAG_NONFINITE); the caller retires
     them, then moves the others on with _vi_accept."""
@@ -528,31 +535,17 @@ def _vi_step_block(S, nb, n, h, tol, maxiter, uni, qq, vv):
         _vi_sigma_exact(S, nb, h)
     if n > NSTATE_BASE:
         _vi_attitude(S, nb, h)
-    it = np.int64(1)  # np.int64: no Literal[int] overloads of the callees
-    if first:
-        # iteration 1 was done by _vi_prepare
-        nrun = 0
-        for i in range(nb):
-            nrun += S[O_RUN + i] != 0.0
-        if nrun == 0:
-            it = maxiter + 1
-        elif nrun <= NEWTON_FALLBACK and 1 < maxiter:
-            for i in range(nb):
-                if S[O_RUN + i] != 0.0:
-                    _newton_lane(S, i, tol, it + 1, maxiter)  # from iteration 2
-            it = maxiter + 1
-        else:
-            it = np.int64(2)
-    while it <= maxiter:
-        nrun = _newton_sweep(S, nb, tol, it, uni, vv)
-        if nrun == 0:
+    # iterations done: 1 (by _vi_prepare) unless maxiter is 0
+    its = np.int64(1) if first else np.int64(0)  # np.int64: no Literal[int] overloads
+    nrun = 0
+    for i in range(nb):
+        nrun += S[O_RUN + i] != 0.0
+    while its < maxiter and nrun > 0:
+        if nrun <= NEWTON_COMPACT and nrun < nb:
+            _newton_compact(S, S2, idx, nb, tol, its, maxiter, uni, vv)
             break
-        if nrun <= NEWTON_FALLBACK and it < maxiter:
-            for i in range(nb):
-                if S[O_RUN + i] != 0.0:
-                    _newton_lane(S, i, tol, it + 1, maxiter)
-            break
-        it += 1
+        its += 1
+        nrun = _newton_sweep(S, nb, tol, its, uni, vv)
     if n > NSTATE_BASE:
         # the flag must also see R, but Newton failure takes precedence
         _vi_attitude_check(S, nb)
@@ -615,6 +608,8 @@ def _advance_block(method, Y, P, m0, m1, h, every, n_out, alpha, beta, tol, maxi
                    OUT, ISTAT, FSTAT):
     n = Y.shape[1]
     S = np.zeros(NROWS * BLOCK)
+    S2 = np.zeros(NROWS * BLOCK)  # scratch for _newton_compact
+    idx = np.zeros(BLOCK, np.int64)
     nb = np.int64(0)  # np.int64: no Literal[int] overloads of the callees
     for m in range(m0, m1):
         if ISTAT[m, IS_STATUS] != STATUS_OK:
@@ -654,7 +649,7 @@ def _advance_block(method, Y, P, m0, m1, h, every, n_out, alpha, beta, tol, maxi
     for j in range(n_out):
         for _ in range(every):
             if method == METHOD_VI:
-                nfail = _vi_step_block(S, nb, n, h, tol, maxiter, uni, qq, vv)
+                nfail = _vi_step_block(S, S2, idx, nb, n, h, tol, maxiter, uni, qq, vv)
             elif vec_rk:
                 if rk4:
                     nfail = _rk4_sweep(S, nb, h, uni, qq)
