@@ -273,3 +273,29 @@ def test_bench_help_reaches_the_bench_parser(capsys):
         main(["bench", "--help"])
     assert exc.value.code == 0
     assert "--members" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("preset,expected", [(None, "2"), ("3", "3")])
+def test_console_script_compiles_at_O2_unless_told(monkeypatch, preset, expected):
+    """entry() sets NUMBA_OPT=2 for the process before numba is imported (same
+    results, faster cold start), and leaves a user's own setting alone."""
+    from liethermo.cli import entry
+
+    if preset is None:
+        monkeypatch.delenv("NUMBA_OPT", raising=False)
+    else:
+        monkeypatch.setenv("NUMBA_OPT", preset)
+    monkeypatch.setattr(sys, "argv", ["liethermo", "study", "--help"])
+    with pytest.raises(SystemExit):
+        entry()
+    assert os.environ["NUMBA_OPT"] == expected
+
+
+def test_console_script_process_runs_at_O2(tmp_path):
+    code = ("import sys; sys.argv = ['liethermo', 'study', '--help'];"
+            "from liethermo.cli import entry\n"
+            "try:\n    entry()\nexcept SystemExit:\n    pass\n"
+            "import numba; print('OPT', int(numba.config.OPT))")
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_OPT"}
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
+    assert "OPT 2" in p.stdout, p.stderr

@@ -442,7 +442,7 @@ def _newton_compact(S, S2, idx, nb, tol, its, maxiter, uni, vv):
     scratch buffer S2, _newton_sweep runs there (same arithmetic per lane) and
     the results come back.  One slow member then costs a sweep over a handful
     of lanes instead of the whole block."""
-    k = 0
+    k = np.int64(0)  # not a literal 0: that gave _newton_sweep a second specialization
     for i in range(nb):
         if S[O_RUN + i] != 0.0:
             idx[k] = i
