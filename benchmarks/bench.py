@@ -12,10 +12,11 @@ from __future__ import annotations
 import os
 import sys
 
-from liethermo.bench import main
-
 if __name__ == "__main__":
+    os.environ.setdefault("NUMBA_OPT", "2")  # as the liethermo console script (see cli.entry)
     argv = sys.argv[1:]
     if not any(a == "--json" or a.startswith("--json=") for a in argv):
         argv += ["--json", os.path.join(os.path.dirname(os.path.abspath(__file__)), "results.json")]
+    from liethermo.bench import main  # after NUMBA_OPT is set: numba reads it on import
+
     raise SystemExit(main(argv))

@@ -28,6 +28,11 @@ How it is fast
   (``NEWTON_COMPACT``), they are copied to the first lanes of a scratch
   buffer and finish there, so one slow or diverging member does not hold
   the whole block.
+* No lane store is conditional.  A store of "new if c else the row's own
+  value" becomes a masked store (``vmaskmovpd``) in LLVM's x86 back end,
+  slow microcode on AMD Zen 3; the sweeps store unconditionally (exact
+  arithmetic blends, ``_jit.select``), and the VI accepts a step only after
+  its failed lanes are retired (``_vi_check``, then ``_vi_accept``).
 * A failed member (Newton failure or non-finite state) is written back at
   once and its lane is filled with the block's last lane (compaction), so
   dead members cost nothing — explicit RK2 loses most of the random paper
