@@ -386,17 +386,25 @@ def _vi_sigma_exact(S, nb, h):
         S[O_FLAG + i] = FLAG_OK
 
 
+@jit(inline="always")
+def _attitude_row(S, i, r, C):
+    """Row r of R_{k+1} = R_k C for lane i (r a literal 0, 1, 2)."""
+    a, b, c = row_times_lane(S[O_Y + (7 + 3 * r) * B1 + i], S[O_Y + (8 + 3 * r) * B1 + i],
+                             S[O_Y + (9 + 3 * r) * B1 + i], C)
+    S[O_RN + (3 * r) * B1 + i] = a
+    S[O_RN + (3 * r + 1) * B1 + i] = b
+    S[O_RN + (3 * r + 2) * B1 + i] = c
+
+
 @jit
 def _vi_attitude(S, nb, h):
-    """R_{k+1} = R_k cay(hΩ̂_k) (so3.attitude_update, same operations)."""
+    """R_{k+1} = R_k cay(hΩ̂_k) (so3.attitude_update, same operations).  The rows
+    are written out (no loop over r): with a loop LLVM left the lane loop scalar."""
     for i in range(nb):
         C = cayley_matrix_lane(h * S[O_Y + i], h * S[O_Y + B1 + i], h * S[O_Y + 2 * B1 + i])
-        for r in range(3):
-            a, b, c = row_times_lane(S[O_Y + (7 + 3 * r) * B1 + i], S[O_Y + (8 + 3 * r) * B1 + i],
-                                     S[O_Y + (9 + 3 * r) * B1 + i], C)
-            S[O_RN + (3 * r) * B1 + i] = a
-            S[O_RN + (3 * r + 1) * B1 + i] = b
-            S[O_RN + (3 * r + 2) * B1 + i] = c
+        _attitude_row(S, i, 0, C)
+        _attitude_row(S, i, 1, C)
+        _attitude_row(S, i, 2, C)
 
 
 @jit
@@ -521,12 +529,20 @@ def _vi_accept(S, nb, n):
 
 @jit
 def _vi_attitude_check(S, nb):
-    """Before _vi_check (16-wide state): a non-finite R_{k+1} flags the lane."""
+    """Before _vi_check (16-wide state): a non-finite R_{k+1} flags the lane
+    (the sum of x − x over its nine entries is 0 exactly when all are finite)."""
     for i in range(nb):
-        fin = True
-        for k in range(9):
-            fin = fin & _finite(S[O_RN + k * B1 + i])
-        S[O_FLAG + i] = select(fin, S[O_FLAG + i], FLAG_NONFINITE)
+        zero = ((((S[O_RN + i] - S[O_RN + i]) + (S[O_RN + B1 + i] - S[O_RN + B1 + i]))
+                 + ((S[O_RN + 2 * B1 + i] - S[O_RN + 2 * B1 + i])
+                    + (S[O_RN + 3 * B1 + i] - S[O_RN + 3 * B1 + i])))
+                + (((S[O_RN + 4 * B1 + i] - S[O_RN + 4 * B1 + i])
+                    + (S[O_RN + 5 * B1 + i] - S[O_RN + 5 * B1 + i]))
+                   + ((S[O_RN + 6 * B1 + i] - S[O_RN + 6 * B1 + i])
+                      + ((S[O_RN + 7 * B1 + i] - S[O_RN + 7 * B1 + i])
+                         + (S[O_RN + 8 * B1 + i] - S[O_RN + 8 * B1 + i])))))
+        flag = S[O_FLAG + i]
+        # flags are small integers: flag + (NONFINITE − flag) is NONFINITE exactly
+        S[O_FLAG + i] = flag + select(zero == 0.0, 0.0, FLAG_NONFINITE - flag)
 
 
 @jit
