@@ -201,13 +201,13 @@ def newton_stop(x0, x1, x2, d0, d1, d2, scale0, tol):
 
 
 @jit(inline="always")
-def newton_iterate(x0, x1, x2, b0, b1, b2, v, scale0, tol, it0, maxiter):
-    """Newton iterations it0 … maxiter from X = (x0, x1, x2) with newton_momentum's
+def newton_iterate(x0, x1, x2, b0, b1, b2, v, scale0, tol, maxiter):
+    """Newton iterations 1 … maxiter from X = (x0, x1, x2) with newton_momentum's
     stopping rules: returns (X, code, iterations).  On a singular or
     non-finite Jacobian X is the last iterate before it."""
     code = NEWTON_MAXITER
     its = maxiter
-    for it in range(it0, maxiter + 1):
+    for it in range(1, maxiter + 1):
         d0, d1, d2, det = newton_lane(x0, x1, x2, b0, b1, b2, v)
         if det == 0.0 or not np.isfinite(det):
             code = NEWTON_SINGULAR
@@ -235,7 +235,7 @@ def newton_solve_lane(w0, w1, w2, G0, G1, G2, q, v, h, tol, maxiter):
     b0, b1, b2 = momentum_constant_lane(w0, w1, w2, G0, G1, G2, v)
     x0, x1, x2 = predictor_lane(w0, w1, w2, G0, G1, G2, q, h)
     scale0 = max(abs(w0), abs(w1), abs(w2))
-    return newton_iterate(x0, x1, x2, b0, b1, b2, v, scale0, tol, 1, maxiter)
+    return newton_iterate(x0, x1, x2, b0, b1, b2, v, scale0, tol, maxiter)
 
 
 @jit
