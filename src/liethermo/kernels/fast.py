@@ -530,7 +530,8 @@ def _vi_accept(S, nb, n):
 @jit
 def _vi_attitude_check(S, nb):
     """Before _vi_check (16-wide state): a non-finite R_{k+1} flags the lane
-    (the sum of x − x over its nine entries is 0 exactly when all are finite)."""
+    (the sum of x − x over its nine entries is 0 exactly when all are finite;
+    written out: as a loop over the entries LLVM left the lane loop scalar)."""
     for i in range(nb):
         zero = ((((S[O_RN + i] - S[O_RN + i]) + (S[O_RN + B1 + i] - S[O_RN + B1 + i]))
                  + ((S[O_RN + 2 * B1 + i] - S[O_RN + 2 * B1 + i])
@@ -629,8 +630,9 @@ def _advance_block(method, Y, P, m0, m1, h, every, n_out, alpha, beta, tol, maxi
                    OUT, ISTAT, FSTAT):
     n = Y.shape[1]
     S = np.zeros(NROWS * BLOCK)
-    S2 = np.zeros(NROWS * BLOCK)  # scratch for _newton_compact
-    idx = np.zeros(BLOCK, np.int64)
+    # scratch for _newton_compact (VI only)
+    S2 = np.zeros(NROWS * BLOCK if method == METHOD_VI else 0)
+    idx = np.zeros(BLOCK if method == METHOD_VI else 0, np.int64)
     nb = np.int64(0)  # np.int64: no Literal[int] overloads of the callees
     for m in range(m0, m1):
         if ISTAT[m, IS_STATUS] != STATUS_OK:
