@@ -4,9 +4,9 @@ what the straightforward one-member-per-iteration kernel computes.
 Every comparison is bitwise (``assert_array_equal`` on states, outputs,
 status flags, failing steps, Newton iteration counts and max h|Ω|): the fast
 kernel performs the same floating-point operations in the same order.  The
-ensembles mix uniform blocks (all members on the paper scene's parameters,
-which the fast kernel keeps in registers) with non-uniform ones (random
-bodies), partial blocks, members that diverge (explicit RK2 at the paper's
+ensembles are either all on the paper scene's parameters (which the fast
+kernel then keeps in registers) or mix them with random bodies (each lane
+then reads its coefficient rows), with partial blocks, members that diverge (explicit RK2 at the paper's
 h), members whose Newton iteration fails (iteration cap, NaN data), and
 members whose entropy leaves the range of the inline exp.
 """
@@ -86,11 +86,14 @@ def assert_same(a, b):
                                           np.ascontiguousarray(y).view(np.uint64), err_msg=name)
 
 
+@pytest.mark.parametrize("n_random", [0, 40])  # shared parameters (registers) / mixed (rows)
 @pytest.mark.parametrize("attitude", [False, True])
 @pytest.mark.parametrize("friction", [(0.5, 0.5), (1.0, 0.0)])
 @pytest.mark.parametrize("method", ["vi", "rk2", "rk4"])
-def test_fast_equals_simple_on_random_ensembles(method, friction, attitude, paper_params):
-    Y, P = mixed_ensemble(paper_params, attitude=attitude, seed=1 + attitude)
+def test_fast_equals_simple_on_random_ensembles(method, friction, attitude, n_random,
+                                                 paper_params):
+    Y, P = mixed_ensemble(paper_params, n_random=n_random, attitude=attitude, seed=1 + attitude)
+    assert (F.shared_params(P) is None) == (n_random > 0)
     args = (method, Y, P, 0.1, 200, 20, *friction)
     fast, simple = run("fast", *args), run("simple", *args)
     assert_same(fast, simple)
@@ -149,11 +152,12 @@ def test_failing_member_does_not_corrupt_its_block(method, paper_params):
         np.testing.assert_array_equal(a[keep], b)
 
 
+@pytest.mark.parametrize("n_random", [0, 5])
 @pytest.mark.parametrize("method", ["vi", "rk2", "rk4"])
-def test_entropy_outside_inline_exp_range(method, paper_params):
+def test_entropy_outside_inline_exp_range(method, n_random, paper_params):
     """Members whose σ/c_v is beyond EXP_SMALL (or straddles it) take the
     math.exp path, per lane, and still agree bitwise."""
-    Y, P = mixed_ensemble(paper_params, n_paper=F.BLOCK + 5, n_random=5, seed=5)
+    Y, P = mixed_ensemble(paper_params, n_paper=F.BLOCK + 5, n_random=n_random, seed=5)
     cv = P[:, P_CV]
     Y[::3, 6] = 0.3 * cv[::3]
     Y[1::7, 6] = F.EXP_SMALL * cv[1::7] * (1 - 1e-9)  # crosses the limit while stepping
@@ -161,6 +165,21 @@ def test_entropy_outside_inline_exp_range(method, paper_params):
     h = 0.02 if method == "rk2" else 0.1
     fast = run("fast", method, Y, P, h, 60, 10)
     assert_same(fast, run("simple", method, Y, P, h, 60, 10))
+
+
+def test_shared_params_compares_bits(paper_params):
+    """The register (shared-parameter) kernel is chosen only when every row is
+    bitwise the same: −0 against +0 or one differing last bit means rows."""
+    P = np.tile(paper_params, (5, 1))
+    np.testing.assert_array_equal(F.shared_params(P), paper_params)
+    assert F.shared_params(P[:0]) is None
+    P[3, 4] = np.nextafter(P[3, 4], np.inf)
+    assert F.shared_params(P) is None
+    P = np.tile(paper_params, (5, 1))
+    P[:, 4] = 0.0
+    assert F.shared_params(P) is not None
+    P[2, 4] = -0.0
+    assert F.shared_params(P) is None
 
 
 def test_inline_entropy_rate_is_exact_to_round_off(paper_params):
@@ -282,7 +301,9 @@ def test_simulate_kernel_switch(method, start, paper_params):
 
 def test_kernels_are_vectorized():
     """The hot loop of each lane sweep is packed double-precision arithmetic with
-    packed fused multiply-adds (fresh, uncached compilations of four sweeps)."""
+    packed fused multiply-adds and no masked load or store, for a uniform block
+    (coefficient tuples) and a mixed one (coefficient rows) (fresh, uncached
+    compilations of four sweeps)."""
     if platform.machine().lower() not in ("x86_64", "amd64"):
         pytest.skip("packed-op check written for x86-64")
     import numba
@@ -295,20 +316,24 @@ def test_kernels_are_vectorized():
     pp = F._load_params(S, 0)
     qq = coefficients(pp)
     vv = vi_coefficients(pp, 0.1, 0.5, 0.5)
-    for f, args in ((F._rk4_sweep, (S, 8, 0.1, True, qq)),
-                    (F._rk2_sweep, (S, 8, 0.1, False, qq)),
-                    (F._vi_prepare, (S, 8, 0.1, 1e-14, True, True, qq, vv)),
-                    (F._newton_sweep, (S, 8, 1e-14, 1, False, vv))):
+    for f, args in ((F._rk4_sweep, (S, 8, 0.1, qq)),
+                    (F._rk2_sweep, (S, 8, 0.1, None)),
+                    (F._vi_prepare, (S, 8, 0.1, 1e-14, True, qq, vv)),
+                    (F._vi_prepare, (S, 8, 0.1, 1e-14, True, None, None)),
+                    (F._newton_sweep, (S, 8, 1e-14, 1, vv)),
+                    (F._newton_sweep, (S, 8, 1e-14, 1, None))):
         g = numba.njit(fastmath=False, error_model="numpy")(f.py_func)
         g(*args)
         c = hot_loop_counts(g.inspect_asm(g.signatures[0]))
         assert c and c["packed"] >= 40, (f.__name__, c)
         assert c["fma"] >= 20, (f.__name__, c)
+        assert c["masked"] == 0, (f.__name__, c)
 
 
 def test_import_compiles_nothing():
     code = ("import liethermo.kernels.fast as F, liethermo.simulate;"
-            "assert not F._advance_blocks.overloads and not F._advance_block.overloads")
+            "assert not F._advance_blocks_shared.overloads and not F._advance_blocks_rows.overloads"
+            " and not F._block_steps.overloads")
     subprocess.run([sys.executable, "-c", code], check=True)
 
 

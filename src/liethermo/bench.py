@@ -345,7 +345,9 @@ def hot_loop_counts(asm: str) -> dict:
     ``packed``: packed double arithmetic (add/sub/mul/div/sqrt/FMA) of which
     ``fma``, ``mul``, ``addsub``, ``div``; ``mem``: packed instructions that read or
     write memory, of which ``stack`` address the stack (spilled registers)
-    and ``stores`` write; ``instructions``: all instructions of the body."""
+    and ``stores`` write; ``masked``: masked loads and stores (``vmaskmovpd``:
+    a masked store is slow microcode on AMD Zen 2/3); ``instructions``: all
+    instructions of the body."""
     import re
 
     lines = asm.splitlines()
@@ -378,7 +380,8 @@ def hot_loop_counts(asm: str) -> dict:
                 addsub=count(r"v(?:add|sub)pd"), div=count("vdivpd"),
                 mem=sum(1 for b in packed if "(" in b),
                 stack=sum(1 for b in packed if "(%rsp)" in b),
-                stores=sum(1 for b in packed if re.match(r"\s*vmov\w*\s+%[yz]mm\d+,\s*[^%\s]", b)))
+                stores=sum(1 for b in packed if re.match(r"\s*vmov\w*\s+%[yz]mm\d+,\s*[^%\s]", b)),
+                masked=count(r"vp?maskmov\w*"))
 
 
 def asm_report() -> dict:
@@ -395,11 +398,16 @@ def asm_report() -> dict:
     pp = F._load_params(S, 0)
     qq = coefficients(pp)
     vv = vi_coefficients(pp, 0.1, 0.5, 0.5)
+    # a uniform block (coefficient tuples) and a mixed one (None: per-lane rows)
     cases = {
-        "_rk2_sweep": (F._rk2_sweep, (S, 8, 0.1, True, qq)),
-        "_rk4_sweep": (F._rk4_sweep, (S, 8, 0.1, True, qq)),
-        "_vi_prepare": (F._vi_prepare, (S, 8, 0.1, 1e-14, True, True, qq, vv)),
-        "_newton_sweep": (F._newton_sweep, (S, 8, 1e-14, 1, True, vv)),
+        "_rk2_sweep": (F._rk2_sweep, (S, 8, 0.1, qq)),
+        "_rk2_sweep[rows]": (F._rk2_sweep, (S, 8, 0.1, None)),
+        "_rk4_sweep": (F._rk4_sweep, (S, 8, 0.1, qq)),
+        "_rk4_sweep[rows]": (F._rk4_sweep, (S, 8, 0.1, None)),
+        "_vi_prepare": (F._vi_prepare, (S, 8, 0.1, 1e-14, True, qq, vv)),
+        "_vi_prepare[rows]": (F._vi_prepare, (S, 8, 0.1, 1e-14, True, None, None)),
+        "_newton_sweep": (F._newton_sweep, (S, 8, 1e-14, 1, vv)),
+        "_newton_sweep[rows]": (F._newton_sweep, (S, 8, 1e-14, 1, None)),
         "_vi_check": (F._vi_check, (S, 8)),
     }
     out = {}

@@ -51,7 +51,6 @@ import time.  The ``reference`` method goes to the straightforward kernel.
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 
@@ -73,7 +72,7 @@ from .ensemble import (
 )
 from .model import (EXP_SMALL, NCOEF, NSTATE_BASE, coefficients, rhs7_lane_poly, sigma_rate_exact,
                     sigma_rate_poly)
-from .rk import DOP853_STAGES, rk2_step, rk4_combine, rk4_step
+from .rk import DOP853_STAGES, rk2_step, rk4_step, rk4_sum
 from .so3 import cayley_lane, cayley_matrix_lane, row_times_lane
 from .vi import (
     NEWTON_MAXITER,
@@ -170,15 +169,6 @@ def _load7(S, off, i):
 
 
 @jit(inline="always")
-def _lane_q(S, i, uni, qq):
-    """Lane i's model.coefficients: the tuple qq when the block is uniform
-    (all lanes share them; they then live in registers), else its rows."""
-    if uni:
-        return qq
-    return _rows_q(S, i)
-
-
-@jit(inline="always")
 def _rows_q(S, i):
     return (S[O_Q + i], S[O_Q + B1 + i], S[O_Q + 2 * B1 + i], S[O_Q + 3 * B1 + i],
             S[O_Q + 4 * B1 + i], S[O_Q + 5 * B1 + i], S[O_Q + 6 * B1 + i],
@@ -186,14 +176,6 @@ def _rows_q(S, i):
             S[O_Q + 10 * B1 + i], S[O_Q + 11 * B1 + i], S[O_Q + 12 * B1 + i],
             S[O_Q + 13 * B1 + i], S[O_Q + 14 * B1 + i], S[O_Q + 15 * B1 + i],
             S[O_Q + 16 * B1 + i], S[O_Q + 17 * B1 + i])
-
-
-@jit(inline="always")
-def _lane_v(S, i, uni, vv):
-    """Lane i's vi.vi_coefficients (vv when the block is uniform)."""
-    if uni:
-        return vv
-    return _rows_v(S, i)
 
 
 @jit(inline="always")
@@ -228,49 +210,62 @@ def _track_w2(S, i, y0, y1, y2, down):
 
 
 @jit(inline="always")
-def _rk_store(S, i, small, y0, y1, y2, y3, y4, y5, y6, n0, n1, n2, n3, n4, n5, n6):
+def _rk_store(S, i, small, hf, y0, y1, y2, y3, y4, y5, y6, k0, k1, k2, k3, k4, k5, k6):
+    """Lane i's new state y + hf·k, if it is finite and ``small``; else the lane
+    keeps y and is flagged FLAG_EXACT.  Returns 1 if flagged."""
+    n0 = fma(hf, k0, y0)
+    n1 = fma(hf, k1, y1)
+    n2 = fma(hf, k2, y2)
+    n3 = fma(hf, k3, y3)
+    n4 = fma(hf, k4, y4)
+    n5 = fma(hf, k5, y5)
+    n6 = fma(hf, k6, y6)
     # one test for all seven: their sum is finite if they all are; if it is
     # not (a component is inf/NaN, or a finite sum overflowed), the lane is
     # redone by the straightforward code, which decides exactly
     upd = _finite(((n0 + n1) + (n2 + n3)) + ((n4 + n5) + n6)) & small
-    S[O_Y + i] = select(upd, n0, y0)
-    S[O_Y + B1 + i] = select(upd, n1, y1)
-    S[O_Y + 2 * B1 + i] = select(upd, n2, y2)
-    S[O_Y + 3 * B1 + i] = select(upd, n3, y3)
-    S[O_Y + 4 * B1 + i] = select(upd, n4, y4)
-    S[O_Y + 5 * B1 + i] = select(upd, n5, y5)
-    S[O_Y + 6 * B1 + i] = select(upd, n6, y6)
+    # A kept lane stores y + hf·z with hf·z = −0 (z = 0·(−hf), whatever the sign
+    # of hf), which is y exactly (−0, inf and NaN included).  Not "n if upd else
+    # y": a store of "new or the row's own value" becomes a masked store
+    # (vmaskmovpd), slow microcode on AMD Zen.  An updated lane stores n.
+    z = 0.0 * (-hf)
+    S[O_Y + i] = fma(hf, select(upd, k0, z), y0)
+    S[O_Y + B1 + i] = fma(hf, select(upd, k1, z), y1)
+    S[O_Y + 2 * B1 + i] = fma(hf, select(upd, k2, z), y2)
+    S[O_Y + 3 * B1 + i] = fma(hf, select(upd, k3, z), y3)
+    S[O_Y + 4 * B1 + i] = fma(hf, select(upd, k4, z), y4)
+    S[O_Y + 5 * B1 + i] = fma(hf, select(upd, k5, z), y5)
+    S[O_Y + 6 * B1 + i] = fma(hf, select(upd, k6, z), y6)
     S[O_FLAG + i] = select(upd, FLAG_OK, FLAG_EXACT)
     return 0 if upd else 1
 
 
 @jit
-def _rk2_sweep(S, nb, h, uni, qq):
+def _rk2_sweep(S, nb, h, qq):
     """One explicit-midpoint step (rk.rk2_step) of lanes [0, nb), in place."""
     h2 = 0.5 * h
     nflag = 0
     for i in range(nb):
-        q = _lane_q(S, i, uni, qq)
+        q = _rows_q(S, i) if qq is None else qq
         y0, y1, y2, y3, y4, y5, y6 = _load7(S, O_Y, i)
         _track_w2(S, i, y0, y1, y2, h < 0.0)
         a0, a1, a2, a3, a4, a5, a6, sa = rhs7_lane_poly(y0, y1, y2, y3, y4, y5, y6, q)
         b0, b1, b2, b3, b4, b5, b6, sb = rhs7_lane_poly(
             fma(h2, a0, y0), fma(h2, a1, y1), fma(h2, a2, y2), fma(h2, a3, y3),
             fma(h2, a4, y4), fma(h2, a5, y5), fma(h2, a6, y6), q)
-        nflag += _rk_store(S, i, sa & sb, y0, y1, y2, y3, y4, y5, y6,
-                           fma(h, b0, y0), fma(h, b1, y1), fma(h, b2, y2), fma(h, b3, y3),
-                           fma(h, b4, y4), fma(h, b5, y5), fma(h, b6, y6))
+        nflag += _rk_store(S, i, sa & sb, h, y0, y1, y2, y3, y4, y5, y6,
+                           b0, b1, b2, b3, b4, b5, b6)
     return nflag
 
 
 @jit
-def _rk4_sweep(S, nb, h, uni, qq):
+def _rk4_sweep(S, nb, h, qq):
     """One classical RK4 step (rk.rk4_step) of lanes [0, nb), in place."""
     h2 = 0.5 * h
     h6 = h * (1.0 / 6.0)
     nflag = 0
     for i in range(nb):
-        q = _lane_q(S, i, uni, qq)
+        q = _rows_q(S, i) if qq is None else qq
         y0, y1, y2, y3, y4, y5, y6 = _load7(S, O_Y, i)
         _track_w2(S, i, y0, y1, y2, h < 0.0)
         a0, a1, a2, a3, a4, a5, a6, sa = rhs7_lane_poly(y0, y1, y2, y3, y4, y5, y6, q)
@@ -283,11 +278,12 @@ def _rk4_sweep(S, nb, h, uni, qq):
         d0, d1, d2, d3, d4, d5, d6, sd = rhs7_lane_poly(
             fma(h, c0, y0), fma(h, c1, y1), fma(h, c2, y2), fma(h, c3, y3),
             fma(h, c4, y4), fma(h, c5, y5), fma(h, c6, y6), q)
-        nflag += _rk_store(S, i, sa & sb & sc & sd, y0, y1, y2, y3, y4, y5, y6,
-                           rk4_combine(y0, a0, b0, c0, d0, h6), rk4_combine(y1, a1, b1, c1, d1, h6),
-                           rk4_combine(y2, a2, b2, c2, d2, h6), rk4_combine(y3, a3, b3, c3, d3, h6),
-                           rk4_combine(y4, a4, b4, c4, d4, h6), rk4_combine(y5, a5, b5, c5, d5, h6),
-                           rk4_combine(y6, a6, b6, c6, d6, h6))
+        # the new state is rk4_combine(y, a, b, c, d, h6) = y + h6·rk4_sum(a, b, c, d)
+        nflag += _rk_store(S, i, sa & sb & sc & sd, h6, y0, y1, y2, y3, y4, y5, y6,
+                           rk4_sum(a0, b0, c0, d0), rk4_sum(a1, b1, c1, d1),
+                           rk4_sum(a2, b2, c2, d2), rk4_sum(a3, b3, c3, d3),
+                           rk4_sum(a4, b4, c4, d4), rk4_sum(a5, b5, c5, d5),
+                           rk4_sum(a6, b6, c6, d6))
     return nflag
 
 
@@ -324,7 +320,7 @@ def _w2_sweep(S, nb, h):
 
 
 @jit
-def _vi_prepare(S, nb, h, tol, first, uni, qq, vv):
+def _vi_prepare(S, nb, h, tol, first, qq, vv):
     """Per lane: max |Ω_k|², Γ_{k+1} (Cayley), σ_{k+1}, b, predictor X,
     |Ω_k|∞, the Newton mask and, if ``first``, Newton iteration 1 (as
     _newton_sweep does it; the predictor never leaves the registers).
@@ -332,8 +328,8 @@ def _vi_prepare(S, nb, h, tol, first, uni, qq, vv):
     FLAG_EXACT)."""
     nexact = 0
     for i in range(nb):
-        q = _lane_q(S, i, uni, qq)
-        v = _lane_v(S, i, uni, vv)
+        q = _rows_q(S, i) if qq is None else qq
+        v = _rows_v(S, i) if vv is None else vv
         w0 = S[O_Y + i]
         w1 = S[O_Y + B1 + i]
         w2 = S[O_Y + 2 * B1 + i]
@@ -374,13 +370,14 @@ def _vi_prepare(S, nb, h, tol, first, uni, qq, vv):
 
 
 @jit
-def _vi_sigma_exact(S, nb, h):
-    """σ_{k+1} with math.exp (vi.vi_step's own expression) for FLAG_EXACT lanes."""
+def _vi_sigma_exact(S, nb, h, qq):
+    """σ_{k+1} with math.exp (vi.vi_step's own expression) for FLAG_EXACT lanes
+    (qq: the shared coefficients, or None: the lane's rows)."""
     for i in range(nb):
         if S[O_FLAG + i] != FLAG_EXACT:
             continue
         sg = S[O_Y + 6 * B1 + i]
-        q = _rows_q(S, i)
+        q = _rows_q(S, i) if qq is None else qq
         S[O_SN + i] = fma(h, sigma_rate_exact(S[O_Y + i], S[O_Y + B1 + i], S[O_Y + 2 * B1 + i],
                                               sg, q), sg)
         S[O_FLAG + i] = FLAG_OK
@@ -408,7 +405,7 @@ def _vi_attitude(S, nb, h):
 
 
 @jit
-def _newton_sweep(S, nb, tol, it, uni, vv):
+def _newton_sweep(S, nb, tol, it, vv):
     """Newton iteration number ``it`` on every lane whose mask is set
     (vi.newton_momentum's stopping rules, per lane).  Returns the number of
     lanes still running."""
@@ -418,7 +415,7 @@ def _newton_sweep(S, nb, tol, it, uni, vv):
         x0 = S[O_X + i]
         x1 = S[O_X + B1 + i]
         x2 = S[O_X + 2 * B1 + i]
-        v = _lane_v(S, i, uni, vv)
+        v = _rows_v(S, i) if vv is None else vv
         d0, d1, d2, det = newton_lane(x0, x1, x2, S[O_B + i], S[O_B + B1 + i],
                                       S[O_B + 2 * B1 + i], v)
         sing = (det == 0.0) | (not _finite(det))
@@ -449,7 +446,7 @@ def _newton_sweep(S, nb, tol, it, uni, vv):
 
 
 @jit
-def _newton_compact(S, S2, idx, nb, tol, its, maxiter, uni, vv):
+def _newton_compact(S, S2, idx, nb, tol, its, maxiter, vv):
     """Finish the Newton iterations of the few lanes still running (iterations
     its+1 … maxiter) on a compact copy: their rows go to lanes 0 … k−1 of the
     scratch buffer S2, _newton_sweep runs there (same arithmetic per lane) and
@@ -463,14 +460,14 @@ def _newton_compact(S, S2, idx, nb, tol, its, maxiter, uni, vv):
     for r in range(R_X, R_ITS + 1):  # X, b, |Ω_k|∞, mask, code, iterations
         for j in range(k):
             S2[r * B1 + j] = S[r * B1 + idx[j]]
-    if not uni:
+    if vv is None:
         for r in range(R_V, R_V + NVCOEF):
             for j in range(k):
                 S2[r * B1 + j] = S[r * B1 + idx[j]]
     nrun = k
     while its < maxiter and nrun > 0:
         its += 1
-        nrun = _newton_sweep(S2, k, tol, its, uni, vv)
+        nrun = _newton_sweep(S2, k, tol, its, vv)
     for r in (R_X, R_X + 1, R_X + 2, R_RUN, R_CODE, R_ITS):
         for j in range(k):
             S[r * B1 + idx[j]] = S2[r * B1 + j]
@@ -547,14 +544,14 @@ def _vi_attitude_check(S, nb):
 
 
 @jit
-def _vi_step_block(S, S2, idx, nb, n, h, tol, maxiter, uni, qq, vv):
+def _vi_step_block(S, S2, idx, nb, n, h, tol, maxiter, qq, vv):
     """One VI step of lanes [0, nb) up to _vi_check.  Returns the number of
     failed lanes (R_FLAG = FLAG_NEWTON or FLAG_NONFINITE); the caller retires
     them, then moves the others on with _vi_accept."""
     first = maxiter >= 1
-    nexact = _vi_prepare(S, nb, h, tol, first, uni, qq, vv)
+    nexact = _vi_prepare(S, nb, h, tol, first, qq, vv)
     if nexact:
-        _vi_sigma_exact(S, nb, h)
+        _vi_sigma_exact(S, nb, h, qq)
     if n > NSTATE_BASE:
         _vi_attitude(S, nb, h)
     # iterations done: 1 (by _vi_prepare) unless maxiter is 0
@@ -564,10 +561,10 @@ def _vi_step_block(S, S2, idx, nb, n, h, tol, maxiter, uni, qq, vv):
         nrun += S[O_RUN + i] != 0.0
     while its < maxiter and nrun > 0:
         if nrun <= NEWTON_COMPACT and nrun < nb:
-            _newton_compact(S, S2, idx, nb, tol, its, maxiter, uni, vv)
+            _newton_compact(S, S2, idx, nb, tol, its, maxiter, vv)
             break
         its += 1
-        nrun = _newton_sweep(S, nb, tol, its, uni, vv)
+        nrun = _newton_sweep(S, nb, tol, its, vv)
     if n > NSTATE_BASE:
         # the flag must also see R, but Newton failure takes precedence
         _vi_attitude_check(S, nb)
@@ -613,24 +610,40 @@ def _retire(S, i, nb, n, done, h, Y, ISTAT, FSTAT):
 
 
 @jit
-def _uniform(S, nb):
-    """True if all lanes have bitwise the same parameters as lane 0."""
-    for k in range(9):
-        a = S[O_P + k * B1]
-        sa = math.copysign(1.0, a)
-        for i in range(1, nb):
-            b = S[O_P + k * B1 + i]
-            if not (a == b and sa == math.copysign(1.0, b)):
-                return False
-    return True
+def _step(method, S, S2, idx, nb, n, h, tol, maxiter, qq, vv, y, p, work, ynew):
+    """One step of lanes [0, nb); returns the number of failed lanes (R_FLAG ≠
+    FLAG_OK).  qq, vv: the block's coefficient tuples if it is uniform, else
+    None (the sweeps then read each lane's rows)."""
+    rk4 = method == METHOD_RK4
+    if method == METHOD_VI:
+        return _vi_step_block(S, S2, idx, nb, n, h, tol, maxiter, qq, vv)
+    nfail = 0
+    if n == NSTATE_BASE:
+        if rk4:
+            nfail = _rk4_sweep(S, nb, h, qq)
+        else:
+            nfail = _rk2_sweep(S, nb, h, qq)
+        if nfail:
+            for i in range(nb):
+                if S[O_FLAG + i] == FLAG_EXACT:
+                    _rk_lane_exact(S, i, n, h, rk4, y, p, work, ynew)
+            nfail = 0
+            for i in range(nb):
+                nfail += S[O_FLAG + i] != FLAG_OK
+    else:
+        _w2_sweep(S, nb, h)
+        for i in range(nb):
+            _rk_lane_exact(S, i, n, h, rk4, y, p, work, ynew)
+            nfail += S[O_FLAG + i] != FLAG_OK
+    return nfail
 
 
 @jit
-def _advance_block(method, Y, P, m0, m1, h, every, n_out, alpha, beta, tol, maxiter,
-                   OUT, ISTAT, FSTAT):
+def _fill_block(method, Y, P, m0, m1, h, ISTAT, FSTAT):
+    """The block buffer S of members [m0, m1) that are still running (lanes
+    0 … nb−1), and the Newton compaction scratch (S2, idx; VI only)."""
     n = Y.shape[1]
     S = np.zeros(NROWS * BLOCK)
-    # scratch for _newton_compact (VI only)
     S2 = np.zeros(NROWS * BLOCK if method == METHOD_VI else 0)
     idx = np.zeros(BLOCK if method == METHOD_VI else 0, np.int64)
     nb = np.int64(0)  # np.int64: no Literal[int] overloads of the callees
@@ -648,10 +661,29 @@ def _advance_block(method, Y, P, m0, m1, h, every, n_out, alpha, beta, tol, maxi
         S[O_STEPS + nb] = ISTAT[m, IS_STEPS]
         S[O_MEMBER + nb] = m
         nb += 1
+    return S, S2, idx, nb
+
+
+@jit
+def _advance_block_shared(method, Y, P, pp, m0, m1, h, every, n_out, alpha, beta, tol,
+                          maxiter, OUT, ISTAT, FSTAT):
+    """Members [m0, m1), all with the parameters pp: the coefficients are
+    tuples, which live in registers (the simple kernel computes them with the
+    same functions from the same parameters: same bits)."""
+    S, S2, idx, nb = _fill_block(method, Y, P, m0, m1, h, ISTAT, FSTAT)
+    if nb > 0:
+        _block_steps(method, S, S2, idx, nb, Y.shape[1], h, every, n_out, tol, maxiter,
+                     coefficients(pp), vi_coefficients(pp, h, alpha, beta), Y, OUT, ISTAT, FSTAT)
+
+
+@jit
+def _advance_block_rows(method, Y, P, m0, m1, h, every, n_out, alpha, beta, tol, maxiter,
+                        OUT, ISTAT, FSTAT):
+    """Members [m0, m1) with their own parameters: each lane's coefficients
+    go to its rows, where the sweeps read them."""
+    S, S2, idx, nb = _fill_block(method, Y, P, m0, m1, h, ISTAT, FSTAT)
     if nb == 0:
         return
-    # per-member coefficients (the simple kernel computes them with the same
-    # functions from the same parameters: same bits)
     for i in range(nb):
         q = coefficients(_load_params(S, i))
         for k in range(NCOEF):
@@ -659,11 +691,16 @@ def _advance_block(method, Y, P, m0, m1, h, every, n_out, alpha, beta, tol, maxi
         v = vi_coefficients(_load_params(S, i), h, alpha, beta)
         for k in range(NVCOEF):
             S[O_V + k * B1 + i] = v[k]
-    uni = _uniform(S, nb)
-    qq = coefficients(_load_params(S, 0))
-    vv = vi_coefficients(_load_params(S, 0), h, alpha, beta)
-    rk4 = method == METHOD_RK4
-    vec_rk = n == NSTATE_BASE
+    _block_steps(method, S, S2, idx, nb, Y.shape[1], h, every, n_out, tol, maxiter, None, None,
+                 Y, OUT, ISTAT, FSTAT)
+
+
+@jit
+def _block_steps(method, S, S2, idx, nb, n, h, every, n_out, tol, maxiter, qq, vv,
+                 Y, OUT, ISTAT, FSTAT):
+    """The steps of a filled block, its outputs, and the write-back of its
+    members at the end.  qq, vv: the coefficient tuples of an ensemble that
+    shares its parameters, else None (rows)."""
     y = np.empty(n)
     p = np.empty(9)
     work = np.empty((DOP853_STAGES, n))
@@ -671,26 +708,7 @@ def _advance_block(method, Y, P, m0, m1, h, every, n_out, alpha, beta, tol, maxi
     done = np.int64(0)
     for j in range(n_out):
         for _ in range(every):
-            if method == METHOD_VI:
-                nfail = _vi_step_block(S, S2, idx, nb, n, h, tol, maxiter, uni, qq, vv)
-            elif vec_rk:
-                if rk4:
-                    nfail = _rk4_sweep(S, nb, h, uni, qq)
-                else:
-                    nfail = _rk2_sweep(S, nb, h, uni, qq)
-                if nfail:
-                    for i in range(nb):
-                        if S[O_FLAG + i] == FLAG_EXACT:
-                            _rk_lane_exact(S, i, n, h, rk4, y, p, work, ynew)
-                    nfail = 0
-                    for i in range(nb):
-                        nfail += S[O_FLAG + i] != FLAG_OK
-            else:
-                _w2_sweep(S, nb, h)
-                nfail = 0
-                for i in range(nb):
-                    _rk_lane_exact(S, i, n, h, rk4, y, p, work, ynew)
-                    nfail += S[O_FLAG + i] != FLAG_OK
+            nfail = _step(method, S, S2, idx, nb, n, h, tol, maxiter, qq, vv, y, p, work, ynew)
             if nfail:
                 i = np.int64(0)
                 while i < nb:
@@ -719,16 +737,43 @@ def _advance_block(method, Y, P, m0, m1, h, every, n_out, alpha, beta, tol, maxi
 
 
 @pjit
-def _advance_blocks(method, Y, P, h, every, n_out, alpha, beta, tol, maxiter,
-                    OUT, ISTAT, FSTAT):
-    """prange over blocks of BLOCK members (VI, RK2, RK4 only)."""
+def _advance_blocks_shared(method, Y, P, pp, h, every, n_out, alpha, beta, tol, maxiter,
+                           OUT, ISTAT, FSTAT):
+    """prange over blocks of BLOCK members (VI, RK2, RK4), all with parameters pp."""
     N = Y.shape[0]
     nblocks = (N + BLOCK - 1) // BLOCK
     for bi in prange(nblocks):
         m0 = bi * BLOCK
-        m1 = min(N, m0 + BLOCK)
-        _advance_block(method, Y, P, m0, m1, h, every, n_out, alpha, beta, tol,
-                       maxiter, OUT, ISTAT, FSTAT)
+        _advance_block_shared(method, Y, P, pp, m0, min(N, m0 + BLOCK), h, every, n_out, alpha,
+                              beta, tol, maxiter, OUT, ISTAT, FSTAT)
+
+
+@pjit
+def _advance_blocks_rows(method, Y, P, h, every, n_out, alpha, beta, tol, maxiter,
+                         OUT, ISTAT, FSTAT):
+    """prange over blocks of BLOCK members (VI, RK2, RK4), each with its own
+    parameters."""
+    N = Y.shape[0]
+    nblocks = (N + BLOCK - 1) // BLOCK
+    for bi in prange(nblocks):
+        m0 = bi * BLOCK
+        _advance_block_rows(method, Y, P, m0, min(N, m0 + BLOCK), h, every, n_out, alpha, beta,
+                            tol, maxiter, OUT, ISTAT, FSTAT)
+
+
+def shared_params(P):
+    """P[0] (a copy) if every row of P is bitwise equal to it, else None.
+
+    The block kernel has a version for each case: shared parameters give
+    coefficient tuples that live in registers; else every lane reads its
+    coefficients from its rows.  Numba compiles a version on its first use,
+    so the paper scene (one parameter set) never compiles the other."""
+    if P.shape[0] == 0:
+        return None
+    bits = np.ascontiguousarray(P, dtype=np.float64).view(np.int64)
+    if (bits == bits[0]).all():
+        return np.array(P[0], dtype=np.float64)
+    return None
 
 
 def advance_ensemble_fast(method, Y, P, h, every, n_out, alpha, beta, tol, maxiter,
@@ -741,8 +786,13 @@ def advance_ensemble_fast(method, Y, P, h, every, n_out, alpha, beta, tol, maxit
     straightforward per-member steps then stay out of the block kernel's
     compilation, which takes ~6 s less on a cold numba cache."""
     if method == METHOD_VI or method == METHOD_RK2 or method == METHOD_RK4:
-        _advance_blocks(method, Y, P, h, every, n_out, alpha, beta, tol, maxiter,
-                        OUT, ISTAT, FSTAT)
+        pp = shared_params(P)
+        if pp is not None:
+            _advance_blocks_shared(method, Y, P, pp, h, every, n_out, alpha, beta, tol, maxiter,
+                                   OUT, ISTAT, FSTAT)
+        else:
+            _advance_blocks_rows(method, Y, P, h, every, n_out, alpha, beta, tol, maxiter,
+                                 OUT, ISTAT, FSTAT)
     else:
         advance_ensemble(method, Y, P, h, every, n_out, alpha, beta, tol, maxiter,
                          nsub, A, B, OUT, ISTAT, FSTAT)

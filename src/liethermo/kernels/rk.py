@@ -44,11 +44,17 @@ def __getattr__(name):
 
 
 @jit(inline="always")
+def rk4_sum(k1, k2, k3, k4):
+    """k1 + 2k2 + 2k3 + k4 as rk4_combine forms it (2(k2 + k3) as a sum, exact)."""
+    s = k2 + k3
+    return (s + s) + (k1 + k4)
+
+
+@jit(inline="always")
 def rk4_combine(y, k1, k2, k3, k4, h6):
     """y + (h/6)(k1 + 2k2 + 2k3 + k4) as rk4_step and the fast kernel evaluate it
-    (h6 = h·(1/6); 2(k2 + k3) as a sum, which is exact)."""
-    s = k2 + k3
-    return fma(h6, (s + s) + (k1 + k4), y)
+    (h6 = h·(1/6))."""
+    return fma(h6, rk4_sum(k1, k2, k3, k4), y)
 
 
 @jit
