@@ -306,9 +306,7 @@ def test_kernels_are_vectorized():
     compilations of four sweeps)."""
     if platform.machine().lower() not in ("x86_64", "amd64"):
         pytest.skip("packed-op check written for x86-64")
-    import numba
-
-    from liethermo.bench import hot_loop_counts
+    from liethermo.bench import fresh_sweep_asm, hot_loop_counts
     from liethermo.kernels.model import coefficients
     from liethermo.kernels.vi import vi_coefficients
 
@@ -316,15 +314,15 @@ def test_kernels_are_vectorized():
     pp = F._load_params(S, 0)
     qq = coefficients(pp)
     vv = vi_coefficients(pp, 0.1, 0.5, 0.5)
-    for f, args in ((F._rk4_sweep, (S, 8, 0.1, qq)),
-                    (F._rk2_sweep, (S, 8, 0.1, None)),
+    for f, args in ((F._rk4_sweep, (S, 8, 0.1, qq, 0)),
+                    (F._rk4_sweep, (S, 8, 0.1, None, 1)),
+                    (F._rk2_sweep, (S, 8, 0.1, qq, 1)),
+                    (F._rk2_sweep, (S, 8, 0.1, None, 0)),
                     (F._vi_prepare, (S, 8, 0.1, 1e-14, True, qq, vv)),
                     (F._vi_prepare, (S, 8, 0.1, 1e-14, True, None, None)),
                     (F._newton_sweep, (S, 8, 1e-14, 1, vv)),
                     (F._newton_sweep, (S, 8, 1e-14, 1, None))):
-        g = numba.njit(fastmath=False, error_model="numpy")(f.py_func)
-        g(*args)
-        c = hot_loop_counts(g.inspect_asm(g.signatures[0]))
+        c = hot_loop_counts(fresh_sweep_asm(f, args))
         assert c and c["packed"] >= 40, (f.__name__, c)
         assert c["fma"] >= 20, (f.__name__, c)
         assert c["masked"] == 0, (f.__name__, c)

@@ -388,8 +388,6 @@ def asm_report() -> dict:
     """Instruction counts (:func:`hot_loop_counts`) of the lane loops of fresh
     (uncached) compilations of the fast kernel's sweeps, to confirm that LLVM
     vectorized them and to see what bounds their speed."""
-    import numba
-
     from .kernels import fast as F
     from .kernels.model import coefficients
     from .kernels.vi import vi_coefficients
@@ -398,24 +396,43 @@ def asm_report() -> dict:
     pp = F._load_params(S, 0)
     qq = coefficients(pp)
     vv = vi_coefficients(pp, 0.1, 0.5, 0.5)
-    # a uniform block (coefficient tuples) and a mixed one (None: per-lane rows)
+    # an ensemble that shares its parameters (coefficient tuples) and a mixed
+    # one (None: per-lane rows); the RK sweeps' last argument (which state
+    # buffer is the source) is a literal in the kernel: see fresh_sweep_asm
     cases = {
-        "_rk2_sweep": (F._rk2_sweep, (S, 8, 0.1, qq)),
-        "_rk2_sweep[rows]": (F._rk2_sweep, (S, 8, 0.1, None)),
-        "_rk4_sweep": (F._rk4_sweep, (S, 8, 0.1, qq)),
-        "_rk4_sweep[rows]": (F._rk4_sweep, (S, 8, 0.1, None)),
+        "_rk2_sweep": (F._rk2_sweep, (S, 8, 0.1, qq, 0)),
+        "_rk2_sweep[rows]": (F._rk2_sweep, (S, 8, 0.1, None, 1)),
+        "_rk4_sweep": (F._rk4_sweep, (S, 8, 0.1, qq, 0)),
+        "_rk4_sweep[rows]": (F._rk4_sweep, (S, 8, 0.1, None, 1)),
         "_vi_prepare": (F._vi_prepare, (S, 8, 0.1, 1e-14, True, qq, vv)),
         "_vi_prepare[rows]": (F._vi_prepare, (S, 8, 0.1, 1e-14, True, None, None)),
         "_newton_sweep": (F._newton_sweep, (S, 8, 1e-14, 1, vv)),
         "_newton_sweep[rows]": (F._newton_sweep, (S, 8, 1e-14, 1, None)),
         "_vi_check": (F._vi_check, (S, 8)),
     }
-    out = {}
-    for name, (f, a) in cases.items():
-        g = numba.njit(fastmath=False, error_model="numpy")(f.py_func)
-        g(*a)
-        out[name] = hot_loop_counts(g.inspect_asm(g.signatures[0]))
-    return out
+    return {name: hot_loop_counts(fresh_sweep_asm(f, a)) for name, (f, a) in cases.items()}
+
+
+def fresh_sweep_asm(f, args) -> str:
+    """x86 listing of a fresh (uncached) compilation of the kernel function f
+    for args.  The RK sweeps (whose last argument picks the source state
+    buffer) are compiled as the kernel calls them, with that argument a
+    literal, through a jitted caller."""
+    import numba
+
+    g = numba.njit(fastmath=False, error_model="numpy")(f.py_func)
+    if f.__name__ in ("_rk2_sweep", "_rk4_sweep"):
+        flip = args[-1]
+        head = args[:-1]
+        if flip == 0:
+            caller = numba.njit(lambda S, nb, h, qq: g(S, nb, h, qq, 0))
+        else:
+            caller = numba.njit(lambda S, nb, h, qq: g(S, nb, h, qq, 1))
+        caller(*head)
+        sig = next(s for s in g.signatures if isinstance(s[-1], numba.types.IntegerLiteral))
+        return g.inspect_asm(sig)
+    g(*args)
+    return g.inspect_asm(g.signatures[0])
 
 
 def _cpu_name() -> str:

@@ -70,8 +70,8 @@ from .ensemble import (
     STATUS_OK,
     advance_ensemble,
 )
-from .model import (EXP_SMALL, NCOEF, NSTATE_BASE, coefficients, rhs7_lane_poly, sigma_rate_exact,
-                    sigma_rate_poly)
+from .model import (EXP_SMALL, NCOEF, NSTATE_BASE, coefficients, rhs7_lane, rhs7_lane_poly,
+                    sigma_rate_exact, sigma_rate_poly)
 from .rk import DOP853_STAGES, rk2_step, rk4_step, rk4_sum
 from .so3 import cayley_lane, cayley_matrix_lane, row_times_lane
 from .vi import (
@@ -114,7 +114,8 @@ R_RN = 45  # 9 rows: R_{k+1} (VI with attitude)
 R_W2 = 54  # max |Ω_k|² over the steps of this call
 R_Q = 55  # NCOEF rows: model.coefficients
 R_V = R_Q + NCOEF  # NVCOEF rows: vi.vi_coefficients
-NROWS = R_V + NVCOEF
+R_YB = R_V + NVCOEF  # 7 rows: the other state buffer of the vectorized RK steps
+NROWS = R_YB + NSTATE_BASE
 
 # offsets (compile-time constants inside the kernels)
 O_Y = R_Y * BLOCK
@@ -137,6 +138,7 @@ O_RN = R_RN * BLOCK
 O_W2 = R_W2 * BLOCK
 O_Q = R_Q * BLOCK
 O_V = R_V * BLOCK
+O_YB = R_YB * BLOCK
 B1 = BLOCK  # row stride
 
 # per-step outcome flags (R_FLAG)
@@ -210,9 +212,10 @@ def _track_w2(S, i, y0, y1, y2, down):
 
 
 @jit(inline="always")
-def _rk_store(S, i, small, hf, y0, y1, y2, y3, y4, y5, y6, k0, k1, k2, k3, k4, k5, k6):
-    """Lane i's new state y + hf·k, if it is finite and ``small``; else the lane
-    keeps y and is flagged FLAG_EXACT.  Returns 1 if flagged."""
+def _rk_store(S, i, dst, small, hf, y0, y1, y2, y3, y4, y5, y6, k0, k1, k2, k3, k4, k5, k6):
+    """Lane i's new state y + hf·k goes to the rows at dst, unconditionally;
+    R_FLAG says whether it holds (finite and ``small``) or the lane must be
+    redone from its old state (FLAG_EXACT).  Returns 1 if flagged."""
     n0 = fma(hf, k0, y0)
     n1 = fma(hf, k1, y1)
     n2 = fma(hf, k2, y2)
@@ -224,49 +227,60 @@ def _rk_store(S, i, small, hf, y0, y1, y2, y3, y4, y5, y6, k0, k1, k2, k3, k4, k
     # not (a component is inf/NaN, or a finite sum overflowed), the lane is
     # redone by the straightforward code, which decides exactly
     upd = _finite(((n0 + n1) + (n2 + n3)) + ((n4 + n5) + n6)) & small
-    # A kept lane stores y + hf·z with hf·z = −0 (z = 0·(−hf), whatever the sign
-    # of hf), which is y exactly (−0, inf and NaN included).  Not "n if upd else
-    # y": a store of "new or the row's own value" becomes a masked store
-    # (vmaskmovpd), slow microcode on AMD Zen.  An updated lane stores n.
-    z = 0.0 * (-hf)
-    S[O_Y + i] = fma(hf, select(upd, k0, z), y0)
-    S[O_Y + B1 + i] = fma(hf, select(upd, k1, z), y1)
-    S[O_Y + 2 * B1 + i] = fma(hf, select(upd, k2, z), y2)
-    S[O_Y + 3 * B1 + i] = fma(hf, select(upd, k3, z), y3)
-    S[O_Y + 4 * B1 + i] = fma(hf, select(upd, k4, z), y4)
-    S[O_Y + 5 * B1 + i] = fma(hf, select(upd, k5, z), y5)
-    S[O_Y + 6 * B1 + i] = fma(hf, select(upd, k6, z), y6)
+    S[dst + i] = n0
+    S[dst + B1 + i] = n1
+    S[dst + 2 * B1 + i] = n2
+    S[dst + 3 * B1 + i] = n3
+    S[dst + 4 * B1 + i] = n4
+    S[dst + 5 * B1 + i] = n5
+    S[dst + 6 * B1 + i] = n6
     S[O_FLAG + i] = select(upd, FLAG_OK, FLAG_EXACT)
     return 0 if upd else 1
 
 
+@jit(inline="always")
+def _rk_buffers(flip):
+    """(source, destination) offsets of a vectorized RK step.  The new state
+    goes to the other buffer with plain stores: a lane that must keep its old
+    state (flagged) still has it in the source.  A store of "new or the row's
+    own value" would become a masked store (vmaskmovpd), slow microcode on
+    AMD Zen; flip is a literal, so both offsets are compile-time constants."""
+    if flip == 0:
+        return O_Y, O_YB
+    return O_YB, O_Y
+
+
 @jit
-def _rk2_sweep(S, nb, h, qq):
-    """One explicit-midpoint step (rk.rk2_step) of lanes [0, nb), in place."""
+def _rk2_sweep(S, nb, h, qq, flip):
+    """One explicit-midpoint step (rk.rk2_step) of lanes [0, nb) from the state
+    rows R_Y to R_YB (flip a literal 0) or back (a literal 1)."""
+    src, dst = _rk_buffers(flip)
     h2 = 0.5 * h
     nflag = 0
     for i in range(nb):
         q = _rows_q(S, i) if qq is None else qq
-        y0, y1, y2, y3, y4, y5, y6 = _load7(S, O_Y, i)
+        y0, y1, y2, y3, y4, y5, y6 = _load7(S, src, i)
         _track_w2(S, i, y0, y1, y2, h < 0.0)
         a0, a1, a2, a3, a4, a5, a6, sa = rhs7_lane_poly(y0, y1, y2, y3, y4, y5, y6, q)
         b0, b1, b2, b3, b4, b5, b6, sb = rhs7_lane_poly(
             fma(h2, a0, y0), fma(h2, a1, y1), fma(h2, a2, y2), fma(h2, a3, y3),
             fma(h2, a4, y4), fma(h2, a5, y5), fma(h2, a6, y6), q)
-        nflag += _rk_store(S, i, sa & sb, h, y0, y1, y2, y3, y4, y5, y6,
+        nflag += _rk_store(S, i, dst, sa & sb, h, y0, y1, y2, y3, y4, y5, y6,
                            b0, b1, b2, b3, b4, b5, b6)
     return nflag
 
 
 @jit
-def _rk4_sweep(S, nb, h, qq):
-    """One classical RK4 step (rk.rk4_step) of lanes [0, nb), in place."""
+def _rk4_sweep(S, nb, h, qq, flip):
+    """One classical RK4 step (rk.rk4_step) of lanes [0, nb), from the state
+    rows R_Y to R_YB (flip a literal 0) or back (a literal 1)."""
+    src, dst = _rk_buffers(flip)
     h2 = 0.5 * h
     h6 = h * (1.0 / 6.0)
     nflag = 0
     for i in range(nb):
         q = _rows_q(S, i) if qq is None else qq
-        y0, y1, y2, y3, y4, y5, y6 = _load7(S, O_Y, i)
+        y0, y1, y2, y3, y4, y5, y6 = _load7(S, src, i)
         _track_w2(S, i, y0, y1, y2, h < 0.0)
         a0, a1, a2, a3, a4, a5, a6, sa = rhs7_lane_poly(y0, y1, y2, y3, y4, y5, y6, q)
         b0, b1, b2, b3, b4, b5, b6, sb = rhs7_lane_poly(
@@ -279,7 +293,7 @@ def _rk4_sweep(S, nb, h, qq):
             fma(h, c0, y0), fma(h, c1, y1), fma(h, c2, y2), fma(h, c3, y3),
             fma(h, c4, y4), fma(h, c5, y5), fma(h, c6, y6), q)
         # the new state is rk4_combine(y, a, b, c, d, h6) = y + h6·rk4_sum(a, b, c, d)
-        nflag += _rk_store(S, i, sa & sb & sc & sd, h6, y0, y1, y2, y3, y4, y5, y6,
+        nflag += _rk_store(S, i, dst, sa & sb & sc & sd, h6, y0, y1, y2, y3, y4, y5, y6,
                            rk4_sum(a0, b0, c0, d0), rk4_sum(a1, b1, c1, d1),
                            rk4_sum(a2, b2, c2, d2), rk4_sum(a3, b3, c3, d3),
                            rk4_sum(a4, b4, c4, d4), rk4_sum(a5, b5, c5, d5),
@@ -305,6 +319,56 @@ def _rk_lane_exact(S, i, n, h, rk4, y, p, work, ynew):
             return
     for k in range(n):
         S[O_Y + k * B1 + i] = ynew[k]
+    S[O_FLAG + i] = FLAG_OK
+
+
+@jit
+def _rk_lane_exact7(S, i, src, dst, h, rk4, q):
+    """_rk_lane_exact for the 7-wide state, in registers, with the lane's
+    coefficients q (shared or its rows) instead of recomputing them from its
+    parameters: the same operations as rk.rk2_step / rk4_step (through
+    model.rhs), without their five divisions per stage.  From the state rows
+    at src to those at dst."""
+    y0, y1, y2, y3, y4, y5, y6 = _load7(S, src, i)
+    h2 = 0.5 * h
+    a0, a1, a2, a3, a4, a5, a6 = rhs7_lane(y0, y1, y2, y3, y4, y5, y6, q)
+    b0, b1, b2, b3, b4, b5, b6 = rhs7_lane(
+        fma(h2, a0, y0), fma(h2, a1, y1), fma(h2, a2, y2), fma(h2, a3, y3),
+        fma(h2, a4, y4), fma(h2, a5, y5), fma(h2, a6, y6), q)
+    if rk4:
+        h6 = h * (1.0 / 6.0)
+        c0, c1, c2, c3, c4, c5, c6 = rhs7_lane(
+            fma(h2, b0, y0), fma(h2, b1, y1), fma(h2, b2, y2), fma(h2, b3, y3),
+            fma(h2, b4, y4), fma(h2, b5, y5), fma(h2, b6, y6), q)
+        d0, d1, d2, d3, d4, d5, d6 = rhs7_lane(
+            fma(h, c0, y0), fma(h, c1, y1), fma(h, c2, y2), fma(h, c3, y3),
+            fma(h, c4, y4), fma(h, c5, y5), fma(h, c6, y6), q)
+        n0 = fma(h6, rk4_sum(a0, b0, c0, d0), y0)
+        n1 = fma(h6, rk4_sum(a1, b1, c1, d1), y1)
+        n2 = fma(h6, rk4_sum(a2, b2, c2, d2), y2)
+        n3 = fma(h6, rk4_sum(a3, b3, c3, d3), y3)
+        n4 = fma(h6, rk4_sum(a4, b4, c4, d4), y4)
+        n5 = fma(h6, rk4_sum(a5, b5, c5, d5), y5)
+        n6 = fma(h6, rk4_sum(a6, b6, c6, d6), y6)
+    else:
+        n0 = fma(h, b0, y0)
+        n1 = fma(h, b1, y1)
+        n2 = fma(h, b2, y2)
+        n3 = fma(h, b3, y3)
+        n4 = fma(h, b4, y4)
+        n5 = fma(h, b5, y5)
+        n6 = fma(h, b6, y6)
+    if not (np.isfinite(n0) and np.isfinite(n1) and np.isfinite(n2) and np.isfinite(n3)
+            and np.isfinite(n4) and np.isfinite(n5) and np.isfinite(n6)):
+        S[O_FLAG + i] = FLAG_NONFINITE
+        return
+    S[dst + i] = n0
+    S[dst + B1 + i] = n1
+    S[dst + 2 * B1 + i] = n2
+    S[dst + 3 * B1 + i] = n3
+    S[dst + 4 * B1 + i] = n4
+    S[dst + 5 * B1 + i] = n5
+    S[dst + 6 * B1 + i] = n6
     S[O_FLAG + i] = FLAG_OK
 
 
@@ -589,12 +653,13 @@ def _max_h_omega(S, i, h):
 
 
 @jit
-def _retire(S, i, nb, n, done, h, Y, ISTAT, FSTAT):
+def _retire(S, i, nb, n, cur, done, h, Y, ISTAT, FSTAT):
     """Write failed lane i back (status, failing step, statistics; the state
-    is the last accepted one) and move lane nb−1 into its place."""
+    is the last accepted one, in the rows at cur) and move lane nb−1 into its
+    place."""
     m = int(S[O_MEMBER + i])
     for k in range(n):
-        Y[m, k] = S[O_Y + k * B1 + i]
+        Y[m, k] = S[cur + k * B1 + i]
     flag = S[O_FLAG + i]
     ISTAT[m, IS_STATUS] = STATUS_NEWTON if flag == FLAG_NEWTON else STATUS_NONFINITE
     steps = int(S[O_STEPS + i]) + done
@@ -610,23 +675,31 @@ def _retire(S, i, nb, n, done, h, Y, ISTAT, FSTAT):
 
 
 @jit
-def _step(method, S, S2, idx, nb, n, h, tol, maxiter, qq, vv, y, p, work, ynew):
+def _step(method, S, S2, idx, nb, n, h, tol, maxiter, qq, vv, par, y, p, work, ynew):
     """One step of lanes [0, nb); returns the number of failed lanes (R_FLAG ≠
     FLAG_OK).  qq, vv: the block's coefficient tuples if it is uniform, else
-    None (the sweeps then read each lane's rows)."""
+    None (the sweeps then read each lane's rows).  The vectorized RK steps go
+    from the state rows R_Y to R_YB (par 0) or back (par 1); the others stay
+    in R_Y."""
     rk4 = method == METHOD_RK4
     if method == METHOD_VI:
         return _vi_step_block(S, S2, idx, nb, n, h, tol, maxiter, qq, vv)
     nfail = 0
     if n == NSTATE_BASE:
+        # literal flips: each direction is its own compilation with constant offsets
         if rk4:
-            nfail = _rk4_sweep(S, nb, h, qq)
+            nfail = _rk4_sweep(S, nb, h, qq, 0) if par == 0 else _rk4_sweep(S, nb, h, qq, 1)
         else:
-            nfail = _rk2_sweep(S, nb, h, qq)
+            nfail = _rk2_sweep(S, nb, h, qq, 0) if par == 0 else _rk2_sweep(S, nb, h, qq, 1)
         if nfail:
+            src = O_Y if par == 0 else O_YB
+            dst = O_YB if par == 0 else O_Y
             for i in range(nb):
                 if S[O_FLAG + i] == FLAG_EXACT:
-                    _rk_lane_exact(S, i, n, h, rk4, y, p, work, ynew)
+                    if qq is None:
+                        _rk_lane_exact7(S, i, src, dst, h, rk4, _rows_q(S, i))
+                    else:
+                        _rk_lane_exact7(S, i, src, dst, h, rk4, qq)
             nfail = 0
             for i in range(nb):
                 nfail += S[O_FLAG + i] != FLAG_OK
@@ -706,14 +779,20 @@ def _block_steps(method, S, S2, idx, nb, n, h, every, n_out, tol, maxiter, qq, v
     work = np.empty((DOP853_STAGES, n))
     ynew = np.empty(n)
     done = np.int64(0)
+    # the state is in the rows at cur: R_Y, or R_YB after an odd number of
+    # vectorized RK steps (par 1)
+    flips = method != METHOD_VI and n == NSTATE_BASE
+    par = np.int64(0)
+    cur = O_Y
     for j in range(n_out):
         for _ in range(every):
-            nfail = _step(method, S, S2, idx, nb, n, h, tol, maxiter, qq, vv, y, p, work, ynew)
+            nfail = _step(method, S, S2, idx, nb, n, h, tol, maxiter, qq, vv, par, y, p, work,
+                          ynew)
             if nfail:
                 i = np.int64(0)
                 while i < nb:
                     if S[O_FLAG + i] != FLAG_OK:
-                        _retire(S, i, nb, n, done, h, Y, ISTAT, FSTAT)
+                        _retire(S, i, nb, n, cur, done, h, Y, ISTAT, FSTAT)
                         nb -= 1
                     else:
                         i += 1
@@ -721,15 +800,18 @@ def _block_steps(method, S, S2, idx, nb, n, h, every, n_out, tol, maxiter, qq, v
                     return
             if method == METHOD_VI:
                 _vi_accept(S, nb, n)
+            if flips:
+                par = 1 - par
+                cur = O_YB if par == 1 else O_Y
             done += 1
         for i in range(nb):
             m = int(S[O_MEMBER + i])
             for k in range(n):
-                OUT[m, j, k] = S[O_Y + k * B1 + i]
+                OUT[m, j, k] = S[cur + k * B1 + i]
     for i in range(nb):
         m = int(S[O_MEMBER + i])
         for k in range(n):
-            Y[m, k] = S[O_Y + k * B1 + i]
+            Y[m, k] = S[cur + k * B1 + i]
         ISTAT[m, IS_STEPS] = int(S[O_STEPS + i]) + done
         ISTAT[m, IS_NEWTON_TOTAL] = int(S[O_NTOT + i])
         ISTAT[m, IS_NEWTON_MAX] = int(S[O_NMAX + i])
