@@ -15,11 +15,17 @@ How it is fast
   quantity r of every lane), advances them for the whole call, and copies
   them back.  Every row sits at a compile-time offset of the same buffer, so
   LLVM sees no possible aliasing and vectorizes the loops over lanes
-  (packed ``vfmadd…pd``/``vmulpd``/``vaddpd`` on zmm registers).  When all
-  lanes of a block share their parameters (a random ensemble of one scene),
-  the per-member coefficients live in registers instead of rows.
+  (packed ``vfmadd…pd``/``vmulpd``/``vaddpd`` on ymm or zmm registers).
+* Two versions of the block kernel, chosen once per call
+  (:func:`shared_params`): when all members share their parameters (a
+  random ensemble of one scene) the coefficients are tuples that live in
+  registers; else each lane reads its own coefficient rows.  The choice is
+  not made per lane: LLVM does not unswitch loops this big, and loaded the
+  rows under a mask in every iteration.
 * An explicit RK step is one sweep over the lanes: all stages of a lane stay
-  in registers, only the state is loaded and stored.  The max of h|Ω_k| is
+  in registers, only the state is loaded and stored, from one state buffer
+  to the other (R_Y → R_YB → R_Y …) with plain stores; a flagged lane still
+  has its old state in the source buffer.  The max of h|Ω_k| is
   kept as the max of |Ω_k|² (h·sqrt is monotone: same value, one square root
   per call instead of per step).
 * The VI's Newton iterations run in lock-step over the block with a per-lane
@@ -31,16 +37,18 @@ How it is fast
 * No lane store is conditional.  A store of "new if c else the row's own
   value" becomes a masked store (``vmaskmovpd``) in LLVM's x86 back end,
   slow microcode on AMD Zen 3; the sweeps store unconditionally (exact
-  arithmetic blends, ``_jit.select``), and the VI accepts a step only after
-  its failed lanes are retired (``_vi_check``, then ``_vi_accept``).
+  arithmetic blends, ``_jit.select``, the RK double buffer), and the VI
+  accepts a step only after its failed lanes are retired (``_vi_check``,
+  then ``_vi_accept``).  ``liethermo bench --asm`` counts masked
+  instructions; the tests require none in the lane loops.
 * A failed member (Newton failure or non-finite state) is written back at
   once and its lane is filled with the block's last lane (compaction), so
   dead members cost nothing — explicit RK2 loses most of the random paper
   ensemble within ~100 steps — and never touch their neighbours' values.
 * exp(−σ/c_v) is the inline cubic of ``model.sigma_rate_poly`` in the
   sweeps; a lane whose |σ/c_v| is beyond ``EXP_SMALL`` (or not finite) is
-  flagged and recomputed with the straightforward kernel's own code
-  (``math.exp``).
+  flagged and recomputed with the straightforward kernel's own operations
+  (``math.exp``; for RK lanes in registers with the block's coefficients).
 * Explicit RK steps *with* the attitude (16-wide state) and the
   ``reference`` method are not vectorized: they run the straightforward
   per-member code (the RK ones inside the block structure).
