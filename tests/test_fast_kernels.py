@@ -310,7 +310,7 @@ def test_kernels_are_vectorized():
     from liethermo.kernels.model import coefficients
     from liethermo.kernels.vi import vi_coefficients
 
-    S = np.ones(F.NROWS * F.BLOCK)
+    S = np.ones(F.NROWS * F.ROW)
     pp = F._load_params(S, 0)
     qq = coefficients(pp)
     vv = vi_coefficients(pp, 0.1, 0.5, 0.5)

@@ -392,7 +392,7 @@ def asm_report() -> dict:
     from .kernels.model import coefficients
     from .kernels.vi import vi_coefficients
 
-    S = np.ones(F.NROWS * F.BLOCK)
+    S = np.ones(F.NROWS * F.ROW)
     pp = F._load_params(S, 0)
     qq = coefficients(pp)
     vv = vi_coefficients(pp, 0.1, 0.5, 0.5)

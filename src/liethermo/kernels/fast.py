@@ -96,12 +96,16 @@ from .vi import (
 
 __all__ = ["advance_ensemble_fast", "BLOCK", "EXP_SMALL"]
 
-#: members per block (lanes); a block's buffer is NROWS·BLOCK doubles
+#: members per block (lanes); a block's buffer is NROWS·ROW doubles
 BLOCK = 128
+#: row stride of the block buffer (doubles): BLOCK plus a pad, so that the
+#: rows of one lane do not all fall into a few cache sets (a stride of 1 KiB
+#: maps lane i of every row into 4 of the L1's 64 sets)
+ROW = BLOCK + 8
 #: when at most this many lanes of a block still iterate, they finish on a compact copy
 NEWTON_COMPACT = BLOCK // 4
 
-# Rows of the per-block buffer; lane i of row r is buf[r*BLOCK + i].
+# Rows of the per-block buffer; lane i of row r is buf[r*ROW + i].
 R_Y = 0  # 16 rows: state (model.py layout; 7 or 16 used)
 R_P = 16  # 9 rows: parameters (model.py layout)
 R_GN = 25  # 3 rows: Γ_{k+1} (VI)
@@ -122,32 +126,34 @@ R_RN = 45  # 9 rows: R_{k+1} (VI with attitude)
 R_W2 = 54  # max |Ω_k|² over the steps of this call
 R_Q = 55  # NCOEF rows: model.coefficients
 R_V = R_Q + NCOEF  # NVCOEF rows: vi.vi_coefficients
-R_YB = R_V + NVCOEF  # 7 rows: the other state buffer of the vectorized RK steps
-NROWS = R_YB + NSTATE_BASE
+NROWS = R_V + NVCOEF
+# 7 rows: the other state buffer of the vectorized RK steps, in rows only the
+# VI uses (Γ_{k+1}, σ_{k+1}, X): a block runs one method
+R_YB = R_GN
 
 # offsets (compile-time constants inside the kernels)
-O_Y = R_Y * BLOCK
-O_P = R_P * BLOCK
-O_GN = R_GN * BLOCK
-O_SN = R_SN * BLOCK
-O_X = R_X * BLOCK
-O_B = R_B * BLOCK
-O_SC0 = R_SC0 * BLOCK
-O_RUN = R_RUN * BLOCK
-O_CODE = R_CODE * BLOCK
-O_ITS = R_ITS * BLOCK
-O_HW = R_HW * BLOCK
-O_NTOT = R_NTOT * BLOCK
-O_NMAX = R_NMAX * BLOCK
-O_STEPS = R_STEPS * BLOCK
-O_MEMBER = R_MEMBER * BLOCK
-O_FLAG = R_FLAG * BLOCK
-O_RN = R_RN * BLOCK
-O_W2 = R_W2 * BLOCK
-O_Q = R_Q * BLOCK
-O_V = R_V * BLOCK
-O_YB = R_YB * BLOCK
-B1 = BLOCK  # row stride
+O_Y = R_Y * ROW
+O_P = R_P * ROW
+O_GN = R_GN * ROW
+O_SN = R_SN * ROW
+O_X = R_X * ROW
+O_B = R_B * ROW
+O_SC0 = R_SC0 * ROW
+O_RUN = R_RUN * ROW
+O_CODE = R_CODE * ROW
+O_ITS = R_ITS * ROW
+O_HW = R_HW * ROW
+O_NTOT = R_NTOT * ROW
+O_NMAX = R_NMAX * ROW
+O_STEPS = R_STEPS * ROW
+O_MEMBER = R_MEMBER * ROW
+O_FLAG = R_FLAG * ROW
+O_RN = R_RN * ROW
+O_W2 = R_W2 * ROW
+O_Q = R_Q * ROW
+O_V = R_V * ROW
+O_YB = R_YB * ROW
+B1 = ROW  # row stride
 
 # per-step outcome flags (R_FLAG)
 FLAG_OK = 0.0
@@ -724,8 +730,8 @@ def _fill_block(method, Y, P, m0, m1, h, ISTAT, FSTAT):
     """The block buffer S of members [m0, m1) that are still running (lanes
     0 … nb−1), and the Newton compaction scratch (S2, idx; VI only)."""
     n = Y.shape[1]
-    S = np.zeros(NROWS * BLOCK)
-    S2 = np.zeros(NROWS * BLOCK if method == METHOD_VI else 0)
+    S = np.zeros(NROWS * ROW)
+    S2 = np.zeros(NROWS * ROW if method == METHOD_VI else 0)
     idx = np.zeros(BLOCK if method == METHOD_VI else 0, np.int64)
     nb = np.int64(0)  # np.int64: no Literal[int] overloads of the callees
     for m in range(m0, m1):
