@@ -286,12 +286,12 @@ def main(argv=None) -> int:
         print("hot loop of each lane sweep (fresh compile), per iteration = one vector of lanes:")
         for name, c in asm.items():
             if not c:
-                print(f"  {name:<16} no vectorized loop found")
+                print(f"  {name:<19} no vectorized loop found")
                 continue
-            print(f"  {name:<16} {c['width']} ({c['lanes']} lanes): {c['instructions']:>4} instructions,"
+            print(f"  {name:<19} {c['width']} ({c['lanes']} lanes): {c['instructions']:>4} instructions,"
                   f" packed arithmetic {c['packed']:>3} (fma {c['fma']:>3}, mul {c['mul']:>3},"
                   f" add/sub {c['addsub']:>3}, div {c['div']}), memory operands {c['mem']:>3}"
-                  f" (stack {c['stack']:>3}, stores {c['stores']:>3})")
+                  f" (stack {c['stack']:>3}, stores {c['stores']:>3}), masked {c['masked']}")
     if args.json:
         import numba as _nb
 
