@@ -59,7 +59,6 @@ import time.  The ``reference`` method goes to the straightforward kernel.
 
 from __future__ import annotations
 
-
 import numpy as np
 
 from ._jit import fma, jit, pjit, prange, select
@@ -185,6 +184,17 @@ def _load7(S, off, i):
 
 
 @jit(inline="always")
+def _store7(S, off, i, a0, a1, a2, a3, a4, a5, a6):
+    S[off + i] = a0
+    S[off + B1 + i] = a1
+    S[off + 2 * B1 + i] = a2
+    S[off + 3 * B1 + i] = a3
+    S[off + 4 * B1 + i] = a4
+    S[off + 5 * B1 + i] = a5
+    S[off + 6 * B1 + i] = a6
+
+
+@jit(inline="always")
 def _rows_q(S, i):
     return (S[O_Q + i], S[O_Q + B1 + i], S[O_Q + 2 * B1 + i], S[O_Q + 3 * B1 + i],
             S[O_Q + 4 * B1 + i], S[O_Q + 5 * B1 + i], S[O_Q + 6 * B1 + i],
@@ -241,13 +251,7 @@ def _rk_store(S, i, dst, small, hf, y0, y1, y2, y3, y4, y5, y6, k0, k1, k2, k3, 
     # not (a component is inf/NaN, or a finite sum overflowed), the lane is
     # redone by the straightforward code, which decides exactly
     upd = _finite(((n0 + n1) + (n2 + n3)) + ((n4 + n5) + n6)) & small
-    S[dst + i] = n0
-    S[dst + B1 + i] = n1
-    S[dst + 2 * B1 + i] = n2
-    S[dst + 3 * B1 + i] = n3
-    S[dst + 4 * B1 + i] = n4
-    S[dst + 5 * B1 + i] = n5
-    S[dst + 6 * B1 + i] = n6
+    _store7(S, dst, i, n0, n1, n2, n3, n4, n5, n6)
     S[O_FLAG + i] = select(upd, FLAG_OK, FLAG_EXACT)
     return 0 if upd else 1
 
@@ -376,13 +380,7 @@ def _rk_lane_exact7(S, i, src, dst, h, rk4, q):
             and np.isfinite(n4) and np.isfinite(n5) and np.isfinite(n6)):
         S[O_FLAG + i] = FLAG_NONFINITE
         return
-    S[dst + i] = n0
-    S[dst + B1 + i] = n1
-    S[dst + 2 * B1 + i] = n2
-    S[dst + 3 * B1 + i] = n3
-    S[dst + 4 * B1 + i] = n4
-    S[dst + 5 * B1 + i] = n5
-    S[dst + 6 * B1 + i] = n6
+    _store7(S, dst, i, n0, n1, n2, n3, n4, n5, n6)
     S[O_FLAG + i] = FLAG_OK
 
 
