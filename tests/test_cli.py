@@ -265,6 +265,19 @@ def test_blow_up_ensemble_labels_without_warnings():
     assert summ.status_counts["non_finite"] == int(np.sum(st == 2))
     ok = st == 0
     assert np.isfinite(ds["energy_error"].values[ok]).all()
+    assert summ.first_fail_step == int(ds["failed_at_step"].values[~ok].min()) > 0
+    assert f"first failure at step {summ.first_fail_step} " in "\n".join(summ.lines())
+
+
+def test_summary_of_a_run_where_every_member_failed():
+    """No member completed: the summary says so and when the first one failed,
+    instead of printing NaN accuracy figures."""
+    _, summ = run_scene(_small(members=1, integrator__method="rk2", integrator__steps=300),
+                        progress=False)
+    assert summ.status_counts["ok"] == 0
+    text = "\n".join(summ.lines())
+    assert "no member completed" in text and "nan" not in text
+    assert summ.first_fail_step == 142  # the paper's RK2 at h = 0.1 (t = 14.2 s)
 
 
 def test_bench_help_reaches_the_bench_parser(capsys):

@@ -137,6 +137,8 @@ def test_two_workers_equal_in_process(client, tmp_path, which, ref_vi, ref_rk2):
     else:
         with xr.open_dataset(ref) as b:
             assert summ.status_counts["non_finite"] == int((b["status"].values != 0).sum()) > 0
+            failed = b["status"].values != 0
+            assert summ.first_fail_step == int(b["failed_at_step"].values[failed].min())
 
 
 def test_killed_worker_task_is_retried(client, tmp_path, ref_vi):

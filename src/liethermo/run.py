@@ -41,6 +41,7 @@ class RunSummary:
     newton_mean: float = float("nan")
     newton_max: int = 0
     max_h_omega: float = float("nan")
+    first_fail_step: int = 0  # earliest step at which a member failed (0: none failed)
     path: Path | None = None
 
     @property
@@ -55,12 +56,21 @@ class RunSummary:
             f"  wall time {self.wall_time:.2f} s (kernels {self.kernel_time:.2f} s), "
             f"throughput {self.throughput:,.0f} member-steps/s",
             f"  status   {st}",
-            f"  over the {self.status_counts.get('ok', 0)} member(s) that completed:",
-            f"  max |E_k - E_0|           {self.max_abs_energy_error:.3e} J "
-            f"({self.max_rel_energy_error:.3e} of the initial mechanical energy)",
-            f"  max ||Gamma| - 1|         {self.max_gamma_defect:.3e}",
-            f"  max h|Omega|              {self.max_h_omega:.3f} rad",
         ]
+        if self.first_fail_step:
+            out.append(f"  first failure at step {self.first_fail_step} "
+                       f"(t = {self.first_fail_step * self.h:g} s)")
+        n_ok = self.status_counts.get("ok", 0)
+        if n_ok:
+            out += [
+                f"  over the {n_ok} member(s) that completed:",
+                f"  max |E_k - E_0|           {self.max_abs_energy_error:.3e} J "
+                f"({self.max_rel_energy_error:.3e} of the initial mechanical energy)",
+                f"  max ||Gamma| - 1|         {self.max_gamma_defect:.3e}",
+                f"  max h|Omega|              {self.max_h_omega:.3f} rad",
+            ]
+        else:
+            out.append("  no member completed: no accuracy figures")
         if self.method == "vi":
             out.append(f"  Newton iterations/step    mean {self.newton_mean:.2f}, max {self.newton_max}")
         if self.path is not None:
@@ -93,6 +103,7 @@ class ChunkStats:
     nit_total: int = 0
     nsteps_total: int = 0
     nmax: int = 0
+    first_fail: int = 0  # earliest failing step over the chunk's members (0: none)
 
     def merge(self, other: "ChunkStats") -> "ChunkStats":
         self.members += other.members
@@ -105,6 +116,8 @@ class ChunkStats:
         self.nit_total += other.nit_total
         self.nsteps_total += other.nsteps_total
         self.nmax = max(self.nmax, other.nmax)
+        fails = [f for f in (self.first_fail, other.first_fail) if f]
+        self.first_fail = min(fails) if fails else 0
         return self
 
     def to_dict(self) -> dict:
@@ -170,6 +183,8 @@ def run_chunk(scene: dict, lo: int, hi: int, *, progress_cb=None, kernel: str | 
     st.nit_total = int(traj.newton_iterations.sum())
     st.nsteps_total = int(traj.steps_done.sum())
     st.nmax = int(traj.newton_max.max(initial=0))
+    failed = traj.status != 0
+    st.first_fail = int(traj.fail_step[failed].min()) if failed.any() else 0
     return ds, st
 
 
@@ -184,6 +199,7 @@ def finish_summary(summ: RunSummary, st: ChunkStats) -> RunSummary:
     summ.max_h_omega = st.hw if np.isfinite(st.hw) else nan
     summ.newton_mean = st.nit_total / st.nsteps_total if (summ.method == "vi" and st.nsteps_total) else nan
     summ.newton_max = st.nmax
+    summ.first_fail_step = st.first_fail
     return summ
 
 
