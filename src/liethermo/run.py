@@ -183,8 +183,7 @@ def run_chunk(scene: dict, lo: int, hi: int, *, progress_cb=None, kernel: str | 
     st.nit_total = int(traj.newton_iterations.sum())
     st.nsteps_total = int(traj.steps_done.sum())
     st.nmax = int(traj.newton_max.max(initial=0))
-    failed = traj.status != 0
-    st.first_fail = int(traj.fail_step[failed].min()) if failed.any() else 0
+    st.first_fail = int(traj.fail_step[~ok].min()) if not ok.all() else 0
     return ds, st
 
 
