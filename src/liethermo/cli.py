@@ -40,8 +40,6 @@ def cmd_run(args) -> int:
 
     from .run import run_scene
 
-    import copy
-
     progress = None if not args.no_progress else False
     outputs = {scene["integrator"]["method"]: out}
     for m in scene["output"]["compare"]:
@@ -49,10 +47,9 @@ def cmd_run(args) -> int:
             outputs[m] = _compare_path(out, m)
     summaries = []
     for method, path in outputs.items():
-        sc = copy.deepcopy(scene)
-        sc["integrator"]["method"] = method
+        sc = scene.with_overrides({"integrator.method": method})
         if args.dask:
-            from .distributed import run_scene_dask  # issue 5
+            from .distributed import run_scene_dask
 
             _, summ = run_scene_dask(sc, path, address=args.dask, progress=progress,
                                      keep_parts=args.keep_parts, combine=not args.no_combine)
@@ -121,13 +118,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def cmd_study(args) -> int:
-    from .studies.runner import main_study  # issue 3
+    from .studies.runner import main_study
 
     return main_study(args)
 
 
 def cmd_bench(args) -> int:
-    from .bench import main as bench_main  # issue 4
+    from .bench import main as bench_main
 
     return bench_main(args.bench_args)
 

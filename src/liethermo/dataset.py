@@ -1,10 +1,19 @@
 """Label a :class:`~liethermo.simulate.Trajectory` as a CF-style xarray Dataset.
 
-Names, dims and units follow SPEC §7.  Energies are computed without
-cancellation: E_k − E₀ = (K_k − K₀) + (V_k − V₀) + c_v T₀ expm1(σ_k/c_v),
-where E₀ is the energy of the scene's initial data at t = 0 (for the
-staggered start the stored Ω₀ approximates Ω(h/2), so E₀ is computed from
-the initial data, not from the stored first state).
+Every variable has ``units`` and ``long_name`` (docs/netcdf.md lists them).
+Values are node values at t_k = k h for every method: ``omega`` is Ω(t_k)
+(for the variational integrators the node velocity 𝕀(S_k)⁻¹μ_k, from the node
+momentum μ_k of the discrete Legendre transform), and ``energy_error`` is
+E_k − E₀ on node values, computed without cancellation:
+
+    E_k − E₀ = (K_k − K₀) + (V_k − V₀) + c_v T₀ expm1(σ_k/c_v),
+
+with E₀ the energy of the initial data at t = 0.  The variational
+integrators also report ``omega_step``, the step velocity Ω_k ≈ Ω(t_k + h/2)
+of the step that starts at t_k (the paper's quantity), and
+``energy_error_paper``, the energy in the paper's convention (Ω_k with Γ_k
+and S_k): it mixes two instants and so carries a first-order error of its
+own — it is kept to reproduce the paper's figure, not to judge the method.
 """
 
 from __future__ import annotations
@@ -16,9 +25,10 @@ import numpy as np
 import xarray as xr
 
 from . import __version__
-from .kernels.model import P_C, P_CV, P_GX, P_GY, P_GZ, P_I1, P_I2, P_I3, P_T0
+from . import physics as ph
+from .kernels.layout import STATUS_MEANINGS
 from .methods import METHODS
-from .simulate import STATUS_MEANINGS, Trajectory
+from .simulate import Trajectory
 
 AXIS = ["x", "y", "z"]
 
@@ -27,86 +37,123 @@ def _var(data, dims, units, long_name, **extra):
     return xr.Variable(dims, data, attrs={"units": units, "long_name": long_name, **extra})
 
 
-def energies(omega, gamma, sigma, params):
-    """K, V, U−U₀ in J for arrays (..., 3), (..., 3), (...) and params (..., 9)."""
-    I = params[..., [P_I1, P_I2, P_I3]]
-    g = params[..., [P_GX, P_GY, P_GZ]]
-    K = 0.5 * np.sum(I * omega * omega, axis=-1)
-    V = np.sum(g * gamma, axis=-1)
-    dU = params[..., P_CV] * params[..., P_T0] * np.expm1(sigma / params[..., P_CV])
-    return K, V, dU
+def node_energies(traj: Trajectory) -> dict:
+    """Node values of (Ω, K, V, U − U₀, T) in SI units, arrays (N, T[, 3])."""
+    phys = traj.physics
+    sigma = traj.sigma
+    om = traj.omega
+    s = sigma if traj.layout.has("sigma") else None
+    K = ph.kinetic_energy(phys, om, s)
+    V = ph.potential_energy(phys, traj.gamma)
+    dU = ph.internal_energy_change(phys, sigma)
+    T = ph.temperature(phys, om, sigma)
+    return {"omega": om, "K": K, "V": V, "dU": dU, "T": T}
 
 
-def trajectory_dataset(traj: Trajectory, *, S0: float, omega0: np.ndarray, R0: np.ndarray,
-                       center_of_mass: np.ndarray | None = None, member_offset: int = 0) -> xr.Dataset:
+def initial_energy(phys: ph.Physics, omega0: np.ndarray, R0: np.ndarray) -> tuple:
+    """(K₀, V₀) of the initial data (N,)."""
+    return ph.kinetic_energy(phys, omega0, None), ph.potential_energy(phys, R0[:, 2, :])
+
+
+def _momentum(traj: Trajectory, omega: np.ndarray) -> np.ndarray:
+    """μ at the nodes: the variational integrators' node momentum, else 𝕀(S)Ω."""
+    if traj.family == "vi":
+        return traj.momentum
+    scale = ph.inertia_scale(traj.physics, traj.sigma if traj.layout.has("sigma") else None)
+    scale = scale[..., None] if isinstance(scale, np.ndarray) else scale
+    return scale * traj.physics.inertia[:, None, :] * omega
+
+
+def trajectory_dataset(traj: Trajectory, *, omega0: np.ndarray, R0: np.ndarray,
+                       member_offset: int = 0) -> xr.Dataset:
     """The dataset of one member chunk (no global attributes; see :func:`global_attrs`).
 
-    omega0, R0: the members' initial data at t = 0 (N, 3), (N, 3, 3);
-    center_of_mass: G in the body frame (N, 3) in m, to store ℓRχ = R G.
+    omega0, R0: the members' initial data at t = 0 (N, 3), (N, 3, 3).
     """
     # a member that blew up (explicit RK2) has huge-but-finite values before its NaNs:
     # the energies of those values overflow to inf, which is the truthful answer
     with np.errstate(over="ignore", invalid="ignore"):
-        return _trajectory_dataset(traj, S0, omega0, R0, center_of_mass, member_offset)
+        return _trajectory_dataset(traj, omega0, R0, member_offset)
 
 
-def _trajectory_dataset(traj, S0, omega0, R0, center_of_mass, member_offset):
-    N, n_t, _ = traj.states.shape
-    p = traj.params[:, None, :]
-    om, ga, sg = traj.omega, traj.gamma, traj.sigma
-    K, V, dU = energies(om, ga, sg, p)
-    K0, V0, _ = energies(omega0, R0[:, 2, :], np.zeros(N), traj.params)
-    cv = traj.params[:, P_CV][:, None]
-    T0 = traj.params[:, P_T0][:, None]
-    T = T0 * np.exp(sg / cv)
-    U = cv * T
-    dE = (K - K0[:, None]) + (V - V0[:, None]) + dU
-    # mechanical energy measured from the resting state (V_min = -|g|): the
-    # energy the friction can turn into heat; the natural scale of E_k - E_0
-    emech0 = K0 + V0 + np.linalg.norm(traj.params[:, [P_GX, P_GY, P_GZ]], axis=1)
+def _trajectory_dataset(traj, omega0, R0, member_offset):
+    phys = traj.physics
+    N = traj.states.shape[0]
+    e = node_energies(traj)
+    K0, V0 = initial_energy(phys, omega0, R0)
+    dE = (e["K"] - K0[:, None]) + (e["V"] - V0[:, None]) + e["dU"]
+    U = phys.heat_capacity[:, None] * ph.theta(phys, traj.sigma)
+    emech0 = ph.mechanical_energy_scale(phys, omega0, R0[:, 2, :])
     dims_t = ("member", "time")
     dims_v = ("member", "time", "axis")
-    omega_note = ("step velocity Omega_k = cay^-1(R_k^T R_k+1)/h; approximates Omega(t_k + h/2)"
-                  if traj.method == "vi" else "node value Omega(t_k)")
+    vi = traj.family == "vi"
+    node_note = ("node velocity I(S_k)^-1 mu_k from the node momentum (discrete Legendre transform)"
+                 if vi else "node value Omega(t_k)")
     data = {
-        "omega": _var(om, dims_v, "rad s-1", "body angular velocity", comment=omega_note),
-        "gamma": _var(ga, dims_v, "1", "direction of gravity in the body frame (R^T e3)"),
-        "entropy": _var(S0 + sg, dims_t, "J K-1", "entropy S of body and fluid"),
-        "temperature": _var(T, dims_t, "K", "temperature T(S) = T0 exp((S - S0)/c_v)"),
-        "kinetic_energy": _var(K, dims_t, "J", "kinetic energy 1/2 Omega . I Omega"),
-        "potential_energy": _var(V, dims_t, "J", "potential energy m g l Gamma . chi"),
-        "internal_energy": _var(U, dims_t, "J", "internal energy U(S) = c_v T(S)"),
-        "total_energy": _var(K + V + U, dims_t, "J", "total energy E = K + V + U"),
-        "energy_error": _var(dE, dims_t, "J", "total energy error E_k - E_0 (computed without cancellation)",
+        "omega": _var(e["omega"], dims_v, "rad s-1", "body angular velocity at t_k",
+                      comment=node_note),
+        "angular_momentum": _var(_momentum(traj, e["omega"]), dims_v, "kg m2 s-1",
+                                 "body angular momentum mu = I(S) Omega at t_k"),
+        "gamma": _var(traj.gamma, dims_v, "1", "direction of gravity in the body frame (R^T e3)"),
+        "entropy": _var(phys.S0[:, None] + traj.sigma, dims_t, "J K-1", "entropy S of body and fluid"),
+        "temperature": _var(e["T"], dims_t, "K", "temperature T = -dL/dS (T0 exp((S - S0)/c_v) "
+                            "for a constant inertia)"),
+        "kinetic_energy": _var(e["K"], dims_t, "J", "kinetic energy 1/2 Omega . I(S) Omega"),
+        "potential_energy": _var(e["V"], dims_t, "J", "potential energy m g l Gamma . chi"),
+        "internal_energy": _var(U, dims_t, "J", "internal energy U(S) = c_v T0 exp((S - S0)/c_v)"),
+        "total_energy": _var(e["K"] + e["V"] + U, dims_t, "J", "total energy E = K + V + U"),
+        "energy_error": _var(dE, dims_t, "J", "total energy error E_k - E_0 on node values "
+                             "(computed without cancellation)",
                              comment="E_0 is the energy of the initial data at t = 0"),
         "mechanical_energy_initial": _var(emech0, ("member",), "J",
-                                          "initial mechanical energy above the resting state K_0 + V_0 + m g l"),
+                                          "initial mechanical energy above the resting state K_0 + V_0 + |m g l|"),
         "status": _var(traj.status.astype(np.int8), ("member",), "1", "member status",
                        flag_values=np.array(sorted(STATUS_MEANINGS), dtype=np.int8),
                        flag_meanings=" ".join(STATUS_MEANINGS[k] for k in sorted(STATUS_MEANINGS))),
-        "failed_at_step": _var(np.where(traj.status != 0, traj.fail_step, -1).astype(np.int64), ("member",), "1",
+        "failed_at_step": _var(np.where(traj.status != 0, traj.fail_step, -1).astype(np.int64),
+                               ("member",), "1",
                                "step k+1 whose computation failed (-1: none); values from that step on are NaN"),
         "steps_done": _var(traj.steps_done.astype(np.int64), ("member",), "1", "steps accepted"),
-        "max_h_omega": _var(traj.max_h_omega, ("member",), "rad", "max over steps of h |Omega_k|",
+        "max_h_omega": _var(traj.max_h_omega, ("member",), "rad", "max over (sub)steps of |h| |Omega|",
                             comment="the Cayley map turns by 2 atan(h|Omega|/2): phase error ~ (h|Omega|)^3/12 per step"),
         "initial_omega": _var(omega0, ("member", "axis"), "rad s-1", "initial body angular velocity Omega(0)"),
         "initial_attitude": _var(R0, ("member", "row", "col"), "1", "initial attitude R(0)"),
-        "inertia": _var(traj.params[:, [P_I1, P_I2, P_I3]], ("member", "axis"), "kg m2", "principal moments of inertia"),
-        "stokes_coefficient": _var(traj.params[:, P_C], ("member",), "N m s", "Stokes torque coefficient c = 8 pi mu a^3"),
-        "gravity_torque": _var(traj.params[:, [P_GX, P_GY, P_GZ]], ("member", "axis"), "N m", "m g l chi"),
+        "inertia": _var(phys.inertia, ("member", "axis"), "kg m2",
+                        "principal moments of inertia I0 about the fixed point"),
+        "friction_coefficients": _var(phys.friction, ("member", "axis"), "N m s",
+                                      "rotational Stokes resistance C (friction torque -C Omega)"),
+        "gravity_torque": _var(phys.gravity_torque, ("member", "axis"), "N m", "m g l chi"),
+        "heat_capacity": _var(phys.heat_capacity, ("member",), "J K-1", "heat capacity c_v"),
     }
-    if METHODS[traj.method].implicit:
+    if np.any(phys.thermal_expansion != 0.0):
+        data["thermal_expansion"] = _var(phys.thermal_expansion, ("member",), "K-1",
+                                         "linear thermal expansion alpha: I(S) = I0 (1 + alpha (theta - T0))^2")
+    if np.any(phys.internal_friction != 0.0):
+        data["internal_friction"] = _var(phys.internal_friction, ("member",), "s kg-1 m-2",
+                                         "double-bracket friction lambda: f = lambda mu x (mu x Omega)")
+    if vi:
+        step = traj.omega_step
+        s = traj.sigma if traj.layout.has("sigma") else None
+        Kp = ph.kinetic_energy(phys, step, s)
+        dEp = (Kp - K0[:, None]) + (e["V"] - V0[:, None]) + e["dU"]
+        data["omega_step"] = _var(step, dims_v, "rad s-1",
+                                  "step velocity Omega_k = cay^-1(R_k^T R_k+1)/h of the step from t_k",
+                                  comment="approximates Omega(t_k + h/2); the paper's Omega_k")
+        data["energy_error_paper"] = _var(
+            dEp, dims_t, "J", "total energy error in the paper's convention (step velocity Omega_k "
+            "with Gamma_k and S_k)",
+            comment="mixes two instants: a first-order error of the diagnostic itself; "
+                    "energy_error is the node-value error")
         steps = np.maximum(traj.steps_done, 1)
         data["newton_iterations_mean"] = _var(traj.newton_iterations / steps, ("member",), "1",
                                               "mean Newton iterations per step")
         data["newton_iterations_max"] = _var(traj.newton_max.astype(np.int64), ("member",), "1",
-                                             "max Newton iterations in one step")
+                                             "max Newton iterations in one solve")
     R = traj.attitude
     if R is not None:
         data["attitude"] = _var(R, ("member", "time", "row", "col"), "1", "attitude R (body to space)")
-        if center_of_mass is not None:
-            data["center_of_mass"] = _var(np.einsum("mtij,mj->mti", R, center_of_mass), dims_v, "m",
-                                          "centre of mass l R chi in space, relative to the fixed centre")
+        data["center_of_mass"] = _var(np.einsum("mtij,mj->mti", R, phys.center_of_mass), dims_v, "m",
+                                      "centre of mass R G in space, relative to the fixed point")
     coords = {
         "member": _var(np.arange(member_offset, member_offset + N, dtype=np.int64), ("member",), "1",
                        "ensemble member"),
@@ -117,25 +164,28 @@ def _trajectory_dataset(traj, S0, omega0, R0, center_of_mass, member_offset):
     return xr.Dataset(data, coords=coords)
 
 
-def global_attrs(scene_toml: str, *, method: str, h: float, friction: str, start: str,
-                 extra: dict | None = None) -> dict:
+def global_attrs(scene_toml: str, *, method: str, h: float, friction: str | None,
+                 start: str, entropy: str | None, terms=(), extra: dict | None = None) -> dict:
+    m = METHODS[method]
     attrs = {
         "Conventions": "CF-1.8",
-        "title": "liethermo ensemble: heavy top in Stokes flow",
+        "title": "liethermo ensemble: rigid body in Stokes flow",
         "method": method,
-        "method_description": METHODS[method].description,
-        "method_order": METHODS[method].order(start, friction),
+        "method_description": m.description,
+        "method_order": m.order(start, friction or "trapezoid"),
         "h": h,
         "h_units": "s",
-        "friction": friction,
+        "friction": friction or "none",
         "start": start,
+        "entropy_update": entropy or "none",
+        "model_terms": " ".join(terms),
         "scene": scene_toml,
         "software": f"liethermo {__version__}",
         "software_version": __version__,
         "python": platform.python_version(),
         "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         "references": "Coueraud & Gay-Balmaz, Variational discretization of thermodynamical simple "
-                      "systems on Lie groups; liethermo SPEC (errata E1-E5)",
+                      "systems on Lie groups; liethermo docs/model.md (errata E1-E5)",
     }
     if extra:
         attrs.update(extra)

@@ -14,8 +14,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from .kernels.model import NSTATE_ATTITUDE, NSTATE_BASE
-
 BLOCK = 1024
 
 
@@ -65,14 +63,3 @@ def initial_conditions(scene: dict, start: int = 0, stop: int | None = None):
         omegas.append(ob[lo:hi])
         Rs.append(Rb[lo:hi])
     return np.concatenate(omegas), np.concatenate(Rs)
-
-
-def initial_states(omega: np.ndarray, R: np.ndarray, attitude: bool) -> np.ndarray:
-    """Flat kernel states (N, 7|16): Ω, Γ = Rᵀe₃, σ = 0[, R]."""
-    n = omega.shape[0]
-    y = np.zeros((n, NSTATE_ATTITUDE if attitude else NSTATE_BASE))
-    y[:, 0:3] = omega
-    y[:, 3:6] = R[:, 2, :]  # Rᵀe₃ = third row of R
-    if attitude:
-        y[:, 7:16] = R.reshape(n, 9)
-    return y

@@ -1,7 +1,8 @@
 """The integrators liethermo offers, declared as data (cf. scipy's ``rk.py``).
 
-Each method states its order (on the variables it is compared on), whether it
-is implicit, how many right-hand-side evaluations a step costs, and which
+Each method states its family (``vi``: the variational integrator in node
+form and its compositions; ``rk``: explicit Runge–Kutta tableaus), its order
+on node values (by start and friction), how much a step costs, and which
 discrete laws hold for its solutions to round-off.  Tests and studies read
 these declarations instead of hard-coding them.
 """
@@ -10,63 +11,78 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from .kernels.ensemble import METHOD_REFERENCE, METHOD_RK2, METHOD_RK4, METHOD_VI
-
 #: Laws a method may satisfy exactly (to round-off).
 LAW_UNIT_GAMMA = "unit_gamma"  # | |Γ_k| − 1 | at round-off
 LAW_ROTATION = "rotation"  # R_kᵀR_k = I at round-off (attitude)
-LAW_ENTROPY_MONOTONE = "entropy_monotone"  # S_{k+1} ≥ S_k
-LAW_KELVIN_NOETHER = "kelvin_noether"  # discrete Kelvin–Noether law of SPEC §4
+LAW_ENTROPY_MONOTONE = "entropy_monotone"  # S_{k+1} ≥ S_k (positive steps)
+LAW_KELVIN_NOETHER = "kelvin_noether"  # the discrete Kelvin–Noether law (docs/model.md)
+LAW_CASIMIR = "casimir"  # |μ| constant under double-bracket friction without torques
+
+FRICTION = ("trapezoid", "endpoint")
+STARTS = ("node", "staggered", "legendre")
+ENTROPY_UPDATES = ("explicit", "symmetric")
 
 
 @dataclass(frozen=True)
 class Method:
     name: str
-    kernel_id: int
+    family: str  # "vi" or "rk"
     description: str
-    #: order of convergence, by start ("node" / "staggered"; explicit methods
-    #: ignore the start)
-    order_node: int
-    order_staggered: int
+    order_base: int  # on node values, with its best start and trapezoid friction
     implicit: bool
-    rhs_evals_per_step: int
+    #: right-hand-side evaluations (rk) or Newton solves (vi) per step
+    evaluations_per_step: int
     laws: tuple[str, ...]
+    #: the start and entropy update the method always uses (None: the scene's)
+    fixed_start: str | None = None
+    fixed_entropy: str | None = None
 
-    #: order with endpoint friction f = cX (E3): the friction is then evaluated
-    #: half a step off the centre of the momentum equation, so the VI is first
-    #: order whatever the start (measured: slopes 1.13-1.3 falling towards 1)
-    order_endpoint: int | None = None
+    def order(self, start: str = "legendre", friction: str = "trapezoid") -> int:
+        """Observed order on node values (Ω(t_k), Γ_k, S_k, E_k).
 
-    def order(self, start: str = "node", friction: str = "trapezoid") -> int:
-        if friction == "endpoint" and self.order_endpoint is not None:
-            return self.order_endpoint
-        return self.order_staggered if start == "staggered" else self.order_node
+        The plain VI is first order when started with the paper's
+        Ω₀ := Ω(0) ("node": the initial node momentum is then off by O(h)) or
+        with endpoint friction (evaluated half a step off the centre of the
+        momentum equation); second order with the "legendre" or "staggered"
+        start."""
+        if self.name == "vi" and (friction == "endpoint" or start == "node"):
+            return 1
+        return self.order_base
 
+    def effective_start(self, start: str) -> str:
+        if self.family != "vi":
+            return "node"
+        return self.fixed_start or start
+
+    def effective_entropy(self, entropy: str) -> str | None:
+        if self.family != "vi":
+            return None
+        return self.fixed_entropy or entropy
+
+    def effective_friction(self, friction: str) -> str | None:
+        if self.family != "vi":
+            return None
+        return "trapezoid" if self.fixed_start else friction
+
+
+_VI_LAWS = (LAW_UNIT_GAMMA, LAW_ROTATION, LAW_ENTROPY_MONOTONE, LAW_KELVIN_NOETHER, LAW_CASIMIR)
 
 METHODS: dict[str, Method] = {
-    "vi": Method(
-        "vi", METHOD_VI,
-        "variational integrator (Cayley map, explicit entropy, Newton momentum solve)",
-        order_node=1, order_staggered=2, implicit=True, rhs_evals_per_step=0, order_endpoint=1,
-        laws=(LAW_UNIT_GAMMA, LAW_ROTATION, LAW_ENTROPY_MONOTONE, LAW_KELVIN_NOETHER),
-    ),
-    "rk2": Method(
-        "rk2", METHOD_RK2, "explicit midpoint Runge-Kutta (order 2)",
-        order_node=2, order_staggered=2, implicit=False, rhs_evals_per_step=2, laws=(),
-    ),
-    "rk4": Method(
-        "rk4", METHOD_RK4, "classical Runge-Kutta (order 4)",
-        order_node=4, order_staggered=4, implicit=False, rhs_evals_per_step=4, laws=(),
-    ),
-    "reference": Method(
-        "reference", METHOD_REFERENCE,
-        "fixed-step DOP853 (order 8) with substeps: high-accuracy reference",
-        order_node=8, order_staggered=8, implicit=False, rhs_evals_per_step=12, laws=(),
-    ),
+    "vi": Method("vi", "vi",
+                 "variational integrator in node form (Cayley map, discrete Legendre "
+                 "transforms, Newton momentum solve)", 2, True, 1, _VI_LAWS),
+    "vi4": Method("vi4", "vi", "variational integrator composed by Yoshida's triple jump "
+                  "(order 4, 3 substeps)", 4, True, 3, _VI_LAWS,
+                  fixed_start="legendre", fixed_entropy="symmetric"),
+    "vi6": Method("vi6", "vi", "variational integrator composed by two triple jumps "
+                  "(order 6, 9 substeps)", 6, True, 9, _VI_LAWS,
+                  fixed_start="legendre", fixed_entropy="symmetric"),
+    "rk2": Method("rk2", "rk", "explicit midpoint Runge-Kutta (order 2)", 2, False, 2, ()),
+    "rk4": Method("rk4", "rk", "classical Runge-Kutta (order 4)", 4, False, 4, ()),
+    "reference": Method("reference", "rk",
+                        "fixed-step DOP853 (order 8) with substeps: high-accuracy reference",
+                        8, False, 12, ()),
 }
-
-FRICTION = {"trapezoid": (0.5, 0.5), "endpoint": (1.0, 0.0)}
-STARTS = ("node", "staggered")
 
 
 def get_method(name: str) -> Method:

@@ -1,21 +1,29 @@
-"""Scenes: TOML descriptions of a run, their defaults, overrides and validation.
+"""Scenes: what a run simulates, as a typed, validated, immutable value.
 
-A scene is a two-level table ``{section: {key: value}}`` (SPEC §7).  Resolution
-order: built-in defaults (the paper's values, SPEC §2) ← the TOML file ←
-``--set SECTION.KEY=VALUE`` overrides.  :func:`validate` checks every rule of
-SPEC §5 *before* any work starts and raises :class:`SceneError` naming the key
-and the rule.  :func:`physical_parameters` turns a valid scene into the
-kernel's parameter vector (SI units).
+A scene is read from TOML (a file, or a built-in scene of ``liethermo/scenes/``)
+in sections and keys (``[integrator] h = 0.05``).  Resolution order: the
+defaults of :data:`KEYS` ← the built-in scene or file ← overrides
+(``--set SECTION.KEY=VALUE``, or ``{"section.key": value}`` in Python).
+:func:`validate` checks every rule *before* any work starts and raises
+:class:`SceneError` naming the key and the rule.  The result is a
+:class:`Scene`: frozen dataclasses per section (``scene.integrator.h``),
+which also read like the TOML tables (``scene["integrator"]["h"]``).
+
+:data:`KEYS` is the one description of every key — default, unit, rule,
+meaning — from which the defaults, the validation messages, the command
+line's ``liethermo keys`` and ``docs/scenes.md`` are all produced.
 """
 
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
 import sys
 from dataclasses import dataclass
+from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -26,10 +34,9 @@ else:  # pragma: no cover
 
 import tomli_w
 
-from .kernels.model import NPARAM, P_C, P_CV, P_GX, P_GY, P_GZ, P_I1, P_I2, P_I3, P_T0
-from .methods import FRICTION, METHODS, STARTS
+from .methods import ENTROPY_UPDATES, FRICTION, METHODS, STARTS
 
-R_GAS = 8.314462618  # J mol⁻¹ K⁻¹ (SPEC §2)
+R_GAS = 8.314462618  # J mol⁻¹ K⁻¹
 
 
 class SceneError(ValueError):
@@ -38,75 +45,385 @@ class SceneError(ValueError):
     def __init__(self, key: str, rule: str, value: Any = None, *, show_value: bool = True):
         self.key = key
         self.rule = rule
-        msg = f"scene key '{key}': {rule}"
+        what = "scene file" if key == "SCENE" else f"scene key '{key}'"
+        msg = f"{what}: {rule}"
         if show_value:
             msg += f" (got {value!r})"
         super().__init__(msg)
 
 
-#: Every known key, with its default (the paper scene, SPEC §2) and unit.
-DEFAULTS: dict[str, dict[str, Any]] = {
-    "scene": {"name": "custom", "description": ""},
-    "body": {
-        "radius": 0.05,  # m
-        "density": 2700.0,  # kg m-3
-        "molar_mass": 26.981539e-3,  # kg mol-1
-        "upper_mass_fraction": 0.6,  # 1
-        "inertia": "paper",  # "paper" or [I1, I2, I3] in kg m2
-        "center_of_mass": "hemispheres",  # "hemispheres" or [x, y, z] in m
-    },
-    "fluid": {"viscosity": 0.1},  # kg m-1 s-1
-    "gravity": {"g": 9.81},  # m s-2
-    "thermo": {"T0": 300.0, "S0": 0.0},  # K, J K-1
-    "initial": {
-        "omega": [0.0, 1.0, 1.0],  # rad s-1 (body frame)
-        "R": [[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]],  # erratum E1
-    },
-    "integrator": {
-        "method": "vi",
-        "h": 0.1,  # s
-        "steps": 300,
-        "friction": "trapezoid",
-        "start": "node",
-        "newton_tol": 1e-14,
-        "newton_maxiter": 30,
-    },
-    "ensemble": {
-        "members": 1,
-        "seed": 0,
-        "spin_range": [0.5, 1.5],  # |Ω| drawn uniformly in this range × |initial.omega|
-    },
-    "output": {
-        "every": 1,
-        "attitude": False,  # also integrate and store R (needed for the centre-of-mass path)
-        "compare": [],  # further methods run on the same scene (files OUT_<method>.nc)
-        "figures": False,  # write PNG figures next to the netCDF
-        "member_chunk": 65536,  # members simulated and written at a time (bounds memory)
-    },
-}
-
-UNITS = {
-    "body.radius": "m", "body.density": "kg m-3", "body.molar_mass": "kg mol-1",
-    "body.upper_mass_fraction": "1", "body.inertia": "kg m2", "body.center_of_mass": "m",
-    "fluid.viscosity": "kg m-1 s-1", "gravity.g": "m s-2", "thermo.T0": "K", "thermo.S0": "J K-1",
-    "initial.omega": "rad s-1", "initial.R": "1", "integrator.h": "s",
-}
-
-#: Overrides that turn the defaults into the built-in paper scene.
-PAPER_OVERRIDES = {
-    "scene": {
-        "name": "paper",
-        "description": "Couéraud & Gay-Balmaz, Section 3: heavy top in Stokes flow "
-        "(motor oil, aluminium ball of two hemispheres), h = 0.1 s, 30 s",
-    },
-    "output": {"attitude": True, "compare": ["rk2"], "figures": True},
-}
-
-BUILTIN = {"paper": PAPER_OVERRIDES}
+# ----------------------------------------------------------------------------- value checks
 
 
-def default_scene() -> dict:
-    return copy.deepcopy(DEFAULTS)
+def _is_number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def number(lo=None, hi=None, *, lo_open=False, hi_open=False):
+    """A finite number within the given bounds."""
+
+    def check(name, v, scene):
+        if not _is_number(v):
+            raise SceneError(name, "must be a number", v)
+        if not math.isfinite(v):
+            raise SceneError(name, "must be finite", v)
+        if lo is not None and (v <= lo if lo_open else v < lo):
+            raise SceneError(name, f"must be {'>' if lo_open else '≥'} {lo:g}", v)
+        if hi is not None and (v >= hi if hi_open else v > hi):
+            raise SceneError(name, f"must be {'<' if hi_open else '≤'} {hi:g}", v)
+        return float(v)
+
+    return check
+
+
+def integer(minimum=1):
+    def check(name, v, scene):
+        if isinstance(v, bool) or not isinstance(v, int):
+            raise SceneError(name, "must be an integer", v)
+        if v < minimum:
+            raise SceneError(name, f"must be ≥ {minimum}", v)
+        return int(v)
+
+    return check
+
+
+def _has_bool(v) -> bool:
+    if isinstance(v, bool):
+        return True
+    if isinstance(v, (list, tuple)):
+        return any(_has_bool(x) for x in v)
+    return False
+
+
+def vector(shape, positive=False):
+    def check(name, v, scene):
+        try:
+            if isinstance(v, (str, bool)) or _has_bool(v):
+                raise TypeError
+            arr = np.asarray(v, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise SceneError(name, f"must be an array of numbers of shape {shape}", v) from None
+        if arr.shape != shape:
+            raise SceneError(name, f"must be an array of numbers of shape {shape}", v)
+        if not np.all(np.isfinite(arr)):
+            raise SceneError(name, "must be finite", v)
+        if positive and np.any(arr <= 0):
+            raise SceneError(name, "every entry must be > 0", v)
+        return arr.tolist()
+
+    return check
+
+
+def choice(*options):
+    def check(name, v, scene):
+        if not isinstance(v, str) or v not in options:
+            raise SceneError(name, f"must be one of {', '.join(map(repr, options))}", v)
+        return v
+
+    return check
+
+
+def word_or(word: str, other, aliases=()):
+    """The string ``word`` (or one of its aliases), or a value ``other`` accepts."""
+
+    def check(name, v, scene):
+        if isinstance(v, str):
+            if v == word or v in aliases:
+                return word
+            raise SceneError(name, f'must be "{word}" or {other.__doc__ or "a value"}', v)
+        return other(name, v, scene)
+
+    return check
+
+
+def boolean(name, v, scene):
+    if not isinstance(v, bool):
+        raise SceneError(name, "must be true or false", v)
+    return v
+
+
+def string(name, v, scene):
+    if not isinstance(v, str):
+        raise SceneError(name, "must be a string", v)
+    return v
+
+
+@dataclass(frozen=True)
+class Key:
+    """One scene key: its default, unit, the rule its values obey, what it means."""
+
+    section: str
+    name: str
+    default: Any
+    unit: str
+    rule: str
+    doc: str
+    check: Callable = dataclasses.field(repr=False, compare=False, default=None)
+
+    @property
+    def path(self) -> str:
+        return f"{self.section}.{self.name}"
+
+
+def _inertia_check(name, v, scene):
+    I = np.asarray(vector((3,), positive=True)(name, v, scene))
+    if np.any(2 * I > I.sum() * (1 + 1e-12)):
+        raise SceneError(name, "principal moments of a rigid body satisfy the triangle "
+                         "inequality I_i ≤ I_j + I_k", v)
+    return I.tolist()
+
+
+_inertia_check.__doc__ = "[I1, I2, I3] in kg m2"
+_com_check = vector((3,))
+_com_check.__doc__ = "[x, y, z] in m"
+_mass_check = number(0.0, lo_open=True)
+_mass_check.__doc__ = "a mass in kg"
+_cv_check = number(0.0, lo_open=True)
+_cv_check.__doc__ = "a heat capacity in J/K"
+
+
+def _rotation_check(name, v, scene):
+    R = np.asarray(vector((3, 3))(name, v, scene))
+    if np.abs(R.T @ R - np.eye(3)).max() > 1e-12 or abs(np.linalg.det(R) - 1.0) > 1e-12:
+        raise SceneError(name, "must be a rotation matrix (RᵀR = I to 1e-12, det R = +1)", v)
+    return R.tolist()
+
+
+def _spin_range_check(name, v, scene):
+    sr = vector((2,))(name, v, scene)
+    if not 0 <= sr[0] <= sr[1]:
+        raise SceneError(name, "must be [lo, hi] with 0 ≤ lo ≤ hi", v)
+    return sr
+
+
+def _compare_check(name, v, scene):
+    if not isinstance(v, list) or any(not isinstance(c, str) or c not in METHODS for c in v):
+        raise SceneError(name, f"must be a list of methods from {sorted(METHODS)}", v)
+    return list(v)
+
+
+def _tol_check(name, v, scene):
+    return number(0.0, 1e-3, lo_open=True, hi_open=True)(name, v, scene)
+
+
+E1_ROTATION = [[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]]
+
+#: Every scene key.  Defaults are the paper's body and fluid with the
+#: integrator choices recommended for new scenes.
+KEYS: tuple[Key, ...] = (
+    Key("scene", "name", "custom", "", "a string", "name of the scene (files are named after it)", string),
+    Key("scene", "description", "", "", "a string", "one line on what the scene is", string),
+    Key("body", "shape", "hemispheres", "", '"hemispheres" | "ellipsoid"',
+        "the body: the paper's top (a solid upper and a hollow lower hemisphere) or a "
+        "triaxial ellipsoid; keys that do not apply to a shape take its own defaults",
+        choice("hemispheres", "ellipsoid")),
+    Key("body", "radius", 0.05, "m", "> 0", "hemispheres: radius a (also of the Stokes sphere)",
+        number(0.0, lo_open=True)),
+    Key("body", "semi_axes", [0.06, 0.05, 0.04], "m", "[a1, a2, a3], each > 0",
+        "ellipsoid: semi-axes along the body axes (principal axes)", vector((3,), positive=True)),
+    Key("body", "density", 2700.0, "kg m-3", "> 0", "density of the material (mass of a uniform body)",
+        number(0.0, lo_open=True)),
+    Key("body", "mass", "shape", "kg", '"shape" | > 0',
+        'total mass; "shape": density × volume', word_or("shape", _mass_check)),
+    Key("body", "molar_mass", 26.981539e-3, "kg mol-1", "> 0",
+        "molar mass of the material (Dulong–Petit heat capacity 3 (m/M) R)", number(0.0, lo_open=True)),
+    Key("body", "upper_mass_fraction", 0.6, "1", "in [0, 1]",
+        "hemispheres: mass fraction of the solid upper hemisphere", number(0.0, 1.0)),
+    Key("body", "inertia", "shape", "kg m2", '"shape" | [I1, I2, I3], each > 0, I_i ≤ I_j + I_k',
+        'principal moments about the fixed point; "shape": the shape\'s own (hemispheres: the '
+        "paper's printed values; ellipsoid: uniform density, m(a2² + a3²)/5 …)",
+        word_or("shape", _inertia_check, aliases=("paper",))),
+    Key("body", "center_of_mass", "shape", "m", '"shape" | [x, y, z]',
+        'centre of mass G in the body frame, from the fixed point; "shape": hemispheres '
+        "(0, 0, 3m1a/(8m) − m2a/(2m)); ellipsoid: the centre (no gravity torque)",
+        word_or("shape", _com_check, aliases=("hemispheres",))),
+    Key("body", "thermal_expansion", 0.0, "K-1", "≥ 0",
+        "linear thermal expansion α: 𝕀(S) = 𝕀₀ (1 + α(θ − T0))², the fully coupled top",
+        number(0.0)),
+    Key("body", "internal_friction", 0.0, "s kg-1 m-2", "≥ 0",
+        "λ of the double-bracket friction λ μ×(μ×Ω), which keeps |μ| (the flat spin)",
+        number(0.0)),
+    Key("fluid", "viscosity", 0.1, "kg m-1 s-1", "≥ 0",
+        "dynamic viscosity μ of the Stokes fluid (friction torque −CΩ)", number(0.0)),
+    Key("gravity", "g", 9.81, "m s-2", "≥ 0", "gravitational acceleration", number(0.0)),
+    Key("thermo", "T0", 300.0, "K", "> 0", "initial temperature", number(0.0, lo_open=True)),
+    Key("thermo", "S0", 0.0, "J K-1", "finite", "initial entropy", number()),
+    Key("thermo", "heat_capacity", "material", "J K-1", '"material" | > 0',
+        'heat capacity c_v of body and fluid; "material": Dulong–Petit 3 (m/M) R',
+        word_or("material", _cv_check)),
+    Key("initial", "omega", [0.0, 1.0, 1.0], "rad s-1", "[Ω1, Ω2, Ω3], finite",
+        "initial body angular velocity Ω(0)", vector((3,))),
+    Key("initial", "R", E1_ROTATION, "1", "a rotation matrix",
+        "initial attitude R(0) (body to space); Γ(0) = R(0)ᵀ e3", _rotation_check),
+    Key("integrator", "method", "vi", "", " | ".join(f'"{m}"' for m in METHODS),
+        "the integrator (see docs/model.md): the variational integrator in node form, its "
+        "order-4 and order-6 compositions, explicit RK2/RK4, the DOP853 reference",
+        choice(*METHODS)),
+    Key("integrator", "h", 0.1, "s", "> 0", "time step", number(0.0, lo_open=True)),
+    Key("integrator", "steps", 300, "1", "integer ≥ 1", "number of steps", integer()),
+    Key("integrator", "friction", "trapezoid", "", " | ".join(f'"{f}"' for f in FRICTION),
+        "vi: discrete friction (the paper's trapezoid, or endpoint); vi4/vi6 use trapezoid",
+        choice(*FRICTION)),
+    Key("integrator", "start", "legendre", "", " | ".join(f'"{s}"' for s in STARTS),
+        "vi: first step — legendre: node momentum μ0 = 𝕀Ω(0) (second order); node: the paper's "
+        "Ω0 := Ω(0) as first step velocity (first order); staggered: Ω0 := Ω(h/2) from the "
+        "reference.  vi4/vi6 always start from μ0 = 𝕀Ω(0)", choice(*STARTS)),
+    Key("integrator", "entropy", "symmetric", "", " | ".join(f'"{e}"' for e in ENTROPY_UPDATES),
+        "vi: entropy update — symmetric: U(S') − U(S) = the friction work of the step; explicit: "
+        "the paper's S' = S + h P/T(S).  vi4/vi6 always use symmetric", choice(*ENTROPY_UPDATES)),
+    Key("integrator", "newton_tol", 1e-14, "1", "in (0, 1e-3)",
+        "relative step tolerance of the Newton iteration", _tol_check),
+    Key("integrator", "newton_maxiter", 30, "1", "integer ≥ 1",
+        "Newton iterations before a step counts as failed", integer()),
+    Key("ensemble", "members", 1, "1", "integer ≥ 1",
+        "members; with more than one, initial conditions are drawn from the seed", integer()),
+    Key("ensemble", "seed", 0, "1", "integer ≥ 0", "seed of the random initial conditions",
+        integer(0)),
+    Key("ensemble", "spin_range", [0.5, 1.5], "1", "[lo, hi], 0 ≤ lo ≤ hi",
+        "|Ω(0)| drawn uniformly in this range × |initial.omega|", _spin_range_check),
+    Key("output", "every", 1, "1", "integer ≥ 1 dividing integrator.steps",
+        "keep every k-th step", integer()),
+    Key("output", "attitude", False, "", "true | false",
+        "also integrate and store R (and the centre-of-mass path)", boolean),
+    Key("output", "compare", [], "", "list of methods",
+        "further methods run on the same scene (files <OUT>_<method>.nc)", _compare_check),
+    Key("output", "figures", False, "", "true | false", "write PNG figures next to the netCDF",
+        boolean),
+    Key("output", "member_chunk", 65536, "1", "integer ≥ 1",
+        "members simulated and written at a time (bounds memory)", integer()),
+)
+
+SECTIONS: tuple[str, ...] = tuple(dict.fromkeys(k.section for k in KEYS))
+KEY_INDEX: dict[str, Key] = {k.path: k for k in KEYS}
+
+
+def _defaults() -> dict:
+    out: dict[str, dict] = {s: {} for s in SECTIONS}
+    for k in KEYS:
+        out[k.section][k.name] = copy.deepcopy(k.default)
+    return out
+
+
+DEFAULTS: dict[str, dict[str, Any]] = _defaults()
+
+
+# ----------------------------------------------------------------------------- the typed scene
+
+
+class _Section:
+    """Mixin: a section reads like its TOML table."""
+
+    def __getitem__(self, key: str):
+        try:
+            return getattr(self, key)
+        except AttributeError:
+            raise KeyError(key) from None
+
+    def __contains__(self, key: str) -> bool:
+        return key in self.keys()
+
+    def keys(self):
+        return [f.name for f in dataclasses.fields(self)]
+
+    def items(self):
+        return [(k, getattr(self, k)) for k in self.keys()]
+
+    def __iter__(self):
+        return iter(self.keys())
+
+
+def _section_class(section: str):
+    fields = [(k.name, Any) for k in KEYS if k.section == section]
+    cls = dataclasses.make_dataclass(section.capitalize() + "Section", fields, bases=(_Section,),
+                                     frozen=True)
+    cls.__module__ = __name__
+    cls.__doc__ = f"The [{section}] section: " + ", ".join(
+        f"{k.name} ({k.unit or '-'})" for k in KEYS if k.section == section)
+    return cls
+
+
+SceneSection = _section_class("scene")
+BodySection = _section_class("body")
+FluidSection = _section_class("fluid")
+GravitySection = _section_class("gravity")
+ThermoSection = _section_class("thermo")
+InitialSection = _section_class("initial")
+IntegratorSection = _section_class("integrator")
+EnsembleSection = _section_class("ensemble")
+OutputSection = _section_class("output")
+_SECTION_CLASSES = {"scene": SceneSection, "body": BodySection, "fluid": FluidSection,
+                    "gravity": GravitySection, "thermo": ThermoSection,
+                    "initial": InitialSection, "integrator": IntegratorSection,
+                    "ensemble": EnsembleSection, "output": OutputSection}
+
+
+def _freeze(v):
+    return tuple(_freeze(x) for x in v) if isinstance(v, list) else v
+
+
+def _thaw(v):
+    return [_thaw(x) for x in v] if isinstance(v, tuple) else v
+
+
+@dataclass(frozen=True)
+class Scene(_Section):
+    """A resolved, validated scene (immutable).  Sections are attributes
+    (``scene.body.shape``) and items (``scene["body"]["shape"]``); list values
+    are tuples.  :meth:`with_overrides` makes a changed copy."""
+
+    scene: Any
+    body: Any
+    fluid: Any
+    gravity: Any
+    thermo: Any
+    initial: Any
+    integrator: Any
+    ensemble: Any
+    output: Any
+
+    @property
+    def name(self) -> str:
+        return self.scene.name
+
+    def to_dict(self) -> dict:
+        """The scene as nested TOML tables (lists, not tuples)."""
+        return {s: {k: _thaw(v) for k, v in getattr(self, s).items()} for s in SECTIONS}
+
+    def to_toml(self) -> str:
+        return tomli_w.dumps(self.to_dict())
+
+    def with_overrides(self, overrides: dict | list | None) -> "Scene":
+        """A validated copy with ``{"section.key": value}`` (or ``--set`` strings) applied."""
+        return load_scene(self.to_dict(), overrides)
+
+    def __deepcopy__(self, memo):
+        return self
+
+
+def _scene_from_dict(d: dict) -> Scene:
+    return Scene(**{s: _SECTION_CLASSES[s](**{k: _freeze(v) for k, v in d[s].items()})
+                    for s in SECTIONS})
+
+
+# ----------------------------------------------------------------------------- built-in scenes
+
+
+def builtin_scenes() -> dict[str, str]:
+    """Names of the built-in scenes → their one-line descriptions."""
+    out = {}
+    for f in sorted(resources.files("liethermo").joinpath("scenes").iterdir(), key=lambda p: p.name):
+        if f.name.endswith(".toml"):
+            data = tomllib.loads(f.read_text())
+            out[f.name[:-5]] = data.get("scene", {}).get("description", "")
+    return out
+
+
+def builtin_scene_text(name: str) -> str | None:
+    f = resources.files("liethermo").joinpath("scenes", f"{name}.toml")
+    return f.read_text() if f.is_file() else None
+
+
+# ----------------------------------------------------------------------------- loading
 
 
 def _merge(base: dict, new: dict, origin: str) -> None:
@@ -114,15 +431,14 @@ def _merge(base: dict, new: dict, origin: str) -> None:
         if section not in DEFAULTS:
             name = f"{section}.{next(iter(table))}" if isinstance(table, dict) and table else section
             raise SceneError(name, f"unknown section [{section}] in {origin}; known sections: "
-                             f"{', '.join(sorted(DEFAULTS))}", show_value=False)
+                             f"{', '.join(SECTIONS)}", show_value=False)
         if not isinstance(table, dict):
             raise SceneError(section, f"must be a table of keys in {origin}", table)
         for key, value in table.items():
             if key not in DEFAULTS[section]:
                 raise SceneError(f"{section}.{key}", f"unknown key in {origin}; known keys of "
-                                 f"[{section}]: {', '.join(sorted(DEFAULTS[section]))}",
-                                 show_value=False)
-            base[section][key] = value
+                                 f"[{section}]: {', '.join(DEFAULTS[section])}", show_value=False)
+            base[section][key] = copy.deepcopy(_thaw(value))
 
 
 def parse_override(text: str) -> tuple[str, str, Any]:
@@ -142,219 +458,141 @@ def parse_override(text: str) -> tuple[str, str, Any]:
     return section, key, value
 
 
-def load_scene(source: str | Path | dict | None = "paper", overrides: list[str] | dict | None = None,
-               *, validate_scene: bool = True) -> dict:
-    """Resolve a scene: defaults ← built-in name or TOML file (or dict) ← overrides."""
-    scene = default_scene()
+def _overrides_as_tables(overrides) -> list[tuple[dict, str]]:
+    if not overrides:
+        return []
+    if isinstance(overrides, dict):
+        tables: dict[str, dict] = {}
+        for k, v in overrides.items():
+            if isinstance(v, dict) and "." not in k:
+                tables.setdefault(k, {}).update(v)
+                continue
+            if not isinstance(k, str) or k.count(".") != 1:
+                raise SceneError(str(k), "an override key must read SECTION.KEY", show_value=False)
+            s, name = k.split(".")
+            tables.setdefault(s, {})[name] = v
+        return [(tables, "the overrides")]
+    out = []
+    for text in overrides:
+        section, key, value = parse_override(text)
+        out.append(({section: {key: value}}, "--set"))
+    return out
+
+
+def load_scene(source: str | Path | dict | Scene | None = "paper",
+               overrides: list[str] | dict | None = None, *, validate_scene: bool = True):
+    """Resolve a scene: defaults ← built-in name, TOML file, dict or Scene ← overrides.
+
+    Returns a validated :class:`Scene` (or, with ``validate_scene=False``, the
+    unvalidated tables as a dict)."""
+    scene = copy.deepcopy(DEFAULTS)
+    if isinstance(source, Scene):
+        source = source.to_dict()
     if isinstance(source, dict):
         _merge(scene, source, "the scene")
     elif source is not None:
         src = str(source)
-        if src in BUILTIN:
-            _merge(scene, BUILTIN[src], f"built-in scene {src!r}")
+        text = builtin_scene_text(src) if "/" not in src and not src.endswith(".toml") else None
+        if text is not None:
+            _merge(scene, tomllib.loads(text), f"built-in scene {src!r}")
         else:
             path = Path(src)
             if not path.is_file():
-                raise SceneError("SCENE", f"no such scene file, and not a built-in scene "
-                                 f"({', '.join(BUILTIN)})", src)
+                raise SceneError("SCENE", "no such scene file, and not a built-in scene "
+                                 f"({', '.join(builtin_scenes())})", src)
             try:
                 data = tomllib.loads(path.read_text())
             except tomllib.TOMLDecodeError as exc:
                 raise SceneError("SCENE", f"{path} is not valid TOML: {exc}", show_value=False) from None
+            except (OSError, UnicodeDecodeError) as exc:
+                raise SceneError("SCENE", f"cannot read {path}: {exc}", show_value=False) from None
             _merge(scene, data, str(path))
             if scene["scene"]["name"] == "custom":
                 scene["scene"]["name"] = path.stem
-    if overrides:
-        if isinstance(overrides, dict):
-            _merge(scene, overrides, "the overrides")
-        else:
-            for text in overrides:
-                section, key, value = parse_override(text)
-                _merge(scene, {section: {key: value}}, "--set")
-    if validate_scene:
-        validate(scene)
-    return scene
+    for table, origin in _overrides_as_tables(overrides):
+        _merge(scene, table, origin)
+    if not validate_scene:
+        return scene
+    return validate(scene)
 
 
-def scene_to_toml(scene: dict) -> str:
-    return tomli_w.dumps(scene)
+def scene_to_toml(scene) -> str:
+    return scene.to_toml() if isinstance(scene, Scene) else tomli_w.dumps(scene)
 
 
-# ----------------------------------------------------------------------------- validation
-
-def _number(scene, section, key) -> float:
-    v = scene[section][key]
-    name = f"{section}.{key}"
-    if isinstance(v, bool) or not isinstance(v, (int, float)):
-        raise SceneError(name, "must be a number", v)
-    if not math.isfinite(v):
-        raise SceneError(name, "must be finite", v)
-    return float(v)
-
-
-def _integer(scene, section, key, minimum=1) -> int:
-    v = scene[section][key]
-    name = f"{section}.{key}"
-    if isinstance(v, bool) or not isinstance(v, int):
-        raise SceneError(name, "must be an integer", v)
-    if v < minimum:
-        raise SceneError(name, f"must be ≥ {minimum}", v)
-    return int(v)
-
-
-def _vector(scene, section, key, shape) -> np.ndarray:
-    v = scene[section][key]
-    name = f"{section}.{key}"
-    try:
-        if isinstance(v, (str, bool)) or _has_bool(v):
-            raise TypeError
-        arr = np.asarray(v, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise SceneError(name, f"must be an array of numbers of shape {shape}", v) from None
-    if arr.shape != shape:
-        raise SceneError(name, f"must be an array of numbers of shape {shape}", v)
-    if not np.all(np.isfinite(arr)):
-        raise SceneError(name, "must be finite", v)
-    return arr
-
-
-def _has_bool(v) -> bool:
-    if isinstance(v, bool):
-        return True
-    if isinstance(v, (list, tuple)):
-        return any(_has_bool(x) for x in v)
-    return False
-
-
-def _choice(scene, section, key, choices) -> str:
-    v = scene[section][key]
-    if v not in choices:
-        raise SceneError(f"{section}.{key}", f"must be one of {', '.join(map(repr, choices))}", v)
-    return v
-
-
-def validate(scene: dict) -> None:
-    """Check every rule; raise SceneError naming the first key that breaks one."""
+def validate(scene: dict) -> Scene:
+    """Check every rule; raise SceneError naming the first key that breaks one.
+    Returns the typed scene."""
+    if isinstance(scene, Scene):
+        scene = scene.to_dict()
     for section, table in scene.items():
+        if section not in DEFAULTS or not isinstance(table, dict):
+            raise SceneError(section, "unknown section", show_value=False)
         for key in table:
-            if section not in DEFAULTS or key not in DEFAULTS[section]:
+            if key not in DEFAULTS[section]:
                 raise SceneError(f"{section}.{key}", "unknown key", show_value=False)
-    for key in ("name", "description"):
-        if not isinstance(scene["scene"][key], str):
-            raise SceneError(f"scene.{key}", "must be a string", scene["scene"][key])
-    for key in ("radius", "density", "molar_mass"):
-        if _number(scene, "body", key) <= 0:
-            raise SceneError(f"body.{key}", "must be > 0", scene["body"][key])
-    f = _number(scene, "body", "upper_mass_fraction")
-    if not 0.0 <= f <= 1.0:
-        raise SceneError("body.upper_mass_fraction", "must lie in [0, 1]", f)
-    inertia = scene["body"]["inertia"]
-    if isinstance(inertia, str):
-        if inertia != "paper":
-            raise SceneError("body.inertia", 'must be "paper" or [I1, I2, I3] in kg m2', inertia)
-    else:
-        I = _vector(scene, "body", "inertia", (3,))
-        if np.any(I <= 0):
-            raise SceneError("body.inertia", "principal moments must be > 0 (kg m2)", inertia)
-        s = I.sum()
-        if np.any(2 * I > s * (1 + 1e-12)):
-            raise SceneError("body.inertia", "principal moments of a rigid body satisfy the "
-                             "triangle inequality I_i ≤ I_j + I_k", inertia)
-    com = scene["body"]["center_of_mass"]
-    if isinstance(com, str):
-        if com != "hemispheres":
-            raise SceneError("body.center_of_mass", 'must be "hemispheres" or [x, y, z] in m', com)
-    else:
-        _vector(scene, "body", "center_of_mass", (3,))
-    if _number(scene, "fluid", "viscosity") < 0:
-        raise SceneError("fluid.viscosity", "must be ≥ 0", scene["fluid"]["viscosity"])
-    if _number(scene, "gravity", "g") < 0:
-        raise SceneError("gravity.g", "must be ≥ 0", scene["gravity"]["g"])
-    if _number(scene, "thermo", "T0") <= 0:
-        raise SceneError("thermo.T0", "must be > 0 (kelvin)", scene["thermo"]["T0"])
-    _number(scene, "thermo", "S0")
-    _vector(scene, "initial", "omega", (3,))
-    R = _vector(scene, "initial", "R", (3, 3))
-    if np.abs(R.T @ R - np.eye(3)).max() > 1e-12 or abs(np.linalg.det(R) - 1.0) > 1e-12:
-        raise SceneError("initial.R", "must be a rotation matrix (RᵀR = I to 1e-12, det R = +1)",
-                         scene["initial"]["R"])
-    _choice(scene, "integrator", "method", sorted(METHODS))
-    if _number(scene, "integrator", "h") <= 0:
-        raise SceneError("integrator.h", "must be > 0 (seconds)", scene["integrator"]["h"])
-    steps = _integer(scene, "integrator", "steps")
-    _choice(scene, "integrator", "friction", sorted(FRICTION))
-    _choice(scene, "integrator", "start", list(STARTS))
-    tol = _number(scene, "integrator", "newton_tol")
-    if not 0 < tol < 1e-3:
-        raise SceneError("integrator.newton_tol", "must lie in (0, 1e-3)", tol)
-    _integer(scene, "integrator", "newton_maxiter")
-    _integer(scene, "ensemble", "members")
-    _integer(scene, "ensemble", "seed", minimum=0)
-    sr = _vector(scene, "ensemble", "spin_range", (2,))
-    if not 0 <= sr[0] <= sr[1]:
-        raise SceneError("ensemble.spin_range", "must be [lo, hi] with 0 ≤ lo ≤ hi", scene["ensemble"]["spin_range"])
-    every = _integer(scene, "output", "every")
+    clean = copy.deepcopy(DEFAULTS)
+    for k in KEYS:
+        clean[k.section][k.name] = k.check(k.path, scene[k.section][k.name], scene)
+    _cross_rules(clean)
+    return _scene_from_dict(clean)
+
+
+def _cross_rules(s: dict) -> None:
+    steps, every = s["integrator"]["steps"], s["output"]["every"]
     if steps % every:
         raise SceneError("output.every", f"must divide integrator.steps = {steps}", every)
-    for key in ("attitude", "figures"):
-        if not isinstance(scene["output"][key], bool):
-            raise SceneError(f"output.{key}", "must be true or false", scene["output"][key])
-    comp = scene["output"]["compare"]
-    if not isinstance(comp, list) or any(c not in METHODS for c in comp):
-        raise SceneError("output.compare", f"must be a list of methods from {sorted(METHODS)}", comp)
-    _integer(scene, "output", "member_chunk")
+    body = s["body"]
+    if body["shape"] == "ellipsoid" and body["inertia"] == "shape" and body["center_of_mass"] != "shape":
+        G = np.asarray(body["center_of_mass"])
+        if np.count_nonzero(G) > 1:
+            raise SceneError("body.center_of_mass", "an ellipsoid with its own inertia pivots "
+                             "about a point on one of its axes: give G along a body axis, or "
+                             "body.inertia explicitly", body["center_of_mass"])
+    method = s["integrator"]["method"]
+    alpha = s["body"]["thermal_expansion"]
+    lam = s["body"]["internal_friction"]
+    if alpha > 0 and lam > 0:
+        raise SceneError("body.internal_friction", "is not available together with "
+                         "body.thermal_expansion > 0", lam)
+    vi_plain = method == "vi" or "vi" in s["output"]["compare"]
+    if alpha > 0 and vi_plain and s["integrator"]["start"] != "legendre" and (
+            s["fluid"]["viscosity"] > 0):
+        raise SceneError("integrator.start", 'the coupled top (body.thermal_expansion > 0) starts '
+                         'from its node momentum: use "legendre"', s["integrator"]["start"])
+    if alpha > 0 and vi_plain and s["integrator"]["friction"] == "endpoint" and (
+            s["fluid"]["viscosity"] > 0):
+        raise SceneError("integrator.friction", 'the coupled top has the trapezoid friction only',
+                         "endpoint")
 
 
-# ----------------------------------------------------------------------------- physics
-
-@dataclass(frozen=True)
-class Body:
-    """Derived physical quantities of a scene (SI units)."""
-
-    mass: float  # kg
-    inertia: np.ndarray  # kg m2, principal moments
-    center_of_mass: np.ndarray  # m, body frame, from the fixed centre C
-    stokes_coefficient: float  # c = 8πμa³, N m s
-    heat_capacity: float  # c_v = 3 N0 R_gas, J K-1
-    gravity_torque: np.ndarray  # mgℓχ = m g G, N m
-    T0: float
-    S0: float
-
-    @property
-    def ell(self) -> float:
-        return float(np.linalg.norm(self.center_of_mass))
+# ----------------------------------------------------------------------------- key documentation
 
 
-def body(scene: dict) -> Body:
-    b = scene["body"]
-    a = float(b["radius"])
-    m = 4.0 / 3.0 * math.pi * a**3 * float(b["density"])
-    m1 = float(b["upper_mass_fraction"]) * m
-    m2 = m - m1
-    if isinstance(b["inertia"], str):  # "paper" (erratum E5: the printed values, kept)
-        I12 = 83.0 * a * a * m1 / 320.0 + a * a * m2 / 12.0
-        I3 = 2.0 * a * a * m1 / 5.0 + a * a * m2 / 3.0
-        inertia = np.array([I12, I12, I3])
-    else:
-        inertia = np.asarray(b["inertia"], dtype=np.float64)
-    if isinstance(b["center_of_mass"], str):
-        G = np.array([0.0, 0.0, 3.0 * m1 * a / (8.0 * m) - m2 * a / (2.0 * m)])
-    else:
-        G = np.asarray(b["center_of_mass"], dtype=np.float64)
-    c = 8.0 * math.pi * float(scene["fluid"]["viscosity"]) * a**3
-    cv = 3.0 * (m / float(b["molar_mass"])) * R_GAS
-    return Body(mass=m, inertia=inertia, center_of_mass=G, stokes_coefficient=c, heat_capacity=cv,
-                gravity_torque=m * float(scene["gravity"]["g"]) * G,
-                T0=float(scene["thermo"]["T0"]), S0=float(scene["thermo"]["S0"]))
+def keys_table(markdown: bool = True) -> str:
+    """Every key with its unit, default and rule: the body of docs/scenes.md
+    and of ``liethermo keys``."""
+    lines = []
+    for section in SECTIONS:
+        ks = [k for k in KEYS if k.section == section]
+        if markdown:
+            lines += [f"### [{section}]", "", "| key | unit | default | rule | meaning |",
+                      "|---|---|---|---|---|"]
+            for k in ks:
+                lines.append(f"| `{k.path}` | {k.unit or '—'} | `{_toml_value(k.default)}` | "
+                             f"{k.rule} | {k.doc} |".replace("\n", " "))
+            lines.append("")
+        else:
+            lines.append(f"[{section}]")
+            for k in ks:
+                unit = f" [{k.unit}]" if k.unit and k.unit != "1" else ""
+                lines.append(f"  {k.path}{unit} = {_toml_value(k.default)}   ({k.rule}) {k.doc}")
+            lines.append("")
+    return "\n".join(lines)
 
 
-def physical_parameters(scene: dict) -> np.ndarray:
-    """The kernel parameter vector (NPARAM,) of a scene."""
-    bd = body(scene)
-    p = np.empty(NPARAM)
-    p[[P_I1, P_I2, P_I3]] = bd.inertia
-    p[P_C] = bd.stokes_coefficient
-    p[[P_GX, P_GY, P_GZ]] = bd.gravity_torque
-    p[P_CV] = bd.heat_capacity
-    p[P_T0] = bd.T0
-    return p
+def _toml_value(v) -> str:
+    """A value as one line of TOML."""
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    return tomli_w.dumps({"v": v})[4:].strip()

@@ -1,67 +1,73 @@
 """Array-level driver: run an ensemble with any method, in chunks.
 
-This layer knows numpy and the kernels, not xarray or files.  It allocates
-the outputs, applies the staggered start, advances the kernels chunk by chunk
-(reporting progress) and returns a :class:`Trajectory`.
+This layer knows numpy, the physics and the kernels, not xarray or files.  It
+builds the kernels' model (:func:`liethermo.physics.build_model`), the
+initial states (with the variational integrator's start), advances the
+kernels chunk by chunk (reporting progress) and returns a :class:`Trajectory`.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import time
+from dataclasses import dataclass
 from typing import Callable
 
 import numba
 import numpy as np
 
-from .kernels import ensemble as _ens
-from .kernels.model import NPARAM, NSTATE_ATTITUDE, NSTATE_BASE, P_C, P_GX, P_GY, P_GZ, P_I1, P_I2, P_I3
-from .kernels import rk as _rk
-from .methods import FRICTION, STARTS, get_method
-
-STATUS_OK = _ens.STATUS_OK
-STATUS_NEWTON = _ens.STATUS_NEWTON
-STATUS_NONFINITE = _ens.STATUS_NONFINITE
-STATUS_MEANINGS = {
-    STATUS_OK: "ok",
-    STATUS_NEWTON: "newton_not_converged",
-    STATUS_NONFINITE: "non_finite",
-}
+from .kernels import fast as _fast
+from .kernels import layout as _lay
+from .kernels import parallel as _par
+from .kernels import simple as _simple
+from .kernels.layout import STATUS_MEANINGS, STATUS_NEWTON, STATUS_NONFINITE, STATUS_OK  # noqa: F401
+from .kernels.layout import StateLayout
+from .methods import ENTROPY_UPDATES, FRICTION, STARTS, Method, get_method
+from .physics import KernelModel, Physics, build_model, node_velocity
 
 #: Reference substep: h_ref · ω_bound ≤ this (measured: ≤ 1e-15 on the paper scene).
 REFERENCE_STEP_ANGLE = 0.05
 DEFAULT_NEWTON_TOL = 1e-14
-CHUNK_MEMBER_STEPS = 2_000_000
-SMALL_ENSEMBLE = 64
 DEFAULT_NEWTON_MAXITER = 30
+#: one kernel call per this many member-steps (≈0.1 s): frequent enough for a
+#: progress bar, rare enough that the per-call overhead does not show
+CHUNK_MEMBER_STEPS = 2_000_000
+#: below this many members one thread is faster than waking others
+SMALL_ENSEMBLE = 64
 
 
 @dataclass
 class Trajectory:
     """Result of :func:`simulate`.
 
-    ``states[m, j]`` is the flat state (model.py layout) of member m at step
-    ``k = j * every`` (time ``k h``); ``j = 0`` is the initial state actually
-    used (with the staggered start: Ω₀ ≈ Ω(h/2)).  Values after a member's
-    failure are NaN.
+    ``states[m, j]`` is the state (columns of ``layout``) of member m at step
+    ``k = j * every`` (time ``k h``); ``j = 0`` is the initial state.  Values
+    after a member's failure are NaN.  For the variational integrators the
+    state holds the node values (Γ_k, σ_k, the node momentum μ_k) and the
+    step velocity Ω_k of the step that starts at t_k; :attr:`omega` is the
+    node velocity Ω(t_k) = 𝕀(S_k)⁻¹μ_k for every method.
     """
 
     method: str
-    friction: str
+    family: str
+    friction: str | None
     start: str
+    entropy: str | None
     h: float
     steps: int
     every: int
-    params: np.ndarray
+    physics: Physics
+    layout: StateLayout
+    terms: tuple
     states: np.ndarray
     status: np.ndarray
     fail_step: np.ndarray
     newton_iterations: np.ndarray  # total per member
-    newton_max: np.ndarray  # max per step, per member
+    newton_max: np.ndarray  # max per solve, per member
     steps_done: np.ndarray
     max_h_omega: np.ndarray
-    wall_time: float = 0.0
+    wall_time: float = 0.0  # kernel time, s (compilation excluded)
+    compile_time: float = 0.0  # compiling the kernels or loading them from the cache, s
     reference_substeps: int = 0
-    extra: dict = field(default_factory=dict)
 
     @property
     def step_index(self) -> np.ndarray:
@@ -71,65 +77,103 @@ class Trajectory:
     def times(self) -> np.ndarray:
         return self.step_index * self.h
 
-    @property
-    def omega(self):
-        return self.states[..., 0:3]
+    def part(self, name: str) -> np.ndarray | None:
+        sl = self.layout.slice(name)
+        return None if sl is None else self.states[..., sl]
 
     @property
-    def gamma(self):
-        return self.states[..., 3:6]
+    def gamma(self) -> np.ndarray:
+        return self.part("gamma")
 
     @property
-    def sigma(self):
-        return self.states[..., 6]
+    def sigma(self) -> np.ndarray:
+        """σ = S − S₀ (J K⁻¹); zeros when nothing dissipates (S stays S₀)."""
+        s = self.part("sigma")
+        if s is None:
+            z = np.zeros(self.states.shape[:-1])
+            z[np.isnan(self.states[..., 0])] = np.nan
+            return z
+        return s[..., 0]
 
     @property
-    def attitude(self):
-        if self.states.shape[-1] < NSTATE_ATTITUDE:
-            return None
-        return self.states[..., 7:16].reshape(self.states.shape[:-1] + (3, 3))
+    def omega(self) -> np.ndarray:
+        """The node velocity Ω(t_k) (rad s⁻¹) of every method."""
+        if self.family == "vi":
+            return node_velocity(self.physics, self.part("momentum"), self.part("sigma")[..., 0]
+                                 if self.layout.has("sigma") else None)
+        return self.part("omega")
+
+    @property
+    def omega_step(self) -> np.ndarray | None:
+        """VI: the step velocity Ω_k ≈ Ω(t_k + h/2) of the step that starts at t_k."""
+        return self.part("omega_step")
+
+    @property
+    def momentum(self) -> np.ndarray | None:
+        return self.part("momentum")
+
+    @property
+    def attitude(self) -> np.ndarray | None:
+        R = self.part("attitude")
+        return None if R is None else R.reshape(R.shape[:-1] + (3, 3))
 
 
-def omega_bound(y0: np.ndarray, params: np.ndarray) -> np.ndarray:
+def omega_bound(physics: Physics, omega0: np.ndarray) -> np.ndarray:
     """Per-member upper bound (rad s⁻¹) on |Ω(t)| of the continuous flow: the
     mechanical energy can only decrease, so K(t) ≤ K₀ + 2|g⃗|; plus the
     friction and pendulum rates."""
-    I = params[:, [P_I1, P_I2, P_I3]]
+    I = physics.inertia
     Imin = I.min(axis=1)
-    K0 = 0.5 * np.sum(I * y0[:, 0:3] ** 2, axis=1)
-    g = np.linalg.norm(params[:, [P_GX, P_GY, P_GZ]], axis=1)
-    return np.sqrt(2.0 * (K0 + 2.0 * g) / Imin) + params[:, P_C] / Imin + np.sqrt(g / Imin)
+    K0 = 0.5 * np.sum(I * omega0 ** 2, axis=1)
+    g = np.linalg.norm(physics.gravity_torque, axis=1)
+    c = physics.friction.max(axis=1)
+    return np.sqrt(2.0 * (K0 + 2.0 * g) / Imin) + c / Imin + np.sqrt(g / Imin)
 
 
-def reference_substeps(h: float, y0: np.ndarray, params: np.ndarray) -> np.ndarray:
+def reference_substeps(h: float, physics: Physics, omega0: np.ndarray) -> np.ndarray:
     """Per-member DOP853 substep count for a step h, from each member's own data."""
-    wb = omega_bound(y0, params)
-    n = np.ceil(h * np.where(np.isfinite(wb), wb, 0.0) / REFERENCE_STEP_ANGLE)
+    wb = omega_bound(physics, omega0)
+    n = np.ceil(abs(h) * np.where(np.isfinite(wb), wb, 0.0) / REFERENCE_STEP_ANGLE)
     return np.maximum(1, n).astype(np.int64)
 
 
-def staggered_omega(y0: np.ndarray, params: np.ndarray, h: float) -> np.ndarray:
+def _ensure_compiled(fn, args) -> float:
+    """Compile (or load from the cache) ``fn`` for these arguments; seconds spent."""
+    t0 = time.perf_counter()
+    sig = tuple(numba.typeof(a) for a in args)
+    if sig not in fn.overloads:
+        fn.compile(sig)
+    return time.perf_counter() - t0
+
+
+def _rk_initial(layout: StateLayout, omega0, R0) -> np.ndarray:
+    N = omega0.shape[0]
+    Y = np.zeros((N, layout.size))
+    Y[:, layout.slice("omega")] = omega0
+    Y[:, layout.slice("gamma")] = R0[:, 2, :]  # Γ = Rᵀe₃ = third row of R
+    if layout.has("attitude"):
+        Y[:, layout.slice("attitude")] = R0.reshape(N, 9)
+    return Y
+
+
+def staggered_omega(physics: Physics, omega0: np.ndarray, R0: np.ndarray, h: float) -> np.ndarray:
     """Ω(h/2) from the initial data, by the high-accuracy reference (N, 3)."""
-    Y = np.array(y0[:, :NSTATE_BASE], dtype=np.float64, order="C")
-    N, n = Y.shape
-    OUT = np.full((N, 1, n), np.nan)
-    IS = np.zeros((N, _ens.NISTAT), np.int64)
-    IS[:, _ens.IS_NSUB] = reference_substeps(0.5 * h, Y, params)
-    FS = np.zeros((N, _ens.NFSTAT))
-    _ens.advance_ensemble(_ens.METHOD_REFERENCE, Y, np.ascontiguousarray(params), 0.5 * h, 1, 1,
-                          0.5, 0.5, DEFAULT_NEWTON_TOL, 1, 0, _rk.DOP853_A, _rk.DOP853_B, OUT, IS, FS)
-    return OUT[:, 0, 0:3].copy()
+    tr = simulate(physics, omega0, R0, 0.5 * h, 1, "reference", kernel="simple")
+    return tr.states[:, 1, tr.layout.slice("omega")]
 
 
 def simulate(
-    y0: np.ndarray,
-    params: np.ndarray,
+    physics: Physics,
+    omega0: np.ndarray,
+    R0: np.ndarray,
     h: float,
     steps: int,
     method: str = "vi",
     *,
     friction: str = "trapezoid",
-    start: str = "node",
+    start: str = "legendre",
+    entropy: str = "symmetric",
+    attitude: bool = False,
     every: int = 1,
     newton_tol: float = DEFAULT_NEWTON_TOL,
     newton_maxiter: int = DEFAULT_NEWTON_MAXITER,
@@ -141,85 +185,127 @@ def simulate(
 ) -> Trajectory:
     """Integrate an ensemble.
 
-    y0: (N, 7) or (N, 16) initial states (model.py layout; 16 = with attitude);
-    params: (N, NPARAM); h in s; ``steps`` steps, keeping every ``every``-th.
+    ``physics`` (N members), initial body angular velocities ``omega0``
+    (N, 3, rad s⁻¹) and attitudes ``R0`` (N, 3, 3; Γ₀ = R₀ᵀe₃), S = S₀;
+    ``steps`` steps of size h (s), keeping every ``every``-th.  For the
+    variational integrators: ``friction`` ("trapezoid" | "endpoint"),
+    ``start`` ("legendre": μ₀ = 𝕀Ω(0); "node": the paper's Ω₀ := Ω(0) as
+    first step velocity; "staggered": Ω₀ := Ω(h/2) from the reference) and
+    ``entropy`` ("symmetric" | "explicit") — vi4 and vi6 always use the
+    legendre start, trapezoid friction and the symmetric update.
     ``progress(n)`` is called with the number of steps just advanced.
-    ``kernel``: "fast" (vectorized blocks, :mod:`liethermo.kernels.fast`),
-    "simple" (one member per prange iteration) or "auto" (= "fast"); both
-    give bitwise the same results.
+    ``kernel``: "fast" (vectorized blocks), "simple" (one member at a time)
+    or "auto" (= "fast"; the reference always runs on "simple"); both give
+    bitwise the same results.
     """
-    m = get_method(method)
+    m: Method = get_method(method)
     if kernel not in ("auto", "fast", "simple"):
         raise ValueError(f"unknown kernel {kernel!r}: expected 'auto', 'fast' or 'simple'")
-    if kernel == "simple":
-        advance = _ens.advance_ensemble
-    else:
-        from .kernels.fast import advance_ensemble_fast as advance
     if friction not in FRICTION:
-        raise ValueError(f"unknown integrator.friction {friction!r}: expected one of {sorted(FRICTION)}")
+        raise ValueError(f"unknown integrator.friction {friction!r}: expected one of {list(FRICTION)}")
     if start not in STARTS:
         raise ValueError(f"unknown integrator.start {start!r}: expected one of {list(STARTS)}")
-    y0 = np.array(y0, dtype=np.float64, order="C", ndmin=2)
-    params = np.array(params, dtype=np.float64, order="C", ndmin=2)
-    N, n = y0.shape
-    if n not in (NSTATE_BASE, NSTATE_ATTITUDE):
-        raise ValueError(f"state width must be {NSTATE_BASE} or {NSTATE_ATTITUDE}, got {n}")
-    if params.shape != (N, NPARAM):
-        raise ValueError(f"params must have shape ({N}, {NPARAM}), got {params.shape}")
+    if entropy not in ENTROPY_UPDATES:
+        raise ValueError(f"unknown integrator.entropy {entropy!r}: expected one of {list(ENTROPY_UPDATES)}")
     if steps % every:
         raise ValueError(f"steps ({steps}) must be a multiple of every ({every})")
-    eff_start = start if m.name == "vi" else "node"
-    alpha, beta = FRICTION[friction]
-    Y = y0.copy()
-    if eff_start == "staggered" and N:
-        Y[:, 0:3] = staggered_omega(y0, params, h)
-    # reference: per-member substeps (ISTAT[:, IS_NSUB], nsub argument 0) unless fixed
-    nsub = int(ref_substeps) if ref_substeps else 0
+    omega0 = np.array(omega0, dtype=np.float64, ndmin=2)
+    R0 = np.array(R0, dtype=np.float64, ndmin=3)
+    N = physics.n
+    if omega0.shape != (N, 3) or R0.shape != (N, 3, 3):
+        raise ValueError(f"omega0 must be ({N}, 3) and R0 ({N}, 3, 3) for {N} members, got "
+                         f"{omega0.shape} and {R0.shape}")
+    km: KernelModel = build_model(physics, attitude)
+    layout = km.layout(m.family)
+    eff_start = m.effective_start(start)
+    eff_entropy = m.effective_entropy(entropy)
+    eff_friction = m.effective_friction(friction)
+    fast = kernel != "simple" and m.name != "reference"
     n_out = steps // every
-    states = np.full((N, n_out + 1, n), np.nan)
-    states[:, 0] = Y
-    IS = np.zeros((N, _ens.NISTAT), np.int64)
-    IS[:, _ens.IS_NSUB] = reference_substeps(h, y0, params) if m.name == "reference" else 1
-    if m.name == "reference":
-        tab_a, tab_b = _rk.DOP853_A, _rk.DOP853_B
-    else:  # never read: spares the scipy import on the common path
-        tab_a, tab_b = _rk.NO_TABLEAU_A, _rk.NO_TABLEAU_B
-    FS = np.zeros((N, _ens.NFSTAT))
-    if chunk_steps is None:
-        # one kernel call per ~2e6 member-steps (≈0.1 s): frequent enough for a progress
-        # bar, rare enough that the thread-pool launch per call does not show
-        chunk_steps = max(every, min(steps, CHUNK_MEMBER_STEPS // max(N, 1)))
-    out_per_chunk = max(1, chunk_steps // every)
-    old_threads = numba.get_num_threads()
+    IS = np.zeros((N, _lay.NISTAT), np.int64)
+    FS = np.zeros((N, _lay.NFSTAT))
+    compile_time = 0.0
+    nsub = 0
     if threads is None and N < SMALL_ENSEMBLE:
         threads = 1  # a few members: waking threads costs more than it gains
-    if threads is not None:
-        numba.set_num_threads(min(threads, old_threads))
-    import time
+
+    if m.family == "rk":
+        from .kernels import rk as _rk
+
+        tab = {"rk2": _rk.MIDPOINT, "rk4": _rk.RK4}.get(m.name) or _rk.dop853()
+        Y = _rk_initial(layout, omega0, R0)
+        nsub = 1
+        if m.name == "reference":
+            nsub = int(ref_substeps) if ref_substeps else 0
+            IS[:, _lay.IS_NSUB] = reference_substeps(h, physics, omega0)
+        if fast:
+            fn, n_items = _fast.advance_rk_blocks, -(-N // _fast.BLOCK)
+            pre, post = (tab, km.model, km.shared, Y, km.P), (float(h), int(every))
+        else:
+            fn, n_items = _simple.advance_rk_members, N
+            pre, post = (tab, km.model, km.shared, Y, km.P), (float(h), int(nsub), int(every))
+    else:
+        from .kernels import vi as _vi
+        from .kernels.terms.thermo import EXPLICIT, SYMMETRIC
+
+        factors = tuple(float(f) for f in _vi.COMPOSITIONS[m.name])
+        wl, wr = _vi.FRICTION_WEIGHTS[eff_friction]
+        mode = EXPLICIT if eff_entropy == "explicit" else SYMMETRIC
+        Y = np.zeros((N, layout.size))
+        x0 = staggered_omega(physics, omega0, R0, h) if (eff_start == "staggered" and N) else omega0
+        Y[:, layout.slice("omega_step")] = x0
+        Y[:, layout.slice("gamma")] = R0[:, 2, :]
+        Y[:, layout.slice("momentum")] = physics.inertia * omega0  # 𝕀(S₀)Ω(0)
+        if layout.has("attitude"):
+            Y[:, layout.slice("attitude")] = R0.reshape(N, 9)
+        start_args = (km.model, km.shared, Y, km.P, 0, N, float(factors[0] * h), wl, wr,
+                      eff_start == "legendre", float(newton_tol), int(newton_maxiter), IS)
+        compile_time += _ensure_compiled(_simple.vi_start_members, start_args)
+        _par.run_ranges(_simple.vi_start_members, N, start_args[:4], start_args[6:], threads)
+        if fast:
+            fn, n_items = _fast.advance_vi_blocks, -(-N // _fast.BLOCK)
+        else:
+            fn, n_items = _simple.advance_vi_members, N
+        pre, post = (km.model, km.shared, Y, km.P), (float(h), factors, int(every))
+        post_tail = (wl, wr, mode, float(newton_tol), int(newton_maxiter))
+
+    states = np.full((N, n_out + 1, layout.size), np.nan)
+    states[:, 0] = Y
+    if chunk_steps is None:
+        chunk_steps = max(every, min(steps, CHUNK_MEMBER_STEPS // max(N, 1)))
+    out_per_chunk = max(1, chunk_steps // every)
+
+    def args_for(OUT, nj):
+        if m.family == "rk":
+            return pre, post + (int(nj), OUT, IS, FS)
+        return pre, post + (int(nj),) + post_tail + (OUT, IS, FS)
 
     t0 = time.perf_counter()
-    try:
-        j = 0
-        while j < n_out:
-            nj = min(out_per_chunk, n_out - j)
-            OUT = states[:, 1 + j: 1 + j + nj]  # strided view, written in place
-            advance(m.kernel_id, Y, params, float(h), int(every), int(nj),
-                                  alpha, beta, float(newton_tol), int(newton_maxiter), int(nsub),
-                                  tab_a, tab_b, OUT, IS, FS)
-            j += nj
-            if progress is not None:
-                progress(nj * every)
-    finally:
-        if threads is not None:
-            numba.set_num_threads(old_threads)
+    j = 0
+    while j < n_out:
+        nj = min(out_per_chunk, n_out - j)
+        OUT = states[:, 1 + j: 1 + j + nj]  # strided view, written in place
+        a, b = args_for(OUT, nj)
+        if j == 0 and N:
+            dt = _ensure_compiled(fn, a + (0, min(1, n_items)) + b)
+            compile_time += dt
+            t0 += dt
+        _par.run_ranges(fn, n_items, a, b, threads)
+        j += nj
+        if progress is not None:
+            progress(nj * every)
     wall = time.perf_counter() - t0
+    # a member that failed keeps NaN from its failing step on (the kernels
+    # leave its later outputs untouched), and its initial row if it could not start
     return Trajectory(
-        method=m.name, friction=friction, start=eff_start, h=float(h), steps=int(steps),
-        every=int(every), params=params, states=states,
-        status=IS[:, _ens.IS_STATUS].astype(np.int8), fail_step=IS[:, _ens.IS_FAIL_STEP].copy(),
-        newton_iterations=IS[:, _ens.IS_NEWTON_TOTAL].copy(), newton_max=IS[:, _ens.IS_NEWTON_MAX].copy(),
-        steps_done=IS[:, _ens.IS_STEPS].copy(), max_h_omega=FS[:, _ens.FS_MAX_H_OMEGA].copy(),
-        wall_time=wall,
-        reference_substeps=(int(nsub) if nsub else int(IS[:, _ens.IS_NSUB].max(initial=0)))
-        if m.name == "reference" else 0,
+        method=m.name, family=m.family, friction=eff_friction, start=eff_start,
+        entropy=eff_entropy, h=float(h), steps=int(steps), every=int(every), physics=physics,
+        layout=layout, terms=tuple(km.terms()), states=states,
+        status=IS[:, _lay.IS_STATUS].astype(np.int8), fail_step=IS[:, _lay.IS_FAIL_STEP].copy(),
+        newton_iterations=IS[:, _lay.IS_NEWTON_TOTAL].copy(),
+        newton_max=IS[:, _lay.IS_NEWTON_MAX].copy(),
+        steps_done=IS[:, _lay.IS_STEPS].copy(), max_h_omega=FS[:, _lay.FS_MAX_H_OMEGA].copy(),
+        wall_time=wall, compile_time=compile_time,
+        reference_substeps=((int(nsub) if nsub else int(IS[:, _lay.IS_NSUB].max(initial=0)))
+                            if m.name == "reference" else 0),
     )

@@ -3,9 +3,9 @@
 * ``cache=True`` so that a second process does not recompile (set
   ``LIETHERMO_NUMBA_CACHE=0`` to switch it off, e.g. on a read-only install).
   Numba checks only the timestamp and size of the file that defines a
-  cached function, not of the files of the functions it calls: after
-  editing e.g. model.py, the cached ``ensemble.advance_ensemble`` would
-  still run the old right-hand side.  :func:`_drop_stale_cache` guards
+  cached function, not of the files of the functions it calls (nor of the
+  model terms whose overloads it compiled in): after editing e.g. a term
+  module, a cached driver would still run the old physics.  :func:`_drop_stale_cache` guards
   against that: at import it hashes every kernel source (and the numba
   version) and, when the hash differs from the one stamped beside the cache,
   deletes the kernels' cache files, so a pull or an edit never runs stale
@@ -43,22 +43,25 @@ CACHE = os.environ.get("LIETHERMO_NUMBA_CACHE", "1") not in ("0", "false", "no")
 
 
 def _cache_dirs(here: Path) -> list[Path]:
-    """Where numba puts this package's kernel caches: beside the sources, or
-    under NUMBA_CACHE_DIR in the one folder numba names after this source
-    folder (its name plus the SHA-1 of its path, as numba's
-    ``_CacheLocator.get_suitable_cache_subpath`` computes it) — never another
-    project's folder in a shared cache directory."""
+    """Where numba puts the kernel caches of the source folder ``here`` and of
+    its subfolders: beside the sources, or under NUMBA_CACHE_DIR in the one
+    folder numba names after each source folder (its name plus the SHA-1 of
+    its path, as numba's ``_CacheLocator.get_suitable_cache_subpath``
+    computes it) — never another project's folder in a shared cache
+    directory."""
+    folders = [here] + sorted(p for p in here.rglob("*") if p.is_dir() and p.name != "__pycache__"
+                              and "__pycache__" not in p.parts)
     if numba.config.CACHE_DIR:
-        sub = f"{here.name}_{hashlib.sha1(str(here).encode()).hexdigest()}"
-        return [Path(numba.config.CACHE_DIR) / sub]
-    return [here / "__pycache__"]
+        return [Path(numba.config.CACHE_DIR) / f"{d.name}_{hashlib.sha1(str(d).encode()).hexdigest()}"
+                for d in folders]
+    return [d / "__pycache__" for d in folders]
 
 
 def _drop_stale_cache(here: Path | None = None) -> None:
     here = Path(__file__).resolve().parent if here is None else here
     digest = hashlib.sha256(numba.__version__.encode())
-    for src in sorted(here.glob("*.py")):
-        digest.update(src.name.encode() + b"\0" + src.read_bytes())
+    for src in sorted(here.rglob("*.py")):
+        digest.update(str(src.relative_to(here)).encode() + b"\0" + src.read_bytes())
     stamp_text = digest.hexdigest()
     for cache in _cache_dirs(here):
         stamp = cache / "liethermo-kernels.sha256"
@@ -84,6 +87,16 @@ if CACHE:
     _drop_stale_cache()
 
 jit = functools.partial(numba.njit, cache=CACHE, fastmath=False, error_model="numpy")
+#: a lane function: compiled once per argument types (so ``x is None`` tests on
+#: its arguments are decided at compile time) and marked ``alwaysinline`` for
+#: LLVM, which inlines it into every caller after linking — so a lane loop
+#: built of such calls is one straight-line body that LLVM can vectorize,
+#: without numba re-typing the callee's IR at every call site
+#: (``inline="always"``), which made generic kernels take minutes to compile
+lane = functools.partial(numba.njit, cache=False, fastmath=False, error_model="numpy",
+                         forceinline=True, nogil=True)
+#: jit options of the ``@overload`` implementations that are lane functions
+LANE_OPTIONS = {"forceinline": True, "fastmath": False, "error_model": "numpy", "nogil": True}
 pjit = functools.partial(
     numba.njit, cache=CACHE, fastmath=False, error_model="numpy", parallel=True
 )
@@ -154,6 +167,6 @@ def select_py(cond: bool, a: float, b: float) -> float:
 #: Numba lowers ``a if c else b`` to a branch; in a lane loop that stores
 #: ``S[p] = n if c else S[p]``, LLVM then sees a conditional store and
 #: vectorizes it as a masked store (``vmaskmovpd``), which AMD Zen cores
-#: execute as slow microcode (the VI's commit sweep ran at ~23 cycles per
-#: lane).  A select keeps the store unconditional: a blend and a plain store.
+#: execute as slow microcode.  A select keeps the store unconditional: a
+#: blend and a plain store.
 select = select_py if numba.config.DISABLE_JIT else _select_intrinsic

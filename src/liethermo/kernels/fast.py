@@ -1,101 +1,67 @@
-"""Fast ensemble kernel: structure-of-arrays blocks that LLVM vectorizes.
+"""The vectorized ensemble kernel: structure-of-arrays blocks that LLVM vectorizes.
 
-:func:`advance_ensemble_fast` has the contract of
-:func:`liethermo.kernels.ensemble.advance_ensemble` (same arguments, same
-in-place arrays ``Y, P, OUT, ISTAT, FSTAT``, same status codes) and computes
-the same numbers: both kernels evaluate a step through the same inline lane
-functions (model.rhs7_lane*, vi.*_lane, so3.*_lane, rk.rk4_combine), whose
-explicit fused multiply-adds fix every rounding, so results agree bitwise —
-states, status flags, failing steps, Newton iteration counts and max h|Ω|.
+:func:`advance_rk_blocks` and :func:`advance_vi_blocks` have the contract of
+the straightforward kernel's :func:`.simple.advance_rk_members` /
+:func:`.simple.advance_vi_members` (same arrays, same status codes) over the
+members of blocks ``b0 … b1−1`` (a block is ``BLOCK`` consecutive members),
+and compute the same bits: every step goes through the same lane functions
+(:mod:`.rk`, :mod:`.vi`, :mod:`.equations`, the model terms), whose explicit
+fused multiply-adds fix every rounding — states, status flags, failing steps,
+Newton iteration counts and max |h|·|Ω| agree bitwise.
 
 How it is fast
 --------------
-* ``prange`` runs over blocks of ``BLOCK`` members.  A block copies its
-  members into one flat buffer, row by row (structure of arrays: row r holds
-  quantity r of every lane), advances them for the whole call, and copies
-  them back.  Every row sits at a compile-time offset of the same buffer, so
-  LLVM sees no possible aliasing and vectorizes the loops over lanes
-  (packed ``vfmadd…pd``/``vmulpd``/``vaddpd`` on ymm or zmm registers).
-* Two versions of the block kernel, chosen once per call
-  (:func:`shared_params`): when all members share their parameters (a
-  random ensemble of one scene) the coefficients are tuples that live in
-  registers; else each lane reads its own coefficient rows.  The choice is
-  not made per lane: LLVM does not unswitch loops this big, and loaded the
-  rows under a mask in every iteration.
+* A block copies its running members into one flat buffer, row by row
+  (structure of arrays: row r holds quantity r of every lane), advances them
+  for the whole call, and copies them back.  Every row sits at a
+  compile-time offset of the same buffer (:data:`ROWS`, derived from the
+  sizes of the parts: no hand-numbered rows), so LLVM sees no possible
+  aliasing and vectorizes the loops over lanes (packed ``vfmadd…pd`` on ymm
+  or zmm registers).  The lane functions are ``alwaysinline``: a lane loop
+  is one straight-line body.
+* Two versions of every sweep, chosen once per call: when all members share
+  their parameters (a random ensemble of one scene) the model is a tuple
+  argument that lives in registers (``shared``); else each lane rebuilds its
+  model from its parameter rows (``shared`` None).
+* The kernels are compiled for the model's *type*: absent terms are not in
+  the code, and a run compiles only its method family and its model.
 * An explicit RK step is one sweep over the lanes: all stages of a lane stay
   in registers, only the state is loaded and stored, from one state buffer
-  to the other (R_Y → R_YB → R_Y …) with plain stores; a flagged lane still
-  has its old state in the source buffer.  The max of h|Ω_k| is
-  kept as the max of |Ω_k|² (h·sqrt is monotone: same value, one square root
-  per call instead of per step).
-* The VI's Newton iterations run in lock-step over the block with a per-lane
-  convergence mask: a converged lane keeps its X, and the block stops
-  iterating as soon as no lane runs.  Once only a few lanes still run
+  to the other with plain stores; a flagged lane still has its old state in
+  the source buffer.
+* The VI's Newton iterations run in lock-step over the block with a
+  per-lane convergence mask: a converged lane keeps its X, and the block
+  stops iterating as soon as no lane runs.  Once only a few lanes still run
   (``NEWTON_COMPACT``), they are copied to the first lanes of a scratch
-  buffer and finish there, so one slow or diverging member does not hold
-  the whole block.
-* No lane store is conditional.  A store of "new if c else the row's own
-  value" becomes a masked store (``vmaskmovpd``) in LLVM's x86 back end,
-  slow microcode on AMD Zen 3; the sweeps store unconditionally (exact
-  arithmetic blends, ``_jit.select``, the RK double buffer), and the VI
-  accepts a step only after its failed lanes are retired (``_vi_check``,
-  then ``_vi_accept``).  ``liethermo bench --asm`` counts masked
-  instructions; the tests require none in the lane loops.
+  buffer and finish there, so one slow member does not hold the block.
+* No lane store is conditional (a store of "new if c else the row's own
+  value" becomes a masked store, slow microcode on AMD Zen): the sweeps
+  store unconditionally (exact arithmetic blends, ``_jit.select``, the RK
+  double buffer), and a step is accepted only after its failed lanes are
+  retired.
 * A failed member (Newton failure or non-finite state) is written back at
-  once and its lane is filled with the block's last lane (compaction), so
-  dead members cost nothing — explicit RK2 loses most of the random paper
-  ensemble within ~100 steps — and never touch their neighbours' values.
-* exp(−σ/c_v) is the inline cubic of ``model.sigma_rate_poly`` in the
-  sweeps; a lane whose |σ/c_v| is beyond ``EXP_SMALL`` (or not finite) is
-  flagged and recomputed with the straightforward kernel's own operations
-  (``math.exp``; for RK lanes in registers with the block's coefficients).
-* Explicit RK steps *with* the attitude (16-wide state) and the
-  ``reference`` method are not vectorized: they run the straightforward
-  per-member code (the RK ones inside the block structure).
-
-Buffers are allocated per block (not per step); nothing is compiled at
-import time.  The ``reference`` method goes to the straightforward kernel.
+  once and its lane is filled with the block's last lane, so dead members
+  cost nothing and never touch their neighbours' values.
+* 1/T(σ) and log1p in the entropy are inline polynomials in the sweeps; a
+  lane outside their range is flagged and recomputed with the
+  straightforward kernel's operations.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from ._jit import fma, jit, pjit, prange, select
-from .ensemble import (
-    FS_MAX_H_OMEGA,
-    IS_FAIL_STEP,
-    IS_NEWTON_MAX,
-    IS_NEWTON_TOTAL,
-    IS_STATUS,
-    IS_STEPS,
-    METHOD_RK2,
-    METHOD_RK4,
-    METHOD_VI,
-    STATUS_NEWTON,
-    STATUS_NONFINITE,
-    STATUS_OK,
-    advance_ensemble,
-)
-from .model import (EXP_SMALL, NCOEF, NSTATE_BASE, coefficients, rhs7_lane, rhs7_lane_poly,
-                    sigma_rate_exact, sigma_rate_poly)
-from .rk import DOP853_STAGES, rk2_step, rk4_step, rk4_sum
-from .so3 import cayley_lane, cayley_matrix_lane, row_times_lane
-from .vi import (
-    NEWTON_MAXITER,
-    NEWTON_OK,
-    NEWTON_SINGULAR,
-    NVCOEF,
-    momentum_constant_lane,
-    newton_lane,
-    newton_stop,
-    predictor_lane,
-    vi_coefficients,
-)
+from ._jit import jit, lane, select
+from .gen import finite, none_dispatch, tree_finite, tree_sum_finite, unflatten
+from .layout import (FS_MAX_H_OMEGA, IS_FAIL_STEP, IS_NEWTON_MAX, IS_NEWTON_TOTAL, IS_STATUS,
+                     IS_STEPS, NEWTON_MAXITER, NEWTON_OK, NEWTON_SINGULAR, STATUS_NEWTON,
+                     STATUS_NONFINITE, STATUS_OK, load_rk_state, load_vi_state, store_rk_state,
+                     store_vi_state)
+from .rk import explicit_step
+from .so3 import norm2_lane
+from .vi import newton_correction, newton_stop, vi_advance, vi_coefficients, vi_entropy
 
-__all__ = ["advance_ensemble_fast", "BLOCK", "EXP_SMALL"]
-
-#: members per block (lanes); a block's buffer is NROWS·ROW doubles
+#: members per block (lanes)
 BLOCK = 128
 #: row stride of the block buffer (doubles): BLOCK plus a pad, so that the
 #: rows of one lane do not all fall into a few cache sets (a stride of 1 KiB
@@ -103,332 +69,230 @@ BLOCK = 128
 ROW = BLOCK + 8
 #: when at most this many lanes of a block still iterate, they finish on a compact copy
 NEWTON_COMPACT = BLOCK // 4
+#: the largest state of any layout (vi: X, Γ, σ, μ, σ_{k+1}, R)
+NSTATE_MAX = 20
 
-# Rows of the per-block buffer; lane i of row r is buf[r*ROW + i].
-R_Y = 0  # 16 rows: state (model.py layout; 7 or 16 used)
-R_P = 16  # 9 rows: parameters (model.py layout)
-R_GN = 25  # 3 rows: Γ_{k+1} (VI)
-R_SN = 28  # σ_{k+1} (VI)
-R_X = 29  # 3 rows: Newton iterate X (VI)
-R_B = 32  # 3 rows: constant part b of F (VI)
-R_SC0 = 35  # |Ω_k|∞ (VI)
-R_RUN = 36  # 1.0 while the lane's Newton iteration runs
-R_CODE = 37  # Newton outcome code of this step
-R_ITS = 38  # Newton iterations of this step
-R_HW = 39  # max h|Ω_k| at entry (FSTAT)
-R_NTOT = 40  # Newton iterations, total (ISTAT)
-R_NMAX = 41  # Newton iterations, max per step (ISTAT)
-R_STEPS = 42  # steps done at entry (ISTAT)
-R_MEMBER = 43  # member index of the lane
-R_FLAG = 44  # per-step outcome: 0 ok, else what to do (see sweeps)
-R_RN = 45  # 9 rows: R_{k+1} (VI with attitude)
-R_W2 = 54  # max |Ω_k|² over the steps of this call
-R_Q = 55  # NCOEF rows: model.coefficients
-R_V = R_Q + NCOEF  # NVCOEF rows: vi.vi_coefficients
-NROWS = R_V + NVCOEF
-# 7 rows: the other state buffer of the vectorized RK steps, in rows only the
-# VI uses (Γ_{k+1}, σ_{k+1}, X): a block runs one method
-R_YB = R_GN
+#: the rows of a block buffer, in order: (name, number of rows).  The model's
+#: parameter rows come last (their number depends on the model).
+ROW_PARTS = (
+    ("Y", NSTATE_MAX),  # state
+    ("YB", NSTATE_MAX),  # RK: the other state buffer; VI: the state at the start of a step
+    ("GN", 3), ("SN", 1), ("MUN", 3), ("RN", 9),  # VI: Γ', σ', μ', R' of the step
+    ("X", 3), ("B", 3),  # VI: Newton iterate and the constant part of its function
+    ("SC0", 1),  # VI: |X_k|∞, the scale of the stopping rule
+    ("RUN", 1), ("CODE", 1), ("ITS", 1),  # VI: Newton mask, outcome, iterations
+    ("HW", 1), ("NTOT", 1), ("NMAX", 1), ("STEPS", 1), ("MEMBER", 1),  # statistics at entry
+    ("FLAG", 1),  # per-step outcome (FLAG_*)
+    ("W2", 1),  # max |Ω|² (times the squared substep factor) over this call
+)
 
-# offsets (compile-time constants inside the kernels)
-O_Y = R_Y * ROW
-O_P = R_P * ROW
-O_GN = R_GN * ROW
-O_SN = R_SN * ROW
-O_X = R_X * ROW
-O_B = R_B * ROW
-O_SC0 = R_SC0 * ROW
-O_RUN = R_RUN * ROW
-O_CODE = R_CODE * ROW
-O_ITS = R_ITS * ROW
-O_HW = R_HW * ROW
-O_NTOT = R_NTOT * ROW
-O_NMAX = R_NMAX * ROW
-O_STEPS = R_STEPS * ROW
-O_MEMBER = R_MEMBER * ROW
-O_FLAG = R_FLAG * ROW
-O_RN = R_RN * ROW
-O_W2 = R_W2 * ROW
-O_Q = R_Q * ROW
-O_V = R_V * ROW
-O_YB = R_YB * ROW
-B1 = ROW  # row stride
 
-# per-step outcome flags (R_FLAG)
+def _row_map(parts):
+    out, r = {}, 0
+    for name, size in parts:
+        out[name] = (r, size)
+        r += size
+    return out, r
+
+
+ROWS, NROWS_FIXED = _row_map(ROW_PARTS)
+O_Y, O_YB, O_GN, O_SN, O_MUN, O_RN, O_X, O_B, O_SC0, O_RUN, O_CODE, O_ITS, O_HW, O_NTOT, \
+    O_NMAX, O_STEPS, O_MEMBER, O_FLAG, O_W2 = (ROWS[name][0] * ROW for name, _ in ROW_PARTS)
+#: the first parameter row (rows mode)
+O_P = NROWS_FIXED * ROW
+
+# per-step outcome flags (row FLAG)
 FLAG_OK = 0.0
 FLAG_NEWTON = 1.0  # Newton failed: STATUS_NEWTON
 FLAG_NONFINITE = 2.0  # STATUS_NONFINITE
-FLAG_EXACT = 3.0  # exp argument outside EXP_SMALL: redo with math.exp
+FLAG_EXACT = 3.0  # an inline polynomial was out of range: redo with the exact operations
+
+
+def buffer_size(nparam: int) -> int:
+    """Doubles in a block buffer for a model of ``nparam`` parameters."""
+    return (NROWS_FIXED + nparam) * ROW
 
 
 # --------------------------------------------------------------------------
-# loads
+# lane helpers
 
 
-@jit(inline="always")
-def _finite(x):
-    return x - x == 0.0
+@lane
+def lane_model(shared, template, S, i):
+    """Lane i's model: ``shared``, or rebuilt from its parameter rows."""
+    if shared is None:
+        return unflatten(template, S, O_P + i, ROW)
+    return shared
 
 
-@jit(inline="always")
-def _load_params(S, i):
-    return (S[O_P + i], S[O_P + B1 + i], S[O_P + 2 * B1 + i], S[O_P + 3 * B1 + i],
-            S[O_P + 4 * B1 + i], S[O_P + 5 * B1 + i], S[O_P + 6 * B1 + i],
-            S[O_P + 7 * B1 + i], S[O_P + 8 * B1 + i])
+@lane
+def lane_vi(vv, md, h, wl, wr):
+    """The VI coefficients of a lane: the block's shared ones, or its own."""
+    if vv is None:
+        return vi_coefficients(md, h, wl, wr)
+    return vv
 
 
-@jit(inline="always")
-def _load7(S, off, i):
-    return (S[off + i], S[off + B1 + i], S[off + 2 * B1 + i], S[off + 3 * B1 + i],
-            S[off + 4 * B1 + i], S[off + 5 * B1 + i], S[off + 6 * B1 + i])
+def shared_vi(shared, h, wl, wr):
+    """The VI coefficients of a block that shares its parameters; None otherwise."""
+    return vi_coefficients(shared, h, wl, wr)
 
 
-@jit(inline="always")
-def _store7(S, off, i, a0, a1, a2, a3, a4, a5, a6):
-    S[off + i] = a0
-    S[off + B1 + i] = a1
-    S[off + 2 * B1 + i] = a2
-    S[off + 3 * B1 + i] = a3
-    S[off + 4 * B1 + i] = a4
-    S[off + 5 * B1 + i] = a5
-    S[off + 6 * B1 + i] = a6
+shared_vi = none_dispatch(shared_vi, lambda shared, h, wl, wr: None)
 
 
-@jit(inline="always")
-def _rows_q(S, i):
-    return (S[O_Q + i], S[O_Q + B1 + i], S[O_Q + 2 * B1 + i], S[O_Q + 3 * B1 + i],
-            S[O_Q + 4 * B1 + i], S[O_Q + 5 * B1 + i], S[O_Q + 6 * B1 + i],
-            S[O_Q + 7 * B1 + i], S[O_Q + 8 * B1 + i], S[O_Q + 9 * B1 + i],
-            S[O_Q + 10 * B1 + i], S[O_Q + 11 * B1 + i], S[O_Q + 12 * B1 + i],
-            S[O_Q + 13 * B1 + i], S[O_Q + 14 * B1 + i], S[O_Q + 15 * B1 + i],
-            S[O_Q + 16 * B1 + i], S[O_Q + 17 * B1 + i])
+def _store1(x, S, off):
+    S[off] = x
 
 
-@jit(inline="always")
-def _rows_v(S, i):
-    return (S[O_V + i], S[O_V + B1 + i], S[O_V + 2 * B1 + i], S[O_V + 3 * B1 + i],
-            S[O_V + 4 * B1 + i], S[O_V + 5 * B1 + i], S[O_V + 6 * B1 + i],
-            S[O_V + 7 * B1 + i], S[O_V + 8 * B1 + i], S[O_V + 9 * B1 + i],
-            S[O_V + 10 * B1 + i], S[O_V + 11 * B1 + i], S[O_V + 12 * B1 + i],
-            S[O_V + 13 * B1 + i], S[O_V + 14 * B1 + i], S[O_V + 15 * B1 + i],
-            S[O_V + 16 * B1 + i])
+store1 = none_dispatch(_store1, lambda x, S, off: None)
 
 
-@jit(inline="always")
-def _track_w2(S, i, y0, y1, y2, down):
-    """Running max (min when h < 0: ``down``) of |Ω_k|², the simple kernel's
-    expression under its sqrt.  Row R_W2 starts at −1 (+inf when down): no
-    step yet."""
-    ww = y0 * y0 + y1 * y1 + y2 * y2
-    # + 0.0 is exact here (the row never holds −0: it holds −1, +inf or a sum of
-    # squares) and keeps the store unconditional: see _newton_sweep
+def _store9(x, S, off):
+    for k in range(9):
+        S[off + k * ROW] = x[k]
+
+
+store9 = none_dispatch(_store9, lambda x, S, off: None)
+
+
+def _load1(marker, S, off):
+    return S[off]
+
+
+load1_if = none_dispatch(_load1, lambda marker, S, off: None)
+
+
+def _load9(marker, S, off):
+    return (S[off], S[off + ROW], S[off + 2 * ROW], S[off + 3 * ROW], S[off + 4 * ROW],
+            S[off + 5 * ROW], S[off + 6 * ROW], S[off + 7 * ROW], S[off + 8 * ROW])
+
+
+load9_if = none_dispatch(_load9, lambda marker, S, off: None)
+
+
+@lane
+def _track_w2(S, i, ww):
+    """Running max of |Ω|² (row W2 starts at −1: no step yet)."""
+    # + 0.0 is exact here (the row never holds −0) and keeps the store unconditional
     m = S[O_W2 + i] + 0.0
-    upd = (ww < m) if down else (ww > m)
-    S[O_W2 + i] = select(upd, ww, m)
+    S[O_W2 + i] = select(ww > m, ww, m)
+
+
+@lane
+def _max_h_omega(S, i, h):
+    """max |h|·|Ω| over the member's steps: the value at entry or |h|·sqrt of
+    the max of this call (as the straightforward kernel's max_h_omega)."""
+    hm = S[O_HW + i]
+    w = S[O_W2 + i]
+    if not (w >= 0.0):
+        return hm
+    hw = abs(h) * np.sqrt(w)
+    return hw if hw > hm else hm
 
 
 # --------------------------------------------------------------------------
-# explicit Runge–Kutta sweeps (7-wide state): one sweep per step.  A lane
-# is updated only if its new state is finite and no exp argument was out of
-# range; otherwise y is left as it was and R_FLAG = FLAG_EXACT sends it to
-# the straightforward code (_rk_lane_exact), which steps it or flags it
-# FLAG_NONFINITE.  They return the number of flagged lanes.
+# explicit Runge–Kutta sweeps
 
 
-@jit(inline="always")
-def _rk_store(S, i, dst, small, hf, y0, y1, y2, y3, y4, y5, y6, k0, k1, k2, k3, k4, k5, k6):
-    """Lane i's new state y + hf·k goes to the rows at dst, unconditionally;
-    R_FLAG says whether it holds (finite and ``small``) or the lane must be
-    redone from its old state (FLAG_EXACT).  Returns 1 if flagged."""
-    n0 = fma(hf, k0, y0)
-    n1 = fma(hf, k1, y1)
-    n2 = fma(hf, k2, y2)
-    n3 = fma(hf, k3, y3)
-    n4 = fma(hf, k4, y4)
-    n5 = fma(hf, k5, y5)
-    n6 = fma(hf, k6, y6)
-    # one test for all seven: their sum is finite if they all are; if it is
-    # not (a component is inf/NaN, or a finite sum overflowed), the lane is
-    # redone by the straightforward code, which decides exactly
-    upd = _finite(((n0 + n1) + (n2 + n3)) + ((n4 + n5) + n6)) & small
-    _store7(S, dst, i, n0, n1, n2, n3, n4, n5, n6)
-    S[O_FLAG + i] = select(upd, FLAG_OK, FLAG_EXACT)
-    return 0 if upd else 1
-
-
-@jit(inline="always")
+@lane
 def _rk_buffers(flip):
-    """(source, destination) offsets of a vectorized RK step.  The new state
-    goes to the other buffer with plain stores: a lane that must keep its old
-    state (flagged) still has it in the source.  A store of "new or the row's
-    own value" would become a masked store (vmaskmovpd), slow microcode on
-    AMD Zen; flip is a literal, so both offsets are compile-time constants."""
+    """(source, destination) offsets of a vectorized RK step; flip is a
+    literal, so both are compile-time constants."""
     if flip == 0:
         return O_Y, O_YB
     return O_YB, O_Y
 
 
 @jit
-def _rk2_sweep(S, nb, h, qq, flip):
-    """One explicit-midpoint step (rk.rk2_step) of lanes [0, nb) from the state
-    rows R_Y to R_YB (flip a literal 0) or back (a literal 1)."""
+def _rk_sweep(tab, model, shared, S, nb, h, flip):
+    """One step of the tableau ``tab`` for lanes [0, nb) from one state buffer
+    to the other.  A lane whose new state is not (cheaply) finite or whose
+    inline exp was out of range gets FLAG_EXACT.  Returns the flagged count."""
     src, dst = _rk_buffers(flip)
-    h2 = 0.5 * h
     nflag = 0
     for i in range(nb):
-        q = _rows_q(S, i) if qq is None else qq
-        y0, y1, y2, y3, y4, y5, y6 = _load7(S, src, i)
-        _track_w2(S, i, y0, y1, y2, h < 0.0)
-        a0, a1, a2, a3, a4, a5, a6, sa = rhs7_lane_poly(y0, y1, y2, y3, y4, y5, y6, q)
-        b0, b1, b2, b3, b4, b5, b6, sb = rhs7_lane_poly(
-            fma(h2, a0, y0), fma(h2, a1, y1), fma(h2, a2, y2), fma(h2, a3, y3),
-            fma(h2, a4, y4), fma(h2, a5, y5), fma(h2, a6, y6), q)
-        nflag += _rk_store(S, i, dst, sa & sb, h, y0, y1, y2, y3, y4, y5, y6,
-                           b0, b1, b2, b3, b4, b5, b6)
+        md = lane_model(shared, model, S, i)
+        y = load_rk_state(md, S, src + i, ROW)
+        w = y[0]
+        _track_w2(S, i, norm2_lane(w[0], w[1], w[2]))
+        yn, small = explicit_step(tab, md, y, h, False)
+        upd = tree_sum_finite(yn) & small
+        store_rk_state(md, S, dst + i, ROW, yn)
+        S[O_FLAG + i] = select(upd, FLAG_OK, FLAG_EXACT)
+        nflag += 0 if upd else 1
     return nflag
 
 
 @jit
-def _rk4_sweep(S, nb, h, qq, flip):
-    """One classical RK4 step (rk.rk4_step) of lanes [0, nb), from the state
-    rows R_Y to R_YB (flip a literal 0) or back (a literal 1)."""
+def _rk_exact(tab, model, shared, S, nb, h, flip):
+    """Redo the FLAG_EXACT lanes with the straightforward kernel's operations;
+    returns the number of lanes that failed (FLAG_NONFINITE)."""
     src, dst = _rk_buffers(flip)
-    h2 = 0.5 * h
-    h6 = h * (1.0 / 6.0)
-    nflag = 0
+    nfail = 0
     for i in range(nb):
-        q = _rows_q(S, i) if qq is None else qq
-        y0, y1, y2, y3, y4, y5, y6 = _load7(S, src, i)
-        _track_w2(S, i, y0, y1, y2, h < 0.0)
-        a0, a1, a2, a3, a4, a5, a6, sa = rhs7_lane_poly(y0, y1, y2, y3, y4, y5, y6, q)
-        b0, b1, b2, b3, b4, b5, b6, sb = rhs7_lane_poly(
-            fma(h2, a0, y0), fma(h2, a1, y1), fma(h2, a2, y2), fma(h2, a3, y3),
-            fma(h2, a4, y4), fma(h2, a5, y5), fma(h2, a6, y6), q)
-        c0, c1, c2, c3, c4, c5, c6, sc = rhs7_lane_poly(
-            fma(h2, b0, y0), fma(h2, b1, y1), fma(h2, b2, y2), fma(h2, b3, y3),
-            fma(h2, b4, y4), fma(h2, b5, y5), fma(h2, b6, y6), q)
-        d0, d1, d2, d3, d4, d5, d6, sd = rhs7_lane_poly(
-            fma(h, c0, y0), fma(h, c1, y1), fma(h, c2, y2), fma(h, c3, y3),
-            fma(h, c4, y4), fma(h, c5, y5), fma(h, c6, y6), q)
-        # the new state is rk4_combine(y, a, b, c, d, h6) = y + h6·rk4_sum(a, b, c, d)
-        nflag += _rk_store(S, i, dst, sa & sb & sc & sd, h6, y0, y1, y2, y3, y4, y5, y6,
-                           rk4_sum(a0, b0, c0, d0), rk4_sum(a1, b1, c1, d1),
-                           rk4_sum(a2, b2, c2, d2), rk4_sum(a3, b3, c3, d3),
-                           rk4_sum(a4, b4, c4, d4), rk4_sum(a5, b5, c5, d5),
-                           rk4_sum(a6, b6, c6, d6))
-    return nflag
-
-
-@jit
-def _rk_lane_exact(S, i, n, h, rk4, y, p, work, ynew):
-    """Step lane i with the straightforward code (rk.rk2_step / rk4_step):
-    sets R_FLAG to FLAG_OK (state updated) or FLAG_NONFINITE."""
-    for k in range(n):
-        y[k] = S[O_Y + k * B1 + i]
-    for k in range(9):
-        p[k] = S[O_P + k * B1 + i]
-    if rk4:
-        rk4_step(y, p, h, n, work, ynew)
-    else:
-        rk2_step(y, p, h, n, work, ynew)
-    for k in range(n):
-        if not np.isfinite(ynew[k]):
+        if S[O_FLAG + i] != FLAG_EXACT:
+            continue
+        md = lane_model(shared, model, S, i)
+        yn, ok = explicit_step(tab, md, load_rk_state(md, S, src + i, ROW), h, True)
+        if tree_finite(yn):
+            store_rk_state(md, S, dst + i, ROW, yn)
+            S[O_FLAG + i] = FLAG_OK
+        else:
             S[O_FLAG + i] = FLAG_NONFINITE
-            return
-    for k in range(n):
-        S[O_Y + k * B1 + i] = ynew[k]
-    S[O_FLAG + i] = FLAG_OK
+            nfail += 1
+    return nfail
 
 
 @jit
-def _rk_lane_exact7(S, i, src, dst, h, rk4, q):
-    """_rk_lane_exact for the 7-wide state, in registers, with the lane's
-    coefficients q (shared or its rows) instead of recomputing them from its
-    parameters: the same operations as rk.rk2_step / rk4_step (through
-    model.rhs), without their five divisions per stage.  From the state rows
-    at src to those at dst."""
-    y0, y1, y2, y3, y4, y5, y6 = _load7(S, src, i)
-    h2 = 0.5 * h
-    a0, a1, a2, a3, a4, a5, a6 = rhs7_lane(y0, y1, y2, y3, y4, y5, y6, q)
-    b0, b1, b2, b3, b4, b5, b6 = rhs7_lane(
-        fma(h2, a0, y0), fma(h2, a1, y1), fma(h2, a2, y2), fma(h2, a3, y3),
-        fma(h2, a4, y4), fma(h2, a5, y5), fma(h2, a6, y6), q)
-    if rk4:
-        h6 = h * (1.0 / 6.0)
-        c0, c1, c2, c3, c4, c5, c6 = rhs7_lane(
-            fma(h2, b0, y0), fma(h2, b1, y1), fma(h2, b2, y2), fma(h2, b3, y3),
-            fma(h2, b4, y4), fma(h2, b5, y5), fma(h2, b6, y6), q)
-        d0, d1, d2, d3, d4, d5, d6 = rhs7_lane(
-            fma(h, c0, y0), fma(h, c1, y1), fma(h, c2, y2), fma(h, c3, y3),
-            fma(h, c4, y4), fma(h, c5, y5), fma(h, c6, y6), q)
-        n0 = fma(h6, rk4_sum(a0, b0, c0, d0), y0)
-        n1 = fma(h6, rk4_sum(a1, b1, c1, d1), y1)
-        n2 = fma(h6, rk4_sum(a2, b2, c2, d2), y2)
-        n3 = fma(h6, rk4_sum(a3, b3, c3, d3), y3)
-        n4 = fma(h6, rk4_sum(a4, b4, c4, d4), y4)
-        n5 = fma(h6, rk4_sum(a5, b5, c5, d5), y5)
-        n6 = fma(h6, rk4_sum(a6, b6, c6, d6), y6)
-    else:
-        n0 = fma(h, b0, y0)
-        n1 = fma(h, b1, y1)
-        n2 = fma(h, b2, y2)
-        n3 = fma(h, b3, y3)
-        n4 = fma(h, b4, y4)
-        n5 = fma(h, b5, y5)
-        n6 = fma(h, b6, y6)
-    if not (np.isfinite(n0) and np.isfinite(n1) and np.isfinite(n2) and np.isfinite(n3)
-            and np.isfinite(n4) and np.isfinite(n5) and np.isfinite(n6)):
-        S[O_FLAG + i] = FLAG_NONFINITE
-        return
-    _store7(S, dst, i, n0, n1, n2, n3, n4, n5, n6)
-    S[O_FLAG + i] = FLAG_OK
-
-
-@jit
-def _w2_sweep(S, nb, h):
-    """max |Ω_k|² update alone (for the scalar RK path)."""
-    for i in range(nb):
-        _track_w2(S, i, S[O_Y + i], S[O_Y + B1 + i], S[O_Y + 2 * B1 + i], h < 0.0)
+def _rk_step(tab, model, shared, S, nb, h, par):
+    """One RK step from the rows at Y (par 0) or YB (par 1); returns the number
+    of failed lanes."""
+    if par == 0:
+        nflag = _rk_sweep(tab, model, shared, S, nb, h, 0)
+        return _rk_exact(tab, model, shared, S, nb, h, 0) if nflag else 0
+    nflag = _rk_sweep(tab, model, shared, S, nb, h, 1)
+    return _rk_exact(tab, model, shared, S, nb, h, 1) if nflag else 0
 
 
 # --------------------------------------------------------------------------
-# variational integrator sweeps (vi.vi_step, lane by lane)
+# variational integrator sweeps (simple.advance_vi_members, lane by lane)
 
 
 @jit
-def _vi_prepare(S, nb, h, tol, first, qq, vv):
-    """Per lane: max |Ω_k|², Γ_{k+1} (Cayley), σ_{k+1}, b, predictor X,
-    |Ω_k|∞, the Newton mask and, if ``first``, Newton iteration 1 (as
-    _newton_sweep does it; the predictor never leaves the registers).
-    Returns the number of lanes whose exp argument needs math.exp (R_FLAG =
-    FLAG_EXACT)."""
+def _vi_prepare(model, shared, S, nb, vv, vvn, h, hn, g2, wl, wr, mode, tol, first):
+    """Per lane: max |h_i X|², the step's Γ', σ', μ', R' (vi_advance), the next
+    Newton function's constant part b, the predictor, |X|∞, the Newton mask
+    and, if ``first``, Newton iteration 1 (as _newton_sweep does it; the
+    predictor never leaves the registers).  Returns the number of lanes whose
+    entropy needs the exact operations (FLAG_EXACT)."""
     nexact = 0
     for i in range(nb):
-        q = _rows_q(S, i) if qq is None else qq
-        v = _rows_v(S, i) if vv is None else vv
-        w0 = S[O_Y + i]
-        w1 = S[O_Y + B1 + i]
-        w2 = S[O_Y + 2 * B1 + i]
-        sg = S[O_Y + 6 * B1 + i]
-        _track_w2(S, i, w0, w1, w2, h < 0.0)
-        G0, G1, G2 = cayley_lane(-(h * w0), -(h * w1), -(h * w2),
-                                 S[O_Y + 3 * B1 + i], S[O_Y + 4 * B1 + i], S[O_Y + 5 * B1 + i])
-        S[O_GN + i] = G0
-        S[O_GN + B1 + i] = G1
-        S[O_GN + 2 * B1 + i] = G2
-        rate, small = sigma_rate_poly(w0, w1, w2, sg, q)
-        S[O_SN + i] = fma(h, rate, sg)
-        S[O_FLAG + i] = select(small, FLAG_OK, FLAG_EXACT)
-        nexact += 0 if small else 1
-        b0, b1, b2 = momentum_constant_lane(w0, w1, w2, G0, G1, G2, v)
+        md = lane_model(shared, model, S, i)
+        v = lane_vi(vv, md, h, wl, wr)
+        vn = lane_vi(vvn, md, hn, wl, wr)
+        y = load_vi_state(md, S, O_Y + i, ROW)
+        X = y[0]
+        _track_w2(S, i, g2 * norm2_lane(X[0], X[1], X[2]))
+        G1, s1, mu1, R1, b, xp, sc0, ok = vi_advance(md, v, vn, y, hn, mode, False)
+        S[O_GN + i] = G1[0]
+        S[O_GN + ROW + i] = G1[1]
+        S[O_GN + 2 * ROW + i] = G1[2]
+        store1(s1, S, O_SN + i)
+        S[O_MUN + i] = mu1[0]
+        S[O_MUN + ROW + i] = mu1[1]
+        S[O_MUN + 2 * ROW + i] = mu1[2]
+        store9(R1, S, O_RN + i)
+        b0, b1, b2 = b
         S[O_B + i] = b0
-        S[O_B + B1 + i] = b1
-        S[O_B + 2 * B1 + i] = b2
-        x0, x1, x2 = predictor_lane(w0, w1, w2, G0, G1, G2, q, h)
-        sc0 = max(abs(w0), abs(w1), abs(w2))
+        S[O_B + ROW + i] = b1
+        S[O_B + 2 * ROW + i] = b2
         S[O_SC0 + i] = sc0
-        d0, d1, d2, det = newton_lane(x0, x1, x2, b0, b1, b2, v)
-        sing = (det == 0.0) | (not _finite(det))
+        S[O_FLAG + i] = select(ok, FLAG_OK, FLAG_EXACT)
+        nexact += 0 if ok else 1
+        x0, x1, x2 = xp
+        d0, d1, d2, det = newton_correction(md, vn, x0, x1, x2, b0, b1, b2)
+        sing = (det == 0.0) | (not finite(det))
         n0 = x0 - d0
         n1 = x1 - d1
         n2 = x2 - d2
@@ -436,65 +300,45 @@ def _vi_prepare(S, nb, h, tol, first, qq, vv):
         bad = sing | (not (step == step))
         stay = sing | (not first)
         S[O_X + i] = select(stay, x0, n0)
-        S[O_X + B1 + i] = select(stay, x1, n1)
-        S[O_X + 2 * B1 + i] = select(stay, x2, n2)
-        code = NEWTON_SINGULAR if bad else (NEWTON_OK if conv else NEWTON_MAXITER)
+        S[O_X + ROW + i] = select(stay, x1, n1)
+        S[O_X + 2 * ROW + i] = select(stay, x2, n2)
+        code = select(bad, NEWTON_SINGULAR, select(conv, NEWTON_OK, NEWTON_MAXITER))
         S[O_CODE + i] = select(first, code, NEWTON_MAXITER)
         S[O_ITS + i] = select(first, 1.0, 0.0)
-        S[O_RUN + i] = select((first & (bad | conv)), 0.0, 1.0)
+        S[O_RUN + i] = select(first & (bad | conv), 0.0, 1.0)
     return nexact
 
 
 @jit
-def _vi_sigma_exact(S, nb, h, qq):
-    """σ_{k+1} with math.exp (vi.vi_step's own expression) for FLAG_EXACT lanes
-    (qq: the shared coefficients, or None: the lane's rows)."""
+def _vi_entropy_exact(model, shared, S, nb, vv, h, wl, wr, mode):
+    """σ' with the straightforward kernel's operations for FLAG_EXACT lanes."""
     for i in range(nb):
         if S[O_FLAG + i] != FLAG_EXACT:
             continue
-        sg = S[O_Y + 6 * B1 + i]
-        q = _rows_q(S, i) if qq is None else qq
-        S[O_SN + i] = fma(h, sigma_rate_exact(S[O_Y + i], S[O_Y + B1 + i], S[O_Y + 2 * B1 + i],
-                                              sg, q), sg)
+        md = lane_model(shared, model, S, i)
+        v = lane_vi(vv, md, h, wl, wr)
+        y = load_vi_state(md, S, O_Y + i, ROW)
+        s1, ok = vi_entropy(md, v, y, mode, True)
+        store1(s1, S, O_SN + i)
         S[O_FLAG + i] = FLAG_OK
 
 
-@jit(inline="always")
-def _attitude_row(S, i, r, C):
-    """Row r of R_{k+1} = R_k C for lane i (r a literal 0, 1, 2)."""
-    a, b, c = row_times_lane(S[O_Y + (7 + 3 * r) * B1 + i], S[O_Y + (8 + 3 * r) * B1 + i],
-                             S[O_Y + (9 + 3 * r) * B1 + i], C)
-    S[O_RN + (3 * r) * B1 + i] = a
-    S[O_RN + (3 * r + 1) * B1 + i] = b
-    S[O_RN + (3 * r + 2) * B1 + i] = c
-
-
 @jit
-def _vi_attitude(S, nb, h):
-    """R_{k+1} = R_k cay(hΩ̂_k) (so3.attitude_update, same operations).  The rows
-    are written out (no loop over r): with a loop LLVM left the lane loop scalar."""
-    for i in range(nb):
-        C = cayley_matrix_lane(h * S[O_Y + i], h * S[O_Y + B1 + i], h * S[O_Y + 2 * B1 + i])
-        _attitude_row(S, i, 0, C)
-        _attitude_row(S, i, 1, C)
-        _attitude_row(S, i, 2, C)
-
-
-@jit
-def _newton_sweep(S, nb, tol, it, vv):
-    """Newton iteration number ``it`` on every lane whose mask is set
-    (vi.newton_momentum's stopping rules, per lane).  Returns the number of
+def _newton_sweep(model, shared, S, nb, vvn, hn, wl, wr, tol, it):
+    """Newton iteration number ``it`` on every lane whose mask is set (the
+    straightforward kernel's stopping rules, per lane).  Returns the number of
     lanes still running."""
     nrun = 0
     for i in range(nb):
+        md = lane_model(shared, model, S, i)
+        vn = lane_vi(vvn, md, hn, wl, wr)
         run = S[O_RUN + i] != 0.0
         x0 = S[O_X + i]
-        x1 = S[O_X + B1 + i]
-        x2 = S[O_X + 2 * B1 + i]
-        v = _rows_v(S, i) if vv is None else vv
-        d0, d1, d2, det = newton_lane(x0, x1, x2, S[O_B + i], S[O_B + B1 + i],
-                                      S[O_B + 2 * B1 + i], v)
-        sing = (det == 0.0) | (not _finite(det))
+        x1 = S[O_X + ROW + i]
+        x2 = S[O_X + 2 * ROW + i]
+        d0, d1, d2, det = newton_correction(md, vn, x0, x1, x2, S[O_B + i], S[O_B + ROW + i],
+                                            S[O_B + 2 * ROW + i])
+        sing = (det == 0.0) | (not finite(det))
         n0 = x0 - d0
         n1 = x1 - d1
         n2 = x2 - d2
@@ -502,12 +346,10 @@ def _newton_sweep(S, nb, tol, it, vv):
         nanstep = not (step == step)
         move = run & (not sing)
         # A lane that stays keeps its row values.  Written as x − (d or +0), not as
-        # "new if move else old": a store of select(c, new, old-from-that-address)
-        # becomes a masked store (vmaskmovpd), slow microcode on AMD Zen.  Exact:
-        # x − d is n, and x − (+0) is x for every x (−0, inf and NaN included).
+        # "new if move else old" (a masked store); exact: x − (+0) is x for every x
         S[O_X + i] = x0 - select(move, d0, 0.0)
-        S[O_X + B1 + i] = x1 - select(move, d1, 0.0)
-        S[O_X + 2 * B1 + i] = x2 - select(move, d2, 0.0)
+        S[O_X + ROW + i] = x1 - select(move, d1, 0.0)
+        S[O_X + 2 * ROW + i] = x2 - select(move, d2, 0.0)
         bad = sing | nanstep
         code_old = S[O_CODE + i]
         code = select(bad, NEWTON_SINGULAR, select(conv, NEWTON_OK, code_old))
@@ -521,157 +363,117 @@ def _newton_sweep(S, nb, tol, it, vv):
     return nrun
 
 
+#: the rows a compacted Newton lane needs: X, B, SC0, RUN, CODE, ITS
+_COMPACT_ROWS = (ROWS["X"][0], ROWS["X"][0] + 1, ROWS["X"][0] + 2, ROWS["B"][0],
+                 ROWS["B"][0] + 1, ROWS["B"][0] + 2, ROWS["SC0"][0], ROWS["RUN"][0],
+                 ROWS["CODE"][0], ROWS["ITS"][0])
+_BACK_ROWS = (ROWS["X"][0], ROWS["X"][0] + 1, ROWS["X"][0] + 2, ROWS["RUN"][0],
+              ROWS["CODE"][0], ROWS["ITS"][0])
+
+
 @jit
-def _newton_compact(S, S2, idx, nb, tol, its, maxiter, vv):
+def _newton_compact(model, shared, S, S2, idx, nb, nparam, vvn, hn, wl, wr, tol, its, maxiter):
     """Finish the Newton iterations of the few lanes still running (iterations
     its+1 … maxiter) on a compact copy: their rows go to lanes 0 … k−1 of the
     scratch buffer S2, _newton_sweep runs there (same arithmetic per lane) and
-    the results come back.  One slow member then costs a sweep over a handful
-    of lanes instead of the whole block."""
-    k = np.int64(0)  # not a literal 0: that gave _newton_sweep a second specialization
+    the results come back."""
+    k = np.int64(0)
     for i in range(nb):
         if S[O_RUN + i] != 0.0:
             idx[k] = i
             k += 1
-    for r in range(R_X, R_ITS + 1):  # X, b, |Ω_k|∞, mask, code, iterations
+    for r in _COMPACT_ROWS:
         for j in range(k):
-            S2[r * B1 + j] = S[r * B1 + idx[j]]
-    if vv is None:
-        for r in range(R_V, R_V + NVCOEF):
+            S2[r * ROW + j] = S[r * ROW + idx[j]]
+    if shared is None:
+        for r in range(nparam):
             for j in range(k):
-                S2[r * B1 + j] = S[r * B1 + idx[j]]
+                S2[O_P + r * ROW + j] = S[O_P + r * ROW + idx[j]]
     nrun = k
     while its < maxiter and nrun > 0:
         its += 1
-        nrun = _newton_sweep(S2, k, tol, its, vv)
-    for r in (R_X, R_X + 1, R_X + 2, R_RUN, R_CODE, R_ITS):
+        nrun = _newton_sweep(model, shared, S2, k, vvn, hn, wl, wr, tol, its)
+    for r in _BACK_ROWS:
         for j in range(k):
-            S[r * B1 + idx[j]] = S2[r * B1 + j]
+            S[r * ROW + idx[j]] = S2[r * ROW + j]
+
+
+@lane
+def _new_state(md, S, i):
+    """The state the step would accept, from the work rows."""
+    return ((S[O_X + i], S[O_X + ROW + i], S[O_X + 2 * ROW + i]),
+            (S[O_GN + i], S[O_GN + ROW + i], S[O_GN + 2 * ROW + i]),
+            load1_if(md.thermo, S, O_SN + i),
+            (S[O_MUN + i], S[O_MUN + ROW + i], S[O_MUN + 2 * ROW + i]),
+            None,
+            load9_if(md.attitude, S, O_RN + i))
 
 
 @jit
-def _vi_check(S, nb):
+def _vi_check(model, shared, S, nb):
     """After the Newton sweeps: flag the lanes whose step fails (Newton did not
     converge, or the new state is not finite) and accumulate the Newton
-    statistics of every lane.  Returns the number of failed lanes.  The state
-    rows are not touched: a failed lane is retired with its last accepted
-    state before _vi_accept moves the others on."""
+    statistics of every lane.  Returns the number of failed lanes; the state
+    rows are not touched."""
     nfail = 0
     for i in range(nb):
+        md = lane_model(shared, model, S, i)
         its = S[O_ITS + i]
         S[O_NTOT + i] += its
         nm = S[O_NMAX + i]
         # max of two small non-negative integers, exact, without a select on the
-        # row's own value (see _newton_sweep)
+        # row's own value
         S[O_NMAX + i] = 0.5 * ((its + nm) + abs(its - nm))
-        n0 = S[O_X + i]
-        n1 = S[O_X + B1 + i]
-        n2 = S[O_X + 2 * B1 + i]
-        n3 = S[O_GN + i]
-        n4 = S[O_GN + B1 + i]
-        n5 = S[O_GN + 2 * B1 + i]
-        n6 = S[O_SN + i]
         conv = S[O_CODE + i] == NEWTON_OK
-        # x − x is 0 for finite x and NaN otherwise, so the sum is 0 exactly when all
-        # seven are finite (no overflow: it adds zeros): one compare, no branches
-        zero = (((n0 - n0) + (n1 - n1)) + ((n2 - n2) + (n3 - n3))
-                + (((n4 - n4) + (n5 - n5)) + (n6 - n6)))
-        upd = conv & (zero == 0.0) & (S[O_FLAG + i] == FLAG_OK)
+        upd = conv & tree_finite(_new_state(md, S, i)) & (S[O_FLAG + i] == FLAG_OK)
         S[O_FLAG + i] = select(upd, FLAG_OK, select(conv, FLAG_NONFINITE, FLAG_NEWTON))
         nfail += 0 if upd else 1
     return nfail
 
 
 @jit
-def _vi_accept(S, nb, n):
-    """Move every lane on to its new state (all lanes passed _vi_check: failed
-    ones were retired first)."""
+def _vi_accept(model, shared, S, nb):
+    """Move every lane on to its new state (failed lanes were retired first)."""
     for i in range(nb):
-        S[O_Y + i] = S[O_X + i]
-        S[O_Y + B1 + i] = S[O_X + B1 + i]
-        S[O_Y + 2 * B1 + i] = S[O_X + 2 * B1 + i]
-        S[O_Y + 3 * B1 + i] = S[O_GN + i]
-        S[O_Y + 4 * B1 + i] = S[O_GN + B1 + i]
-        S[O_Y + 5 * B1 + i] = S[O_GN + 2 * B1 + i]
-        S[O_Y + 6 * B1 + i] = S[O_SN + i]
-    if n > NSTATE_BASE:
-        for k in range(9):
-            for i in range(nb):
-                S[O_Y + (7 + k) * B1 + i] = S[O_RN + k * B1 + i]
+        md = lane_model(shared, model, S, i)
+        store_vi_state(md, S, O_Y + i, ROW, _new_state(md, S, i))
 
 
 @jit
-def _vi_attitude_check(S, nb):
-    """Before _vi_check (16-wide state): a non-finite R_{k+1} flags the lane
-    (the sum of x − x over its nine entries is 0 exactly when all are finite;
-    written out: as a loop over the entries LLVM left the lane loop scalar)."""
-    for i in range(nb):
-        zero = ((((S[O_RN + i] - S[O_RN + i]) + (S[O_RN + B1 + i] - S[O_RN + B1 + i]))
-                 + ((S[O_RN + 2 * B1 + i] - S[O_RN + 2 * B1 + i])
-                    + (S[O_RN + 3 * B1 + i] - S[O_RN + 3 * B1 + i])))
-                + (((S[O_RN + 4 * B1 + i] - S[O_RN + 4 * B1 + i])
-                    + (S[O_RN + 5 * B1 + i] - S[O_RN + 5 * B1 + i]))
-                   + ((S[O_RN + 6 * B1 + i] - S[O_RN + 6 * B1 + i])
-                      + ((S[O_RN + 7 * B1 + i] - S[O_RN + 7 * B1 + i])
-                         + (S[O_RN + 8 * B1 + i] - S[O_RN + 8 * B1 + i])))))
-        flag = S[O_FLAG + i]
-        # flags are small integers: flag + (NONFINITE − flag) is NONFINITE exactly
-        S[O_FLAG + i] = flag + select(zero == 0.0, 0.0, FLAG_NONFINITE - flag)
-
-
-@jit
-def _vi_step_block(S, S2, idx, nb, n, h, tol, maxiter, qq, vv):
-    """One VI step of lanes [0, nb) up to _vi_check.  Returns the number of
-    failed lanes (R_FLAG = FLAG_NEWTON or FLAG_NONFINITE); the caller retires
-    them, then moves the others on with _vi_accept."""
+def _vi_substep(model, shared, S, S2, idx, nb, nparam, vv, vvn, h, hn, g2, wl, wr, mode, tol,
+                maxiter):
+    """One substep of lanes [0, nb) up to _vi_check; returns the number of
+    failed lanes (FLAG_NEWTON or FLAG_NONFINITE)."""
     first = maxiter >= 1
-    nexact = _vi_prepare(S, nb, h, tol, first, qq, vv)
+    nexact = _vi_prepare(model, shared, S, nb, vv, vvn, h, hn, g2, wl, wr, mode, tol, first)
     if nexact:
-        _vi_sigma_exact(S, nb, h, qq)
-    if n > NSTATE_BASE:
-        _vi_attitude(S, nb, h)
-    # iterations done: 1 (by _vi_prepare) unless maxiter is 0
-    its = np.int64(1) if first else np.int64(0)  # np.int64: no Literal[int] overloads
+        _vi_entropy_exact(model, shared, S, nb, vv, h, wl, wr, mode)
+    its = np.int64(1) if first else np.int64(0)
     nrun = 0
     for i in range(nb):
         nrun += S[O_RUN + i] != 0.0
     while its < maxiter and nrun > 0:
         if nrun <= NEWTON_COMPACT and nrun < nb:
-            _newton_compact(S, S2, idx, nb, tol, its, maxiter, vv)
+            _newton_compact(model, shared, S, S2, idx, nb, nparam, vvn, hn, wl, wr, tol, its,
+                            maxiter)
             break
         its += 1
-        nrun = _newton_sweep(S, nb, tol, its, vv)
-    if n > NSTATE_BASE:
-        # the flag must also see R, but Newton failure takes precedence
-        _vi_attitude_check(S, nb)
-    return _vi_check(S, nb)
+        nrun = _newton_sweep(model, shared, S, nb, vvn, hn, wl, wr, tol, its)
+    return _vi_check(model, shared, S, nb)
 
 
 # --------------------------------------------------------------------------
 # the block driver
 
 
-@jit(inline="always")
-def _max_h_omega(S, i, h):
-    """max h|Ω_k| over the member's steps: the value at entry or h·sqrt of the
-    max |Ω_k|² of this call (the same as the simple kernel's running max of
-    h·sqrt(|Ω_k|²), since h·sqrt is non-decreasing)."""
-    hm = S[O_HW + i]
-    w = S[O_W2 + i]
-    if not ((w < np.inf) if h < 0.0 else (w >= 0.0)):
-        return hm  # no step (or, for h < 0, only steps whose h|Ω| is −inf)
-    hw = h * np.sqrt(w)
-    return hw if hw > hm else hm
-
-
 @jit
-def _retire(S, i, nb, n, cur, done, h, Y, ISTAT, FSTAT):
+def _retire(S, i, nb, nrows, n, cur, done, h, Y, ISTAT, FSTAT):
     """Write failed lane i back (status, failing step, statistics; the state
     is the last accepted one, in the rows at cur) and move lane nb−1 into its
     place."""
     m = int(S[O_MEMBER + i])
     for k in range(n):
-        Y[m, k] = S[cur + k * B1 + i]
+        Y[m, k] = S[cur + k * ROW + i]
     flag = S[O_FLAG + i]
     ISTAT[m, IS_STATUS] = STATUS_NEWTON if flag == FLAG_NEWTON else STATUS_NONFINITE
     steps = int(S[O_STEPS + i]) + done
@@ -682,211 +484,139 @@ def _retire(S, i, nb, n, cur, done, h, Y, ISTAT, FSTAT):
     FSTAT[m, FS_MAX_H_OMEGA] = _max_h_omega(S, i, h)
     last = nb - 1
     if i != last:
-        for r in range(NROWS):
-            S[r * B1 + i] = S[r * B1 + last]
+        for r in range(nrows):
+            S[r * ROW + i] = S[r * ROW + last]
 
 
 @jit
-def _step(method, S, S2, idx, nb, n, h, tol, maxiter, qq, vv, par, y, p, work, ynew):
-    """One step of lanes [0, nb); returns the number of failed lanes (R_FLAG ≠
-    FLAG_OK).  qq, vv: the block's coefficient tuples if it is uniform, else
-    None (the sweeps then read each lane's rows).  The vectorized RK steps go
-    from the state rows R_Y to R_YB (par 0) or back (par 1); the others stay
-    in R_Y."""
-    rk4 = method == METHOD_RK4
-    if method == METHOD_VI:
-        return _vi_step_block(S, S2, idx, nb, n, h, tol, maxiter, qq, vv)
-    nfail = 0
-    if n == NSTATE_BASE:
-        # literal flips: each direction is its own compilation with constant offsets
-        if rk4:
-            nfail = _rk4_sweep(S, nb, h, qq, 0) if par == 0 else _rk4_sweep(S, nb, h, qq, 1)
-        else:
-            nfail = _rk2_sweep(S, nb, h, qq, 0) if par == 0 else _rk2_sweep(S, nb, h, qq, 1)
-        if nfail:
-            src = O_Y if par == 0 else O_YB
-            dst = O_YB if par == 0 else O_Y
-            for i in range(nb):
-                if S[O_FLAG + i] == FLAG_EXACT:
-                    if qq is None:
-                        _rk_lane_exact7(S, i, src, dst, h, rk4, _rows_q(S, i))
-                    else:
-                        _rk_lane_exact7(S, i, src, dst, h, rk4, qq)
-            nfail = 0
-            for i in range(nb):
-                nfail += S[O_FLAG + i] != FLAG_OK
-    else:
-        _w2_sweep(S, nb, h)
-        for i in range(nb):
-            _rk_lane_exact(S, i, n, h, rk4, y, p, work, ynew)
-            nfail += S[O_FLAG + i] != FLAG_OK
-    return nfail
-
-
-@jit
-def _fill_block(method, Y, P, m0, m1, h, ISTAT, FSTAT):
-    """The block buffer S of members [m0, m1) that are still running (lanes
+def _fill_block(Y, P, m0, m1, nparam, with_scratch, ISTAT, FSTAT):
+    """The block buffer of members [m0, m1) that are still running (lanes
     0 … nb−1), and the Newton compaction scratch (S2, idx; VI only)."""
     n = Y.shape[1]
-    S = np.zeros(NROWS * ROW)
-    S2 = np.zeros(NROWS * ROW if method == METHOD_VI else 0)
-    idx = np.zeros(BLOCK if method == METHOD_VI else 0, np.int64)
-    nb = np.int64(0)  # np.int64: no Literal[int] overloads of the callees
+    nrows = NROWS_FIXED + nparam
+    S = np.zeros(nrows * ROW)
+    S2 = np.zeros(nrows * ROW if with_scratch else 0)
+    idx = np.zeros(BLOCK if with_scratch else 0, np.int64)
+    nb = np.int64(0)
     for m in range(m0, m1):
         if ISTAT[m, IS_STATUS] != STATUS_OK:
             continue
         for k in range(n):
-            S[O_Y + k * B1 + nb] = Y[m, k]
-        for k in range(9):
-            S[O_P + k * B1 + nb] = P[m, k]
+            S[O_Y + k * ROW + nb] = Y[m, k]
+        for k in range(nparam):
+            S[O_P + k * ROW + nb] = P[m, k]
         S[O_HW + nb] = FSTAT[m, FS_MAX_H_OMEGA]
-        S[O_W2 + nb] = np.inf if h < 0.0 else -1.0
+        S[O_W2 + nb] = -1.0
         S[O_NTOT + nb] = ISTAT[m, IS_NEWTON_TOTAL]
         S[O_NMAX + nb] = ISTAT[m, IS_NEWTON_MAX]
         S[O_STEPS + nb] = ISTAT[m, IS_STEPS]
         S[O_MEMBER + nb] = m
         nb += 1
-    return S, S2, idx, nb
+    return S, S2, idx, nb, nrows
 
 
 @jit
-def _advance_block_shared(method, Y, P, pp, m0, m1, h, every, n_out, alpha, beta, tol,
-                          maxiter, OUT, ISTAT, FSTAT):
-    """Members [m0, m1), all with the parameters pp: the coefficients are
-    tuples, which live in registers (the simple kernel computes them with the
-    same functions from the same parameters: same bits)."""
-    S, S2, idx, nb = _fill_block(method, Y, P, m0, m1, h, ISTAT, FSTAT)
-    if nb > 0:
-        _block_steps(method, S, S2, idx, nb, Y.shape[1], h, every, n_out, tol, maxiter,
-                     coefficients(pp), vi_coefficients(pp, h, alpha, beta), Y, OUT, ISTAT, FSTAT)
-
-
-@jit
-def _advance_block_rows(method, Y, P, m0, m1, h, every, n_out, alpha, beta, tol, maxiter,
-                        OUT, ISTAT, FSTAT):
-    """Members [m0, m1) with their own parameters: each lane's coefficients
-    go to its rows, where the sweeps read them."""
-    S, S2, idx, nb = _fill_block(method, Y, P, m0, m1, h, ISTAT, FSTAT)
-    if nb == 0:
-        return
-    for i in range(nb):
-        q = coefficients(_load_params(S, i))
-        for k in range(NCOEF):
-            S[O_Q + k * B1 + i] = q[k]
-        v = vi_coefficients(_load_params(S, i), h, alpha, beta)
-        for k in range(NVCOEF):
-            S[O_V + k * B1 + i] = v[k]
-    _block_steps(method, S, S2, idx, nb, Y.shape[1], h, every, n_out, tol, maxiter, None, None,
-                 Y, OUT, ISTAT, FSTAT)
-
-
-@jit
-def _block_steps(method, S, S2, idx, nb, n, h, every, n_out, tol, maxiter, qq, vv,
-                 Y, OUT, ISTAT, FSTAT):
-    """The steps of a filled block, its outputs, and the write-back of its
-    members at the end.  qq, vv: the coefficient tuples of an ensemble that
-    shares its parameters, else None (rows)."""
-    y = np.empty(n)
-    p = np.empty(9)
-    work = np.empty((DOP853_STAGES, n))
-    ynew = np.empty(n)
-    done = np.int64(0)
-    # the state is in the rows at cur: R_Y, or R_YB after an odd number of
-    # vectorized RK steps (par 1)
-    flips = method != METHOD_VI and n == NSTATE_BASE
-    par = np.int64(0)
-    cur = O_Y
-    for j in range(n_out):
-        for _ in range(every):
-            nfail = _step(method, S, S2, idx, nb, n, h, tol, maxiter, qq, vv, par, y, p, work,
-                          ynew)
-            if nfail:
-                i = np.int64(0)
-                while i < nb:
-                    if S[O_FLAG + i] != FLAG_OK:
-                        _retire(S, i, nb, n, cur, done, h, Y, ISTAT, FSTAT)
-                        nb -= 1
-                    else:
-                        i += 1
-                if nb == 0:
-                    return
-            if method == METHOD_VI:
-                _vi_accept(S, nb, n)
-            if flips:
-                par = 1 - par
-                cur = O_YB if par == 1 else O_Y
-            done += 1
-        for i in range(nb):
-            m = int(S[O_MEMBER + i])
-            for k in range(n):
-                OUT[m, j, k] = S[cur + k * B1 + i]
+def _write_back(S, nb, n, cur, done, h, Y, ISTAT, FSTAT):
     for i in range(nb):
         m = int(S[O_MEMBER + i])
         for k in range(n):
-            Y[m, k] = S[cur + k * B1 + i]
+            Y[m, k] = S[cur + k * ROW + i]
         ISTAT[m, IS_STEPS] = int(S[O_STEPS + i]) + done
         ISTAT[m, IS_NEWTON_TOTAL] = int(S[O_NTOT + i])
         ISTAT[m, IS_NEWTON_MAX] = int(S[O_NMAX + i])
         FSTAT[m, FS_MAX_H_OMEGA] = _max_h_omega(S, i, h)
 
 
-@pjit
-def _advance_blocks_shared(method, Y, P, pp, h, every, n_out, alpha, beta, tol, maxiter,
-                           OUT, ISTAT, FSTAT):
-    """prange over blocks of BLOCK members (VI, RK2, RK4), all with parameters pp."""
-    N = Y.shape[0]
-    nblocks = (N + BLOCK - 1) // BLOCK
-    for bi in prange(nblocks):
-        m0 = bi * BLOCK
-        _advance_block_shared(method, Y, P, pp, m0, min(N, m0 + BLOCK), h, every, n_out, alpha,
-                              beta, tol, maxiter, OUT, ISTAT, FSTAT)
-
-
-@pjit
-def _advance_blocks_rows(method, Y, P, h, every, n_out, alpha, beta, tol, maxiter,
-                         OUT, ISTAT, FSTAT):
-    """prange over blocks of BLOCK members (VI, RK2, RK4), each with its own
-    parameters."""
-    N = Y.shape[0]
-    nblocks = (N + BLOCK - 1) // BLOCK
-    for bi in prange(nblocks):
-        m0 = bi * BLOCK
-        _advance_block_rows(method, Y, P, m0, min(N, m0 + BLOCK), h, every, n_out, alpha, beta,
-                            tol, maxiter, OUT, ISTAT, FSTAT)
-
-
-def shared_params(P):
-    """P[0] (a copy) if every row of P is bitwise equal to it, else None.
-
-    The block kernel has a version for each case: shared parameters give
-    coefficient tuples that live in registers; else every lane reads its
-    coefficients from its rows.  Numba compiles a version on its first use,
-    so the paper scene (one parameter set) never compiles the other."""
-    if P.shape[0] == 0:
-        return None
-    bits = np.ascontiguousarray(P, dtype=np.float64).view(np.int64)
-    if (bits == bits[0]).all():
-        return np.array(P[0], dtype=np.float64)
-    return None
-
-
-def advance_ensemble_fast(method, Y, P, h, every, n_out, alpha, beta, tol, maxiter,
-                          nsub, A, B, OUT, ISTAT, FSTAT):
-    """Same contract and results as ensemble.advance_ensemble (see module
-    docstring); VI, RK2 and RK4 run in vectorized blocks of BLOCK members,
-    the ``reference`` method is handed to ensemble.advance_ensemble.
-
-    A Python function, not a jitted one: the reference (DOP853) and the
-    straightforward per-member steps then stay out of the block kernel's
-    compilation, which takes ~6 s less on a cold numba cache."""
-    if method == METHOD_VI or method == METHOD_RK2 or method == METHOD_RK4:
-        pp = shared_params(P)
-        if pp is not None:
-            _advance_blocks_shared(method, Y, P, pp, h, every, n_out, alpha, beta, tol, maxiter,
-                                   OUT, ISTAT, FSTAT)
+@jit
+def _retire_failed(S, nb, nrows, n, cur, done, h, Y, ISTAT, FSTAT):
+    """Retire every lane whose flag is not FLAG_OK; returns the new lane count."""
+    i = np.int64(0)
+    while i < nb:
+        if S[O_FLAG + i] != FLAG_OK:
+            _retire(S, i, nb, nrows, n, cur, done, h, Y, ISTAT, FSTAT)
+            nb -= 1
         else:
-            _advance_blocks_rows(method, Y, P, h, every, n_out, alpha, beta, tol, maxiter,
-                                 OUT, ISTAT, FSTAT)
-    else:
-        advance_ensemble(method, Y, P, h, every, n_out, alpha, beta, tol, maxiter,
-                         nsub, A, B, OUT, ISTAT, FSTAT)
+            i += 1
+    return nb
+
+
+@jit(nogil=True)
+def advance_rk_blocks(tab, model, shared, Y, P, b0, b1, h, every, n_out, OUT, ISTAT, FSTAT):
+    """Blocks b0 … b1−1 of the explicit method ``tab`` (see module docstring)."""
+    N, n = Y.shape
+    nparam = P.shape[1] if shared is None else 0
+    for bi in range(b0, b1):
+        m0 = bi * BLOCK
+        S, S2, idx, nb, nrows = _fill_block(Y, P, m0, min(N, m0 + BLOCK), nparam, False,
+                                            ISTAT, FSTAT)
+        if nb == 0:
+            continue
+        done = np.int64(0)
+        par = np.int64(0)
+        cur = O_Y
+        for j in range(n_out):
+            for _ in range(every):
+                nfail = _rk_step(tab, model, shared, S, nb, h, par)
+                if nfail:
+                    nb = _retire_failed(S, nb, nrows, n, cur, done, h, Y, ISTAT, FSTAT)
+                    if nb == 0:
+                        break
+                par = 1 - par
+                cur = O_YB if par == 1 else O_Y
+                done += 1
+            if nb == 0:
+                break
+            for i in range(nb):
+                m = int(S[O_MEMBER + i])
+                for k in range(n):
+                    OUT[m, j, k] = S[cur + k * ROW + i]
+        _write_back(S, nb, n, cur, done, h, Y, ISTAT, FSTAT)
+
+
+@jit(nogil=True)
+def advance_vi_blocks(model, shared, Y, P, b0, b1, h, factors, every, n_out, wl, wr, mode, tol,
+                      maxiter, OUT, ISTAT, FSTAT):
+    """Blocks b0 … b1−1 of the variational integrator whose steps are the
+    substeps factors[i]·h (see module docstring)."""
+    N, n = Y.shape
+    nparam = P.shape[1] if shared is None else 0
+    ns = len(factors)
+    for bi in range(b0, b1):
+        m0 = bi * BLOCK
+        S, S2, idx, nb, nrows = _fill_block(Y, P, m0, min(N, m0 + BLOCK), nparam, True,
+                                            ISTAT, FSTAT)
+        if nb == 0:
+            continue
+        done = np.int64(0)
+        # the state at the start of a step: in Y for one substep (a failed step
+        # is not accepted), else in YB (copied before the first substep)
+        cur = O_Y if ns == 1 else O_YB
+        for j in range(n_out):
+            for _ in range(every):
+                if ns > 1:
+                    for k in range(n):
+                        for i in range(nb):
+                            S[O_YB + k * ROW + i] = S[O_Y + k * ROW + i]
+                for s in range(ns):
+                    hs = factors[s] * h
+                    hn = factors[(s + 1) % ns] * h
+                    vv = shared_vi(shared, hs, wl, wr)
+                    vvn = shared_vi(shared, hn, wl, wr)
+                    g2 = factors[s] * factors[s]
+                    nfail = _vi_substep(model, shared, S, S2, idx, nb, nparam, vv, vvn, hs, hn,
+                                        g2, wl, wr, mode, tol, maxiter)
+                    if nfail:
+                        nb = _retire_failed(S, nb, nrows, n, cur, done, h, Y, ISTAT, FSTAT)
+                        if nb == 0:
+                            break
+                    _vi_accept(model, shared, S, nb)
+                if nb == 0:
+                    break
+                done += 1
+            if nb == 0:
+                break
+            for i in range(nb):
+                m = int(S[O_MEMBER + i])
+                for k in range(n):
+                    OUT[m, j, k] = S[O_Y + k * ROW + i]
+        _write_back(S, nb, n, O_Y, done, h, Y, ISTAT, FSTAT)

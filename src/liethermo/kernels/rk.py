@@ -1,11 +1,20 @@
-"""Explicit Runge–Kutta baselines on the continuous system (flat state).
+"""Explicit Runge–Kutta methods from their Butcher tableaus.
 
-* ``rk2_step``: explicit midpoint rule (the paper's "standard Runge–Kutta of
-  order 2"), order 2, 2 right-hand-side evaluations per step;
-* ``rk4_step``: classical RK4, order 4, 4 evaluations;
-* ``dop853_step``: the 8th-order Dormand–Prince tableau (12 stages, taken from
-  scipy's ``dop853_coefficients``) used at fixed step as the high-accuracy
-  reference; callers take ``nsub`` substeps per output step.
+A method is data (cf. scipy's ``integrate/_ivp/rk.py``): the tableau
+(``A``, ``b``, ``c``) and its order, held as class attributes of a marker
+namedtuple whose *type* the kernels are compiled for.  :func:`explicit_step`
+turns a tableau into straight-line code at compile time: the stage values
+stay in registers as part-wise states (:mod:`.layout`), zero coefficients
+are skipped, every product h·a_ij is one multiplication, every stage sum a
+chain of fused multiply-adds onto y.  Both ensemble kernels call it, so they
+compute the same bits; the vectorized kernel calls it on a lane of its rows.
+
+* :data:`MIDPOINT` — explicit midpoint (the paper's "standard Runge–Kutta of
+  order 2"), 2 evaluations;
+* :data:`RK4` — classical Runge–Kutta, order 4, 4 evaluations;
+* :func:`dop853` — the 8th-order solution of Dormand–Prince 8(5,3), 12
+  stages (scipy's ``dop853_coefficients``), at fixed step with substeps: the
+  high-accuracy reference.
 
 None of these preserves |Γ| = 1, RᵀR = I or the discrete Kelvin–Noether law.
 """
@@ -14,103 +23,92 @@ from __future__ import annotations
 
 import functools
 
-import numpy as np
+from ._jit import LANE_OPTIONS
+from collections import namedtuple
 
-from ._jit import fma, jit
-from .model import rhs
+from numba.extending import overload
 
-DOP853_STAGES = 12
-#: placeholders of the tableau's shapes, for calls that never take a DOP853 step
-NO_TABLEAU_A = np.zeros((DOP853_STAGES, DOP853_STAGES))
-NO_TABLEAU_B = np.zeros(DOP853_STAGES)
+from .equations import rk_rhs
+from .gen import compile_source, tree_fma
+
+
+class Tableau(tuple):
+    """Base of the tableau marker classes (a namedtuple with one unused field);
+    the class attributes are the data."""
+
+    __slots__ = ()
+    A: tuple = ()
+    b: tuple = ()
+    c: tuple = ()
+    order: int = 0
+    stages: int = 0
+
+
+def _set(cls, A, b, c, order: int):
+    cls.A = tuple(tuple(float(x) for x in row) for row in A)
+    cls.b = tuple(float(x) for x in b)
+    cls.c = tuple(float(x) for x in c)
+    cls.order = order
+    cls.stages = len(cls.b)
+    return cls
+
+
+class Midpoint(namedtuple("Midpoint", "unused"), Tableau):
+    __slots__ = ()
+
+
+class ClassicalRK4(namedtuple("ClassicalRK4", "unused"), Tableau):
+    __slots__ = ()
+
+
+class DOP853(namedtuple("DOP853", "unused"), Tableau):
+    __slots__ = ()
+
+
+_set(Midpoint, [[], [0.5]], [0.0, 1.0], [0.0, 0.5], 2)
+_set(ClassicalRK4, [[], [0.5], [0.0, 0.5], [0.0, 0.0, 1.0]],
+     [1.0 / 6.0, 1.0 / 3.0, 1.0 / 3.0, 1.0 / 6.0], [0.0, 0.5, 0.5, 1.0], 4)
+MIDPOINT = Midpoint(0.0)
+RK4 = ClassicalRK4(0.0)
 
 
 @functools.cache
-def _dop853_tableau():
-    # scipy.integrate costs ~0.3 s to import: loaded only when the reference is used
+def dop853():
+    """The DOP853 tableau (first 12 stages: the 8th-order solution); loads
+    scipy.integrate (~0.3 s) on first use."""
     from scipy.integrate._ivp import dop853_coefficients as dop
 
-    return {"DOP853_A": np.ascontiguousarray(dop.A[:12, :12], dtype=np.float64),
-            "DOP853_B": np.ascontiguousarray(dop.B, dtype=np.float64),
-            "DOP853_C": np.ascontiguousarray(dop.C[:12], dtype=np.float64)}
+    A = [[float(dop.A[i, j]) for j in range(i)] for i in range(12)]
+    _set(DOP853, A, [float(x) for x in dop.B], [float(x) for x in dop.C[:12]], 8)
+    return DOP853(0.0)
 
 
-def __getattr__(name):
-    """``DOP853_A``, ``DOP853_B``, ``DOP853_C``: the tableau of the 8th-order DOP853
-    solution (first 12 stages), loaded on first access."""
-    if name in ("DOP853_A", "DOP853_B", "DOP853_C"):
-        return _dop853_tableau()[name]
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+def explicit_step(tab, model, y, h, exact):
+    """(y', small): one step of size h of the tableau ``tab`` from the
+    ``rk``-layout state y; ``small`` says whether every stage's inline exp was
+    valid (always with ``exact``)."""
+    raise NotImplementedError("numba only")
 
 
-@jit(inline="always")
-def rk4_sum(k1, k2, k3, k4):
-    """k1 + 2k2 + 2k3 + k4 as rk4_combine forms it (2(k2 + k3) as a sum, exact)."""
-    s = k2 + k3
-    return (s + s) + (k1 + k4)
-
-
-@jit(inline="always")
-def rk4_combine(y, k1, k2, k3, k4, h6):
-    """y + (h/6)(k1 + 2k2 + 2k3 + k4) as rk4_step and the fast kernel evaluate it
-    (h6 = h·(1/6))."""
-    return fma(h6, rk4_sum(k1, k2, k3, k4), y)
-
-
-@jit
-def rk2_step(y, p, h, n, work, ynew):
-    """Explicit midpoint: y' = y + h f(y + h/2 f(y)).  work: (2, n) scratch."""
-    k1 = work[0]
-    k2 = work[1]
-    h2 = 0.5 * h
-    rhs(y, p, n, k1)
-    for i in range(n):
-        ynew[i] = fma(h2, k1[i], y[i])
-    rhs(ynew, p, n, k2)
-    for i in range(n):
-        ynew[i] = fma(h, k2[i], y[i])
-
-
-@jit
-def rk4_step(y, p, h, n, work, ynew):
-    """Classical RK4.  work: (5, n) scratch."""
-    k1 = work[0]
-    k2 = work[1]
-    k3 = work[2]
-    k4 = work[3]
-    tmp = work[4]
-    h2 = 0.5 * h
-    h6 = h * (1.0 / 6.0)
-    rhs(y, p, n, k1)
-    for i in range(n):
-        tmp[i] = fma(h2, k1[i], y[i])
-    rhs(tmp, p, n, k2)
-    for i in range(n):
-        tmp[i] = fma(h2, k2[i], y[i])
-    rhs(tmp, p, n, k3)
-    for i in range(n):
-        tmp[i] = fma(h, k3[i], y[i])
-    rhs(tmp, p, n, k4)
-    for i in range(n):
-        ynew[i] = rk4_combine(y[i], k1[i], k2[i], k3[i], k4[i], h6)
-
-
-@jit
-def dop853_step(y, p, h, n, A, B, K, tmp, ynew):
-    """One fixed step of the 8th-order DOP853 solution.
-
-    K: (12, n) stage scratch, tmp: (n,) scratch.
-    """
-    rhs(y, p, n, K[0])
-    for s in range(1, DOP853_STAGES):
-        for i in range(n):
-            acc = 0.0
-            for j in range(s):
-                acc += A[s, j] * K[j, i]
-            tmp[i] = y[i] + h * acc
-        rhs(tmp, p, n, K[s])
-    for i in range(n):
-        acc = 0.0
-        for j in range(DOP853_STAGES):
-            acc += B[j] * K[j, i]
-        ynew[i] = y[i] + h * acc
+@overload(explicit_step, jit_options=LANE_OPTIONS)
+def _explicit_step(tab, model, y, h, exact):
+    cls = getattr(tab, "instance_class", None)
+    if not (isinstance(cls, type) and issubclass(cls, Tableau)) or not cls.stages:
+        return None
+    lines = ["def impl(tab, model, y, h, exact):"]
+    small = []
+    for i in range(cls.stages):
+        z = "y"
+        for j, a in enumerate(cls.A[i]):
+            if a != 0.0:
+                lines.append(f"    z{i} = tree_fma(h * {a!r}, k{j}, {z})")
+                z = f"z{i}"
+        lines.append(f"    k{i}, s{i} = rk_rhs(model, {z}, exact)")
+        small.append(f"s{i}")
+    z = "y"
+    for j, bj in enumerate(cls.b):
+        if bj != 0.0:
+            lines.append(f"    yn{j} = tree_fma(h * {bj!r}, k{j}, {z})")
+            z = f"yn{j}"
+    lines.append(f"    return {z}, {' & '.join(small)}")
+    return compile_source("\n".join(lines) + "\n", {"tree_fma": tree_fma, "rk_rhs": rk_rhs})

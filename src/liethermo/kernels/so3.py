@@ -1,4 +1,4 @@
-"""SO(3) helpers on plain float arrays (numba-compiled).
+"""SO(3) on plain floats (numba-compiled).
 
 Conventions: ``hat(w) v = w × v``; the Cayley map
 ``cay(ŵ) = (I − ŵ/2)⁻¹ (I + ŵ/2)`` (Hairer–Lubich–Wanner IV.8.3), which in
@@ -7,30 +7,80 @@ vector form reads
     cay(ŵ) v = v + 4/(4 + |w|²) (w × v + ½ w × (w × v)).
 
 It rotates by the angle 2·atan(|w|/2) about w (not |w|): the phase error of a
-Cayley step of size h|Ω| is ≈ (h|Ω|)³/12 per step.  All functions write into
-caller-allocated ``out`` arrays; none allocates.  The ``*_lane`` functions
-are the scalar forms (explicit fused multiply-adds) that the step kernels
-share, so the straightforward and the vectorized kernels get the same bits.
+Cayley step of size h|Ω| is ≈ (h|Ω|)³/12 per step.  The ``*_lane`` functions
+are the scalar forms (explicit fused multiply-adds) that every kernel shares,
+so the straightforward and the vectorized kernels get the same bits; the
+array functions write into caller-allocated ``out`` arrays.
 """
 
 from __future__ import annotations
 
+from ._jit import LANE_OPTIONS, fma, jit, lane
 
-from ._jit import fma, jit
-from .model import cross_lane, norm2_lane
+
+@lane
+def cross_lane(a0, a1, a2, b0, b1, b2):
+    """a × b with one fused multiply-add per component."""
+    return (fma(a1, b2, -(a2 * b1)), fma(a2, b0, -(a0 * b2)), fma(a0, b1, -(a1 * b0)))
+
+
+@lane
+def norm2_lane(w0, w1, w2):
+    """|w|² = w·w (fused)."""
+    return fma(w0, w0, fma(w1, w1, w2 * w2))
+
+
+@lane
+def cayley_lane(w0, w1, w2, v0, v1, v2):
+    """cay(ŵ) v as a 3-tuple: v + s(u + ½ w×u), u = w×v, s = 4/(4 + |w|²)."""
+    s = 4.0 / (4.0 + norm2_lane(w0, w1, w2))
+    u0, u1, u2 = cross_lane(w0, w1, w2, v0, v1, v2)
+    q0, q1, q2 = cross_lane(w0, w1, w2, u0, u1, u2)
+    return fma(s, fma(0.5, q0, u0), v0), fma(s, fma(0.5, q1, u1), v1), fma(s, fma(0.5, q2, u2), v2)
+
+
+@lane
+def cayley_matrix_lane(w0, w1, w2):
+    """cay(ŵ) = I + s(ŵ + ½ŵ²), s = 4/(4 + |w|²), row-major as a 9-tuple
+    ((ŵ²)_ij = w_i w_j − |w|² δ_ij)."""
+    ww = norm2_lane(w0, w1, w2)
+    s = 4.0 / (4.0 + ww)
+    sh = 0.5 * s
+    return (fma(sh, fma(w0, w0, -ww), 1.0), fma(sh, w0 * w1, -(s * w2)), fma(sh, w0 * w2, s * w1),
+            fma(sh, w1 * w0, s * w2), fma(sh, fma(w1, w1, -ww), 1.0), fma(sh, w1 * w2, -(s * w0)),
+            fma(sh, w2 * w0, -(s * w1)), fma(sh, w2 * w1, s * w0), fma(sh, fma(w2, w2, -ww), 1.0))
+
+
+@lane
+def row_times_lane(r0, r1, r2, C):
+    """The row vector r times the 3×3 matrix C (a row-major 9-tuple)."""
+    return (fma(r0, C[0], fma(r1, C[3], r2 * C[6])), fma(r0, C[1], fma(r1, C[4], r2 * C[7])),
+            fma(r0, C[2], fma(r1, C[5], r2 * C[8])))
+
+
+@lane
+def attitude_lane(R, w0, w1, w2):
+    """R cay(ŵ) for R a row-major 9-tuple: the attitude update with w = hΩ."""
+    C = cayley_matrix_lane(w0, w1, w2)
+    a0, a1, a2 = row_times_lane(R[0], R[1], R[2], C)
+    b0, b1, b2 = row_times_lane(R[3], R[4], R[5], C)
+    c0, c1, c2 = row_times_lane(R[6], R[7], R[8], C)
+    return (a0, a1, a2, b0, b1, b2, c0, c1, c2)
+
+
+@lane
+def attitude_rate_lane(R, w0, w1, w2):
+    """Ṙ = R Ω̂ for R a row-major 9-tuple: row r of R times Ω̂ is r × Ω."""
+    a0, a1, a2 = cross_lane(R[0], R[1], R[2], w0, w1, w2)
+    b0, b1, b2 = cross_lane(R[3], R[4], R[5], w0, w1, w2)
+    c0, c1, c2 = cross_lane(R[6], R[7], R[8], w0, w1, w2)
+    return (a0, a1, a2, b0, b1, b2, c0, c1, c2)
 
 
 @jit
 def cross(a, b, out):
     """out = a × b (out may not alias a or b)."""
-    out[0] = a[1] * b[2] - a[2] * b[1]
-    out[1] = a[2] * b[0] - a[0] * b[2]
-    out[2] = a[0] * b[1] - a[1] * b[0]
-
-
-@jit
-def dot(a, b):
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+    out[0], out[1], out[2] = cross_lane(a[0], a[1], a[2], b[0], b[1], b[2])
 
 
 @jit
@@ -47,41 +97,10 @@ def hat(w, out):
     out[2, 2] = 0.0
 
 
-@jit(inline="always")
-def cayley_lane(w0, w1, w2, v0, v1, v2):
-    """cay(ŵ) v as a 3-tuple: v + s(u + ½ w×u), u = w×v, s = 4/(4 + |w|²)."""
-    s = 4.0 / (4.0 + norm2_lane(w0, w1, w2))
-    u0, u1, u2 = cross_lane(w0, w1, w2, v0, v1, v2)
-    q0, q1, q2 = cross_lane(w0, w1, w2, u0, u1, u2)
-    return fma(s, fma(0.5, q0, u0), v0), fma(s, fma(0.5, q1, u1), v1), fma(s, fma(0.5, q2, u2), v2)
-
-
 @jit
 def cayley_apply(w, v, out):
-    """out = cay(ŵ) v, computed without forming the matrix.
-
-    out may alias v.
-    """
+    """out = cay(ŵ) v, computed without forming the matrix; out may alias v."""
     out[0], out[1], out[2] = cayley_lane(w[0], w[1], w[2], v[0], v[1], v[2])
-
-
-@jit(inline="always")
-def cayley_matrix_lane(w0, w1, w2):
-    """cay(ŵ) = I + s(ŵ + ½ŵ²), s = 4/(4 + |w|²), row-major as a 9-tuple
-    ((ŵ²)_ij = w_i w_j − |w|² δ_ij)."""
-    ww = norm2_lane(w0, w1, w2)
-    s = 4.0 / (4.0 + ww)
-    sh = 0.5 * s
-    return (fma(sh, fma(w0, w0, -ww), 1.0), fma(sh, w0 * w1, -(s * w2)), fma(sh, w0 * w2, s * w1),
-            fma(sh, w1 * w0, s * w2), fma(sh, fma(w1, w1, -ww), 1.0), fma(sh, w1 * w2, -(s * w0)),
-            fma(sh, w2 * w0, -(s * w1)), fma(sh, w2 * w1, s * w0), fma(sh, fma(w2, w2, -ww), 1.0))
-
-
-@jit(inline="always")
-def row_times_lane(r0, r1, r2, C):
-    """The row vector r times the 3×3 matrix C (a row-major 9-tuple)."""
-    return (fma(r0, C[0], fma(r1, C[3], r2 * C[6])), fma(r0, C[1], fma(r1, C[4], r2 * C[7])),
-            fma(r0, C[2], fma(r1, C[5], r2 * C[8])))
 
 
 @jit
@@ -95,10 +114,8 @@ def cayley_matrix(w, out):
 
 @jit
 def attitude_update(R, w, out):
-    """out = R cay(ŵ): the attitude update R_{k+1} = R_k cay(hΩ̂_k) with w = hΩ_k.
-
-    out must not alias R.
-    """
+    """out = R cay(ŵ): the attitude update R_{k+1} = R_k cay(hΩ̂_k) with w = hΩ_k;
+    out must not alias R."""
     C = cayley_matrix_lane(w[0], w[1], w[2])
     for i in range(3):
         out[i, 0], out[i, 1], out[i, 2] = row_times_lane(R[i, 0], R[i, 1], R[i, 2], C)
@@ -106,11 +123,8 @@ def attitude_update(R, w, out):
 
 @jit
 def cayley_inverse(Q, out):
-    """out = w with cay(ŵ) = Q, for a rotation Q with trace > −1.
-
-    From Q − Qᵀ = s (ŵ) ... closed form: ŵ = 2 (Q − I)(Q + I)⁻¹; in vector form
-    w = 2 vee(Q − Qᵀ) / (1 + tr Q).
-    """
+    """out = w with cay(ŵ) = Q, for a rotation Q with trace > −1:
+    ŵ = 2 (Q − I)(Q + I)⁻¹, i.e. w = 2 vee(Q − Qᵀ) / (1 + tr Q)."""
     d = 1.0 + Q[0, 0] + Q[1, 1] + Q[2, 2]
     out[0] = 2.0 * (Q[2, 1] - Q[1, 2]) / d
     out[1] = 2.0 * (Q[0, 2] - Q[2, 0]) / d

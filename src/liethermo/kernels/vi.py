@@ -1,127 +1,145 @@
-"""The variational integrator of Couéraud & Gay-Balmaz (SPEC §3).
+"""The variational integrator in node form, and its compositions.
 
-One step k → k+1 from (Ω_k, Γ_k, σ_k[, R_k]):
+The paper's scheme (Cayley map on SO(3), discrete Lagrange–d'Alembert
+principle, trapezoid friction) is a one-step map on node states
+(Γ_k, μ_k, S_k), μ_k the body angular momentum at t_k, through the discrete
+Legendre transforms
 
-1. Γ_{k+1} = cay(−hΩ̂_k) Γ_k                       (erratum E2: with the h)
-   R_{k+1} = R_k cay(hΩ̂_k)                         (attitude, if requested)
-2. σ_{k+1} = σ_k + h c |Ω_k|² / T(σ_k)             (explicit entropy update)
-3. Ω_{k+1} = X solves F(X) = 0 with
+    M_{±h}(X) = 𝕀X ± (h/2) X×𝕀X + (h²/4)(X·𝕀X) X.
 
-       F(X) = 𝕀X/h + ½ X×𝕀X + (h/4)(X·𝕀X) X + α c X + b,
-       b    = −Π_k/h + ½ Ω_k×Π_k − (h/4)(Ω_k·Π_k) Ω_k − Γ_{k+1}×g⃗ + β c Ω_k,
+One step of size h from the node k, with the step velocity X = Ω_k
+(≈ Ω(t_k + h/2)), a linear friction C (weights w_L + w_R = 1: trapezoid
+½, ½; endpoint 1, 0), nonlinear frictions D(X) and conservative torques τ(Γ):
 
-   friction "trapezoid" (the paper's printed scheme): α = β = ½;
-   friction "endpoint" (the paper's f_d^±, E3): α = 1, β = 0.
+    solve   M_h(X) + w_L h (CX + D(X)) = μ_k + (h/2) τ(Γ_k)          (Newton)
+            Γ_{k+1} = cay(−hX̂) Γ_k,   R_{k+1} = R_k cay(hX̂)
+            μ_{k+1} = M_{−h}(X) − w_R h (CX + D(X)) + (h/2) τ(Γ_{k+1})
+            S_{k+1}: explicit  S + hP/T(S_k), or symmetric U(S_{k+1}) − U(S_k) = hP
 
-The Jacobian is analytic,
+with P = −⟨CX + D(X), X⟩ the power of the discrete friction.  Eliminating μ
+gives the paper's momentum equation exactly.  The kernels hold the state
+(X, Γ, σ, μ[, σ_{k+1}][, R]) in which X is the step velocity of the step that
+*starts* at the node — it is solved at the end of the previous step — so that
+a node's output carries the paper's Ω_k beside the node values, and the
+Newton solve of a step uses the torque of the node it starts from:
 
-       J(X) = 𝕀/h + ½(X̂𝕀 − \\widehat{𝕀X}) + (h/4)(2 X (𝕀X)ᵀ + (X·𝕀X) Id) + α c Id,
+    advance (vi_advance):  Γ', σ', R', μ' from (X, Γ, σ, μ) with size h;
+                           the Newton right-hand side for the next step
+                           (size h'): r = μ' + (h'/2) τ(Γ');
+    solve (Newton):        X' with M_{h'}(X') + w_L h' C X' (+ …) = r.
 
-and the 3×3 Newton system is solved in closed form (adjugate / determinant).
-With D₁ = ½(I₃−I₂), D₂ = ½(I₁−I₃), D₃ = ½(I₂−I₁) (so ½X×𝕀X = (D₁x₂x₃, …)),
-M_i = I_i/h + αc and L_i = βc − I_i/h, component 1 reads
+The map is symmetric (Φ_{−h} ∘ Φ_h = id for trapezoid friction and the
+symmetric entropy update), so symmetric compositions raise its order:
+:data:`COMPOSITIONS` holds the substep factors of Yoshida's triple jump
+(order 4) and of its triple jump again (order 6).
 
-       F₁ = M₁x₁ + D₁x₂x₃ + (h/4)(X·𝕀X)x₁ + b₁,
-       b₁ = L₁Ω₁ + D₁Ω₂Ω₃ − (h/4)(Ω·𝕀Ω)Ω₁ − (Γ_{k+1}×g⃗)₁,
+Newton: F(X) = M_h(X) + w_L h CX − r (+ w_L h D(X)), with the analytic
+Jacobian
 
-which is how the lane functions below evaluate F, J and b, with explicit fused
-multiply-adds.  The straightforward kernel (``vi_step``) and the vectorized
-block kernel (kernels/fast.py) call the same lane functions, so they agree
-bitwise.
-Newton starts from an explicit predictor (one explicit Euler step of the
-continuous equations with Γ_{k+1}) and stops when the step is below
-``tol · max(|X|∞, |Ω_k|∞)``.  A step that does not converge within
-``maxiter`` iterations (or meets a singular/non-finite Jacobian) is reported
-as failed and never accepted.
+    J(X) = diag(I + w_L h C) + (h/2)(X̂𝕀 − (𝕀X)^) + (h²/4)(2 X (𝕀X)ᵀ + (X·𝕀X) Id),
 
-Ω_k is a step velocity: Ω_k = cay⁻¹(R_kᵀR_{k+1})/h ≈ Ω(t_k + h/2) (E4).
+solved in closed form (Cramer), started from an explicit Euler predictor
+X + ½(h + h') Ω̇(X, Γ', σ') of the continuous equations, stopped when the
+step is below ``tol · max(|X'|∞, |X|∞)``.  A step whose iteration does not
+converge within ``maxiter`` iterations, or meets a singular or non-finite
+Jacobian, fails and is never accepted.  With D₁ = ½(I₃ − I₂) (and
+cyclically), component 1 of F reads
+
+    F₁ = M₁X₁ + hD₁X₂X₃ + (h²/4)(X·𝕀X)X₁ − r₁,   M₁ = I₁ + w_L h C₁,
+
+and the lane functions below evaluate it with explicit fused multiply-adds,
+shared by the straightforward and the vectorized kernels.
 """
 
 from __future__ import annotations
 
+from collections import namedtuple
+
 import numpy as np
 
-from ._jit import fma, jit
-from .model import (P_C, P_GX, P_GY, P_GZ, P_I1, P_I2, P_I3, coefficients, cross_lane,
-                    omega_rate, sigma_rate)
-from .so3 import attitude_update, cayley_lane
+from ._jit import fma, lane
+from .equations import omega_rate
+from .gen import axpy_opt, finite, madd, none_dispatch, scale_opt
+from .layout import NEWTON_MAXITER, NEWTON_OK, NEWTON_SINGULAR
+from .so3 import attitude_lane, cayley_lane, cross_lane
+from .terms import sum_discrete_power, sum_linear_friction, sum_nonlinear_friction, sum_torque
+from .terms.thermo import entropy_step
 
-# Newton outcome codes
-NEWTON_OK = 0
-NEWTON_MAXITER = 1
-NEWTON_SINGULAR = 2
+_G1 = 1.0 / (2.0 - 2.0 ** (1.0 / 3.0))
+_G0 = 1.0 - 2.0 * _G1
+_D1 = 1.0 / (2.0 - 2.0 ** (1.0 / 5.0))
+_D0 = 1.0 - 2.0 * _D1
 
-# the VI's per-member coefficients (vi_coefficients); V_* index the tuple
-(V_I1, V_I2, V_I3, V_D1, V_D2, V_D3, V_M1, V_M2, V_M3, V_L1, V_L2, V_L3, V_GX, V_GY, V_GZ,
- V_H2, V_H4) = range(17)
-NVCOEF = 17
+#: substep factors of each method: h_i = factor_i · h
+COMPOSITIONS = {
+    "vi": (1.0,),
+    "vi4": (_G1, _G0, _G1),
+    "vi6": tuple(d * g for d in (_D1, _D0, _D1) for g in (_G1, _G0, _G1)),
+}
 
-
-@jit(inline="always")
-def vi_coefficients(p, h, alpha, beta):
-    """(I₁, I₂, I₃, D₁, D₂, D₃, M₁, M₂, M₃, L₁, L₂, L₃, g_x, g_y, g_z, h/2, h/4)
-    of one member (see module docstring)."""
-    I1 = p[P_I1]
-    I2 = p[P_I2]
-    I3 = p[P_I3]
-    c = p[P_C]
-    ih = 1.0 / h
-    ac = alpha * c
-    bc = beta * c
-    return (I1, I2, I3, 0.5 * (I3 - I2), 0.5 * (I1 - I3), 0.5 * (I2 - I1),
-            fma(I1, ih, ac), fma(I2, ih, ac), fma(I3, ih, ac),
-            fma(-I1, ih, bc), fma(-I2, ih, bc), fma(-I3, ih, bc),
-            p[P_GX], p[P_GY], p[P_GZ], 0.5 * h, 0.25 * h)
+#: friction weights (w_L, w_R): on the Newton side and on the update side
+FRICTION_WEIGHTS = {"trapezoid": (0.5, 0.5), "endpoint": (1.0, 0.0)}
 
 
-@jit(inline="always")
-def momentum_constant_lane(w0, w1, w2, G0, G1, G2, v):
-    """b (kg m² s⁻²) from Ω_k and Γ_{k+1}."""
-    h4wP = v[V_H4] * fma(v[V_I1] * w0, w0, fma(v[V_I2] * w1, w1, (v[V_I3] * w2) * w2))
-    t0, t1, t2 = cross_lane(G0, G1, G2, v[V_GX], v[V_GY], v[V_GZ])
-    b0 = fma(v[V_L1], w0, fma(v[V_D1] * w1, w2, fma(-h4wP, w0, -t0)))
-    b1 = fma(v[V_L2], w1, fma(v[V_D2] * w2, w0, fma(-h4wP, w1, -t1)))
-    b2 = fma(v[V_L3], w2, fma(v[V_D3] * w0, w1, fma(-h4wP, w2, -t2)))
-    return b0, b1, b2
+class VICoefficients(namedtuple("VICoefficients",
+                                "M1 M2 M3 L1 L2 L3 hD1 hD2 hD3 h4 h2 hh wlh wrh h")):
+    """Per-step-size coefficients: M = I + w_L h C, L = I − w_R h C, hD,
+    h²/4, h²/2, h/2, w_L h, w_R h and h."""
+
+    __slots__ = ()
 
 
-@jit(inline="always")
-def predictor_lane(w0, w1, w2, G0, G1, G2, q, h):
-    """Explicit Euler step of the continuous Ω̇ with Γ_{k+1}: an O(h²) guess."""
-    d0, d1, d2 = omega_rate(w0, w1, w2, G0, G1, G2, q)
-    return fma(h, d0, w0), fma(h, d1, w1), fma(h, d2, w2)
+@lane
+def vi_coefficients(model, h, wl, wr):
+    """The :class:`VICoefficients` of a step of size h (s)."""
+    I = model.inertia
+    c0, c1, c2 = sum_linear_friction(model.forces, None, None, None)
+    cl = wl * h
+    cr = -(wr * h)
+    return VICoefficients(axpy_opt(cl, c0, I.I1), axpy_opt(cl, c1, I.I2), axpy_opt(cl, c2, I.I3),
+                          axpy_opt(cr, c0, I.I1), axpy_opt(cr, c1, I.I2), axpy_opt(cr, c2, I.I3),
+                          h * I.D1, h * I.D2, h * I.D3, 0.25 * (h * h), 0.5 * (h * h), 0.5 * h,
+                          cl, wr * h, h)
 
 
-@jit(inline="always")
-def residual_jacobian_lane(x0, x1, x2, b0, b1, b2, v):
-    """F(X) and the rows of J(X): (F₀, F₁, F₂, J00, J01, J02, J10, …, J22)."""
-    Q0 = v[V_I1] * x0
-    Q1 = v[V_I2] * x1
-    Q2 = v[V_I3] * x2
-    h4xQ = v[V_H4] * fma(Q0, x0, fma(Q1, x1, Q2 * x2))
-    F0 = fma(v[V_M1], x0, fma(v[V_D1] * x1, x2, fma(h4xQ, x0, b0)))
-    F1 = fma(v[V_M2], x1, fma(v[V_D2] * x2, x0, fma(h4xQ, x1, b1)))
-    F2 = fma(v[V_M3], x2, fma(v[V_D3] * x0, x1, fma(h4xQ, x2, b2)))
-    hx0 = v[V_H2] * x0
-    hx1 = v[V_H2] * x1
-    hx2 = v[V_H2] * x2
-    J00 = fma(Q0, hx0, v[V_M1] + h4xQ)
-    J01 = fma(Q1, hx0, v[V_D1] * x2)
-    J02 = fma(Q2, hx0, v[V_D1] * x1)
-    J10 = fma(Q0, hx1, v[V_D2] * x2)
-    J11 = fma(Q1, hx1, v[V_M2] + h4xQ)
-    J12 = fma(Q2, hx1, v[V_D2] * x0)
-    J20 = fma(Q0, hx2, v[V_D3] * x1)
-    J21 = fma(Q1, hx2, v[V_D3] * x0)
-    J22 = fma(Q2, hx2, v[V_M3] + h4xQ)
-    return F0, F1, F2, J00, J01, J02, J10, J11, J12, J20, J21, J22
+@lane
+def residual_jacobian(model, v, x0, x1, x2, b0, b1, b2):
+    """F(X) = M_h(X) + w_L h (CX + D(X)) + b (b = −r) and the rows of J(X):
+    (F₀, F₁, F₂, J00, J01, J02, J10, …, J22)."""
+    I = model.inertia
+    Q0 = I.I1 * x0
+    Q1 = I.I2 * x1
+    Q2 = I.I3 * x2
+    h4xQ = v.h4 * fma(Q0, x0, fma(Q1, x1, Q2 * x2))
+    F0 = fma(v.M1, x0, fma(v.hD1 * x1, x2, fma(h4xQ, x0, b0)))
+    F1 = fma(v.M2, x1, fma(v.hD2 * x2, x0, fma(h4xQ, x1, b1)))
+    F2 = fma(v.M3, x2, fma(v.hD3 * x0, x1, fma(h4xQ, x2, b2)))
+    hx0 = v.h2 * x0
+    hx1 = v.h2 * x1
+    hx2 = v.h2 * x2
+    J00 = fma(Q0, hx0, v.M1 + h4xQ)
+    J01 = fma(Q1, hx0, v.hD1 * x2)
+    J02 = fma(Q2, hx0, v.hD1 * x1)
+    J10 = fma(Q0, hx1, v.hD2 * x2)
+    J11 = fma(Q1, hx1, v.M2 + h4xQ)
+    J12 = fma(Q2, hx1, v.hD2 * x0)
+    J20 = fma(Q0, hx2, v.hD3 * x1)
+    J21 = fma(Q1, hx2, v.hD3 * x0)
+    J22 = fma(Q2, hx2, v.M3 + h4xQ)
+    f0, f1, f2, j00, j01, j02, j10, j11, j12, j20, j21, j22 = sum_nonlinear_friction(
+        model.forces, I, v.h, x0, x1, x2, None, None, None, None, None, None, None, None, None,
+        None, None, None)
+    w = v.wlh
+    return (axpy_opt(w, f0, F0), axpy_opt(w, f1, F1), axpy_opt(w, f2, F2),
+            axpy_opt(w, j00, J00), axpy_opt(w, j01, J01), axpy_opt(w, j02, J02),
+            axpy_opt(w, j10, J10), axpy_opt(w, j11, J11), axpy_opt(w, j12, J12),
+            axpy_opt(w, j20, J20), axpy_opt(w, j21, J21), axpy_opt(w, j22, J22))
 
 
-@jit(inline="always")
+@lane
 def solve3_lane(J00, J01, J02, J10, J11, J12, J20, J21, J22, r0, r1, r2):
     """(J⁻¹r, det J) by Cramer's rule: the rows of J⁻¹ are the cross products
-    of J's columns a, e, c divided by det = a·(e×c).  Meaningless when det is
-    0 or not finite."""
+    of J's columns divided by det.  Meaningless when det is 0 or not finite."""
     bc0, bc1, bc2 = cross_lane(J01, J11, J21, J02, J12, J22)
     det = fma(J00, bc0, fma(J10, bc1, J20 * bc2))
     ca0, ca1, ca2 = cross_lane(J02, J12, J22, J00, J10, J20)
@@ -133,162 +151,150 @@ def solve3_lane(J00, J01, J02, J10, J11, J12, J20, J21, J22, r0, r1, r2):
     return d0, d1, d2, det
 
 
-@jit(inline="always")
-def newton_lane(x0, x1, x2, b0, b1, b2, v):
+@lane
+def newton_correction(model, v, x0, x1, x2, b0, b1, b2):
     """One Newton correction d = J(X)⁻¹F(X): (d₀, d₁, d₂, det J)."""
-    F0, F1, F2, J00, J01, J02, J10, J11, J12, J20, J21, J22 = residual_jacobian_lane(
-        x0, x1, x2, b0, b1, b2, v)
+    F0, F1, F2, J00, J01, J02, J10, J11, J12, J20, J21, J22 = residual_jacobian(
+        model, v, x0, x1, x2, b0, b1, b2)
     return solve3_lane(J00, J01, J02, J10, J11, J12, J20, J21, J22, F0, F1, F2)
 
 
-@jit
-def momentum_constant(omega, gamma_next, p, h, beta, b):
-    """b: the X-independent part of F (see module docstring)."""
-    v = vi_coefficients(p, h, 0.0, beta)
-    b[0], b[1], b[2] = momentum_constant_lane(omega[0], omega[1], omega[2], gamma_next[0],
-                                              gamma_next[1], gamma_next[2], v)
-
-
-@jit
-def momentum_residual(X, b, p, h, alpha, F):
-    """F = F(X) of the momentum equation, given its constant part b."""
-    v = vi_coefficients(p, h, alpha, 0.0)
-    r = residual_jacobian_lane(X[0], X[1], X[2], b[0], b[1], b[2], v)
-    F[0] = r[0]
-    F[1] = r[1]
-    F[2] = r[2]
-
-
-@jit
-def momentum_jacobian(X, p, h, alpha, J):
-    """J = ∂F/∂X (analytic)."""
-    v = vi_coefficients(p, h, alpha, 0.0)
-    r = residual_jacobian_lane(X[0], X[1], X[2], 0.0, 0.0, 0.0, v)
-    for i in range(3):
-        for j in range(3):
-            J[i, j] = r[3 + 3 * i + j]
-
-
-@jit
-def solve3(J, r, out):
-    """out = J⁻¹ r in closed form (Cramer).  Returns the determinant; out is
-    left untouched when it is zero or not finite."""
-    d0, d1, d2, det = solve3_lane(J[0, 0], J[0, 1], J[0, 2], J[1, 0], J[1, 1], J[1, 2],
-                                  J[2, 0], J[2, 1], J[2, 2], r[0], r[1], r[2])
-    if det == 0.0 or not np.isfinite(det):
-        return det
-    out[0] = d0
-    out[1] = d1
-    out[2] = d2
-    return det
-
-
-@jit
-def predictor(omega, gamma_next, p, h, out):
-    """Explicit Euler step of Π̇ = Π×Ω − cΩ + Γ×g⃗ (with Γ_{k+1}): O(h²) guess."""
-    q = coefficients(p)
-    out[0], out[1], out[2] = predictor_lane(omega[0], omega[1], omega[2], gamma_next[0],
-                                            gamma_next[1], gamma_next[2], q, h)
-
-
-@jit(inline="always")
+@lane
 def newton_stop(x0, x1, x2, d0, d1, d2, scale0, tol):
-    """(step, converged) of vi.newton_momentum's rule for the iterate X − d:
-    step = |d|∞ ≤ tol·max(|X − d|∞, |Ω_k|∞)."""
+    """(step, converged) for the new iterate X (= old − d):
+    step = |d|∞ ≤ tol·max(|X|∞, |X_k|∞)."""
     step = max(abs(d0), abs(d1), abs(d2))
     scale = max(abs(x0), abs(x1), abs(x2), scale0)
     return step, step <= tol * scale
 
 
-@jit(inline="always")
-def newton_iterate(x0, x1, x2, b0, b1, b2, v, scale0, tol, maxiter):
-    """Newton iterations 1 … maxiter from X = (x0, x1, x2) with newton_momentum's
-    stopping rules: returns (X, code, iterations).  On a singular or
-    non-finite Jacobian X is the last iterate before it."""
+@lane
+def newton_first(model, v, x0, x1, x2, b0, b1, b2, scale0, tol):
+    """Newton iteration 1 from the predictor: (X, code, running)."""
+    d0, d1, d2, det = newton_correction(model, v, x0, x1, x2, b0, b1, b2)
+    sing = (det == 0.0) | (not finite(det))
+    n0 = x0 - d0
+    n1 = x1 - d1
+    n2 = x2 - d2
+    step, conv = newton_stop(n0, n1, n2, d0, d1, d2, scale0, tol)
+    bad = sing | (not (step == step))
+    code = NEWTON_SINGULAR if bad else (NEWTON_OK if conv else NEWTON_MAXITER)
+    if sing:
+        return x0, x1, x2, code, False
+    return n0, n1, n2, code, not (bad | conv)
+
+
+def attitude_step(R, w0, w1, w2):
+    """R cay(ŵ), or None without the attitude."""
+    return attitude_lane(R, w0, w1, w2)
+
+
+attitude_step = none_dispatch(attitude_step, lambda R, w0, w1, w2: None)
+
+
+@lane
+def vi_entropy(model, v, y, mode, exact):
+    """(σ', ok): the entropy at the end of the step of size v.h from the
+    ``vi``-layout state y (None without thermodynamics)."""
+    X = y[0]
+    P = sum_discrete_power(model.forces, model.inertia, v.h, X[0], X[1], X[2], None)
+    return entropy_step(model.thermo, mode, v.h, P, y[2], exact)
+
+
+@lane
+def vi_advance(model, v, vn, y, hn, mode, exact):
+    """Everything of one step of the ``vi`` layout state y = (X, Γ, σ, μ, σₙ, R)
+    but the Newton solve of the next step: returns
+    ``(Γ', σ', μ', R', b, X₀, |X|∞, ok)`` with b = −r the constant part of the
+    next step's Newton function, X₀ its predictor and ``ok`` whether every
+    inline exp/log1p was valid (see thermo)."""
+    X, G, s, mu, sn, R = y
+    x0, x1, x2 = X
+    h = v.h
+    G0, G1, G2 = cayley_lane(-(h * x0), -(h * x1), -(h * x2), G[0], G[1], G[2])
+    I = model.inertia
+    s1, ok = vi_entropy(model, v, y, mode, exact)
+    R1 = attitude_step(R, h * x0, h * x1, h * x2)
+    t0, t1, t2 = sum_torque(model.forces, G0, G1, G2, None, None, None)
+    f0, f1, f2, j00, j01, j02, j10, j11, j12, j20, j21, j22 = sum_nonlinear_friction(
+        model.forces, I, h, x0, x1, x2, None, None, None, None, None, None, None, None, None,
+        None, None, None)
+    h4xQ = v.h4 * fma(I.I1 * x0, x0, fma(I.I2 * x1, x1, (I.I3 * x2) * x2))
+    m0 = axpy_opt(-v.wrh, f0, madd(v.L1, x0, madd(-v.hD1 * x1, x2, madd(h4xQ, x0,
+                                                                       scale_opt(v.hh, t0)))))
+    m1 = axpy_opt(-v.wrh, f1, madd(v.L2, x1, madd(-v.hD2 * x2, x0, madd(h4xQ, x1,
+                                                                       scale_opt(v.hh, t1)))))
+    m2 = axpy_opt(-v.wrh, f2, madd(v.L3, x2, madd(-v.hD3 * x0, x1, madd(h4xQ, x2,
+                                                                       scale_opt(v.hh, t2)))))
+    b0 = -axpy_opt(vn.hh, t0, m0)
+    b1 = -axpy_opt(vn.hh, t1, m1)
+    b2 = -axpy_opt(vn.hh, t2, m2)
+    hp = 0.5 * (h + vn.h)
+    d0, d1, d2 = omega_rate(model, x0, x1, x2, G0, G1, G2, s1, exact)
+    p0 = fma(hp, d0, x0)
+    p1 = fma(hp, d1, x1)
+    p2 = fma(hp, d2, x2)
+    return ((G0, G1, G2), s1, (m0, m1, m2), R1, (b0, b1, b2), (p0, p1, p2),
+            max(abs(x0), abs(x1), abs(x2)), ok)
+
+
+@lane
+def newton_solve(model, vn, b, xp, scale0, tol, maxiter):
+    """Newton iterations 1 … maxiter from the predictor (as the block kernel
+    runs them): returns (X, code, iterations).  On a singular or non-finite
+    Jacobian X is the last iterate before it."""
+    x0, x1, x2 = xp
+    b0, b1, b2 = b
+    its = 0
     code = NEWTON_MAXITER
-    its = maxiter
-    for it in range(1, maxiter + 1):
-        d0, d1, d2, det = newton_lane(x0, x1, x2, b0, b1, b2, v)
-        if det == 0.0 or not np.isfinite(det):
-            code = NEWTON_SINGULAR
-            its = it
-            break
-        x0 -= d0
-        x1 -= d1
-        x2 -= d2
-        step, conv = newton_stop(x0, x1, x2, d0, d1, d2, scale0, tol)
-        if not (step == step):  # NaN step
-            code = NEWTON_SINGULAR
-            its = it
-            break
-        if conv:
-            code = NEWTON_OK
-            its = it
-            break
-    return x0, x1, x2, code, its
+    if maxiter >= 1:
+        x0, x1, x2, code, run = newton_first(model, vn, x0, x1, x2, b0, b1, b2, scale0, tol)
+        its = 1
+        while run and its < maxiter:
+            its += 1
+            d0, d1, d2, det = newton_correction(model, vn, x0, x1, x2, b0, b1, b2)
+            if det == 0.0 or not finite(det):
+                code = NEWTON_SINGULAR
+                break
+            x0 -= d0
+            x1 -= d1
+            x2 -= d2
+            step, conv = newton_stop(x0, x1, x2, d0, d1, d2, scale0, tol)
+            if not (step == step):
+                code = NEWTON_SINGULAR
+                break
+            if conv:
+                code = NEWTON_OK
+                break
+    return (x0, x1, x2), code, its
 
 
-@jit(inline="always")
-def newton_solve_lane(w0, w1, w2, G0, G1, G2, q, v, h, tol, maxiter):
-    """Ω_{k+1} from Ω_k and Γ_{k+1}: b, the predictor, then newton_iterate;
-    returns (X, code, iterations)."""
-    b0, b1, b2 = momentum_constant_lane(w0, w1, w2, G0, G1, G2, v)
-    x0, x1, x2 = predictor_lane(w0, w1, w2, G0, G1, G2, q, h)
-    scale0 = max(abs(w0), abs(w1), abs(w2))
-    return newton_iterate(x0, x1, x2, b0, b1, b2, v, scale0, tol, maxiter)
+@lane
+def momentum_map(model, v, x0, x1, x2, G0, G1, G2):
+    """The node momentum μ_k of the step velocity X = Ω_k and the node Γ_k:
+    μ_k = M_h(X) + w_L h (CX + D(X)) − (h/2) τ(Γ_k) (the Newton equation read
+    backwards); the paper's start Ω₀ := Ω(0) is μ₀ of X = Ω(0)."""
+    t0, t1, t2 = sum_torque(model.forces, G0, G1, G2, None, None, None)
+    F0, F1, F2, j00, j01, j02, j10, j11, j12, j20, j21, j22 = residual_jacobian(
+        model, v, x0, x1, x2, 0.0, 0.0, 0.0)
+    return (axpy_opt(-v.hh, t0, F0), axpy_opt(-v.hh, t1, F1), axpy_opt(-v.hh, t2, F2))
 
 
-@jit
-def newton_momentum(omega, gamma_next, p, h, alpha, beta, tol, maxiter, X):
-    """Solve F(X) = 0 for X = Ω_{k+1}; X holds the result.
-
-    Returns (code, iterations).  code is NEWTON_OK, NEWTON_MAXITER or
-    NEWTON_SINGULAR.
-    """
-    q = coefficients(p)
-    v = vi_coefficients(p, h, alpha, beta)
-    x0, x1, x2, code, its = newton_solve_lane(omega[0], omega[1], omega[2], gamma_next[0],
-                                              gamma_next[1], gamma_next[2], q, v, h, tol, maxiter)
-    X[0] = x0
-    X[1] = x1
-    X[2] = x2
-    return code, its
+@lane
+def newton_rhs(model, v, mu0, mu1, mu2, G0, G1, G2):
+    """b = −(μ + (h/2) τ(Γ)): the constant part of the Newton function of a
+    step of size v.h that starts from the node (Γ, μ)."""
+    t0, t1, t2 = sum_torque(model.forces, G0, G1, G2, None, None, None)
+    return -axpy_opt(v.hh, t0, mu0), -axpy_opt(v.hh, t1, mu1), -axpy_opt(v.hh, t2, mu2)
 
 
-@jit
-def vi_step(y, p, h, n, alpha, beta, tol, maxiter, ynew):
-    """One VI step y → ynew (flat state, see model.py).  Returns (code, iters)."""
-    w0 = y[0]
-    w1 = y[1]
-    w2 = y[2]
-    G0, G1, G2 = cayley_lane(-(h * w0), -(h * w1), -(h * w2), y[3], y[4], y[5])
-    ynew[3] = G0
-    ynew[4] = G1
-    ynew[5] = G2
-    q = coefficients(p)
-    ynew[6] = fma(h, sigma_rate(w0, w1, w2, y[6], q), y[6])
-    if n > 7:
-        w = np.empty(3)
-        w[0] = h * w0
-        w[1] = h * w1
-        w[2] = h * w2
-        R = y[7:16].reshape((3, 3))
-        Rn = ynew[7:16].reshape((3, 3))
-        attitude_update(R, w, Rn)
-    v = vi_coefficients(p, h, alpha, beta)
-    ynew[0], ynew[1], ynew[2], code, its = newton_solve_lane(w0, w1, w2, G0, G1, G2, q, v, h, tol,
-                                                             maxiter)
-    return code, its
+def substep_factors(method: str) -> tuple:
+    try:
+        return COMPOSITIONS[method]
+    except KeyError:
+        raise ValueError(f"unknown variational method {method!r}: expected one of "
+                         f"{sorted(COMPOSITIONS)}") from None
 
 
-@jit
-def kelvin_noether_quantity(omega, gamma, p, h):
-    """I_k = h Γ_k·(Π_k + (h/2) Ω_k×Π_k + (h²/4)(Ω_k·Π_k) Ω_k)  (kg m² s⁻¹ · s)."""
-    P0 = p[P_I1] * omega[0]
-    P1 = p[P_I2] * omega[1]
-    P2 = p[P_I3] * omega[2]
-    wP = omega[0] * P0 + omega[1] * P1 + omega[2] * P2
-    v0 = P0 + 0.5 * h * (omega[1] * P2 - omega[2] * P1) + 0.25 * h * h * wP * omega[0]
-    v1 = P1 + 0.5 * h * (omega[2] * P0 - omega[0] * P2) + 0.25 * h * h * wP * omega[1]
-    v2 = P2 + 0.5 * h * (omega[0] * P1 - omega[1] * P0) + 0.25 * h * h * wP * omega[2]
-    return h * (gamma[0] * v0 + gamma[1] * v1 + gamma[2] * v2)
+def as_array(t) -> np.ndarray:
+    return np.asarray(t, dtype=np.float64)

@@ -1,0 +1,129 @@
+"""The continuous equations of a model (body frame), as lane functions.
+
+With μ = 𝕀Ω, forces f (frictions and conservative torques) and the internal
+energy U(S):
+
+    d(𝕀Ω)/dt = 𝕀Ω×Ω + Σ f,      Γ̇ = Γ×Ω,      T Ṡ = −Σ⟨f_friction, Ω⟩,
+    Ṙ = R Ω̂                        (only if the attitude is integrated)
+
+For a constant inertia, Ω̇ takes Euler's form, Ω̇₁ = A₁Ω₂Ω₃ + (𝕀⁻¹Σf)₁
+(and cyclically; A from :mod:`.terms.inertia`), T = U′(S) and
+Ṡ = P/T(S).  For the entropy-dependent inertia 𝕀(S) = s(S)𝕀₀ (s = φ²,
+φ = 1 + α(θ − T₀), θ = U′(S)), the temperature is T = −∂L/∂S =
+θ − ½Ω·𝕀′(S)Ω = θ − φφ′ Ω·𝕀₀Ω with φ′ = αθ/c_v, and
+
+    Ω̇ = A(Ω) + 𝕀₀⁻¹Σf / s − 2(φ′/φ) Ṡ Ω,
+
+so that E = ½Ω·𝕀(S)Ω + V(Γ) + U(S) is conserved.  Every kernel (explicit
+steps, the reference, the variational integrator's Newton predictor) calls
+these functions, so they all integrate the same model.
+"""
+
+from __future__ import annotations
+
+from numba.extending import overload
+
+from ._jit import LANE_OPTIONS, jit, lane
+from .gen import madd, or_zero
+from .so3 import attitude_rate_lane, cross_lane
+from .terms import sum_angular_acceleration, sum_dissipated_power
+from .terms.inertia import ConstantInertia, ThermalInertia
+from .terms.thermo import entropy_rate, temperature
+
+
+def _inertia_cls(model):
+    return getattr(model.types[model.fields.index("inertia")], "instance_class", None)
+
+
+def omega_rate(model, w0, w1, w2, G0, G1, G2, s, exact):
+    """Ω̇ (rad s⁻²) at (Ω, Γ, σ)."""
+    raise NotImplementedError("numba only")
+
+
+@overload(omega_rate, jit_options=LANE_OPTIONS)
+def _omega_rate(model, w0, w1, w2, G0, G1, G2, s, exact):
+    if _inertia_cls(model) is ConstantInertia:
+        def impl(model, w0, w1, w2, G0, G1, G2, s, exact):
+            I = model.inertia
+            a0, a1, a2 = sum_angular_acceleration(model.forces, I, None, w0, w1, w2, G0, G1, G2,
+                                                  None, None, None)
+            return madd(I.A1 * w1, w2, a0), madd(I.A2 * w2, w0, a1), madd(I.A3 * w0, w1, a2)
+
+        return impl
+    if _inertia_cls(model) is ThermalInertia:
+        def impl(model, w0, w1, w2, G0, G1, G2, s, exact):
+            wd, _ = _thermal_rates(model, w0, w1, w2, G0, G1, G2, s)
+            return wd
+
+        return impl
+    return None
+
+
+@lane
+def _thermal_rates(model, w0, w1, w2, G0, G1, G2, s):
+    """((Ω̇), σ̇) of the coupled top (see module docstring)."""
+    I = model.inertia
+    th = model.thermo
+    theta = temperature(th, s)
+    phi = 1.0 + I.alpha * (theta - th.T0)
+    sc = phi * phi
+    dphi = (I.alpha * theta) * th.icv
+    K2 = (I.I1 * w0) * w0 + (I.I2 * w1) * w1 + (I.I3 * w2) * w2
+    T = theta - (phi * dphi) * K2
+    P = sum_dissipated_power(model.forces, I, sc, w0, w1, w2, None)
+    sd = or_zero(P) / T
+    a0, a1, a2 = sum_angular_acceleration(model.forces, I, sc, w0, w1, w2, G0, G1, G2,
+                                          None, None, None)
+    k = (2.0 * dphi / phi) * sd
+    isc = 1.0 / sc
+    wd = (madd(I.A1 * w1, w2, or_zero(a0) * isc - k * w0),
+          madd(I.A2 * w2, w0, or_zero(a1) * isc - k * w1),
+          madd(I.A3 * w0, w1, or_zero(a2) * isc - k * w2))
+    return wd, sd
+
+
+def entropy_and_omega_rates(model, w0, w1, w2, G0, G1, G2, s, exact):
+    """((Ω̇), σ̇ or None, small)."""
+    raise NotImplementedError("numba only")
+
+
+@overload(entropy_and_omega_rates, jit_options=LANE_OPTIONS)
+def _rates(model, w0, w1, w2, G0, G1, G2, s, exact):
+    if _inertia_cls(model) is ConstantInertia:
+        def impl(model, w0, w1, w2, G0, G1, G2, s, exact):
+            P = sum_dissipated_power(model.forces, model.inertia, None, w0, w1, w2, None)
+            sd, small = entropy_rate(model.thermo, P, s, exact)
+            return omega_rate(model, w0, w1, w2, G0, G1, G2, s, exact), sd, small
+
+        return impl
+    if _inertia_cls(model) is ThermalInertia:
+        def impl(model, w0, w1, w2, G0, G1, G2, s, exact):
+            wd, sd = _thermal_rates(model, w0, w1, w2, G0, G1, G2, s)
+            return wd, sd, True
+
+        return impl
+    return None
+
+
+def attitude_rate(R, w0, w1, w2):
+    """Ṙ = RΩ̂ (9-tuple), or None without the attitude."""
+    raise NotImplementedError("numba only")
+
+
+@overload(attitude_rate, jit_options=LANE_OPTIONS)
+def _attitude_rate(R, w0, w1, w2):
+    from .gen import is_none
+
+    if is_none(R):
+        return lambda R, w0, w1, w2: None
+    return lambda R, w0, w1, w2: attitude_rate_lane(R, w0, w1, w2)
+
+
+@lane
+def rk_rhs(model, y, exact):
+    """(f(y), small) for the part-wise state y = (Ω, Γ, σ, R) of the ``rk`` layout;
+    ``small`` says whether the inline exp was valid (always with ``exact``)."""
+    w, G, s, R = y
+    wd, sd, small = entropy_and_omega_rates(model, w[0], w[1], w[2], G[0], G[1], G[2], s, exact)
+    Gd = cross_lane(G[0], G[1], G[2], w[0], w[1], w[2])
+    return (wd, Gd, sd, attitude_rate(R, w[0], w[1], w[2])), small

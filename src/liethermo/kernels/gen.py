@@ -1,0 +1,296 @@
+"""Typing-time code generation for kernels that are generic over the model.
+
+Numba compiles a kernel once per argument *type*.  A model is a namedtuple of
+term namedtuples (:mod:`liethermo.kernels.terms`); its type says which terms a
+scene uses.  The generic functions here are numba ``@overload``\\ s whose
+implementation is written, at typing time, as straight-line source text for
+the argument types at hand: one line per term or per float, no loop over
+terms and no branch on an absent one.  So an absent term costs nothing, and a
+kernel compiles only the terms its scene uses.
+
+Values handled here are *trees*: floats, ``None`` (an absent part) and
+(named)tuples of trees.  A model, a part-wise state ``(Ω, Γ, σ, …)`` and a
+tuple of forces are all trees.
+
+* :func:`madd` — ``a·b + acc`` with one rounding, or ``a·b`` when ``acc`` is
+  ``None``: how every term adds its contribution to an accumulator, so the
+  first term present starts the sum without an extra operation;
+* :func:`unflatten` — rebuild a tree of the template's type from consecutive
+  floats ``p[base + k·stride]`` (a parameter row of the straightforward
+  kernel, or a lane's parameter rows in the block kernel);
+* :func:`tree_fma`, :func:`tree_finite`, :func:`tree_select` — part-wise
+  operations on states;
+* :func:`make_fold` — a generic function that threads accumulators through a
+  protocol function over every term of a tuple;
+* :func:`flatten` (plain Python) — the floats of a tree in the order
+  :func:`unflatten` reads them.
+"""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+from numba import types
+from numba.extending import overload
+
+from ._jit import LANE_OPTIONS, fma, jit, lane
+
+_counter = itertools.count()
+
+
+def is_none(ty) -> bool:
+    """Is the numba type ``ty`` the type of ``None`` (an absent part)?"""
+    return isinstance(ty, (types.NoneType, types.Omitted)) or ty is None
+
+
+def _is_tuple(ty) -> bool:
+    return isinstance(ty, types.BaseTuple)
+
+
+def leaves(ty, expr: str) -> list[str]:
+    """Source expressions of the float leaves of a value of type ``ty`` that
+    is reachable as ``expr``, in tree order."""
+    if is_none(ty):
+        return []
+    if _is_tuple(ty):
+        out = []
+        for k, t in enumerate(ty.types):
+            out += leaves(t, f"{expr}[{k}]")
+        return out
+    return [expr]
+
+
+def count_leaves(ty) -> int:
+    return len(leaves(ty, "x"))
+
+
+def build(ty, items, ns: dict) -> str:
+    """Source of an expression that builds a value of type ``ty`` from the
+    successive float expressions of the iterator ``items``; namedtuple
+    classes are put into ``ns`` under fresh names."""
+    if is_none(ty):
+        return "None"
+    if _is_tuple(ty):
+        parts = [build(t, items, ns) for t in ty.types]
+        cls = getattr(ty, "instance_class", None)
+        if isinstance(ty, (types.NamedTuple, types.NamedUniTuple)) and cls is not None:
+            name = f"_cls{next(_counter)}"
+            ns[name] = cls
+            return f"{name}({', '.join(parts)})"
+        if len(parts) == 1:
+            return f"({parts[0]},)"
+        return "(" + ", ".join(parts) + ")"
+    return next(items)
+
+
+def compile_source(src: str, ns: dict, name: str = "impl"):
+    """exec ``src`` in ``ns`` (with :func:`fma` available) and return ``ns[name]``."""
+    ns.setdefault("fma", fma)
+    exec(src, ns)
+    return ns[name]
+
+
+def flatten(value) -> list[float]:
+    """The floats of a tree (plain Python), in the order :func:`unflatten` reads them."""
+    if value is None:
+        return []
+    if isinstance(value, tuple):
+        out = []
+        for v in value:
+            out += flatten(v)
+        return out
+    return [float(value)]
+
+
+# ----------------------------------------------------------------------------- madd
+
+
+@lane
+def madd(a, b, acc):
+    """``a·b + acc`` rounded once; ``a·b`` when ``acc`` is None."""
+    if acc is None:
+        return a * b
+    return fma(a, b, acc)
+
+
+@lane
+def cadd(x, acc):
+    """``x + acc``; ``x`` when ``acc`` is None."""
+    if acc is None:
+        return x
+    return x + acc
+
+
+@lane
+def axpy_opt(a, x, y):
+    """``fma(a, x, y)``; ``y`` when ``x`` is None (a term that is absent)."""
+    if x is None:
+        return y
+    return fma(a, x, y)
+
+
+def none_dispatch(present, absent, arg: int = 0):
+    """A generic lane function that is ``present`` for arguments whose
+    ``arg``-th one is not None and ``absent`` when it is None, chosen when
+    numba types the call.  (A lane function that tests ``x is None`` has
+    that branch removed only when x *is* None; for any other type both
+    branches are compiled, and one that returns None makes the result
+    Optional.)  ``present`` lends its name, signature and docstring."""
+    import inspect
+
+    args = ", ".join(inspect.signature(present).parameters)
+    ns: dict = {}
+    exec(f"def {present.__name__}({args}):\n    raise NotImplementedError('numba only')\n", ns)
+    fn = ns[present.__name__]
+    fn.__doc__ = present.__doc__
+    tns = {"is_none": is_none, "present": present, "absent": absent}
+    exec(f"def _typer({args}):\n"
+         f"    return absent if is_none(({args},)[{arg}]) else present\n", tns)
+    overload(fn, jit_options=LANE_OPTIONS)(tns["_typer"])
+    return fn
+
+
+def scale_opt(a, x):
+    """``a·x``; None when ``x`` is None."""
+    return a * x
+
+
+scale_opt = none_dispatch(scale_opt, lambda a, x: None, arg=1)
+
+
+@lane
+def or_zero(x):
+    """``x``, or 0.0 when ``x`` is None (an accumulator no term touched)."""
+    if x is None:
+        return 0.0
+    return x
+
+
+# ----------------------------------------------------------------------------- trees
+
+
+def unflatten(template, p, base, stride):
+    """A tree of the template's type from ``p[base + k·stride]``, k = 0, 1, …"""
+    raise NotImplementedError("numba only")
+
+
+@overload(unflatten, jit_options=LANE_OPTIONS)
+def _unflatten(template, p, base, stride):
+    n = count_leaves(template)
+    ns: dict = {}
+    expr = build(template, iter([f"p[base + {k} * stride]" for k in range(n)]), ns)
+    return compile_source(f"def impl(template, p, base, stride):\n    return {expr}\n", ns)
+
+
+def tree_fma(a, x, y):
+    """Leaf-wise ``fma(a, x, y)`` of two trees of the same shape."""
+    raise NotImplementedError("numba only")
+
+
+@overload(tree_fma, jit_options=LANE_OPTIONS)
+def _tree_fma(a, x, y):
+    lx, ly = leaves(x, "x"), leaves(y, "y")
+    if len(lx) != len(ly):
+        return None
+    ns: dict = {}
+    expr = build(y, iter([f"fma(a, {u}, {v})" for u, v in zip(lx, ly)]), ns)
+    return compile_source(f"def impl(a, x, y):\n    return {expr}\n", ns)
+
+
+def tree_finite(x):
+    """Whether every leaf is finite, decided exactly: the sum of (v − v) over
+    the leaves is 0 exactly when all are (it adds zeros, so it cannot overflow)."""
+    raise NotImplementedError("numba only")
+
+
+@overload(tree_finite, jit_options=LANE_OPTIONS)
+def _tree_finite(x):
+    lx = leaves(x, "x")
+    if not lx:
+        return lambda x: True
+    terms = [f"({v} - {v})" for v in lx]
+    while len(terms) > 1:  # pairwise: a shallow tree of adds
+        terms = [f"({terms[k]} + {terms[k + 1]})" if k + 1 < len(terms) else terms[k]
+                 for k in range(0, len(terms), 2)]
+    return compile_source(f"def impl(x):\n    return {terms[0]} == 0.0\n", {})
+
+
+def tree_sum_finite(x):
+    """A cheap test: whether the sum of the leaves is finite.  True implies
+    every leaf is finite; False may also mean that finite leaves overflowed
+    in the sum (the caller then decides exactly, with :func:`tree_finite`)."""
+    raise NotImplementedError("numba only")
+
+
+@overload(tree_sum_finite, jit_options=LANE_OPTIONS)
+def _tree_sum_finite(x):
+    lx = leaves(x, "x")
+    if not lx:
+        return lambda x: True
+    terms = list(lx)
+    while len(terms) > 1:
+        terms = [f"({terms[k]} + {terms[k + 1]})" if k + 1 < len(terms) else terms[k]
+                 for k in range(0, len(terms), 2)]
+    return compile_source(f"def impl(x):\n    s = {terms[0]}\n    return s - s == 0.0\n", {})
+
+
+def tree_select(c, x, y):
+    """Leaf-wise ``x if c else y`` as selects (no branch)."""
+    raise NotImplementedError("numba only")
+
+
+@overload(tree_select, jit_options=LANE_OPTIONS)
+def _tree_select(c, x, y):
+    from ._jit import select
+
+    lx, ly = leaves(x, "x"), leaves(y, "y")
+    if len(lx) != len(ly):
+        return None
+    ns: dict = {"select": select}
+    expr = build(y, iter([f"select(c, {u}, {v})" for u, v in zip(lx, ly)]), ns)
+    return compile_source(f"def impl(c, x, y):\n    return {expr}\n", ns)
+
+
+# ----------------------------------------------------------------------------- folds
+
+
+def make_fold(protocol, n_args: int, n_acc: int, name: str):
+    """A generic function ``fold(terms, *args, *acc) -> acc`` that applies
+    ``protocol(term, *args, *acc)`` to every term of the tuple ``terms`` in
+    order, threading the ``n_acc`` accumulators (which may start as None; a
+    protocol with one accumulator returns it bare, with more a tuple)."""
+    args = [f"x{k}" for k in range(n_args)]
+    acc0 = [f"a{k}" for k in range(n_acc)]
+    sig = ", ".join(["terms"] + args + acc0)
+    ns: dict = {}
+    exec(f"def {name}({sig}):\n    raise NotImplementedError('numba only')\n", ns)
+    fold = ns[name]
+
+    def typer(terms, *rest):
+        if not isinstance(terms, types.BaseTuple):
+            return None
+        acc = acc0
+        lines = [f"def impl({sig}):"]
+        for t in range(len(terms.types)):
+            new = [f"a{k}_{t}" for k in range(n_acc)]
+            lhs = new[0] if n_acc == 1 else ", ".join(new)
+            lines.append(f"    {lhs} = protocol(terms[{t}], {', '.join(args + acc)})")
+            acc = new
+        lines.append(f"    return {acc[0] if n_acc == 1 else '(' + ', '.join(acc) + ')'}")
+        return compile_source("\n".join(lines) + "\n", {"protocol": protocol})
+
+    tns: dict = {"typer": typer}
+    exec(f"def _typer({sig}):\n    return typer({sig})\n", tns)
+    overload(fold, jit_options=LANE_OPTIONS)(tns["_typer"])
+    return fold
+
+
+@lane
+def finite(x):
+    """x − x == 0: true for finite x, false for ±inf and NaN."""
+    return x - x == 0.0
+
+
+def as_rows(values: list[list[float]]) -> np.ndarray:
+    return np.ascontiguousarray(np.asarray(values, dtype=np.float64))

@@ -1,0 +1,52 @@
+"""Run kernels on threads: member ranges (straightforward kernel) or block
+ranges (vectorized kernel), split into about four tasks per thread so that
+uneven members (diverging RK members, slow Newton iterations) balance out.
+
+The kernel functions are compiled with ``nogil=True``; Python threads then
+run them truly in parallel, with no numba threading layer to compile or
+configure.  ``threads`` defaults to ``NUMBA_NUM_THREADS`` (the machine's
+cores, or what the environment says: a Dask worker sets 1).
+"""
+
+from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
+
+import numba
+
+TASKS_PER_THREAD = 4
+_POOLS: dict[int, ThreadPoolExecutor] = {}
+
+
+def default_threads() -> int:
+    return max(1, int(numba.config.NUMBA_NUM_THREADS))
+
+
+def _pool(threads: int) -> ThreadPoolExecutor:
+    pool = _POOLS.get(threads)
+    if pool is None:
+        pool = _POOLS[threads] = ThreadPoolExecutor(threads, thread_name_prefix="liethermo")
+    return pool
+
+
+def run_ranges(fn, n_items: int, args_before: tuple, args_after: tuple,
+               threads: int | None = None, min_items: int = 1) -> None:
+    """Call ``fn(*args_before, lo, hi, *args_after)`` over ranges [lo, hi)
+    covering 0 … n_items−1, on ``threads`` threads (a first call that must
+    compile holds numba's compiler lock; the others wait for it)."""
+    if n_items <= 0:
+        return
+    threads = default_threads() if threads is None else max(1, int(threads))
+    ntasks = 1 if threads == 1 else min(n_items // max(1, min_items) or 1, TASKS_PER_THREAD * threads)
+    bounds = [round(k * n_items / ntasks) for k in range(ntasks + 1)]
+    ranges = [(bounds[k], bounds[k + 1]) for k in range(ntasks) if bounds[k + 1] > bounds[k]]
+    if len(ranges) == 1:
+        fn(*args_before, ranges[0][0], ranges[0][1], *args_after)
+        return
+    futures = [_pool(threads).submit(fn, *args_before, lo, hi, *args_after)
+               for lo, hi in ranges]
+    for f in futures:
+        f.result()
+
+
+__all__ = ["run_ranges", "default_threads"]

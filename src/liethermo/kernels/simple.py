@@ -1,0 +1,182 @@
+"""The straightforward ensemble kernel: one member at a time.
+
+:func:`advance_rk_members` and :func:`advance_vi_members` advance members
+``m0 … m1−1`` in place; :mod:`liethermo.kernels.parallel` runs member ranges
+on threads (the functions release the GIL).  They are the reference the
+vectorized block kernel (:mod:`.fast`) is tested against, bitwise: both call
+the same lane functions.  Arrays (all caller-allocated):
+
+* ``Y``     (N, n)          state, columns of :func:`.layout.state_layout`
+* ``P``     (N, nparam)     per-member model parameters (the floats of the
+                            model, :func:`.gen.flatten` order); read only
+                            when ``shared`` is None
+* ``OUT``   (N, n_out, n)   receives the state after every ``every`` steps
+* ``ISTAT`` (N, NISTAT)     int64: status, failing step, Newton iterations
+                            (total, max per solve), steps done, reference
+                            substeps (``rk`` with the reference tableau)
+* ``FSTAT`` (N, NFSTAT)     float64: max |h_i|·|Ω| over the (sub)steps taken
+
+``model`` is the model of the run (its values are used when ``shared`` is
+the same model, i.e. when every member has the same parameters); its type
+fixes the terms the kernel is compiled for.
+
+Status codes (per member, never per ensemble): ``STATUS_OK``,
+``STATUS_NEWTON`` (the Newton iteration did not converge or met a singular
+Jacobian: the step was not accepted), ``STATUS_NONFINITE`` (the state became
+inf/NaN, e.g. explicit RK2 blowing up).  A failed member stops advancing:
+``Y`` keeps its last accepted state (the start of the failing step), its
+later outputs are left untouched (callers pre-fill NaN) and the other
+members go on.
+"""
+
+from __future__ import annotations
+
+import math
+
+from ._jit import jit, lane
+from .gen import tree_finite, unflatten
+from .layout import (FS_MAX_H_OMEGA, IS_FAIL_STEP, IS_NEWTON_MAX, IS_NEWTON_TOTAL, IS_NSUB,
+                     IS_STATUS, IS_STEPS, NEWTON_OK, STATUS_NEWTON, STATUS_NONFINITE, STATUS_OK,
+                     load_rk_state, load_vi_state, store_rk_state, store_vi_state)
+from .rk import explicit_step
+from .so3 import norm2_lane
+from .equations import omega_rate
+from .vi import momentum_map, newton_rhs, newton_solve, vi_advance, vi_coefficients
+
+
+@lane
+def member_model(shared, template, P, m):
+    """The model of member m: ``shared`` if given, else its parameter row."""
+    if shared is None:
+        return unflatten(template, P[m], 0, 1)
+    return shared
+
+
+@lane
+def max_h_omega(entry, h, w2max):
+    """The running max |h|·|Ω| (FSTAT) after a call whose max |Ω|² (times the
+    squared substep factor) was w2max (−1: no step)."""
+    if not (w2max >= 0.0):
+        return entry
+    hw = abs(h) * math.sqrt(w2max)
+    return hw if hw > entry else entry
+
+
+@jit(nogil=True)
+def advance_rk_members(tab, model, shared, Y, P, m0, m1, h, nsub, every, n_out,
+                       OUT, ISTAT, FSTAT):
+    """Explicit steps of the tableau ``tab`` (``nsub`` substeps of h/nsub per
+    step; nsub ≤ 0: each member's ISTAT[m, IS_NSUB])."""
+    for m in range(m0, m1):
+        if ISTAT[m, IS_STATUS] != STATUS_OK:
+            continue
+        md = member_model(shared, model, P, m)
+        y = load_rk_state(md, Y[m], 0, 1)
+        ns = nsub if nsub > 0 else ISTAT[m, IS_NSUB]
+        hs = h / ns
+        w2 = -1.0
+        failed = False
+        for j in range(n_out):
+            for _ in range(every):
+                k = ISTAT[m, IS_STEPS]
+                w = y[0]
+                ww = norm2_lane(w[0], w[1], w[2])
+                w2 = ww if ww > w2 else w2
+                yn = y
+                for _s in range(ns):
+                    yn, ok = explicit_step(tab, md, yn, hs, True)
+                if not tree_finite(yn):
+                    ISTAT[m, IS_STATUS] = STATUS_NONFINITE
+                    ISTAT[m, IS_FAIL_STEP] = k + 1
+                    failed = True
+                    break
+                y = yn
+                ISTAT[m, IS_STEPS] = k + 1
+            if failed:
+                break
+            store_rk_state(md, OUT[m, j], 0, 1, y)
+        store_rk_state(md, Y[m], 0, 1, y)
+        FSTAT[m, FS_MAX_H_OMEGA] = max_h_omega(FSTAT[m, FS_MAX_H_OMEGA], h, w2)
+
+
+@jit(nogil=True)
+def advance_vi_members(model, shared, Y, P, m0, m1, h, factors, every, n_out, wl, wr, mode,
+                       tol, maxiter, OUT, ISTAT, FSTAT):
+    """Steps of the variational integrator in node form; each step is the
+    composition of substeps of sizes factors[i]·h (one substep for ``vi``)."""
+    ns = len(factors)
+    for m in range(m0, m1):
+        if ISTAT[m, IS_STATUS] != STATUS_OK:
+            continue
+        md = member_model(shared, model, P, m)
+        y = load_vi_state(md, Y[m], 0, 1)
+        w2 = -1.0
+        failed = False
+        for j in range(n_out):
+            for _ in range(every):
+                k = ISTAT[m, IS_STEPS]
+                ystart = y
+                for i in range(ns):
+                    v = vi_coefficients(md, factors[i] * h, wl, wr)
+                    vn = vi_coefficients(md, factors[(i + 1) % ns] * h, wl, wr)
+                    X = y[0]
+                    ww = (factors[i] * factors[i]) * norm2_lane(X[0], X[1], X[2])
+                    w2 = ww if ww > w2 else w2
+                    G1, s1, mu1, R1, b, xp, sc0, ok = vi_advance(md, v, vn, y, vn.h, mode, True)
+                    X1, code, its = newton_solve(md, vn, b, xp, sc0, tol, maxiter)
+                    ISTAT[m, IS_NEWTON_TOTAL] += its
+                    if its > ISTAT[m, IS_NEWTON_MAX]:
+                        ISTAT[m, IS_NEWTON_MAX] = its
+                    yn = (X1, G1, s1, mu1, y[4], R1)
+                    if code != NEWTON_OK:
+                        ISTAT[m, IS_STATUS] = STATUS_NEWTON
+                        failed = True
+                    elif not tree_finite(yn):
+                        ISTAT[m, IS_STATUS] = STATUS_NONFINITE
+                        failed = True
+                    if failed:
+                        ISTAT[m, IS_FAIL_STEP] = k + 1
+                        break
+                    y = yn
+                if failed:  # back to the start of the failing step
+                    y = ystart
+                    break
+                ISTAT[m, IS_STEPS] = k + 1
+            if failed:
+                break
+            store_vi_state(md, OUT[m, j], 0, 1, y)
+        store_vi_state(md, Y[m], 0, 1, y)
+        FSTAT[m, FS_MAX_H_OMEGA] = max_h_omega(FSTAT[m, FS_MAX_H_OMEGA], h, w2)
+
+
+@jit(nogil=True)
+def vi_start_members(model, shared, Y, P, m0, m1, h0, wl, wr, legendre, tol, maxiter, ISTAT):
+    """The first step velocity X₀ and node momentum μ₀ of members m0 … m1−1,
+    for a first (sub)step of size h0.  On entry the ``omega_step`` columns of
+    Y hold the velocity to start from and ``momentum`` 𝕀Ω(0):
+
+    * ``legendre`` False (the paper's start, and the staggered one): X₀ is
+      given; μ₀ is its node momentum (:func:`.vi.momentum_map`);
+    * ``legendre`` True: μ₀ = 𝕀Ω(0) is given; X₀ solves the Newton equation
+      from it (a member whose solve fails gets STATUS_NEWTON at step 1)."""
+    for m in range(m0, m1):
+        if ISTAT[m, IS_STATUS] != STATUS_OK:
+            continue
+        md = member_model(shared, model, P, m)
+        X, G, s, mu, sn, R = load_vi_state(md, Y[m], 0, 1)
+        v = vi_coefficients(md, h0, wl, wr)
+        if legendre:
+            b = newton_rhs(md, v, mu[0], mu[1], mu[2], G[0], G[1], G[2])
+            d0, d1, d2 = omega_rate(md, X[0], X[1], X[2], G[0], G[1], G[2], s, True)
+            hp = 0.5 * h0
+            xp = (X[0] + hp * d0, X[1] + hp * d1, X[2] + hp * d2)
+            X1, code, its = newton_solve(md, v, b, xp, max(abs(X[0]), abs(X[1]), abs(X[2])),
+                                         tol, maxiter)
+            if code != NEWTON_OK or not tree_finite(X1):
+                ISTAT[m, IS_STATUS] = STATUS_NEWTON
+                ISTAT[m, IS_FAIL_STEP] = 1
+                continue
+            store_vi_state(md, Y[m], 0, 1, (X1, G, s, mu, sn, R))
+        else:
+            mu1 = momentum_map(md, v, X[0], X[1], X[2], G[0], G[1], G[2])
+            store_vi_state(md, Y[m], 0, 1, (X, G, s, mu1, sn, R))
