@@ -217,6 +217,9 @@ def simulate(
                          f"{omega0.shape} and {R0.shape}")
     km: KernelModel = build_model(physics, attitude)
     layout = km.layout(m.family)
+    if m.family == "vi" and layout.has("sigma_next") and m.effective_start(start) != "legendre":
+        raise ValueError("the coupled top (thermal expansion) starts from its node momentum: "
+                         "use start='legendre'")
     eff_start = m.effective_start(start)
     eff_entropy = m.effective_entropy(entropy)
     eff_friction = m.effective_friction(friction)

@@ -52,14 +52,16 @@ from __future__ import annotations
 import numpy as np
 
 from ._jit import jit, lane, select
-from .gen import finite, none_dispatch, tree_finite, tree_sum_finite, unflatten
+from .gen import finite, none_dispatch, overload_by_class, tree_finite, tree_sum_finite, unflatten
 from .layout import (FS_MAX_H_OMEGA, IS_FAIL_STEP, IS_NEWTON_MAX, IS_NEWTON_TOTAL, IS_STATUS,
                      IS_STEPS, NEWTON_MAXITER, NEWTON_OK, NEWTON_SINGULAR, STATUS_NEWTON,
                      STATUS_NONFINITE, STATUS_OK, load_rk_state, load_vi_state, store_rk_state,
                      store_vi_state)
 from .rk import explicit_step
 from .so3 import norm2_lane
-from .vi import newton_correction, newton_stop, vi_advance, vi_coefficients, vi_entropy
+from .terms.inertia import ThermalInertia
+from .vi import (add_opt, newton_correction, newton_stop, sub_select, vi_advance, vi_coefficients,
+                 vi_entropy)
 
 #: members per block (lanes)
 BLOCK = 128
@@ -78,8 +80,9 @@ ROW_PARTS = (
     ("Y", NSTATE_MAX),  # state
     ("YB", NSTATE_MAX),  # RK: the other state buffer; VI: the state at the start of a step
     ("GN", 3), ("SN", 1), ("MUN", 3), ("RN", 9),  # VI: Γ', σ', μ', R' of the step
-    ("X", 3), ("B", 3),  # VI: Newton iterate and the constant part of its function
-    ("SC0", 1),  # VI: |X_k|∞, the scale of the stopping rule
+    ("X", 3), ("XS", 1), ("B", 3),  # VI: Newton iterate (X and, coupled, Δ) and the
+    # constant part of its function
+    ("SC0", 1), ("SCS", 1),  # VI: |X_k|∞ (and, coupled, |σ'|): scales of the stopping rule
     ("RUN", 1), ("CODE", 1), ("ITS", 1),  # VI: Newton mask, outcome, iterations
     ("HW", 1), ("NTOT", 1), ("NMAX", 1), ("STEPS", 1), ("MEMBER", 1),  # statistics at entry
     ("FLAG", 1),  # per-step outcome (FLAG_*)
@@ -96,8 +99,8 @@ def _row_map(parts):
 
 
 ROWS, NROWS_FIXED = _row_map(ROW_PARTS)
-O_Y, O_YB, O_GN, O_SN, O_MUN, O_RN, O_X, O_B, O_SC0, O_RUN, O_CODE, O_ITS, O_HW, O_NTOT, \
-    O_NMAX, O_STEPS, O_MEMBER, O_FLAG, O_W2 = (ROWS[name][0] * ROW for name, _ in ROW_PARTS)
+O_Y, O_YB, O_GN, O_SN, O_MUN, O_RN, O_X, O_XS, O_B, O_SC0, O_SCS, O_RUN, O_CODE, O_ITS, O_HW, \
+    O_NTOT, O_NMAX, O_STEPS, O_MEMBER, O_FLAG, O_W2 = (ROWS[name][0] * ROW for name, _ in ROW_PARTS)
 #: the first parameter row (rows mode)
 O_P = NROWS_FIXED * ROW
 
@@ -139,6 +142,14 @@ def shared_vi(shared, h, wl, wr):
 
 
 shared_vi = none_dispatch(shared_vi, lambda shared, h, wl, wr: None)
+
+
+def _coupled_marker(inertia):
+    return None
+
+
+#: None for a constant inertia, 1.0 for the coupled top (its Newton solve has Δ)
+coupled_marker = overload_by_class(_coupled_marker, ThermalInertia, lambda inertia: 1.0)
 
 
 def _store1(x, S, off):
@@ -274,7 +285,7 @@ def _vi_prepare(model, shared, S, nb, vv, vvn, h, hn, g2, wl, wr, mode, tol, fir
         y = load_vi_state(md, S, O_Y + i, ROW)
         X = y[0]
         _track_w2(S, i, g2 * norm2_lane(X[0], X[1], X[2]))
-        G1, s1, mu1, R1, b, xp, sc0, ok = vi_advance(md, v, vn, y, hn, mode, False)
+        G1, s1, mu1, R1, b, xp, ps, sc0, scs, ok = vi_advance(md, v, vn, y, hn, mode, False)
         S[O_GN + i] = G1[0]
         S[O_GN + ROW + i] = G1[1]
         S[O_GN + 2 * ROW + i] = G1[2]
@@ -288,20 +299,23 @@ def _vi_prepare(model, shared, S, nb, vv, vvn, h, hn, g2, wl, wr, mode, tol, fir
         S[O_B + ROW + i] = b1
         S[O_B + 2 * ROW + i] = b2
         S[O_SC0 + i] = sc0
+        store1(scs, S, O_SCS + i)
         S[O_FLAG + i] = select(ok, FLAG_OK, FLAG_EXACT)
         nexact += 0 if ok else 1
         x0, x1, x2 = xp
-        d0, d1, d2, det = newton_correction(md, vn, x0, x1, x2, b0, b1, b2)
+        d0, d1, d2, ds, det = newton_correction(md, vn, x0, x1, x2, ps, b0, b1, b2, s1)
         sing = (det == 0.0) | (not finite(det))
         n0 = x0 - d0
         n1 = x1 - d1
         n2 = x2 - d2
-        step, conv = newton_stop(n0, n1, n2, d0, d1, d2, sc0, tol)
+        ns = sub_select(ps, True, ds)
+        step, conv = newton_stop(n0, n1, n2, ns, d0, d1, d2, ds, sc0, scs, tol)
         bad = sing | (not (step == step))
         stay = sing | (not first)
         S[O_X + i] = select(stay, x0, n0)
         S[O_X + ROW + i] = select(stay, x1, n1)
         S[O_X + 2 * ROW + i] = select(stay, x2, n2)
+        store1(sub_select(ps, not stay, ds), S, O_XS + i)
         code = select(bad, NEWTON_SINGULAR, select(conv, NEWTON_OK, NEWTON_MAXITER))
         S[O_CODE + i] = select(first, code, NEWTON_MAXITER)
         S[O_ITS + i] = select(first, 1.0, 0.0)
@@ -336,13 +350,16 @@ def _newton_sweep(model, shared, S, nb, vvn, hn, wl, wr, tol, it):
         x0 = S[O_X + i]
         x1 = S[O_X + ROW + i]
         x2 = S[O_X + 2 * ROW + i]
-        d0, d1, d2, det = newton_correction(md, vn, x0, x1, x2, S[O_B + i], S[O_B + ROW + i],
-                                            S[O_B + 2 * ROW + i])
+        xs = load1_if(coupled_marker(md.inertia), S, O_XS + i)
+        s1 = load1_if(md.thermo, S, O_SN + i)
+        d0, d1, d2, ds, det = newton_correction(md, vn, x0, x1, x2, xs, S[O_B + i],
+                                                S[O_B + ROW + i], S[O_B + 2 * ROW + i], s1)
         sing = (det == 0.0) | (not finite(det))
         n0 = x0 - d0
         n1 = x1 - d1
         n2 = x2 - d2
-        step, conv = newton_stop(n0, n1, n2, d0, d1, d2, S[O_SC0 + i], tol)
+        step, conv = newton_stop(n0, n1, n2, sub_select(xs, True, ds), d0, d1, d2, ds,
+                                 S[O_SC0 + i], load1_if(xs, S, O_SCS + i), tol)
         nanstep = not (step == step)
         move = run & (not sing)
         # A lane that stays keeps its row values.  Written as x − (d or +0), not as
@@ -350,6 +367,7 @@ def _newton_sweep(model, shared, S, nb, vvn, hn, wl, wr, tol, it):
         S[O_X + i] = x0 - select(move, d0, 0.0)
         S[O_X + ROW + i] = x1 - select(move, d1, 0.0)
         S[O_X + 2 * ROW + i] = x2 - select(move, d2, 0.0)
+        store1(sub_select(xs, move, ds), S, O_XS + i)
         bad = sing | nanstep
         code_old = S[O_CODE + i]
         code = select(bad, NEWTON_SINGULAR, select(conv, NEWTON_OK, code_old))
@@ -364,11 +382,11 @@ def _newton_sweep(model, shared, S, nb, vvn, hn, wl, wr, tol, it):
 
 
 #: the rows a compacted Newton lane needs: X, B, SC0, RUN, CODE, ITS
-_COMPACT_ROWS = (ROWS["X"][0], ROWS["X"][0] + 1, ROWS["X"][0] + 2, ROWS["B"][0],
-                 ROWS["B"][0] + 1, ROWS["B"][0] + 2, ROWS["SC0"][0], ROWS["RUN"][0],
-                 ROWS["CODE"][0], ROWS["ITS"][0])
-_BACK_ROWS = (ROWS["X"][0], ROWS["X"][0] + 1, ROWS["X"][0] + 2, ROWS["RUN"][0],
-              ROWS["CODE"][0], ROWS["ITS"][0])
+_COMPACT_ROWS = tuple(ROWS[name][0] + k for name in ("X", "XS", "B", "SC0", "SCS", "RUN", "CODE",
+                                                     "ITS", "SN")
+                      for k in range(ROWS[name][1]))
+_BACK_ROWS = tuple(ROWS[name][0] + k for name in ("X", "XS", "RUN", "CODE", "ITS")
+                   for k in range(ROWS[name][1]))
 
 
 @jit
@@ -405,7 +423,8 @@ def _new_state(md, S, i):
             (S[O_GN + i], S[O_GN + ROW + i], S[O_GN + 2 * ROW + i]),
             load1_if(md.thermo, S, O_SN + i),
             (S[O_MUN + i], S[O_MUN + ROW + i], S[O_MUN + 2 * ROW + i]),
-            None,
+            add_opt(load1_if(md.thermo, S, O_SN + i),
+                    load1_if(coupled_marker(md.inertia), S, O_XS + i)),
             load9_if(md.attitude, S, O_RN + i))
 
 

@@ -151,6 +151,25 @@ def none_dispatch(present, absent, arg: int = 0):
     return fn
 
 
+def overload_by_class(default, cls, special, arg: int = 0):
+    """A generic lane function that is ``special`` when its ``arg``-th
+    argument is an instance of the namedtuple class ``cls`` and ``default``
+    otherwise (chosen when numba types the call)."""
+    import inspect
+
+    args = ", ".join(inspect.signature(default).parameters)
+    ns: dict = {}
+    exec(f"def {default.__name__}({args}):\n    raise NotImplementedError('numba only')\n", ns)
+    fn = ns[default.__name__]
+    fn.__doc__ = default.__doc__
+    tns = {"default": default, "special": special, "cls": cls}
+    exec(f"def _typer({args}):\n"
+         f"    t = ({args},)[{arg}]\n"
+         f"    return special if getattr(t, 'instance_class', None) is cls else default\n", tns)
+    overload(fn, jit_options=LANE_OPTIONS)(tns["_typer"])
+    return fn
+
+
 def scale_opt(a, x):
     """``a·x``; None when ``x`` is None."""
     return a * x

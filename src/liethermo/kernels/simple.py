@@ -41,7 +41,8 @@ from .layout import (FS_MAX_H_OMEGA, IS_FAIL_STEP, IS_NEWTON_MAX, IS_NEWTON_TOTA
 from .rk import explicit_step
 from .so3 import norm2_lane
 from .equations import omega_rate
-from .vi import momentum_map, newton_rhs, newton_solve, vi_advance, vi_coefficients
+from .vi import (add_opt, entropy_predictor, momentum_map, newton_rhs, newton_solve, vi_advance,
+                 vi_coefficients)
 
 
 @lane
@@ -122,12 +123,13 @@ def advance_vi_members(model, shared, Y, P, m0, m1, h, factors, every, n_out, wl
                     X = y[0]
                     ww = (factors[i] * factors[i]) * norm2_lane(X[0], X[1], X[2])
                     w2 = ww if ww > w2 else w2
-                    G1, s1, mu1, R1, b, xp, sc0, ok = vi_advance(md, v, vn, y, vn.h, mode, True)
-                    X1, code, its = newton_solve(md, vn, b, xp, sc0, tol, maxiter)
+                    G1, s1, mu1, R1, b, xp, ps, sc0, scs, ok = vi_advance(md, v, vn, y, vn.h,
+                                                                          mode, True)
+                    X1, xs, code, its = newton_solve(md, vn, b, xp, ps, s1, sc0, scs, tol, maxiter)
                     ISTAT[m, IS_NEWTON_TOTAL] += its
                     if its > ISTAT[m, IS_NEWTON_MAX]:
                         ISTAT[m, IS_NEWTON_MAX] = its
-                    yn = (X1, G1, s1, mu1, y[4], R1)
+                    yn = (X1, G1, s1, mu1, add_opt(s1, xs), R1)
                     if code != NEWTON_OK:
                         ISTAT[m, IS_STATUS] = STATUS_NEWTON
                         failed = True
@@ -170,13 +172,14 @@ def vi_start_members(model, shared, Y, P, m0, m1, h0, wl, wr, legendre, tol, max
             d0, d1, d2 = omega_rate(md, X[0], X[1], X[2], G[0], G[1], G[2], s, True)
             hp = 0.5 * h0
             xp = (X[0] + hp * d0, X[1] + hp * d1, X[2] + hp * d2)
-            X1, code, its = newton_solve(md, v, b, xp, max(abs(X[0]), abs(X[1]), abs(X[2])),
-                                         tol, maxiter)
-            if code != NEWTON_OK or not tree_finite(X1):
+            ps = entropy_predictor(md.inertia, md, v, X, s)
+            X1, xs, code, its = newton_solve(md, v, b, xp, ps, s, max(abs(X[0]), abs(X[1]),
+                                                                      abs(X[2])), abs(s), tol, maxiter)
+            if code != NEWTON_OK or not tree_finite((X1, xs)):
                 ISTAT[m, IS_STATUS] = STATUS_NEWTON
                 ISTAT[m, IS_FAIL_STEP] = 1
                 continue
-            store_vi_state(md, Y[m], 0, 1, (X1, G, s, mu, sn, R))
+            store_vi_state(md, Y[m], 0, 1, (X1, G, s, mu, add_opt(s, xs), R))
         else:
             mu1 = momentum_map(md, v, X[0], X[1], X[2], G[0], G[1], G[2])
             store_vi_state(md, Y[m], 0, 1, (X, G, s, mu1, sn, R))

@@ -55,15 +55,18 @@ from __future__ import annotations
 
 from collections import namedtuple
 
+import math
+
 import numpy as np
 
-from ._jit import fma, lane
+from ._jit import fma, lane, select
 from .equations import omega_rate
-from .gen import axpy_opt, finite, madd, none_dispatch, scale_opt
+from .gen import axpy_opt, finite, madd, none_dispatch, or_zero, overload_by_class, scale_opt
 from .layout import NEWTON_MAXITER, NEWTON_OK, NEWTON_SINGULAR
 from .so3 import attitude_lane, cayley_lane, cross_lane
 from .terms import sum_discrete_power, sum_linear_friction, sum_nonlinear_friction, sum_torque
-from .terms.thermo import entropy_step
+from .terms.inertia import ThermalInertia
+from .terms.thermo import entropy_step, temperature
 
 _G1 = 1.0 / (2.0 - 2.0 ** (1.0 / 3.0))
 _G0 = 1.0 - 2.0 * _G1
@@ -81,6 +84,14 @@ COMPOSITIONS = {
 FRICTION_WEIGHTS = {"trapezoid": (0.5, 0.5), "endpoint": (1.0, 0.0)}
 
 
+def _folded_friction(inertia, forces):
+    return sum_linear_friction(forces, None, None, None)
+
+
+_folded_friction = overload_by_class(
+    _folded_friction, ThermalInertia, lambda inertia, forces: (None, None, None))
+
+
 class VICoefficients(namedtuple("VICoefficients",
                                 "M1 M2 M3 L1 L2 L3 hD1 hD2 hD3 h4 h2 hh wlh wrh h")):
     """Per-step-size coefficients: M = I + w_L h C, L = I − w_R h C, hD,
@@ -91,9 +102,11 @@ class VICoefficients(namedtuple("VICoefficients",
 
 @lane
 def vi_coefficients(model, h, wl, wr):
-    """The :class:`VICoefficients` of a step of size h (s)."""
+    """The :class:`VICoefficients` of a step of size h (s).  For the coupled
+    top the linear friction is not folded into M and L (its inertia scales
+    with S; see _coupled_residual)."""
     I = model.inertia
-    c0, c1, c2 = sum_linear_friction(model.forces, None, None, None)
+    c0, c1, c2 = _folded_friction(model.inertia, model.forces)
     cl = wl * h
     cr = -(wr * h)
     return VICoefficients(axpy_opt(cl, c0, I.I1), axpy_opt(cl, c1, I.I2), axpy_opt(cl, c2, I.I3),
@@ -151,37 +164,100 @@ def solve3_lane(J00, J01, J02, J10, J11, J12, J20, J21, J22, r0, r1, r2):
     return d0, d1, d2, det
 
 
-@lane
-def newton_correction(model, v, x0, x1, x2, b0, b1, b2):
-    """One Newton correction d = J(X)⁻¹F(X): (d₀, d₁, d₂, det J)."""
+def newton_correction(model, v, x0, x1, x2, xs, b0, b1, b2, s1):
+    """One Newton correction d = J⁻¹F: (d₀, d₁, d₂, d_s, det J).  For a
+    constant inertia the unknown is X alone (``xs`` and d_s are None); for
+    the coupled top it is (X, Δ) with σ_{k+1} = σ' + Δ (see _coupled_correction)."""
     F0, F1, F2, J00, J01, J02, J10, J11, J12, J20, J21, J22 = residual_jacobian(
         model, v, x0, x1, x2, b0, b1, b2)
-    return solve3_lane(J00, J01, J02, J10, J11, J12, J20, J21, J22, F0, F1, F2)
+    d0, d1, d2, det = solve3_lane(J00, J01, J02, J10, J11, J12, J20, J21, J22, F0, F1, F2)
+    return d0, d1, d2, None, det
 
 
-@lane
-def newton_stop(x0, x1, x2, d0, d1, d2, scale0, tol):
-    """(step, converged) for the new iterate X (= old − d):
-    step = |d|∞ ≤ tol·max(|X|∞, |X_k|∞)."""
+def _coupled_correction(model, v, x0, x1, x2, xs, b0, b1, b2, s1):
+    """Newton correction of the coupled top, unknowns (X, Δ), σ_{k+1} = σ' + Δ:
+
+        F₁ = s*(Δ) M_h⁰(X) + w_L h CX − r,     s* = ½(φ(σ')² + φ(σ'+Δ)²)
+        F₂ = U(σ'+Δ) − U(σ') − ½(X·𝕀₀X)(φ(σ'+Δ)² − φ(σ')²) − h X·CX
+
+    (M_h⁰: the discrete Legendre transform of 𝕀₀), solved by block
+    elimination of the 3×3 Jacobian of F₁ in X (det is that of the 4×4)."""
+    th = model.thermo
+    I = model.inertia
+    al = I.alpha
+    thp = temperature(th, s1)
+    e = math.expm1(xs * th.icv)
+    thn = fma(thp, e, thp)
+    phip = fma(al, thp - th.T0, 1.0)
+    phin = fma(al, thn - th.T0, 1.0)
+    dphin = (al * thn) * th.icv
+    dphi2 = (al * (thp * e)) * (phin + phip)  # φ(σ'+Δ)² − φ(σ')²
+    ss = 0.5 * fma(phip, phip, phin * phin)
+    a0, a1, a2, A00, A01, A02, A10, A11, A12, A20, A21, A22 = residual_jacobian(
+        model, v, x0, x1, x2, 0.0, 0.0, 0.0)
+    c0, c1, c2 = sum_linear_friction(model.forces, None, None, None)
+    c0, c1, c2 = or_zero(c0), or_zero(c1), or_zero(c2)
+    wl = v.wlh
+    F0 = fma(ss, a0, fma(wl * c0, x0, b0))
+    F1 = fma(ss, a1, fma(wl * c1, x1, b1))
+    F2 = fma(ss, a2, fma(wl * c2, x2, b2))
+    J00, J01, J02 = fma(ss, A00, wl * c0), ss * A01, ss * A02
+    J10, J11, J12 = ss * A10, fma(ss, A11, wl * c1), ss * A12
+    J20, J21, J22 = ss * A20, ss * A21, fma(ss, A22, wl * c2)
+    k = phin * dphin
+    q0, q1, q2 = I.I1 * x0, I.I2 * x1, I.I3 * x2
+    K2 = fma(q0, x0, fma(q1, x1, q2 * x2))
+    P = fma(c0 * x0, x0, fma(c1 * x1, x1, (c2 * x2) * x2))
+    Fs = fma(th.cv * thp, e, -fma(0.5 * K2, dphi2, v.h * P))
+    h2 = 2.0 * v.h
+    r0, r1, r2 = -fma(dphi2, q0, h2 * c0 * x0), -fma(dphi2, q1, h2 * c1 * x1), \
+        -fma(dphi2, q2, h2 * c2 * x2)
+    jss = thn - K2 * k
+    u0, u1, u2, det = solve3_lane(J00, J01, J02, J10, J11, J12, J20, J21, J22, F0, F1, F2)
+    w0, w1, w2, _ = solve3_lane(J00, J01, J02, J10, J11, J12, J20, J21, J22, k * a0, k * a1,
+                                k * a2)
+    den = jss - fma(r0, w0, fma(r1, w1, r2 * w2))
+    ds = (Fs - fma(r0, u0, fma(r1, u1, r2 * u2))) / den
+    return u0 - w0 * ds, u1 - w1 * ds, u2 - w2 * ds, ds, det * den
+
+
+newton_correction = none_dispatch(_coupled_correction, newton_correction, arg=5)
+newton_correction.__doc__ = _coupled_correction.__doc__
+
+
+def _stop3(x0, x1, x2, xs, d0, d1, d2, ds, scale0, scales, tol):
     step = max(abs(d0), abs(d1), abs(d2))
     scale = max(abs(x0), abs(x1), abs(x2), scale0)
     return step, step <= tol * scale
 
 
-@lane
-def newton_first(model, v, x0, x1, x2, b0, b1, b2, scale0, tol):
-    """Newton iteration 1 from the predictor: (X, code, running)."""
-    d0, d1, d2, det = newton_correction(model, v, x0, x1, x2, b0, b1, b2)
-    sing = (det == 0.0) | (not finite(det))
-    n0 = x0 - d0
-    n1 = x1 - d1
-    n2 = x2 - d2
-    step, conv = newton_stop(n0, n1, n2, d0, d1, d2, scale0, tol)
-    bad = sing | (not (step == step))
-    code = NEWTON_SINGULAR if bad else (NEWTON_OK if conv else NEWTON_MAXITER)
-    if sing:
-        return x0, x1, x2, code, False
-    return n0, n1, n2, code, not (bad | conv)
+def newton_stop(x0, x1, x2, xs, d0, d1, d2, ds, scale0, scales, tol):
+    """(step, converged) for the new iterate (= old − d): the step
+    |d|∞ ≤ tol·max(|X|∞, |X_k|∞), and for the coupled top also
+    |d_s| ≤ tol·max(|Δ|, |σ'|).  ``step`` is NaN if any correction is."""
+    step = max(abs(d0), abs(d1), abs(d2))
+    scale = max(abs(x0), abs(x1), abs(x2), scale0)
+    ok = (step <= tol * scale) & (abs(ds) <= tol * max(abs(xs), scales))
+    return step + 0.0 * ds, ok
+
+
+newton_stop = none_dispatch(newton_stop, _stop3, arg=3)
+
+
+def _sub_present(x, c, d):
+    return x - select(c, d, 0.0)
+
+
+#: x − (d if c else +0) for an optional unknown (exact: x − (+0) is x)
+sub_select = none_dispatch(_sub_present, lambda x, c, d: None)
+
+
+def _add_present(s, x):
+    return s + x
+
+
+#: σ' + Δ for the coupled top, None otherwise
+add_opt = none_dispatch(_add_present, lambda s, x: None, arg=1)
 
 
 def attitude_step(R, w0, w1, w2):
@@ -205,9 +281,14 @@ def vi_entropy(model, v, y, mode, exact):
 def vi_advance(model, v, vn, y, hn, mode, exact):
     """Everything of one step of the ``vi`` layout state y = (X, Γ, σ, μ, σₙ, R)
     but the Newton solve of the next step: returns
-    ``(Γ', σ', μ', R', b, X₀, |X|∞, ok)`` with b = −r the constant part of the
-    next step's Newton function, X₀ its predictor and ``ok`` whether every
+    ``(Γ', σ', μ', R', b, X₀, Δ₀, |X|∞, scale_s, ok)`` with b = −r the
+    constant part of the next step's Newton function, X₀ (and, for the
+    coupled top, Δ₀; else None) its predictor, and ``ok`` whether every
     inline exp/log1p was valid (see thermo)."""
+    return _advance(model.inertia, model, v, vn, y, hn, mode, exact)
+
+
+def _advance_constant(inertia, model, v, vn, y, hn, mode, exact):
     X, G, s, mu, sn, R = y
     x0, x1, x2 = X
     h = v.h
@@ -234,46 +315,90 @@ def vi_advance(model, v, vn, y, hn, mode, exact):
     p0 = fma(hp, d0, x0)
     p1 = fma(hp, d1, x1)
     p2 = fma(hp, d2, x2)
-    return ((G0, G1, G2), s1, (m0, m1, m2), R1, (b0, b1, b2), (p0, p1, p2),
-            max(abs(x0), abs(x1), abs(x2)), ok)
+    return ((G0, G1, G2), s1, (m0, m1, m2), R1, (b0, b1, b2), (p0, p1, p2), None,
+            max(abs(x0), abs(x1), abs(x2)), None, ok)
+
+
+def _advance_coupled(inertia, model, v, vn, y, hn, mode, exact):
+    """The coupled top: σ' is the σ_{k+1} solved with X; μ' uses the mean
+    inertia of the step, s* 𝕀₀ with s* = ½(φ(σ)² + φ(σ')²)."""
+    X, G, s, mu, sn, R = y
+    x0, x1, x2 = X
+    h = v.h
+    G0, G1, G2 = cayley_lane(-(h * x0), -(h * x1), -(h * x2), G[0], G[1], G[2])
+    I = model.inertia
+    th = model.thermo
+    R1 = attitude_step(R, h * x0, h * x1, h * x2)
+    s1 = sn
+    th0 = temperature(th, s)
+    th1 = temperature(th, s1)
+    phi0 = fma(I.alpha, th0 - th.T0, 1.0)
+    phi1 = fma(I.alpha, th1 - th.T0, 1.0)
+    ss = 0.5 * fma(phi0, phi0, phi1 * phi1)
+    t0, t1, t2 = sum_torque(model.forces, G0, G1, G2, None, None, None)
+    c0, c1, c2 = sum_linear_friction(model.forces, None, None, None)
+    c0, c1, c2 = or_zero(c0), or_zero(c1), or_zero(c2)
+    q0, q1, q2 = I.I1 * x0, I.I2 * x1, I.I3 * x2
+    K2 = fma(q0, x0, fma(q1, x1, q2 * x2))
+    h4xQ = v.h4 * K2
+    m0 = axpy_opt(v.hh, t0, fma(-v.wrh * c0, x0, ss * fma(I.I1, x0, fma(-v.hD1 * x1, x2,
+                                                                             h4xQ * x0))))
+    m1 = axpy_opt(v.hh, t1, fma(-v.wrh * c1, x1, ss * fma(I.I2, x1, fma(-v.hD2 * x2, x0,
+                                                                             h4xQ * x1))))
+    m2 = axpy_opt(v.hh, t2, fma(-v.wrh * c2, x2, ss * fma(I.I3, x2, fma(-v.hD3 * x0, x1,
+                                                                             h4xQ * x2))))
+    b0 = -axpy_opt(vn.hh, t0, m0)
+    b1 = -axpy_opt(vn.hh, t1, m1)
+    b2 = -axpy_opt(vn.hh, t2, m2)
+    hp = 0.5 * (h + vn.h)
+    d0, d1, d2 = omega_rate(model, x0, x1, x2, G0, G1, G2, s1, exact)
+    P = fma(c0 * x0, x0, fma(c1 * x1, x1, (c2 * x2) * x2))
+    T = th1 - phi1 * ((I.alpha * th1) * th.icv) * K2
+    return ((G0, G1, G2), s1, (m0, m1, m2), R1, (b0, b1, b2),
+            (fma(hp, d0, x0), fma(hp, d1, x1), fma(hp, d2, x2)), vn.h * P / T,
+            max(abs(x0), abs(x1), abs(x2)), abs(s1), True)
+
+
+_advance = overload_by_class(_advance_constant, ThermalInertia, _advance_coupled)
 
 
 @lane
-def newton_solve(model, vn, b, xp, scale0, tol, maxiter):
-    """Newton iterations 1 … maxiter from the predictor (as the block kernel
-    runs them): returns (X, code, iterations).  On a singular or non-finite
-    Jacobian X is the last iterate before it."""
+def newton_solve(model, vn, b, xp, xs, s1, scale0, scales, tol, maxiter):
+    """Newton iterations 1 … maxiter from the predictor (X₀, Δ₀) as the block
+    kernel runs them: returns (X, Δ, code, iterations); Δ is None for a
+    constant inertia.  On a singular or non-finite Jacobian the iterate is
+    the last one before it."""
     x0, x1, x2 = xp
     b0, b1, b2 = b
     its = 0
     code = NEWTON_MAXITER
-    if maxiter >= 1:
-        x0, x1, x2, code, run = newton_first(model, vn, x0, x1, x2, b0, b1, b2, scale0, tol)
-        its = 1
-        while run and its < maxiter:
-            its += 1
-            d0, d1, d2, det = newton_correction(model, vn, x0, x1, x2, b0, b1, b2)
-            if det == 0.0 or not finite(det):
-                code = NEWTON_SINGULAR
-                break
-            x0 -= d0
-            x1 -= d1
-            x2 -= d2
-            step, conv = newton_stop(x0, x1, x2, d0, d1, d2, scale0, tol)
-            if not (step == step):
-                code = NEWTON_SINGULAR
-                break
-            if conv:
-                code = NEWTON_OK
-                break
-    return (x0, x1, x2), code, its
+    run = maxiter >= 1
+    while run and its < maxiter:
+        its += 1
+        d0, d1, d2, ds, det = newton_correction(model, vn, x0, x1, x2, xs, b0, b1, b2, s1)
+        if det == 0.0 or not finite(det):
+            code = NEWTON_SINGULAR
+            break
+        x0 -= d0
+        x1 -= d1
+        x2 -= d2
+        xs = sub_select(xs, True, ds)
+        step, conv = newton_stop(x0, x1, x2, xs, d0, d1, d2, ds, scale0, scales, tol)
+        if not (step == step):
+            code = NEWTON_SINGULAR
+            break
+        if conv:
+            code = NEWTON_OK
+            break
+    return (x0, x1, x2), xs, code, its
 
 
 @lane
 def momentum_map(model, v, x0, x1, x2, G0, G1, G2):
     """The node momentum μ_k of the step velocity X = Ω_k and the node Γ_k:
     μ_k = M_h(X) + w_L h (CX + D(X)) − (h/2) τ(Γ_k) (the Newton equation read
-    backwards); the paper's start Ω₀ := Ω(0) is μ₀ of X = Ω(0)."""
+    backwards); the paper's start Ω₀ := Ω(0) is μ₀ of X = Ω(0).  (Constant
+    inertia only: the coupled top starts from μ₀ = 𝕀Ω(0).)"""
     t0, t1, t2 = sum_torque(model.forces, G0, G1, G2, None, None, None)
     F0, F1, F2, j00, j01, j02, j10, j11, j12, j20, j21, j22 = residual_jacobian(
         model, v, x0, x1, x2, 0.0, 0.0, 0.0)
@@ -286,6 +411,26 @@ def newton_rhs(model, v, mu0, mu1, mu2, G0, G1, G2):
     step of size v.h that starts from the node (Γ, μ)."""
     t0, t1, t2 = sum_torque(model.forces, G0, G1, G2, None, None, None)
     return -axpy_opt(v.hh, t0, mu0), -axpy_opt(v.hh, t1, mu1), -axpy_opt(v.hh, t2, mu2)
+
+
+def entropy_predictor(inertia, model, v, X, s):
+    """Δ₀ of the coupled top's first solve (None for a constant inertia)."""
+    return None
+
+
+def _entropy_predictor_coupled(inertia, model, v, X, s):
+    th = model.thermo
+    I = inertia
+    c0, c1, c2 = sum_linear_friction(model.forces, None, None, None)
+    x0, x1, x2 = X
+    P = fma(or_zero(c0) * x0, x0, fma(or_zero(c1) * x1, x1, (or_zero(c2) * x2) * x2))
+    th0 = temperature(th, s)
+    phi = fma(I.alpha, th0 - th.T0, 1.0)
+    K2 = fma(I.I1 * x0, x0, fma(I.I2 * x1, x1, (I.I3 * x2) * x2))
+    return v.h * P / (th0 - phi * ((I.alpha * th0) * th.icv) * K2)
+
+
+entropy_predictor = overload_by_class(entropy_predictor, ThermalInertia, _entropy_predictor_coupled)
 
 
 def substep_factors(method: str) -> tuple:
