@@ -1,34 +1,30 @@
 """Shared fixtures of the kernel-level tests.
 
-The paper scene is rebuilt here from the raw numbers of SPEC §2 (not from any
-scene code in ``src/``), so that the tests check the kernels against the
-specification and not against themselves:
+The paper scene is rebuilt here from the raw numbers of the paper (docs/model.md
+§ "The paper scene"), not from any scene code in ``src/``, so that the tests check
+the kernels against the model and not against themselves:
 
     m = 4/3 π a³ ρ,  m₁ = 0.6 m,  m₂ = m − m₁,
     G_z = 3m₁a/(8m) − m₂a/(2m),  ℓ = |G_z|,  χ = e₃,
-    𝕀 ("paper") = diag(83a²m₁/320 + a²m₂/12, same, 2a²m₁/5 + a²m₂/3),
+    𝕀 (as printed) = diag(83a²m₁/320 + a²m₂/12, same, 2a²m₁/5 + a²m₂/3),
     c = 8πμa³,  c_v = 3 (m/M) R_gas,  g⃗ = m g ℓ χ,
-    Ω₀ = (0, 1, 1),  R₀ = [[1,0,0],[0,0,−1],[0,1,0]],  Γ₀ = R₀ᵀe₃,  σ₀ = 0.
+    Ω₀ = (0, 1, 1),  R₀ = [[1,0,0],[0,0,−1],[0,1,0]],  Γ₀ = R₀ᵀe₃ = (0, 1, 0).
 
-Flat layouts (liethermo.kernels.model): y = [Ω(3), Γ(3), σ, (R row-major 9)],
-p = [I₁, I₂, I₃, c, g_x, g_y, g_z, c_v, T₀].
-
-Other helpers: the spherical top (g = 0, 𝕀 = I₀·Id) with its exact solution
-(SPEC §4), random non-symmetric bodies with a tilted χ, and the least-squares
-fit of an observed order of convergence.
+Other helpers: the spherical top (g = 0, 𝕀 = I₀·Id) with its exact solution,
+random non-symmetric bodies with a tilted χ, and the least-squares fit of an
+observed order of convergence.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pytest
 
-from liethermo.kernels.model import NPARAM
+from liethermo.physics import Physics
 
-# ---------------------------------------------------------------- SPEC §2 numbers
 A_RADIUS = 0.05  # m
 MU = 0.1  # kg m^-1 s^-1
 RHO = 2700.0  # kg m^-3
@@ -43,58 +39,52 @@ E3 = np.array([0.0, 0.0, 1.0])
 
 
 def paper_numbers() -> dict:
-    """The derived quantities of the paper scene, from SPEC §2."""
+    """The derived quantities of the paper scene."""
     a = A_RADIUS
     m = 4.0 / 3.0 * math.pi * a**3 * RHO
     m1 = 0.6 * m
     m2 = m - m1
     Gz = 3.0 * m1 * a / (8.0 * m) - m2 * a / (2.0 * m)
-    ell = abs(Gz)
-    chi = E3.copy()
     I12 = 83.0 * a * a * m1 / 320.0 + a * a * m2 / 12.0
     I3 = 2.0 * a * a * m1 / 5.0 + a * a * m2 / 3.0
-    c = 8.0 * math.pi * MU * a**3
-    cv = 3.0 * (m / MOLAR_MASS) * R_GAS
-    gvec = m * G_ACC * ell * chi
-    return dict(m=m, m1=m1, m2=m2, Gz=Gz, ell=ell, chi=chi, inertia=np.array([I12, I12, I3]),
-                c=c, cv=cv, gvec=gvec)
+    return dict(m=m, m1=m1, m2=m2, Gz=Gz, ell=abs(Gz), inertia=np.array([I12, I12, I3]),
+                c=8.0 * math.pi * MU * a**3, cv=3.0 * (m / MOLAR_MASS) * R_GAS,
+                gvec=m * G_ACC * abs(Gz) * E3, G=np.array([0.0, 0.0, Gz]))
 
 
-def make_params(inertia, c, gvec, cv, T0_=T0) -> np.ndarray:
-    p = np.empty(NPARAM)
-    p[0:3] = inertia
-    p[3] = c
-    p[4:7] = gvec
-    p[7] = cv
-    p[8] = T0_
-    return p
+def make_physics(inertia, c, gvec, cv, T0_=T0, n=1, *, friction=None, alpha=0.0, lam=0.0,
+                 G=None, mass=1.0) -> Physics:
+    """Physics of n identical members; ``c`` an isotropic Stokes coefficient or
+    ``friction`` a diagonal C."""
+    C = np.array([c, c, c], dtype=float) if friction is None else np.asarray(friction, float)
+    one = Physics(inertia=np.asarray(inertia, float)[None], center_of_mass=(
+        np.zeros((1, 3)) if G is None else np.asarray(G, float)[None]), mass=np.array([mass]),
+        friction=C[None], gravity_torque=np.asarray(gvec, float)[None], heat_capacity=np.array([cv]),
+        T0=np.array([T0_]), S0=np.array([0.0]), thermal_expansion=np.array([alpha]),
+        internal_friction=np.array([lam]), isotropic_friction=friction is None)
+    return one.repeat(n) if n != 1 else one
 
 
-def make_state(omega, R, sigma=0.0, attitude=False) -> np.ndarray:
-    """Flat state with Γ = Rᵀe₃ (and R row-major if ``attitude``)."""
-    R = np.asarray(R, dtype=float)
-    y = np.concatenate([np.asarray(omega, float), R.T @ E3, [sigma]])
-    if attitude:
-        y = np.concatenate([y, R.ravel()])
-    return y
-
-
-@pytest.fixture
-def paper_params() -> np.ndarray:
+def paper_physics(n: int = 1) -> Physics:
     d = paper_numbers()
-    return make_params(d["inertia"], d["c"], d["gvec"], d["cv"])
+    return make_physics(d["inertia"], d["c"], d["gvec"], d["cv"], n=n, G=d["G"], mass=d["m"])
+
+
+def stack(physics_list) -> Physics:
+    """One ensemble from several Physics (same terms)."""
+    first = physics_list[0]
+    kw = {}
+    for f in first.__dataclass_fields__:
+        v = getattr(first, f)
+        if isinstance(v, np.ndarray):
+            kw[f] = np.concatenate([getattr(p, f) for p in physics_list])
+    return replace(first, **kw)
 
 
 @pytest.fixture
-def paper_y0() -> np.ndarray:
-    """(Ω₀, Γ₀ = R₀ᵀe₃ = (0,1,0), σ₀ = 0), width 7."""
-    return make_state(OMEGA0, R0)
-
-
-@pytest.fixture
-def paper_y0_attitude() -> np.ndarray:
-    """Paper initial state with the attitude R₀ appended, width 16."""
-    return make_state(OMEGA0, R0, attitude=True)
+def paper() -> tuple:
+    """(physics, Ω₀ (1, 3), R₀ (1, 3, 3)) of the paper scene."""
+    return paper_physics(), OMEGA0[None].copy(), R0[None].copy()
 
 
 # ---------------------------------------------------------------- spherical top
@@ -109,15 +99,15 @@ class SphericalTop:
     cv: float
     T0: float
     omega0: np.ndarray
-    gamma0: np.ndarray
+    R0: np.ndarray
 
     @property
-    def params(self) -> np.ndarray:
-        return make_params([self.I0] * 3, self.c, [0.0, 0.0, 0.0], self.cv, self.T0)
+    def physics(self) -> Physics:
+        return make_physics([self.I0] * 3, self.c, [0.0, 0.0, 0.0], self.cv, self.T0)
 
     @property
-    def y0(self) -> np.ndarray:
-        return np.concatenate([self.omega0, self.gamma0, [0.0]])
+    def gamma0(self):
+        return self.R0[2]
 
     def omega(self, t):
         t = np.asarray(t, float)
@@ -146,8 +136,7 @@ def spherical_top() -> SphericalTop:
     """Paper friction and thermodynamics, I₀ = 1e-3 kg m², Ω₀ = (0,1,1),
     Γ₀ = (0,1,0) (not parallel to Ω₀, so Γ really moves)."""
     d = paper_numbers()
-    return SphericalTop(I0=1.0e-3, c=d["c"], cv=d["cv"], T0=T0, omega0=OMEGA0.copy(),
-                        gamma0=np.array([0.0, 1.0, 0.0]))
+    return SphericalTop(I0=1.0e-3, c=d["c"], cv=d["cv"], T0=T0, omega0=OMEGA0.copy(), R0=R0.copy())
 
 
 # ---------------------------------------------------------------- random bodies
@@ -162,9 +151,10 @@ def random_rotation(rng) -> np.ndarray:
     ])
 
 
-def random_body(seed: int, *, omega_scale: float = 2.0, attitude: bool = False):
+def random_body(seed: int, *, omega_scale: float = 2.0, diagonal: bool = False):
     """A non-symmetric body (three distinct moments) with a tilted χ, paper-sized
-    friction and gravity torque, a random attitude and spin.  Returns (y0, p)."""
+    friction (isotropic, or a random diagonal C) and gravity torque, a random
+    attitude and spin.  Returns (physics, Ω₀ (1, 3), R₀ (1, 3, 3))."""
     rng = np.random.default_rng(seed)
     d = paper_numbers()
     inertia = rng.uniform(0.5e-3, 2.0e-3, 3)
@@ -172,30 +162,29 @@ def random_body(seed: int, *, omega_scale: float = 2.0, attitude: bool = False):
     chi /= np.linalg.norm(chi)
     gvec = rng.uniform(0.005, 0.03) * chi
     c = d["c"] * rng.uniform(0.5, 2.0)
-    p = make_params(inertia, c, gvec, d["cv"])
-    R = random_rotation(rng)
-    y0 = make_state(omega_scale * rng.normal(size=3), R, attitude=attitude)
-    return y0, p
+    C = c * rng.uniform(0.5, 2.0, 3) if diagonal else None
+    phys = make_physics(inertia, c, gvec, d["cv"], friction=C)
+    return phys, (omega_scale * rng.normal(size=3))[None], random_rotation(rng)[None]
 
 
-@pytest.fixture
-def random_body_factory():
-    return random_body
+def random_ensemble(n: int, seed: int = 0, scale: float = math.sqrt(2.0)):
+    """(Ω₀, R₀) of n members: attitudes uniform on SO(3), spin directions
+    uniform, |Ω₀| uniform in [0.5, 1.5]·scale."""
+    rng = np.random.default_rng(seed)
+    R = np.array([random_rotation(rng) for _ in range(n)])
+    d = rng.standard_normal((n, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    return d * (rng.uniform(0.5, 1.5, n) * scale)[:, None], R
 
 
 # ---------------------------------------------------------------- order fit
-def fit_order(hs, errors, floor: float = 1e-11, min_levels: int = 5) -> float:
+def fit_order(hs, errors, floor: float = 1e-11, min_levels: int = 4) -> float:
     """Slope of log(error) against log(h) by least squares, dropping the levels
     whose error is below the round-off ``floor``; at least ``min_levels``
-    levels (≥ 4 halvings) must remain."""
+    levels must remain."""
     hs = np.asarray(hs, float)
     errors = np.asarray(errors, float)
     assert np.all(np.isfinite(errors)), errors
     keep = errors >= floor
     assert keep.sum() >= min_levels, f"only {keep.sum()} levels above {floor}: {errors}"
     return float(np.polyfit(np.log(hs[keep]), np.log(errors[keep]), 1)[0])
-
-
-@pytest.fixture
-def observed_order():
-    return fit_order

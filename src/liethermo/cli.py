@@ -109,11 +109,6 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--dask", metavar="local|ADDRESS", default=None,
                    help="run sweep points as tasks on a Dask cluster ('local' or a scheduler address)")
     s.set_defaults(func=cmd_study)
-
-    b = sub.add_parser("bench", help="benchmark the kernels (ns per member-step, start-up, memory)",
-                       add_help=False)
-    b.add_argument("bench_args", nargs=argparse.REMAINDER)
-    b.set_defaults(func=cmd_bench)
     return ap
 
 
@@ -123,18 +118,8 @@ def cmd_study(args) -> int:
     return main_study(args)
 
 
-def cmd_bench(args) -> int:
-    from .bench import main as bench_main
-
-    return bench_main(args.bench_args)
-
-
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
-    if argv[:1] == ["bench"]:  # its own parser: argparse's REMAINDER drops leading options
-        from .bench import main as bench_main
-
-        return bench_main(argv[1:])
     args = build_parser().parse_args(argv)
     return args.func(args)
 
