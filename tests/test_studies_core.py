@@ -24,6 +24,7 @@ import pandas as pd
 import pytest
 import xarray as xr
 
+from liethermo import cf
 from liethermo.cli import main
 from liethermo.studies import KINDS, common, get_study
 from liethermo.studies.runner import load_study
@@ -41,21 +42,21 @@ def _run(name: str, outdir: Path) -> Path:
 def convergence(tmp_path_factory):
     out = tmp_path_factory.mktemp("convergence")
     report = _run("convergence", out)
-    return out, report, xr.load_dataset(out / "convergence.nc")
+    return out, report, cf.load_dataset(out / "convergence.nc")
 
 
 @pytest.fixture(scope="module")
 def energy_drift(tmp_path_factory):
     out = tmp_path_factory.mktemp("energy_drift")
     report = _run("energy_drift", out)
-    return out, report, xr.load_dataset(out / "energy_drift.nc")
+    return out, report, cf.load_dataset(out / "energy_drift.nc")
 
 
 @pytest.fixture(scope="module")
 def paper(tmp_path_factory):
     out = tmp_path_factory.mktemp("paper")
     report = _run("paper", out)
-    return out, report, xr.load_dataset(out / "paper.nc")
+    return out, report, cf.load_dataset(out / "paper.nc")
 
 
 # ----------------------------------------------------------------------------- helpers
@@ -270,6 +271,7 @@ def test_paper_study_figures_and_errata(paper):
     assert df.loc["corrected_inertia", "|ΔOmega| vs paper"] > 1e-2
     assert {"omega", "gamma", "entropy", "total_energy", "energy_error", "status"} <= set(ds.data_vars)
     assert "vi_paper" in ds["variant"].values and "reference_paper" in ds["variant"].values
+
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-import xarray as xr
 
+from liethermo import cf
 from liethermo.studies.common import StudyError
 from liethermo.studies.runner import load_study, validate_study
 
@@ -56,7 +56,7 @@ def test_work_precision_outputs(wp):
     text = report.read_text()
     assert report.name == "report.md" and "serially" in text and "staggered" in text
     assert (out / "work_precision.png").is_file()
-    ds = xr.open_dataset(out / "work_precision.nc")
+    ds = cf.open_dataset(out / "work_precision.nc")
     for v in ds.data_vars:
         assert "units" in ds[v].attrs and "long_name" in ds[v].attrs, v
     assert set(ds["method"].values) == {"vi", "rk2", "rk4", "scipy RK45", "scipy DOP853"}
@@ -110,7 +110,7 @@ def test_time_to_error_interpolation():
 
 def test_stability_map(stab):
     report, out = stab
-    ds = xr.open_dataset(out / "stability.nc")
+    ds = cf.open_dataset(out / "stability.nc")
     for v in ds.data_vars:
         assert "units" in ds[v].attrs and "long_name" in ds[v].attrs, v
     reg = ds["regime"]
@@ -178,7 +178,7 @@ def test_stability_newton_limit(stab):
 
 def test_viscosity_sweep_physics(visc):
     report, out = visc
-    ds = xr.open_dataset(out / "viscosity_sweep.nc")
+    ds = cf.open_dataset(out / "viscosity_sweep.nc")
     for v in ds.data_vars:
         assert "units" in ds[v].attrs and "long_name" in ds[v].attrs, v
     mu = ds["fluid_viscosity"].values

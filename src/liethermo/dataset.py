@@ -9,13 +9,12 @@ the initial data, not from the stored first state).
 
 from __future__ import annotations
 
-import datetime as _dt
 import platform
 
 import numpy as np
 import xarray as xr
 
-from . import __version__
+from . import __version__, cf
 from .kernels.model import P_C, P_CV, P_GX, P_GY, P_GZ, P_I1, P_I2, P_I3, P_T0
 from .methods import METHODS
 from .simulate import STATUS_MEANINGS, Trajectory
@@ -72,7 +71,8 @@ def _trajectory_dataset(traj, S0, omega0, R0, center_of_mass, member_offset):
         "omega": _var(om, dims_v, "rad s-1", "body angular velocity", comment=omega_note),
         "gamma": _var(ga, dims_v, "1", "direction of gravity in the body frame (R^T e3)"),
         "entropy": _var(S0 + sg, dims_t, "J K-1", "entropy S of body and fluid"),
-        "temperature": _var(T, dims_t, "K", "temperature T(S) = T0 exp((S - S0)/c_v)"),
+        "temperature": _var(T, dims_t, "K", "temperature T(S) = T0 exp((S - S0)/c_v)",
+                            units_metadata="temperature: on_scale"),
         "kinetic_energy": _var(K, dims_t, "J", "kinetic energy 1/2 Omega . I Omega"),
         "potential_energy": _var(V, dims_t, "J", "potential energy m g l Gamma . chi"),
         "internal_energy": _var(U, dims_t, "J", "internal energy U(S) = c_v T(S)"),
@@ -118,9 +118,12 @@ def _trajectory_dataset(traj, S0, omega0, R0, center_of_mass, member_offset):
 
 
 def global_attrs(scene_toml: str, *, method: str, h: float, friction: str, start: str,
-                 extra: dict | None = None) -> dict:
+                 extra: dict | None = None, history: str | None = None) -> dict:
+    """Global attributes of a run's dataset.  ``history``: the command line or
+    API call that makes it (stored as a timestamped CF ``history`` line)."""
+    created = cf.timestamp()
     attrs = {
-        "Conventions": "CF-1.8",
+        "Conventions": cf.CONVENTIONS,
         "title": "liethermo ensemble: heavy top in Stokes flow",
         "method": method,
         "method_description": METHODS[method].description,
@@ -133,7 +136,8 @@ def global_attrs(scene_toml: str, *, method: str, h: float, friction: str, start
         "software": f"liethermo {__version__}",
         "software_version": __version__,
         "python": platform.python_version(),
-        "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        "created": created,
+        "history": cf.history_entry(history or f"liethermo {__version__}", created),
         "references": "Coueraud & Gay-Balmaz, Variational discretization of thermodynamical simple "
                       "systems on Lie groups; liethermo SPEC (errata E1-E5)",
     }

@@ -21,7 +21,8 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-import xarray as xr  # noqa: E402
+
+from . import cf  # noqa: E402
 
 STYLE = {"vi": dict(color="C0", lw=1.6), "rk2": dict(color="C3", lw=1.2, ls="--"),
          "rk4": dict(color="C2", lw=1.2, ls="-."), "reference": dict(color="k", lw=0.8, ls=":")}
@@ -45,9 +46,10 @@ def _failure_note(ds, ax, method):
 def scene_figures(outputs: dict, folder, stem: str = "run", member: int = 0) -> list[Path]:
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    data = {m: xr.open_dataset(p).isel(member=member).load() for m, p in outputs.items()}
-    for ds in data.values():
-        ds.close()
+    data = {}
+    for m, p in outputs.items():  # one member read from each file, not the whole ensemble
+        with cf.open_dataset(p) as full:
+            data[m] = full.isel(member=member).load()
     first = next(iter(data.values()))
     h = float(first.attrs["h"])
     title = f"{stem}: h = {h:g} s, member {member}"

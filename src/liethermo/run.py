@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
+from . import cf
 from .dataset import global_attrs, trajectory_dataset
 from .initial import initial_conditions, initial_states
 from .io import ChunkedWriter
@@ -131,8 +132,9 @@ class ChunkStats:
         return cls(**kw)
 
 
-def scene_setup(scene: dict | str, overrides=None) -> tuple[dict, dict, RunSummary]:
-    """Resolve a scene: ``(scene, global attributes, empty RunSummary)``."""
+def scene_setup(scene: dict | str, overrides=None, history: str | None = None) -> tuple[dict, dict, RunSummary]:
+    """Resolve a scene: ``(scene, global attributes, empty RunSummary)``;
+    ``history`` is the command line or API call stored in the attributes."""
     if not isinstance(scene, dict) or overrides:
         scene = load_scene(scene, overrides)
     scene = copy.deepcopy(scene)
@@ -140,7 +142,8 @@ def scene_setup(scene: dict | str, overrides=None) -> tuple[dict, dict, RunSumma
     method, h, steps = integ["method"], float(integ["h"]), int(integ["steps"])
     members = int(scene["ensemble"]["members"])
     start = integ["start"] if method == "vi" else "node"
-    attrs = global_attrs(scene_to_toml(scene), method=method, h=h, friction=integ["friction"], start=start)
+    attrs = global_attrs(scene_to_toml(scene), method=method, h=h, friction=integ["friction"], start=start,
+                         history=history)
     return scene, attrs, RunSummary(scene["scene"]["name"], method, members, steps, h)
 
 
@@ -203,13 +206,18 @@ def finish_summary(summ: RunSummary, st: ChunkStats) -> RunSummary:
 
 
 def run_scene(scene: dict | str, out: str | Path | None = None, *, overrides=None,
-              progress: bool | None = None, kernel: str | None = None) -> tuple[xr.Dataset | None, RunSummary]:
+              progress: bool | None = None, kernel: str | None = None,
+              history: str | None = None) -> tuple[xr.Dataset | None, RunSummary]:
     """Run one scene with its own method.
 
     With ``out``: streams member chunks into the netCDF file (atomically) and
     returns ``(None, summary)``; without: returns the in-memory dataset.
+    ``history``: the command line or API call recorded in the ``history``
+    attribute (default: this call, ``liethermo.run.run_scene(...)``).
     """
-    scene, attrs, summ = scene_setup(scene, overrides)
+    if history is None:
+        history = cf.api_call("liethermo.run.run_scene", scene, out, overrides=overrides)
+    scene, attrs, summ = scene_setup(scene, overrides, history)
     members, steps = summ.members, summ.steps
     chunk = int(scene["output"]["member_chunk"])
     t_wall = time.perf_counter()

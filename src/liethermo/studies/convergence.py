@@ -35,7 +35,7 @@ from ..scene import physical_parameters
 from ..simulate import simulate
 from .common import (study_options, StudyError, cached_point, dim_name, expand_sweep, parse_method, point_is_cached, point_key,
                      progress_bar, stack_points, study_name, study_netcdf_path, study_scene,
-                     write_netcdf_atomic, write_report, write_table, start_study)
+                     write_netcdf_atomic, write_report, write_table, start_study, study_history)
 
 EXTRA_KEYS = ()
 VARIABLES = ("omega", "gamma", "entropy", "total_energy")
@@ -160,7 +160,8 @@ def _dask_points(outdir, dask, progress, opt, specs, hs, points, scenes, ref_key
         map_cached_points(outdir, tasks, client, progress=progress)
 
 
-def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask: str | None = None) -> Path:
+def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask: str | None = None,
+        history: str | None = None) -> Path:
     study, outdir, opt = start_study(study, outdir, reduced, validate, options)
     hs = _levels(opt)
     specs = [parse_method(m) for m in study["methods"]]
@@ -249,7 +250,8 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
     ds.attrs.update({"study": study_name(study), "kind": "convergence", "reduced": int(reduced),
                      "t_end": opt["t_end"], "h0": opt["h0"], "levels": opt["levels"],
                      "comparison": "max over t = j*h0; VI staggered Omega against Omega_ref(t_k + h/2)"})
-    nc = write_netcdf_atomic(ds, study_netcdf_path(study, outdir))
+    nc = write_netcdf_atomic(ds, study_netcdf_path(study, outdir),
+                             history=study_history("convergence", study, outdir, reduced, history))
     figs = _figures(ds, outdir, keys)
     notes = (f"Scene: `{study.get('study', {}).get('base_scene', 'paper')}`, t_end = {opt['t_end']} s, "
              f"h = {opt['h0']} s halved {opt['levels'] - 1} times; errors are the max over t = j·{opt['h0']} s "

@@ -40,7 +40,8 @@ from ..methods import FRICTION
 from ..scene import physical_parameters
 from ..simulate import simulate
 from .common import (study_options, StudyError, cached_point, point_key, progress_bar, study_name,
-                     study_netcdf_path, study_scene, write_netcdf_atomic, write_report, write_table, start_study)
+                     study_netcdf_path, study_scene, write_netcdf_atomic, write_report, write_table, start_study,
+                     study_history)
 
 EXTRA_KEYS = ()
 
@@ -323,7 +324,8 @@ def _one_thread(func, *args):
         return func(*args)
 
 
-def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask: str | None = None) -> Path:
+def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask: str | None = None,
+        history: str | None = None) -> Path:
     import pandas as pd
 
     s, outdir, opt = start_study(study, outdir, reduced, validate, options)
@@ -421,7 +423,8 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
                 a[cnames.index(c), methods.index(m)] = float(ds[var].values[0])
             mp[f"case_{var}"] = (("case", "method"), a, {"units": UNITS[var][0], "long_name": f"named case: {UNITS[var][1]}"})
         mp = mp.assign_coords(case=("case", np.array(cnames, dtype=object)))
-    nc = write_netcdf_atomic(mp, study_netcdf_path(s, outdir))
+    nc = write_netcdf_atomic(mp, study_netcdf_path(s, outdir),
+                             history=study_history("stability", study, outdir, reduced, history))
 
     # --- tables
     count_rows = []
