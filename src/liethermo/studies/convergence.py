@@ -32,7 +32,7 @@ from ..dataset import energies
 from ..initial import initial_conditions, initial_states
 from ..methods import METHODS
 from ..scene import physical_parameters
-from ..simulate import simulate
+from ..simulate import STATUS_MEANINGS, simulate
 from .common import (study_options, StudyError, cached_point, dim_name, expand_sweep, parse_method, point_is_cached, point_key,
                      progress_bar, stack_points, study_name, study_netcdf_path, study_scene,
                      write_netcdf_atomic, write_report, write_table, start_study, study_history)
@@ -242,12 +242,19 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
                                       "against the reference")
         ds[f"observed_order_{v}"].attrs.update(units="1", long_name=f"observed order of convergence of {v}")
         ds[f"error_constant_{v}"].attrs.update(units=UNITS[v], long_name=f"C in error_{v} = C h^p")
+        ds[f"levels_fitted_{v}"].attrs.update(units="1", long_name=f"number of levels h in the fit of the "
+                                              f"order of {v}")
+    ds["status"].attrs.update(units="1", long_name="status of the run at this h",
+                              flag_values=np.array(sorted(STATUS_MEANINGS), dtype=ds["status"].dtype),
+                              flag_meanings=" ".join(STATUS_MEANINGS[k] for k in sorted(STATUS_MEANINGS)))
+    ds["wall_time"].attrs.update(units="s", long_name="wall time of the run at this h")
     ds["omega"].attrs.update(units="rad s-1", long_name="body angular velocity at t_end (VI: step velocity)")
     ds["gamma"].attrs.update(units="1", long_name="direction of gravity in the body frame at t_end")
     ds["entropy"].attrs.update(units="J K-1", long_name="entropy at t_end")
     ds["energy_error"].attrs.update(units="J", long_name="total energy error E_k - E_0 at t_end")
     ds["h"].attrs.update(units="s", long_name="time step")
-    ds.attrs.update({"study": study_name(study), "kind": "convergence", "reduced": int(reduced),
+    ds.attrs.update({"title": "liethermo convergence study: errors against a DOP853 reference",
+                     "study": study_name(study), "kind": "convergence", "reduced": int(reduced),
                      "t_end": opt["t_end"], "h0": opt["h0"], "levels": opt["levels"],
                      "comparison": "max over t = j*h0; VI staggered Omega against Omega_ref(t_k + h/2)"})
     nc = write_netcdf_atomic(ds, study_netcdf_path(study, outdir),

@@ -181,8 +181,14 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
                                                  "resting state K_0 + V_0 + m g l")
     ds["status"].attrs.update(units="1", long_name="member status", flag_values=np.array([0, 1, 2], np.int8),
                               flag_meanings="ok newton_not_converged non_finite")
+    ds["newton_iterations_mean"].attrs.update(units="1", long_name="mean Newton iterations per step "
+                                              "(NaN: explicit method)")
+    ds["kernel_time"].attrs.update(units="s", long_name="kernel wall time of the point's ensemble")
     ds["time"].attrs.update(units="s", long_name="time t_k = k h (band grid)")
-    ds.attrs.update({"study": study_name(study), "kind": "energy_drift", "reduced": int(reduced),
+    ds["quantile"].attrs.update(units="1", long_name="quantile over members")
+    ds["member"].attrs.update(units="1", long_name="ensemble member")
+    ds.attrs.update({"title": "liethermo energy-drift study: energy error over a random ensemble",
+                     "study": study_name(study), "kind": "energy_drift", "reduced": int(reduced),
                      "t_end": opt["t_end"], "members": int(ds.sizes["member"])})
     nc = write_netcdf_atomic(ds, study_netcdf_path(study, outdir),
                              history=study_history("energy_drift", study, outdir, reduced, history))

@@ -163,7 +163,8 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
              for k in names]
     ds = xr.concat(parts, dim="variant", data_vars="all", coords="minimal", compat="override", join="override")
     ds = ds.assign_coords(variant=names)
-    ds.attrs.update({"study": study_name(study), "kind": "paper", "reduced": int(reduced),
+    ds.attrs.update({"title": "liethermo paper study: the paper's runs and what each erratum changes",
+                     "study": study_name(study), "kind": "paper", "reduced": int(reduced),
                      "h": h, "steps": int(sc["integrator"]["steps"]),
                      "variants": "paper_<method>: the paper's figure runs; vi_<variant>: errata variants; "
                                  "reference_<inertia>: DOP853 reference"})

@@ -404,7 +404,8 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
     mp["h_omega"].attrs.update(units="rad", long_name="h |Omega_0| (step angle of the initial spin)")
     mp["kappa"].attrs.update(units="1", long_name="kappa = c h / I_min (friction per step)")
     mp = _attrs(mp)
-    mp.attrs.update({"study": study_name(s), "h": h, "steps": int(opt["steps"]),
+    mp.attrs.update({"title": "liethermo stability study: stability map, named cases and Newton limit",
+                     "study": study_name(s), "h": h, "steps": int(opt["steps"]),
                      "error_threshold": float(opt["error_threshold"]),
                      "growth_limit": float(opt["growth_limit"]),
                      "regime_flag_meanings": " ".join(CLASSES), "vi_start": "staggered"})

@@ -218,7 +218,9 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
         elif k.startswith("entropy_at_"):
             ds[k].attrs.update(units="J K-1", long_name=f"entropy produced by t = {k[len('entropy_at_'):].replace('p', '.')}")
     scene0 = study_scene(s, points[0])
-    ds.attrs.update(study=study_name(s), method=opt["method"], h=float(opt["h"]),
+    ds["member"].attrs.update(units="1", long_name="ensemble member")
+    ds.attrs.update(title="liethermo viscosity sweep: entropy production and settling times",
+                    study=study_name(s), method=opt["method"], h=float(opt["h"]),
                     threshold=float(opt["threshold"]), members=int(scene0["ensemble"]["members"]),
                     seed=int(scene0["ensemble"]["seed"]))
     nc = write_netcdf_atomic(ds, study_netcdf_path(s, outdir),

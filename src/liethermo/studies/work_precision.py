@@ -381,7 +381,8 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
     ds = xr.Dataset({k: (dims, arr[k], {"units": u, "long_name": ln}) for k, (u, ln) in meta.items()},
                     coords={"method": ("method", np.array(names, dtype=object), {"long_name": "method", "units": "1"}),
                             "level": ("level", np.arange(L), {"long_name": "step/tolerance level (coarse to fine)", "units": "1"})},
-                    attrs={"study": study_name(s), "t_end": t_end, "members": N, "scipy_members": M,
+                    attrs={"title": "liethermo work-precision study: time per member-step against error",
+                           "study": study_name(s), "t_end": t_end, "members": N, "scipy_members": M,
                            "kernel_threads": int(opt["threads"]), "vi_start": "staggered",
                            "reference_self_check": ref_check})
     nc = write_netcdf_atomic(ds, study_netcdf_path(s, outdir),
