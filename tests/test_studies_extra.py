@@ -231,3 +231,15 @@ def test_invalid_options_rejected(tmp_path):
     p.write_text(src)
     with pytest.raises(StudyError, match="viscosit"):
         validate_study(load_study(p))
+
+
+@pytest.mark.parametrize("which", ["wp", "stab", "visc"])
+def test_study_netcdf_is_cf_clean(which, request):
+    """compliance-checker at the declared CF version: no error, no check that
+    raises, only the warnings docs/netcdf.md justifies."""
+    pytest.importorskip("compliance_checker")
+    from cfcheck import assert_cf_clean
+
+    _, out = request.getfixturevalue(which)
+    (nc,) = out.glob("*.nc")
+    assert not assert_cf_clean(nc).warnings
