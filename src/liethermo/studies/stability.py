@@ -492,7 +492,10 @@ def _figure(maps: dict, methods: list, outdir: Path, opt: dict) -> Path:
     from matplotlib.colors import BoundaryNorm, ListedColormap
 
     n = len(methods)
-    fig, axes = plt.subplots(2, n, figsize=(3.6 * n, 6.6), squeeze=False)
+    # every panel has the same (h|Omega_0|, kappa) grid: shared axes, labels on the outer
+    # panels only, and constrained layout so that titles, labels and colorbars do not collide
+    fig, axes = plt.subplots(2, n, figsize=(3.6 * n, 6.6), squeeze=False, sharex=True, sharey=True,
+                             layout="constrained")
     cmap = ListedColormap(["#2ca02c", "#bcbd22", "#ff7f0e", "#9467bd", "#d62728"])
     norm = BoundaryNorm(np.arange(-0.5, 5.5), cmap.N)
     for j, m in enumerate(methods):
@@ -512,11 +515,11 @@ def _figure(maps: dict, methods: list, outdir: Path, opt: dict) -> Path:
         err = np.log10(np.clip(ds["error_max"].values, 1e-16, 1e3))
         im2 = ax2.pcolormesh(xi, yi, err.T, cmap="viridis", vmin=-8, vmax=1, shading="nearest")
         ax2.set_title(f"{m}: log10 error (max over run)", fontsize=9)
-        for a_ in (ax, ax2):
-            a_.set_xticks(xi, [f"{v:g}" for v in hw], fontsize=7, rotation=45)
-            a_.set_yticks(yi, [f"{v:g}" for v in ka], fontsize=7)
-            a_.set_xlabel("h|Ω₀| (rad)")
-            a_.set_ylabel("κ = c h / I_min")
+        ax2.set_xticks(xi, [f"{v:g}" for v in hw], fontsize=7, rotation=45)
+        ax2.set_xlabel("h|Ω₀| (rad)")
+    for ax in axes[:, 0]:
+        ax.set_yticks(yi, [f"{v:g}" for v in ka], fontsize=7)
+        ax.set_ylabel("κ = c h / I_min")
     cb = fig.colorbar(im, ax=axes[0, :].tolist(), ticks=range(5), fraction=0.02)
     cb.ax.set_yticklabels(CLASSES, fontsize=7)
     fig.colorbar(im2, ax=axes[1, :].tolist(), fraction=0.02, label="log10 error")
