@@ -286,5 +286,22 @@ def test_study_netcdf_is_cf_clean(which, request):
     assert ds.attrs["history"].split(": ", 1)[1].startswith(f"liethermo.studies.{which}.run(load_study(")
 
 
+
+@pytest.mark.parametrize("which", ["convergence", "energy_drift", "paper"])
+def test_study_figures_were_checked_for_legibility(which, request):
+    """Every PNG of the study went through the conftest layout check; the study's
+    own figures use a layout engine (the paper study draws the run figures,
+    which have explicit margins)."""
+    from layout import SAVED_FIGURES
+
+    out = request.getfixturevalue(which)[0]
+    pngs = sorted(out.glob("*.png"))
+    assert pngs
+    for png in pngs:
+        assert str(png.resolve()) in SAVED_FIGURES, png.name
+        if which != "paper":
+            assert SAVED_FIGURES[str(png.resolve())] in ("ConstrainedLayoutEngine", "TightLayoutEngine",
+                                                         "PlaceHolderLayoutEngine"), png.name
+
 if __name__ == "__main__":  # pragma: no cover
     sys.exit(pytest.main([__file__, "-q"]))

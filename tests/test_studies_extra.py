@@ -243,3 +243,16 @@ def test_study_netcdf_is_cf_clean(which, request):
     _, out = request.getfixturevalue(which)
     (nc,) = out.glob("*.nc")
     assert not assert_cf_clean(nc).warnings
+
+
+@pytest.mark.parametrize("which", ["wp", "stab", "visc"])
+def test_study_figures_were_checked_for_legibility(which, request):
+    """Every PNG of the study went through the conftest layout check, with a layout engine."""
+    from layout import SAVED_FIGURES
+
+    _, out = request.getfixturevalue(which)
+    pngs = sorted(out.glob("*.png"))
+    assert pngs
+    for png in pngs:
+        assert SAVED_FIGURES.get(str(png.resolve())) in ("ConstrainedLayoutEngine", "TightLayoutEngine",
+                                                         "PlaceHolderLayoutEngine"), png.name
