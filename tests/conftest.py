@@ -13,17 +13,45 @@ the kernels against the model and not against themselves:
 Other helpers: the spherical top (g = 0, 𝕀 = I₀·Id) with its exact solution,
 random non-symmetric bodies with a tilted χ, and the least-squares fit of an
 observed order of convergence.
+
+Every figure a test saves (runs, studies) is checked for legibility at its
+saved size by :func:`legible_figures` (tests/layout.py): the save fails if
+tick labels of an axis overlap, if titles, labels or legends overlap each
+other or a neighbouring panel, or if any of them is cut off.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from pathlib import Path
 
 import numpy as np
 import pytest
 
+from layout import SAVED_FIGURES, layout_problems
 from liethermo.physics import Physics
+
+
+@pytest.fixture(scope="session", autouse=True)
+def legible_figures():
+    """Check every ``Figure.savefig`` of the session (session scope, so that the
+    studies run by module-scoped fixtures are covered too)."""
+    from matplotlib.figure import Figure
+
+    save = Figure.savefig
+
+    def checked_savefig(fig, fname, *args, **kwargs):
+        out = save(fig, fname, *args, **kwargs)
+        problems = layout_problems(fig, kwargs.get("dpi"))
+        assert not problems, f"{fname}: illegible at its saved size:\n  " + "\n  ".join(problems)
+        engine = fig.get_layout_engine()
+        SAVED_FIGURES[str(Path(str(fname)).resolve())] = type(engine).__name__ if engine is not None else None
+        return out
+
+    Figure.savefig = checked_savefig
+    yield
+    Figure.savefig = save
 
 A_RADIUS = 0.05  # m
 MU = 0.1  # kg m^-1 s^-1

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 import xarray as xr
 
+from liethermo import cf
 from liethermo.cli import main
 from liethermo.run import run_scene
 from liethermo.scene import SceneError, load_scene
@@ -84,7 +85,7 @@ def test_console_run_leaves_complete_files(tmp_path):
     assert p.stdout.count("wrote ") == 2
     assert p.stdout.rstrip().endswith(f"{tmp_path / 'p_entropy.png'}")
     for path in (out, tmp_path / "p_rk2.nc"):
-        with xr.open_dataset(path) as ds:
+        with cf.open_dataset(path) as ds:
             assert ds.sizes["time"] == 41
             assert np.isfinite(ds["omega"].values[0, :20]).all()
     pngs = sorted(f.name for f in tmp_path.glob("*.png"))
@@ -180,8 +181,8 @@ def test_paper_command_writes_files_and_figures(tmp_path):
     """`liethermo run paper`: VI completes, RK2 at h = 0.1 is flagged non-finite, 4 figures."""
     out = tmp_path / "paper.nc"
     assert main(["run", "paper", "-o", str(out), "--no-progress"]) == 0
-    vi = xr.open_dataset(out)
-    rk2 = xr.open_dataset(tmp_path / "paper_rk2.nc")
+    vi = cf.open_dataset(out)
+    rk2 = cf.open_dataset(tmp_path / "paper_rk2.nc")
     assert vi.attrs["method"] == "vi" and rk2.attrs["method"] == "rk2"
     assert int(vi["status"].values[0]) == 0
     assert rk2["status"].attrs["flag_meanings"].split()[int(rk2["status"].values[0])] == "non_finite"
@@ -199,26 +200,39 @@ def test_paper_command_writes_files_and_figures(tmp_path):
 
 
 def test_dataset_contract_plain_xarray(tmp_path):
-    """Opened by plain xarray without importing liethermo; units and long_name on every
-    variable; CF flags on status; provenance attributes (SPEC §7)."""
+    """Opened by plain xarray without importing liethermo, as docs/netcdf.md shows:
+    time in seconds (CF units 'seconds since' a placeholder epoch, not decoded),
+    the axis labels as a CF label variable that one line makes the index again;
+    units and long_name on every variable; CF flags on status; provenance
+    attributes, with the API call that made the file in 'history'."""
     out = tmp_path / "r.nc"
     _, summ = run_scene(_small(members=3, integrator__method="rk4"), out, progress=False)
     code = f"""
-import sys, xarray as xr
-ds = xr.open_dataset({str(out)!r})
+import sys, numpy as np, xarray as xr
+ds = xr.open_dataset({str(out)!r}, decode_times=False)
+ds = ds.assign_coords({{v[:-6]: ds[v].values for v in ds.coords if v.endswith("_label")}})
 assert 'liethermo' not in sys.modules
-missing = [v for v in ds.variables if 'units' not in ds[v].attrs or 'long_name' not in ds[v].attrs]
+missing = [v for v in ds.variables if v not in ds.dims
+           and ('units' not in ds[v].attrs or 'long_name' not in ds[v].attrs)]
 assert not missing, missing
 for v in ['omega','gamma','entropy','temperature','kinetic_energy','potential_energy','internal_energy',
           'total_energy','energy_error','status']:
     assert v in ds, v
 assert ds['omega'].dims == ('member','time','axis') and list(ds['axis'].values) == ['x','y','z']
+assert list(ds['axis_label'].values) == ['x','y','z'] and 'step' in ds.coords
+assert float(ds['omega'].sel(axis='z').isel(member=0, time=0)) == float(ds['omega'][0, 0, 2])
 assert ds['energy_error'].dims == ('member','time')
-assert ds['omega'].attrs['units'] == 'rad s-1' and ds['time'].attrs['units'] == 's'
+assert ds['time'].dtype == np.float64 and np.allclose(ds['time'].values, 0.1 * np.arange(ds.sizes['time']))
+assert ds['time'].attrs['units'] == 'seconds since 0001-01-01 00:00:00'
+assert ds['time'].attrs['calendar'] == 'proleptic_gregorian'
+assert ds['omega'].attrs['units'] == 'rad s-1'
 assert list(ds['status'].attrs['flag_values']) == [0, 1, 2]
 assert ds['status'].attrs['flag_meanings'] == 'ok newton_not_converged non_finite'
-for a in ['Conventions','method','h','friction','start','scene','software_version','created']:
+for a in ['Conventions','history','method','h','friction','start','scene','software_version','created']:
     assert a in ds.attrs, a
+assert ds.attrs['Conventions'] == 'CF-1.11'
+assert ds.attrs['history'].startswith(ds.attrs['created'] + ': liethermo.run.run_scene(')
+assert {str(out)!r} in ds.attrs['history']
 assert ds.attrs['method'] == 'rk4' and '[integrator]' in ds.attrs['scene']
 print('OK')
 """

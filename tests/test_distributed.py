@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import os
+import shlex
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +20,7 @@ import xarray as xr
 
 distributed = pytest.importorskip("distributed")
 
+from liethermo import cf
 from liethermo import distributed as ld  # noqa: E402
 from liethermo.run import run_scene  # noqa: E402
 
@@ -28,6 +30,7 @@ VI = BASE + ["integrator.steps=60"]
 # RK2 at the paper's h blows up for part of the ensemble: non-trivial status flags
 RK2 = BASE + ["integrator.steps=100", "integrator.method='rk2'"]
 TASK = 128  # members per task: 5 tasks, the last one short
+PROVENANCE = {"created", "history"}
 
 
 @pytest.fixture(scope="module")
@@ -63,8 +66,9 @@ def ref_rk2(tmp_path_factory) -> Path:
 
 def assert_same_run(path: Path, ref: Path) -> None:
     """Every variable within 1e-14 relative (NaN where the reference has NaN),
-    integer variables and status flags equal, attributes equal but 'created'."""
-    with xr.open_dataset(path) as a, xr.open_dataset(ref) as b:
+    integer variables and status flags equal, attributes equal but the provenance
+    ('created', and 'history': the call that made each file)."""
+    with cf.open_dataset(path) as a, cf.open_dataset(ref) as b:
         assert set(a.variables) == set(b.variables)
         assert a.sizes == b.sizes
         for name in b.variables:
@@ -80,9 +84,9 @@ def assert_same_run(path: Path, ref: Path) -> None:
             else:
                 np.testing.assert_array_equal(va, vb, err_msg=name)
         np.testing.assert_array_equal(a["status"].values, b["status"].values)
-        assert {k for k in a.attrs if k != "created"} == {k for k in b.attrs if k != "created"}
+        assert a.attrs.keys() == b.attrs.keys()
         for k in b.attrs:
-            if k != "created":
+            if k not in PROVENANCE:
                 np.testing.assert_array_equal(a.attrs[k], b.attrs[k], err_msg=k)
 
 
@@ -135,7 +139,7 @@ def test_two_workers_equal_in_process(client, tmp_path, which, ref_vi, ref_rk2):
         assert summ.max_abs_energy_error == ref_summ.max_abs_energy_error
         assert summ.newton_mean == ref_summ.newton_mean
     else:
-        with xr.open_dataset(ref) as b:
+        with cf.open_dataset(ref) as b:
             assert summ.status_counts["non_finite"] == int((b["status"].values != 0).sum()) > 0
             failed = b["status"].values != 0
             assert summ.first_fail_step == int(b["failed_at_step"].values[failed].min())
@@ -180,8 +184,9 @@ def test_resume_recomputes_nothing_finished(client, tmp_path, ref_vi):
 
     # the kept parts are an open_mfdataset-ready set, listed by index.json
     with xr.open_mfdataset([parts / f for f in idx["files"]], combine="nested", concat_dim="member",
-                           data_vars="minimal", coords="minimal", compat="override", join="override") as mf, \
-            xr.open_dataset(ref_vi) as b:
+                           decode_times=False, data_vars="minimal", coords="minimal", compat="override",
+                           join="override") as mf, \
+            cf.open_dataset(ref_vi) as b:
         np.testing.assert_array_equal(mf["omega"].values, b["omega"].values)
         np.testing.assert_array_equal(mf["member"].values, np.arange(600))
 
@@ -210,7 +215,7 @@ def test_map_cached_points(client, tmp_path):
     pts = [(f"h{i}", small_point, (0.1 * i,)) for i in range(1, 4)]
     assert ld.map_cached_points(tmp_path, pts, client, progress=False) == ["h1", "h2", "h3"]
     assert ld.map_cached_points(tmp_path, pts, client, progress=False) == []  # resume: nothing to do
-    with xr.open_dataset(tmp_path / "points" / "h2.nc") as ds:
+    with cf.open_dataset(tmp_path / "points" / "h2.nc") as ds:
         assert float(ds["h2"]) == 0.2 * 0.2
 
 
@@ -224,6 +229,8 @@ def test_cli_dask_address(client, tmp_path, ref_vi, capsys):
     assert main(args) == 0
     assert "wrote" in capsys.readouterr().out
     assert_same_run(out, ref_vi)
+    with cf.open_dataset(out) as ds:  # the command line that made the file
+        assert ds.attrs["history"].endswith(": " + shlex.join(["liethermo", *args]))
 
 
 # ---------------------------------------------------------------- studies (--dask)
@@ -242,11 +249,11 @@ def _study(kind: str) -> dict:
 
 
 def assert_same_study(a_dir: Path, b_dir: Path, name: str) -> None:
-    """The study netCDFs agree to 1e-14 relative (timings aside), status flags
+    """The study netCDFs agree to 1e-14 relative (timings and provenance aside), status flags
     and integers exactly; the key-table CSVs agree on every non-timing column."""
     import pandas as pd
 
-    with xr.open_dataset(a_dir / f"{name}.nc") as a, xr.open_dataset(b_dir / f"{name}.nc") as b:
+    with cf.open_dataset(a_dir / f"{name}.nc") as a, cf.open_dataset(b_dir / f"{name}.nc") as b:
         assert set(a.variables) == set(b.variables) and a.sizes == b.sizes
         for v in b.variables:
             if v in TIMING:
@@ -261,8 +268,9 @@ def assert_same_study(a_dir: Path, b_dir: Path, name: str) -> None:
             else:
                 np.testing.assert_array_equal(va, vb, err_msg=v)
         np.testing.assert_array_equal(a["status"].values, b["status"].values)
-        assert {k: str(x) for k, x in a.attrs.items() if k not in TIMING} == \
-            {k: str(x) for k, x in b.attrs.items() if k not in TIMING}
+        assert a.attrs.keys() == b.attrs.keys()
+        assert {k: str(x) for k, x in a.attrs.items() if k not in TIMING | PROVENANCE} == \
+            {k: str(x) for k, x in b.attrs.items() if k not in TIMING | PROVENANCE}
     csvs = sorted(p.name for p in b_dir.glob("*.csv"))
     assert csvs and csvs == sorted(p.name for p in a_dir.glob("*.csv"))
     for f in csvs:
@@ -281,7 +289,7 @@ def test_study_on_dask_equals_in_process(client, tmp_path, kind):
     mod.run(study, tmp_path / "dask", reduced=True, progress=False, dask=client)
     assert_same_study(tmp_path / "dask", tmp_path / "inproc", kind)
     if kind == "energy_drift":
-        with xr.open_dataset(tmp_path / "dask" / "energy_drift.nc") as ds:
+        with cf.open_dataset(tmp_path / "dask" / "energy_drift.nc") as ds:
             assert int((ds["status"].sel(scheme="rk2") != 0).sum()) > 0  # failure counts were compared
     points = sorted((tmp_path / "dask" / "points").glob("*.nc"))
     assert [p.name for p in points] == sorted(p.name for p in (tmp_path / "inproc" / "points").glob("*.nc"))

@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-import xarray as xr
 
+from liethermo import cf
 from liethermo.studies.common import StudyError
 from liethermo.studies.runner import load_study, validate_study
 
@@ -56,7 +56,7 @@ def test_work_precision_outputs(wp):
     text = report.read_text()
     assert report.name == "report.md" and "serially" in text and "staggered" in text
     assert (out / "work_precision.png").is_file()
-    ds = xr.open_dataset(out / "work_precision.nc")
+    ds = cf.open_dataset(out / "work_precision.nc")
     for v in ds.data_vars:
         assert "units" in ds[v].attrs and "long_name" in ds[v].attrs, v
     assert set(ds["method"].values) == {"vi", "rk2", "rk4", "scipy RK45", "scipy DOP853"}
@@ -110,7 +110,7 @@ def test_time_to_error_interpolation():
 
 def test_stability_map(stab):
     report, out = stab
-    ds = xr.open_dataset(out / "stability.nc")
+    ds = cf.open_dataset(out / "stability.nc")
     for v in ds.data_vars:
         assert "units" in ds[v].attrs and "long_name" in ds[v].attrs, v
     reg = ds["regime"]
@@ -178,7 +178,7 @@ def test_stability_newton_limit(stab):
 
 def test_viscosity_sweep_physics(visc):
     report, out = visc
-    ds = xr.open_dataset(out / "viscosity_sweep.nc")
+    ds = cf.open_dataset(out / "viscosity_sweep.nc")
     for v in ds.data_vars:
         assert "units" in ds[v].attrs and "long_name" in ds[v].attrs, v
     mu = ds["fluid_viscosity"].values
@@ -231,3 +231,28 @@ def test_invalid_options_rejected(tmp_path):
     p.write_text(src)
     with pytest.raises(StudyError, match="viscosit"):
         validate_study(load_study(p))
+
+
+@pytest.mark.parametrize("which", ["wp", "stab", "visc"])
+def test_study_netcdf_is_cf_clean(which, request):
+    """compliance-checker at the declared CF version: no error, no check that
+    raises, only the warnings docs/netcdf.md justifies."""
+    pytest.importorskip("compliance_checker")
+    from cfcheck import assert_cf_clean
+
+    _, out = request.getfixturevalue(which)
+    (nc,) = out.glob("*.nc")
+    assert not assert_cf_clean(nc).warnings
+
+
+@pytest.mark.parametrize("which", ["wp", "stab", "visc"])
+def test_study_figures_were_checked_for_legibility(which, request):
+    """Every PNG of the study went through the conftest layout check, with a layout engine."""
+    from layout import SAVED_FIGURES
+
+    _, out = request.getfixturevalue(which)
+    pngs = sorted(out.glob("*.png"))
+    assert pngs
+    for png in pngs:
+        assert SAVED_FIGURES.get(str(png.resolve())) in ("ConstrainedLayoutEngine", "TightLayoutEngine",
+                                                         "PlaceHolderLayoutEngine"), png.name

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import shlex
 import sys
 from pathlib import Path
 
@@ -52,10 +53,11 @@ def cmd_run(args) -> int:
             from .distributed import run_scene_dask
 
             _, summ = run_scene_dask(sc, path, address=args.dask, progress=progress,
-                                     keep_parts=args.keep_parts, combine=not args.no_combine)
+                                     keep_parts=args.keep_parts, combine=not args.no_combine,
+                                     history=args.command_line)
 
         else:
-            _, summ = run_scene(sc, path, progress=progress)
+            _, summ = run_scene(sc, path, progress=progress, history=args.command_line)
         summaries.append(summ)
         print("\n".join(summ.lines()))
         if args.dask:
@@ -121,6 +123,8 @@ def cmd_study(args) -> int:
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     args = build_parser().parse_args(argv)
+    # what the files' 'history' attribute records
+    args.command_line = shlex.join(["liethermo", *argv])
     return args.func(args)
 
 

@@ -18,13 +18,12 @@ own — it is kept to reproduce the paper's figure, not to judge the method.
 
 from __future__ import annotations
 
-import datetime as _dt
 import platform
 
 import numpy as np
 import xarray as xr
 
-from . import __version__
+from . import __version__, cf
 from . import physics as ph
 from .kernels.layout import STATUS_MEANINGS
 from .methods import METHODS
@@ -97,7 +96,7 @@ def _trajectory_dataset(traj, omega0, R0, member_offset):
         "gamma": _var(traj.gamma, dims_v, "1", "direction of gravity in the body frame (R^T e3)"),
         "entropy": _var(phys.S0[:, None] + traj.sigma, dims_t, "J K-1", "entropy S of body and fluid"),
         "temperature": _var(e["T"], dims_t, "K", "temperature T = -dL/dS (T0 exp((S - S0)/c_v) "
-                            "for a constant inertia)"),
+                            "for a constant inertia)", units_metadata="temperature: on_scale"),
         "kinetic_energy": _var(e["K"], dims_t, "J", "kinetic energy 1/2 Omega . I(S) Omega"),
         "potential_energy": _var(e["V"], dims_t, "J", "potential energy m g l Gamma . chi"),
         "internal_energy": _var(U, dims_t, "J", "internal energy U(S) = c_v T0 exp((S - S0)/c_v)"),
@@ -165,10 +164,14 @@ def _trajectory_dataset(traj, omega0, R0, member_offset):
 
 
 def global_attrs(scene_toml: str, *, method: str, h: float, friction: str | None,
-                 start: str, entropy: str | None, terms=(), extra: dict | None = None) -> dict:
+                 start: str, entropy: str | None, terms=(), extra: dict | None = None,
+                 history: str | None = None) -> dict:
+    """Global attributes of a run's dataset.  ``history``: the command line or
+    API call that makes it (stored as a timestamped CF ``history`` line)."""
     m = METHODS[method]
+    created = cf.timestamp()
     attrs = {
-        "Conventions": "CF-1.8",
+        "Conventions": cf.CONVENTIONS,
         "title": "liethermo ensemble: rigid body in Stokes flow",
         "method": method,
         "method_description": m.description,
@@ -183,7 +186,8 @@ def global_attrs(scene_toml: str, *, method: str, h: float, friction: str | None
         "software": f"liethermo {__version__}",
         "software_version": __version__,
         "python": platform.python_version(),
-        "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        "created": created,
+        "history": cf.history_entry(history or f"liethermo {__version__}", created),
         "references": "Coueraud & Gay-Balmaz, Variational discretization of thermodynamical simple "
                       "systems on Lie groups; liethermo docs/model.md (errata E1-E5)",
     }

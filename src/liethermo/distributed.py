@@ -53,7 +53,7 @@ from typing import Any, Callable, Iterable
 
 import numpy as np
 
-from . import __version__
+from . import __version__, cf
 from .io import ChunkedWriter
 from .run import ChunkStats, RunSummary, _progress_bar, finish_summary, run_chunk, scene_setup
 from .scene import scene_to_toml
@@ -323,7 +323,8 @@ def combine_parts(parts: Path, chunks, out: Path, members: int, attrs: dict) -> 
 def run_scene_dask(scene: dict | str, out: str | os.PathLike, *, address: Any = "local",
                    progress: bool | None = None, overrides=None, task_members: int | None = None,
                    keep_parts: bool = False, combine: bool = True, retries: int = 2,
-                   numba_threads: int | None = None, task: Callable = compute_part) -> tuple[None, RunSummary]:
+                   numba_threads: int | None = None, task: Callable = compute_part,
+                   history: str | None = None) -> tuple[None, RunSummary]:
     """Run a scene's ensemble as Dask tasks; same output file as :func:`liethermo.run.run_scene`.
 
     ``address``: ``"local"``, a scheduler address, or an existing Client.
@@ -337,11 +338,16 @@ def run_scene_dask(scene: dict | str, out: str | os.PathLike, *, address: Any = 
     carries ``tasks``, ``tasks_skipped`` (finished before this call) and
     ``task_overhead`` (mean task wall time minus kernel time, s) and
     ``task_timings`` (per computed task: task, kernel, run_chunk and write times, s).
+    ``history``: the command line or API call recorded in the files' ``history``
+    attribute (default: this call).
     """
     from dask.base import tokenize
     from distributed import as_completed
 
-    scene, attrs, summ = scene_setup(scene, overrides)
+    if history is None:
+        history = cf.api_call("liethermo.distributed.run_scene_dask", scene, out, overrides=overrides,
+                              combine=None if combine else False)
+    scene, attrs, summ = scene_setup(scene, overrides, history)
     out = Path(out)
     members, steps = summ.members, summ.steps
     key = scene_key(scene)

@@ -6,7 +6,9 @@ temporary file in the destination folder, and renames it onto the output
 path only when everything was written: a run that is killed leaves either no
 file at the path or the previous complete one.  Variables are chunked along
 ``member`` on disk so that ``xarray.open_dataset(path, chunks={})`` reads a
-large result lazily.
+large result lazily.  Every dataset passes through :func:`liethermo.cf.encode`
+(time units, string labels, ``coordinates``, ``Conventions`` and
+``history``): the files are CF-1.11 (docs/netcdf.md).
 """
 
 from __future__ import annotations
@@ -17,6 +19,8 @@ from pathlib import Path
 import netCDF4
 import numpy as np
 import xarray as xr
+
+from . import cf
 
 CHUNK_BYTES = 4 * 2**20  # target on-disk chunk size
 
@@ -32,14 +36,17 @@ class ChunkedWriter:
 
     Variables without a ``member`` dimension are written from the first chunk.
     Use as a context manager; on an exception the temporary file is removed.
+    ``attrs`` are the global attributes; ``history`` (the command line or API
+    call that makes the file) replaces the ``history`` of ``attrs`` if given.
     """
 
-    def __init__(self, path: str | os.PathLike, n_members: int, attrs: dict | None = None):
+    def __init__(self, path: str | os.PathLike, n_members: int, attrs: dict | None = None,
+                 history: str | None = None):
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.tmp")
         self.n_members = int(n_members)
-        self.attrs = dict(attrs or {})
+        self.attrs = cf.encode_attrs(attrs or {}, history)
         self.nc: netCDF4.Dataset | None = None
         self.written = 0
 
@@ -84,6 +91,7 @@ class ChunkedWriter:
         nc.setncatts({k: _nc_attr(a) for k, a in self.attrs.items()})
 
     def write(self, ds: xr.Dataset, offset: int) -> None:
+        ds = cf.encode_variables(ds)
         if self.nc is None:
             self._define(ds)
         n = ds.sizes["member"]
@@ -124,8 +132,8 @@ class ChunkedWriter:
             pass
 
 
-def write_dataset(ds: xr.Dataset, path: str | os.PathLike) -> Path:
+def write_dataset(ds: xr.Dataset, path: str | os.PathLike, history: str | None = None) -> Path:
     """Write an in-memory dataset atomically (same layout as a chunked run)."""
-    with ChunkedWriter(path, ds.sizes.get("member", 0), ds.attrs) as w:
+    with ChunkedWriter(path, ds.sizes.get("member", 0), ds.attrs, history) as w:
         w.write(ds, 0)
     return Path(path)

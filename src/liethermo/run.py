@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
+from . import cf
 from .dataset import global_attrs, trajectory_dataset
 from .initial import initial_conditions
 from .io import ChunkedWriter
@@ -141,8 +142,9 @@ class ChunkStats:
         return cls(**kw)
 
 
-def scene_setup(scene, overrides=None) -> tuple[Scene, dict, RunSummary]:
-    """Resolve a scene: ``(scene, global attributes, empty RunSummary)``."""
+def scene_setup(scene, overrides=None, history: str | None = None) -> tuple[Scene, dict, RunSummary]:
+    """Resolve a scene: ``(scene, global attributes, empty RunSummary)``;
+    ``history`` is the command line or API call stored in the attributes."""
     if not isinstance(scene, Scene) or overrides:
         scene = load_scene(scene, overrides)
     integ = scene["integrator"]
@@ -153,7 +155,8 @@ def scene_setup(scene, overrides=None) -> tuple[Scene, dict, RunSummary]:
     attrs = global_attrs(scene_to_toml(scene), method=method, h=h,
                          friction=m.effective_friction(integ["friction"]),
                          start=m.effective_start(integ["start"]),
-                         entropy=m.effective_entropy(integ["entropy"]), terms=terms)
+                         entropy=m.effective_entropy(integ["entropy"]), terms=terms,
+                         history=history)
     return scene, attrs, RunSummary(scene["scene"]["name"], method, members, steps, h)
 
 
@@ -217,14 +220,19 @@ def finish_summary(summ: RunSummary, st: ChunkStats) -> RunSummary:
     return summ
 
 
-def run_scene(scene: dict | str, out: str | Path | None = None, *, overrides=None,
-              progress: bool | None = None, kernel: str | None = None) -> tuple[xr.Dataset | None, RunSummary]:
+def run_scene(scene, out: str | Path | None = None, *, overrides=None,
+              progress: bool | None = None, kernel: str | None = None,
+              history: str | None = None) -> tuple[xr.Dataset | None, RunSummary]:
     """Run one scene with its own method.
 
     With ``out``: streams member chunks into the netCDF file (atomically) and
     returns ``(None, summary)``; without: returns the in-memory dataset.
+    ``history``: the command line or API call recorded in the ``history``
+    attribute (default: this call, ``liethermo.run.run_scene(...)``).
     """
-    scene, attrs, summ = scene_setup(scene, overrides)
+    if history is None:
+        history = cf.api_call("liethermo.run.run_scene", scene, out, overrides=overrides)
+    scene, attrs, summ = scene_setup(scene, overrides, history)
     members, steps = summ.members, summ.steps
     chunk = int(scene["output"]["member_chunk"])
     t_wall = time.perf_counter()

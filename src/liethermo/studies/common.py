@@ -2,8 +2,10 @@
 
 Contract of a study module ``liethermo.studies.<kind>``:
 
-1. It exposes ``run(study, outdir, *, reduced, progress, dask=None) -> Path``
-   returning the path of its markdown report (``outdir/report.md``).
+1. It exposes ``run(study, outdir, *, reduced, progress, dask=None, history=None) -> Path``
+   returning the path of its markdown report (``outdir/report.md``);
+   ``history`` (the command line, or by default the API call, see
+   :func:`study_history`) goes into the netCDF's ``history`` attribute.
    ``study`` is the parsed TOML as given (the ``[reduced]`` table still in
    it); the module calls :func:`resolve_study` to apply the reduced mode.
 2. It may expose ``EXTRA_KEYS`` (top-level TOML keys it accepts besides
@@ -49,6 +51,7 @@ from typing import Any, Callable, Iterable
 import numpy as np
 import xarray as xr
 
+from .. import cf
 from ..scene import load_scene
 
 #: Top-level keys every study accepts.
@@ -127,6 +130,17 @@ def study_name(study: dict) -> str:
     return str(study.get("study", {}).get("name") or study.get("study", {}).get("kind", "study"))
 
 
+def study_history(kind: str, study: dict, outdir, reduced: bool, history: str | None) -> str:
+    """``history`` if given (the command line), else the API call that runs the study."""
+    if history:
+        return history
+    func = f"liethermo.studies.{kind}.run"
+    src = study.get("_source")
+    if src:  # a study file: name it (load_study is what reads it)
+        return f"{func}(load_study({str(src)!r}), {str(outdir)!r}, reduced={bool(reduced)})"
+    return cf.api_call(func, study, str(outdir), reduced=bool(reduced))
+
+
 def study_netcdf_path(study: dict, outdir: Path) -> Path:
     """Where a study writes its netCDF: ``outdir/<study name>.nc``."""
     return Path(outdir) / f"{study_name(study)}.nc"
@@ -190,13 +204,18 @@ def _clean_attrs(attrs: dict) -> dict:
     return out
 
 
-def write_netcdf_atomic(ds: xr.Dataset, path: str | os.PathLike) -> Path:
+def write_netcdf_atomic(ds: xr.Dataset, path: str | os.PathLike, history: str | None = None,
+                        conventions: bool = True) -> Path:
     """Write ``ds`` to a temporary file next to ``path``, then rename it onto
-    ``path``: a killed process leaves no file or a complete one."""
+    ``path``: a killed process leaves no file or a complete one.  The file is
+    CF-encoded (:func:`liethermo.cf.encode`); ``history``, the command line or
+    API call that makes it, replaces the dataset's own ``history``;
+    ``conventions=False`` leaves out the ``Conventions`` attribute (the resume
+    cache, whose variables are not all labelled, claims no CF conformance)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    ds = ds.copy()
+    ds = cf.encode(ds, history, conventions)
     ds.attrs = _clean_attrs(ds.attrs)
     for name in list(ds.variables):
         ds[name].attrs = _clean_attrs(ds[name].attrs)
@@ -220,16 +239,19 @@ def write_text_atomic(text: str, path: str | os.PathLike) -> Path:
 
 def cached_point(outdir: str | os.PathLike, key: str, compute: Callable[[], xr.Dataset]) -> xr.Dataset:
     """Resume cache: load ``outdir/points/<key>.nc`` if present, else compute
-    the point's dataset and write it there atomically."""
+    the point's dataset and write it there atomically.  Either way the point
+    comes back as read from the file (:func:`liethermo.cf.load_dataset`).
+    The cache files are an internal format: same encoding as the study's
+    netCDF, but no ``Conventions`` attribute (docs/netcdf.md)."""
     path = Path(outdir) / "points" / f"{key}.nc"
     if path.is_file():
         try:
-            return xr.load_dataset(path)
+            return cf.load_dataset(path)
         except (OSError, ValueError):  # unreadable leftover: recompute
             path.unlink()
     ds = compute()
-    write_netcdf_atomic(ds, path)
-    return xr.load_dataset(path)
+    write_netcdf_atomic(ds, path, conventions=False)
+    return cf.load_dataset(path)
 
 
 def point_is_cached(outdir: str | os.PathLike, key: str) -> bool:

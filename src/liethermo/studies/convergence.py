@@ -32,10 +32,10 @@ from ..dataset import energies
 from ..initial import initial_conditions, initial_states
 from ..methods import METHODS
 from ..scene import physical_parameters
-from ..simulate import simulate
+from ..simulate import STATUS_MEANINGS, simulate
 from .common import (study_options, StudyError, cached_point, dim_name, expand_sweep, parse_method, point_is_cached, point_key,
                      progress_bar, stack_points, study_name, study_netcdf_path, study_scene,
-                     write_netcdf_atomic, write_report, write_table, start_study)
+                     write_netcdf_atomic, write_report, write_table, start_study, study_history)
 
 EXTRA_KEYS = ()
 VARIABLES = ("omega", "gamma", "entropy", "total_energy")
@@ -160,7 +160,8 @@ def _dask_points(outdir, dask, progress, opt, specs, hs, points, scenes, ref_key
         map_cached_points(outdir, tasks, client, progress=progress)
 
 
-def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask: str | None = None) -> Path:
+def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask: str | None = None,
+        history: str | None = None) -> Path:
     study, outdir, opt = start_study(study, outdir, reduced, validate, options)
     hs = _levels(opt)
     specs = [parse_method(m) for m in study["methods"]]
@@ -241,15 +242,23 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
                                       "against the reference")
         ds[f"observed_order_{v}"].attrs.update(units="1", long_name=f"observed order of convergence of {v}")
         ds[f"error_constant_{v}"].attrs.update(units=UNITS[v], long_name=f"C in error_{v} = C h^p")
+        ds[f"levels_fitted_{v}"].attrs.update(units="1", long_name=f"number of levels h in the fit of the "
+                                              f"order of {v}")
+    ds["status"].attrs.update(units="1", long_name="status of the run at this h",
+                              flag_values=np.array(sorted(STATUS_MEANINGS), dtype=ds["status"].dtype),
+                              flag_meanings=" ".join(STATUS_MEANINGS[k] for k in sorted(STATUS_MEANINGS)))
+    ds["wall_time"].attrs.update(units="s", long_name="wall time of the run at this h")
     ds["omega"].attrs.update(units="rad s-1", long_name="body angular velocity at t_end (VI: step velocity)")
     ds["gamma"].attrs.update(units="1", long_name="direction of gravity in the body frame at t_end")
     ds["entropy"].attrs.update(units="J K-1", long_name="entropy at t_end")
     ds["energy_error"].attrs.update(units="J", long_name="total energy error E_k - E_0 at t_end")
     ds["h"].attrs.update(units="s", long_name="time step")
-    ds.attrs.update({"study": study_name(study), "kind": "convergence", "reduced": int(reduced),
+    ds.attrs.update({"title": "liethermo convergence study: errors against a DOP853 reference",
+                     "study": study_name(study), "kind": "convergence", "reduced": int(reduced),
                      "t_end": opt["t_end"], "h0": opt["h0"], "levels": opt["levels"],
                      "comparison": "max over t = j*h0; VI staggered Omega against Omega_ref(t_k + h/2)"})
-    nc = write_netcdf_atomic(ds, study_netcdf_path(study, outdir))
+    nc = write_netcdf_atomic(ds, study_netcdf_path(study, outdir),
+                             history=study_history("convergence", study, outdir, reduced, history))
     figs = _figures(ds, outdir, keys)
     notes = (f"Scene: `{study.get('study', {}).get('base_scene', 'paper')}`, t_end = {opt['t_end']} s, "
              f"h = {opt['h0']} s halved {opt['levels'] - 1} times; errors are the max over t = j·{opt['h0']} s "
@@ -272,20 +281,27 @@ def _figures(ds: xr.Dataset, outdir: Path, keys) -> list[Path]:
 
     if keys:
         ds = ds.isel({dim_name(k): 0 for k in keys})
-    fig, axes = plt.subplots(2, 2, figsize=(10, 8))
+    from matplotlib.ticker import NullFormatter
+
+    fig, axes = plt.subplots(2, 2, figsize=(10, 8), layout="constrained")
     hs = ds["h"].values
+    # x ticks at the step sizes themselves, at most 5 labelled (log axes over ~1 decade
+    # otherwise label their minor ticks too, and 3×10⁻³4×10⁻³ run into each other)
+    every = -(-len(hs) // 5)
+    xlabels = [f"{h:.3g}" if i % every == 0 else "" for i, h in enumerate(hs)]
     for ax, v in zip(axes.ravel(), VARIABLES):
         for i, m in enumerate(ds["scheme"].values):
             e = ds[f"error_{v}"].values[i]
             p = float(ds[f"observed_order_{v}"].values[i])
             ax.loglog(hs, e, "o-", label=f"{m} (p = {p:.2f})")
+        ax.set_xticks(hs, xlabels)
+        ax.xaxis.set_minor_formatter(NullFormatter())
         ax.set_xlabel("h (s)")
         ax.set_ylabel(f"max error ({UNITS[v]})")
         ax.set_title(v)
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=7)
     fig.suptitle("convergence against the reference (VI staggered: Omega at t_k + h/2)")
-    fig.tight_layout()
     path = Path(outdir) / "convergence.png"
     fig.savefig(path, dpi=110)
     plt.close(fig)

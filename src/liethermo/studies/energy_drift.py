@@ -32,7 +32,7 @@ from ..kernels.model import P_GX, P_GY, P_GZ
 from ..scene import physical_parameters
 from .common import (study_options, StudyError, cached_point, dim_name, expand_sweep, parse_method, point_key, progress_bar,
                      stack_points, study_name, study_netcdf_path, study_scene, write_netcdf_atomic,
-                     write_report, write_table, start_study)
+                     write_report, write_table, start_study, study_history)
 
 EXTRA_KEYS = ()
 DEFAULT_OPTIONS = {"t_end": 30.0, "band_dt": 0.2, "member_chunk": 1024, "diverged_above": 1.0}
@@ -138,7 +138,8 @@ def _summary_row(ds: xr.Dataset, label: str, h: float, opt: dict) -> dict:
     }
 
 
-def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask: str | None = None) -> Path:
+def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask: str | None = None,
+        history: str | None = None) -> Path:
     study, outdir, opt = start_study(study, outdir, reduced, validate, options)
     specs = [parse_method(m) for m in study["methods"]]
     points = expand_sweep(study.get("sweep"))
@@ -180,10 +181,17 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
                                                  "resting state K_0 + V_0 + m g l")
     ds["status"].attrs.update(units="1", long_name="member status", flag_values=np.array([0, 1, 2], np.int8),
                               flag_meanings="ok newton_not_converged non_finite")
+    ds["newton_iterations_mean"].attrs.update(units="1", long_name="mean Newton iterations per step "
+                                              "(NaN: explicit method)")
+    ds["kernel_time"].attrs.update(units="s", long_name="kernel wall time of the point's ensemble")
     ds["time"].attrs.update(units="s", long_name="time t_k = k h (band grid)")
-    ds.attrs.update({"study": study_name(study), "kind": "energy_drift", "reduced": int(reduced),
+    ds["quantile"].attrs.update(units="1", long_name="quantile over members")
+    ds["member"].attrs.update(units="1", long_name="ensemble member")
+    ds.attrs.update({"title": "liethermo energy-drift study: energy error over a random ensemble",
+                     "study": study_name(study), "kind": "energy_drift", "reduced": int(reduced),
                      "t_end": opt["t_end"], "members": int(ds.sizes["member"])})
-    nc = write_netcdf_atomic(ds, study_netcdf_path(study, outdir))
+    nc = write_netcdf_atomic(ds, study_netcdf_path(study, outdir),
+                             history=study_history("energy_drift", study, outdir, reduced, history))
     figs = _figures(ds, outdir, keys)
     members = int(ds.sizes["member"])
     table = write_table(rows, outdir, "energy_drift",

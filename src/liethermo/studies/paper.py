@@ -30,7 +30,8 @@ import xarray as xr
 
 from ..run import run_scene
 from .common import (StudyError, cached_point, parse_method, point_key, progress_bar, resolve_study, study_name,
-                     study_netcdf_path, study_scene, write_netcdf_atomic, write_report, write_table)
+                     study_netcdf_path, study_scene, write_netcdf_atomic, write_report, write_table,
+                     study_history)
 
 EXTRA_KEYS = ()
 
@@ -73,7 +74,8 @@ def _scene_dataset(scene: dict) -> xr.Dataset:
     return run_scene(scene, progress=False)[0]
 
 
-def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask: str | None = None) -> Path:
+def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask: str | None = None,
+        history: str | None = None) -> Path:
     study = resolve_study(study, reduced)
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
@@ -161,11 +163,13 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
              for k in names]
     ds = xr.concat(parts, dim="variant", data_vars="all", coords="minimal", compat="override", join="override")
     ds = ds.assign_coords(variant=names)
-    ds.attrs.update({"study": study_name(study), "kind": "paper", "reduced": int(reduced),
+    ds.attrs.update({"title": "liethermo paper study: the paper's runs and what each erratum changes",
+                     "study": study_name(study), "kind": "paper", "reduced": int(reduced),
                      "h": h, "steps": int(sc["integrator"]["steps"]),
                      "variants": "paper_<method>: the paper's figure runs; vi_<variant>: errata variants; "
                                  "reference_<inertia>: DOP853 reference"})
-    nc = write_netcdf_atomic(ds, study_netcdf_path(study, outdir))
+    nc = write_netcdf_atomic(ds, study_netcdf_path(study, outdir),
+                             history=study_history("paper", study, outdir, reduced, history))
     summary_rows = []
     for k in names:
         r = runs[k]

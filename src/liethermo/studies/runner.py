@@ -104,7 +104,8 @@ def main_study(args) -> int:
     progress = False if getattr(args, "no_progress", False) else None
     mod = get_study(study["study"]["kind"])
     t0 = time.perf_counter()
-    report = mod.run(study, outdir, reduced=reduced, progress=progress, dask=getattr(args, "dask", None))
+    report = mod.run(study, outdir, reduced=reduced, progress=progress, dask=getattr(args, "dask", None),
+                     history=getattr(args, "command_line", None))
     wall = time.perf_counter() - t0
     table = first_table(report)
     if table:

@@ -40,7 +40,8 @@ from ..methods import FRICTION
 from ..scene import physical_parameters
 from ..simulate import simulate
 from .common import (study_options, StudyError, cached_point, point_key, progress_bar, study_name,
-                     study_netcdf_path, study_scene, write_netcdf_atomic, write_report, write_table, start_study)
+                     study_netcdf_path, study_scene, write_netcdf_atomic, write_report, write_table, start_study,
+                     study_history)
 
 EXTRA_KEYS = ()
 
@@ -323,7 +324,8 @@ def _one_thread(func, *args):
         return func(*args)
 
 
-def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask: str | None = None) -> Path:
+def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask: str | None = None,
+        history: str | None = None) -> Path:
     import pandas as pd
 
     s, outdir, opt = start_study(study, outdir, reduced, validate, options)
@@ -402,7 +404,8 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
     mp["h_omega"].attrs.update(units="rad", long_name="h |Omega_0| (step angle of the initial spin)")
     mp["kappa"].attrs.update(units="1", long_name="kappa = c h / I_min (friction per step)")
     mp = _attrs(mp)
-    mp.attrs.update({"study": study_name(s), "h": h, "steps": int(opt["steps"]),
+    mp.attrs.update({"title": "liethermo stability study: stability map, named cases and Newton limit",
+                     "study": study_name(s), "h": h, "steps": int(opt["steps"]),
                      "error_threshold": float(opt["error_threshold"]),
                      "growth_limit": float(opt["growth_limit"]),
                      "regime_flag_meanings": " ".join(CLASSES), "vi_start": "staggered"})
@@ -421,7 +424,8 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
                 a[cnames.index(c), methods.index(m)] = float(ds[var].values[0])
             mp[f"case_{var}"] = (("case", "method"), a, {"units": UNITS[var][0], "long_name": f"named case: {UNITS[var][1]}"})
         mp = mp.assign_coords(case=("case", np.array(cnames, dtype=object)))
-    nc = write_netcdf_atomic(mp, study_netcdf_path(s, outdir))
+    nc = write_netcdf_atomic(mp, study_netcdf_path(s, outdir),
+                             history=study_history("stability", study, outdir, reduced, history))
 
     # --- tables
     count_rows = []
@@ -488,7 +492,10 @@ def _figure(maps: dict, methods: list, outdir: Path, opt: dict) -> Path:
     from matplotlib.colors import BoundaryNorm, ListedColormap
 
     n = len(methods)
-    fig, axes = plt.subplots(2, n, figsize=(3.6 * n, 6.6), squeeze=False)
+    # every panel has the same (h|Omega_0|, kappa) grid: shared axes, labels on the outer
+    # panels only, and constrained layout so that titles, labels and colorbars do not collide
+    fig, axes = plt.subplots(2, n, figsize=(3.6 * n, 6.6), squeeze=False, sharex=True, sharey=True,
+                             layout="constrained")
     cmap = ListedColormap(["#2ca02c", "#bcbd22", "#ff7f0e", "#9467bd", "#d62728"])
     norm = BoundaryNorm(np.arange(-0.5, 5.5), cmap.N)
     for j, m in enumerate(methods):
@@ -508,11 +515,11 @@ def _figure(maps: dict, methods: list, outdir: Path, opt: dict) -> Path:
         err = np.log10(np.clip(ds["error_max"].values, 1e-16, 1e3))
         im2 = ax2.pcolormesh(xi, yi, err.T, cmap="viridis", vmin=-8, vmax=1, shading="nearest")
         ax2.set_title(f"{m}: log10 error (max over run)", fontsize=9)
-        for a_ in (ax, ax2):
-            a_.set_xticks(xi, [f"{v:g}" for v in hw], fontsize=7, rotation=45)
-            a_.set_yticks(yi, [f"{v:g}" for v in ka], fontsize=7)
-            a_.set_xlabel("h|Ω₀| (rad)")
-            a_.set_ylabel("κ = c h / I_min")
+        ax2.set_xticks(xi, [f"{v:g}" for v in hw], fontsize=7, rotation=45)
+        ax2.set_xlabel("h|Ω₀| (rad)")
+    for ax in axes[:, 0]:
+        ax.set_yticks(yi, [f"{v:g}" for v in ka], fontsize=7)
+        ax.set_ylabel("κ = c h / I_min")
     cb = fig.colorbar(im, ax=axes[0, :].tolist(), ticks=range(5), fraction=0.02)
     cb.ax.set_yticklabels(CLASSES, fontsize=7)
     fig.colorbar(im2, ax=axes[1, :].tolist(), fraction=0.02, label="log10 error")

@@ -38,7 +38,7 @@ from ..scene import physical_parameters
 from ..simulate import simulate
 from .common import (study_options, StudyError, cached_point, expand_sweep, point_key, progress_bar,
                      dim_name, stack_points, study_name, study_netcdf_path, study_scene, write_netcdf_atomic,
-                     write_report, write_table, start_study)
+                     write_report, write_table, start_study, study_history)
 
 EXTRA_KEYS = ()
 SWEEP_KEY = "fluid.viscosity"
@@ -184,7 +184,8 @@ UNITS = {
 }
 
 
-def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask: str | None = None) -> Path:
+def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask: str | None = None,
+        history: str | None = None) -> Path:
     import pandas as pd
 
     s, outdir, opt = start_study(study, outdir, reduced, validate, options)
@@ -217,10 +218,13 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
         elif k.startswith("entropy_at_"):
             ds[k].attrs.update(units="J K-1", long_name=f"entropy produced by t = {k[len('entropy_at_'):].replace('p', '.')}")
     scene0 = study_scene(s, points[0])
-    ds.attrs.update(study=study_name(s), method=opt["method"], h=float(opt["h"]),
+    ds["member"].attrs.update(units="1", long_name="ensemble member")
+    ds.attrs.update(title="liethermo viscosity sweep: entropy production and settling times",
+                    study=study_name(s), method=opt["method"], h=float(opt["h"]),
                     threshold=float(opt["threshold"]), members=int(scene0["ensemble"]["members"]),
                     seed=int(scene0["ensemble"]["seed"]))
-    nc = write_netcdf_atomic(ds, study_netcdf_path(s, outdir))
+    nc = write_netcdf_atomic(ds, study_netcdf_path(s, outdir),
+                             history=study_history("viscosity_sweep", study, outdir, reduced, history))
 
     rows = []
     mus = ds[dim].values

@@ -42,7 +42,8 @@ from ..methods import METHODS
 from ..scene import physical_parameters
 from ..simulate import simulate
 from .common import (study_options, StudyError, cached_point, point_key, progress_bar, study_name,
-                     study_netcdf_path, study_scene, write_netcdf_atomic, write_report, write_table, start_study)
+                     study_netcdf_path, study_scene, write_netcdf_atomic, write_report, write_table, start_study,
+                     study_history)
 
 EXTRA_KEYS = ()
 
@@ -253,7 +254,8 @@ def observed_slope(hs, errs, floor: float = 1e-12) -> float:
 
 # ----------------------------------------------------------------------------- study
 
-def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask: str | None = None) -> Path:
+def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask: str | None = None,
+        history: str | None = None) -> Path:
     s, outdir, opt = start_study(study, outdir, reduced, validate, options)
     if dask is not None:  # the wall times are the measurement: never on Dask workers
         print(DASK_NOTE, file=sys.stderr)
@@ -379,10 +381,12 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
     ds = xr.Dataset({k: (dims, arr[k], {"units": u, "long_name": ln}) for k, (u, ln) in meta.items()},
                     coords={"method": ("method", np.array(names, dtype=object), {"long_name": "method", "units": "1"}),
                             "level": ("level", np.arange(L), {"long_name": "step/tolerance level (coarse to fine)", "units": "1"})},
-                    attrs={"study": study_name(s), "t_end": t_end, "members": N, "scipy_members": M,
+                    attrs={"title": "liethermo work-precision study: time per member-step against error",
+                           "study": study_name(s), "t_end": t_end, "members": N, "scipy_members": M,
                            "kernel_threads": int(opt["threads"]), "vi_start": "staggered",
                            "reference_self_check": ref_check})
-    nc = write_netcdf_atomic(ds, study_netcdf_path(s, outdir))
+    nc = write_netcdf_atomic(ds, study_netcdf_path(s, outdir),
+                             history=study_history("work_precision", study, outdir, reduced, history))
 
     fig = _figure(curves, methods, outdir)
     wall = time.perf_counter() - t_wall
