@@ -1,322 +1,402 @@
-"""The variational integrator (liethermo.kernels.vi) and its discrete laws (SPEC §3–§5)."""
+"""The variational integrator in node form (liethermo.kernels.vi) and its discrete laws."""
 
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
+from conftest import H_PAPER, OMEGA0, R0, make_physics, paper_numbers, paper_physics, random_body
+from liethermo.kernels import layout as L
 from liethermo.kernels import vi
-from liethermo.kernels.so3 import cayley_apply
-from liethermo.methods import FRICTION, LAW_KELVIN_NOETHER, LAW_UNIT_GAMMA, METHODS
+from liethermo.kernels._jit import jit
+from liethermo.kernels.gen import abs_or_zero
+from liethermo.kernels.terms.thermo import SYMMETRIC
+from liethermo.methods import LAW_KELVIN_NOETHER, LAW_UNIT_GAMMA, METHODS
+from liethermo.physics import build_model
 from liethermo.simulate import STATUS_NEWTON, STATUS_OK, simulate
 
-from conftest import H_PAPER, paper_numbers, random_body  # noqa: E402  (tests/ is on sys.path)
+REFERENCE = "data/reference/paper_vi_step_velocities.npz"
 
 
-# ------------------------------------------------------------------ the scene itself
-def test_paper_scene_matches_spec_derived_values(paper_params):
-    """SPEC §2 lists the derived numbers of the paper scene; the conftest
-    construction from a, ρ, μ, M must reproduce them (m, ℓ, 𝕀, c, c_v)."""
-    d = paper_numbers()
-    assert d["m"] == pytest.approx(1.4137166941154071, rel=1e-15)
-    assert d["ell"] == pytest.approx(0.00125, rel=1e-12)
-    assert d["Gz"] > 0  # χ = G/|G| = +e₃
-    np.testing.assert_allclose(paper_params[0:3], [6.6783e-4, 6.6783e-4, 1.31947e-3], rtol=1e-5)
-    assert paper_params[3] == pytest.approx(3.1415926535897936e-4, rel=1e-15)
-    assert paper_params[7] == pytest.approx(1306.9263327416309, rel=1e-15)
-    np.testing.assert_allclose(paper_params[4:7], [0.0, 0.0, d["m"] * 9.81 * d["ell"]], rtol=1e-15)
+def _hat(w):
+    return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
 
 
-# ------------------------------------------------------------------ one step vs SPEC §3
-def _spec_residual(X, omega, gamma_next, p, h, friction):
-    """F(X) of SPEC §3, written independently of the kernels."""
-    I = p[0:3]
-    c = p[3]
-    g = p[4:7]
-    Pi = I * omega
+def _legendre(I, X, h):
+    """M_h(X) = 𝕀X + (h/2) X×𝕀X + (h²/4)(X·𝕀X) X, written independently of the kernels."""
     IX = I * X
-    F = ((IX - Pi) / h + 0.5 * (np.cross(X, IX) + np.cross(omega, Pi))
-         + h / 4.0 * ((X @ IX) * X - (omega @ Pi) * omega) - np.cross(gamma_next, g))
-    if friction == "trapezoid":
-        F += 0.5 * c * (X + omega)
-    else:
-        F += c * X
-    # scale of the terms, for a relative round-off bound
-    scale = np.abs(IX / h).max() + np.abs(Pi / h).max() + np.abs(g).max()
-    return F, scale
+    return IX + 0.5 * h * np.cross(X, IX) + 0.25 * h * h * (X @ IX) * X
 
 
+# ------------------------------------------------------------------ the paper's sequence
+def test_paper_scene_reproduces_the_papers_step_velocities(paper):
+    """With the paper's choices (first step velocity Ω(0), trapezoid friction,
+    explicit entropy update) the node form produces the paper's sequence Ω_k:
+    the stored step velocities, Γ_k, σ_k and R_k of 300 steps at h = 0.1 agree
+    with a trajectory of the paper's scheme written in its original form
+    (Ω_k as the unknown) to ≤ 1e-12, for both friction variants."""
+    ref = np.load(Path_(REFERENCE))
+    phys, om0, R = paper
+    for friction in ("trapezoid", "endpoint"):
+        tr = simulate(phys, om0, R, H_PAPER, 300, "vi", start="node", entropy="explicit",
+                      friction=friction, attitude=True)
+        assert tr.status[0] == STATUS_OK
+        np.testing.assert_allclose(tr.omega_step[0], ref[f"{friction}_omega_step"], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(tr.gamma[0], ref[f"{friction}_gamma"], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(tr.sigma[0], ref[f"{friction}_sigma"], rtol=1e-11, atol=0)
+        np.testing.assert_allclose(tr.attitude[0], ref[f"{friction}_attitude"], rtol=0, atol=1e-12)
+
+
+def Path_(rel):
+    from pathlib import Path
+
+    return Path(__file__).resolve().parents[1] / rel
+
+
+# ------------------------------------------------------------------ one step vs the equations
 @pytest.mark.parametrize("friction", ["trapezoid", "endpoint"])
-def test_vi_steps_solve_the_spec_equations(friction):
-    """Every stored step of simulate(..., 'vi') satisfies SPEC §3 as written:
-    Γ_{k+1} = (I + hΩ̂_k/2)⁻¹(I − hΩ̂_k/2)Γ_k, R_{k+1} = R_k(I − hΩ̂_k/2)⁻¹(I + hΩ̂_k/2),
-    σ_{k+1} = σ_k + hc|Ω_k|²/(T₀e^{σ_k/c_v}), and F(Ω_{k+1}) = 0 to round-off
-    (relative to the size of its terms); on a non-symmetric body with tilted χ."""
-    y0, p = random_body(11, attitude=True)
+@pytest.mark.parametrize("entropy", ["explicit", "symmetric"])
+def test_vi_steps_solve_the_node_form_equations(friction, entropy):
+    """Every stored step satisfies the node form as written in docs/model.md,
+    on a non-symmetric body with tilted χ and a diagonal friction:
+    M_h(X_k) + w_L h C X_k = μ_k + (h/2) τ(Γ_k);  Γ_{k+1} = (I + hX̂/2)⁻¹(I − hX̂/2)Γ_k;
+    R_{k+1} = R_k (I − hX̂/2)⁻¹(I + hX̂/2);  μ_{k+1} = M_{−h}(X_k) − w_R h C X_k + (h/2)τ(Γ_{k+1});
+    and the entropy update (explicit: σ + hP/T(σ); symmetric: U(σ') − U(σ) = hP,
+    P = X·CX), each to round-off relative to the size of its terms."""
+    phys, om0, R = random_body(11, diagonal=True)
     h = 0.05
-    tr = simulate(y0, p, h, 200, "vi", friction=friction)
+    wl, wr = vi.FRICTION_WEIGHTS[friction]
+    tr = simulate(phys, om0, R, h, 200, "vi", friction=friction, entropy=entropy, attitude=True)
     assert tr.status[0] == STATUS_OK
-    S = tr.states[0]
-    worst_F = worst_G = worst_R = worst_s = 0.0
+    I, C, g = phys.inertia[0], phys.friction[0], phys.gravity_torque[0]
+    cv, T0 = phys.heat_capacity[0], phys.T0[0]
+    X, G, s, mu, Rk = tr.omega_step[0], tr.gamma[0], tr.sigma[0], tr.momentum[0], tr.attitude[0]
+    worst = dict(newton=0.0, gamma=0.0, R=0.0, mu=0.0, sigma=0.0)
     for k in range(200):
-        W = S[k, 0:3]
-        Wh = np.array([[0.0, -W[2], W[1]], [W[2], 0.0, -W[0]], [-W[1], W[0], 0.0]]) * h
-        Gn = np.linalg.solve(np.eye(3) + Wh / 2, (np.eye(3) - Wh / 2) @ S[k, 3:6])
-        worst_G = max(worst_G, np.abs(Gn - S[k + 1, 3:6]).max())
-        Rk = S[k, 7:16].reshape(3, 3)
-        Rn = Rk @ np.linalg.solve(np.eye(3) - Wh / 2, np.eye(3) + Wh / 2)
-        worst_R = max(worst_R, np.abs(Rn - S[k + 1, 7:16].reshape(3, 3)).max())
-        sn = S[k, 6] + h * p[3] * (W @ W) / (p[8] * math.exp(S[k, 6] / p[7]))
-        worst_s = max(worst_s, abs(sn - S[k + 1, 6]) / abs(S[k + 1, 6]))
-        F, scale = _spec_residual(S[k + 1, 0:3], W, S[k + 1, 3:6], p, h, friction)
-        worst_F = max(worst_F, np.abs(F).max() / scale)
-    assert worst_G <= 1e-14, worst_G
-    assert worst_R <= 1e-14, worst_R
-    assert worst_s <= 1e-14, worst_s
-    assert worst_F <= 1e-13, worst_F
+        Wh = _hat(X[k]) * h
+        lhs = _legendre(I, X[k], h) + wl * h * C * X[k]
+        rhs = mu[k] + 0.5 * h * np.cross(G[k], g)
+        worst["newton"] = max(worst["newton"], np.abs(lhs - rhs).max() / np.abs(I * X[k]).max())
+        Gn = np.linalg.solve(np.eye(3) + Wh / 2, (np.eye(3) - Wh / 2) @ G[k])
+        worst["gamma"] = max(worst["gamma"], np.abs(Gn - G[k + 1]).max())
+        Rn = Rk[k] @ np.linalg.solve(np.eye(3) - Wh / 2, np.eye(3) + Wh / 2)
+        worst["R"] = max(worst["R"], np.abs(Rn - Rk[k + 1]).max())
+        mun = _legendre(I, X[k], -h) - wr * h * C * X[k] + 0.5 * h * np.cross(G[k + 1], g)
+        worst["mu"] = max(worst["mu"], np.abs(mun - mu[k + 1]).max() / np.abs(I * X[k]).max())
+        P = X[k] @ (C * X[k])
+        T = T0 * math.exp(s[k] / cv)
+        if entropy == "explicit":
+            sn = s[k] + h * P / T
+        else:
+            sn = s[k] + cv * math.log1p(h * P / (cv * T))
+        worst["sigma"] = max(worst["sigma"], abs(sn - s[k + 1]) / abs(s[k + 1]))
+    assert worst["newton"] <= 1e-13, worst
+    assert worst["gamma"] <= 1e-14 and worst["R"] <= 1e-14, worst
+    assert worst["mu"] <= 1e-14, worst
+    assert worst["sigma"] <= 1e-14, worst
+    # the node velocity is 𝕀⁻¹μ
+    np.testing.assert_allclose(tr.omega[0], mu / I, rtol=1e-15)
+
+
+# ------------------------------------------------------------------ symmetry
+@jit
+def _substep(model, y_row, h, mode, out):
+    """One substep of size h of the node map from the state row y_row (the
+    Newton solve of the next substep uses the same h)."""
+    y = L.load_vi_state(model, y_row, 0, 1)
+    v = vi.vi_coefficients(model, h, 0.5, 0.5)
+    G1, s1, mu1, R1, b, xp, ps, sc0, scs, ok = vi.vi_advance(model, v, v, y, h, mode, True)
+    X1, xs, code, its = vi.newton_solve(model, v, b, xp, ps, s1, sc0, scs, 1e-15, 50)
+    L.store_vi_state(model, out, 0, 1, (X1, G1, s1, mu1, vi.add_opt(s1, xs), R1))
+    return code
+
+
+@jit
+def _start(model, y_row, h):
+    """μ₀ = 𝕀Ω(0) (in the momentum columns) → X₀ by the Newton solve of a step h."""
+    y = L.load_vi_state(model, y_row, 0, 1)
+    X, G, s, mu, sn, R = y
+    v = vi.vi_coefficients(model, h, 0.5, 0.5)
+    b = vi.newton_rhs(model, v, mu[0], mu[1], mu[2], G[0], G[1], G[2])
+    ps = vi.entropy_predictor(model.inertia, model, v, X, s)
+    X1, xs, code, its = vi.newton_solve(model, v, b, X, ps, s, 1.0, abs_or_zero(s), 1e-15, 50)
+    L.store_vi_state(model, y_row, 0, 1, (X1, G, s, mu, vi.add_opt(s, xs), R))
+    return code
+
+
+@pytest.mark.parametrize("body", ["paper", "random", "coupled"])
+def test_node_map_is_symmetric(body):
+    """Φ_{−h} ∘ Φ_h = id for trapezoid friction and the symmetric entropy
+    update: a step with h from the node (Γ, μ, σ[, R]), then one with −h,
+    returns to (Γ, μ, σ, R) to round-off (≤ 1e-13 relative) — the property
+    that lets compositions raise the order; for the paper top, a random body
+    with diagonal friction, and the coupled top (𝕀(S))."""
+    if body == "paper":
+        phys, om0, R = paper_physics(), OMEGA0[None], R0[None]
+    elif body == "random":
+        phys, om0, R = random_body(3, diagonal=True)
+    else:
+        phys = replace(paper_physics(), heat_capacity=np.array([1e-3]), thermal_expansion=np.array([1e-3]))
+        om0, R = OMEGA0[None] * 3.0, R0[None]
+    km = build_model(phys, attitude=True)
+    lay = km.layout("vi")
+    h = 0.1
+    y = np.zeros(lay.size)
+    y[lay.slice("omega_step")] = om0[0]
+    y[lay.slice("gamma")] = R[0, 2]
+    y[lay.slice("momentum")] = phys.inertia[0] * om0[0]
+    y[lay.slice("attitude")] = R[0].ravel()
+    assert _start(km.model, y, h) == L.NEWTON_OK
+    y1 = np.empty_like(y)
+    assert _substep(km.model, y, h, SYMMETRIC, y1) == L.NEWTON_OK
+    # the node (Γ, μ, σ, R) at t_1; restart backwards from it with step −h
+    back = y1.copy()
+    back[lay.slice("omega_step")] = -y1[lay.slice("omega_step")]  # predictor only
+    assert _start(km.model, back, -h) == L.NEWTON_OK
+    y2 = np.empty_like(y)
+    assert _substep(km.model, back, -h, SYMMETRIC, y2) == L.NEWTON_OK
+    for part in ("gamma", "momentum", "attitude"):
+        a, b = y[lay.slice(part)], y2[lay.slice(part)]
+        assert np.abs(a - b).max() <= 1e-13 * np.abs(a).max(), (part, a, b)
+    s1 = y1[lay.slice("sigma")][0]
+    assert s1 > 0.0  # the forward step did produce heat ...
+    assert abs(y2[lay.slice("sigma")][0]) <= 1e-13 * s1  # ... and the backward one took it back
 
 
 # ------------------------------------------------------------------ invariants
-def test_unit_gamma_and_rotation_over_ten_thousand_paper_steps(paper_y0_attitude, paper_params):
-    """The VI moves Γ and R by Cayley rotations only, so over 10⁴ steps at the
-    paper's h = 0.1 (1000 s): | |Γ_k| − 1 | ≤ 1e-13, |R_kᵀR_k − I| ≤ 1e-13, and
-    Γ_k = R_kᵀe₃ stays consistent (the two updates are the same rotation).
-    Contrast: RK4 at the same h drifts off the sphere by ≫ 1e-9 in 300 steps."""
+def test_unit_gamma_and_rotation_over_ten_thousand_paper_steps(paper):
+    """The VI moves Γ and R by Cayley rotations only: over 10⁴ steps at h = 0.1
+    | |Γ_k| − 1 | ≤ 1e-13, |R_kᵀR_k − I| ≤ 1e-13 and Γ_k = R_kᵀe₃.  Contrast:
+    RK4 at the same h drifts off the sphere by ≫ 1e-9 within 300 steps."""
     assert LAW_UNIT_GAMMA in METHODS["vi"].laws and LAW_UNIT_GAMMA not in METHODS["rk4"].laws
-    tr = simulate(paper_y0_attitude, paper_params, H_PAPER, 10_000, "vi")
+    phys, om0, R = paper
+    tr = simulate(phys, om0, R, H_PAPER, 10_000, "vi", attitude=True)
     assert tr.status[0] == STATUS_OK
-    G = tr.gamma[0]
-    R = tr.attitude[0]
+    G, Rk = tr.gamma[0], tr.attitude[0]
     assert np.abs(np.linalg.norm(G, axis=1) - 1.0).max() <= 1e-13
-    RtR = np.einsum("kji,kjl->kil", R, R) - np.eye(3)
-    assert np.abs(RtR).max() <= 1e-13
-    assert np.abs(np.linalg.det(R) - 1.0).max() <= 1e-13
-    assert np.abs(G - R[:, 2, :]).max() <= 1e-13  # Rᵀe₃ is the third row of R
-    # the top really moved: Γ explored the sphere
-    assert np.ptp(G, axis=0).min() > 0.5
-    rk4 = simulate(paper_y0_attitude, paper_params, H_PAPER, 300, "rk4")
+    assert np.abs(np.einsum("kji,kjl->kil", Rk, Rk) - np.eye(3)).max() <= 1e-13
+    assert np.abs(G - Rk[:, 2, :]).max() <= 1e-13
+    assert np.ptp(G, axis=0).min() > 0.5  # the top really moved
+    rk4 = simulate(phys, om0, R, H_PAPER, 300, "rk4")
     assert np.nanmax(np.abs(np.linalg.norm(rk4.gamma[0], axis=1) - 1.0)) > 1e-9
 
 
-@pytest.mark.parametrize("friction", ["trapezoid", "endpoint"])
-def test_entropy_never_decreases(friction, paper_y0, paper_params):
-    """σ_{k+1} − σ_k = hc|Ω_k|²/T ≥ 0 with c ≥ 0: σ is non-decreasing over 10⁴
-    paper steps, strictly increasing while the top still spins (first 100 steps)."""
-    tr = simulate(paper_y0, paper_params, H_PAPER, 10_000, "vi", friction=friction)
-    s = tr.sigma[0]
+@pytest.mark.parametrize("entropy", ["explicit", "symmetric"])
+def test_entropy_never_decreases(entropy, paper):
+    """Both updates add the non-negative work of the discrete friction: σ is
+    non-decreasing over 10⁴ paper steps, strictly while the top spins."""
+    phys, om0, R = paper
+    s = simulate(phys, om0, R, H_PAPER, 10_000, "vi", entropy=entropy).sigma[0]
     ds = np.diff(s)
-    assert ds.min() >= 0.0
-    assert np.all(ds[:100] > 0.0)
-    assert s[-1] > 0.0
+    assert ds.min() >= 0.0 and np.all(ds[:100] > 0.0) and s[-1] > 0.0
 
 
-@pytest.mark.parametrize("friction", ["trapezoid", "endpoint"])
-def test_no_viscosity_no_entropy(friction, paper_y0, paper_params, random_body_factory):
-    """With μ = 0 (c = 0) nothing is dissipated: σ stays exactly 0 (== 0.0, not
-    merely small) at every step, on the paper scene and on a random body."""
-    y1, p1 = random_body_factory(3)
-    for y0, p in [(paper_y0, paper_params), (y1, p1)]:
-        p = p.copy()
-        p[3] = 0.0
-        tr = simulate(y0, p, H_PAPER, 2000, "vi", friction=friction)
-        assert tr.status[0] == STATUS_OK
-        assert np.all(tr.sigma[0] == 0.0)
+def test_no_viscosity_no_entropy_and_no_thermodynamics(paper):
+    """With μ = 0 nothing dissipates: the model has no thermodynamic term and no
+    friction term (so no entropy is integrated), S stays S₀ exactly, and the
+    mechanical energy is all that moves."""
+    phys, om0, R = paper
+    free = replace(phys, friction=np.zeros((1, 3)))
+    km = build_model(free)
+    assert km.model.thermo is None and [type(t).__name__ for t in km.model.forces] == ["Gravity"]
+    tr = simulate(free, om0, R, H_PAPER, 2000, "vi")
+    assert tr.status[0] == STATUS_OK and not tr.layout.has("sigma")
+    assert np.all(tr.sigma[0] == 0.0)
 
 
 # ------------------------------------------------------------------ Kelvin–Noether
-def _kn_quantity_np(W, G, p, h):
-    """I_k = hΓ_k·(Π_k + (h/2)Ω_k×Π_k + (h²/4)(Ω_k·Π_k)Ω_k), SPEC §4 (vectorised)."""
-    P = p[0:3] * W
-    wP = np.einsum("ki,ki->k", W, P)[:, None]
-    return h * np.einsum("ki,ki->k", G, P + h / 2 * np.cross(W, P) + h * h / 4 * wP * W)
-
-
-def _kn_law(W, G, p, h, law):
-    """Predicted I_{k+1} − I_k of SPEC §4."""
-    c = p[3]
-    if law == "trapezoid":
-        return -(c / 2) * h * h * np.einsum("ki,ki->k", G[1:], W[:-1] + W[1:])
-    return -c * h * h * np.einsum("ki,ki->k", G[1:], W[1:])
-
-
-def _kn_scenes(paper_y0, paper_params):
-    y1, p1 = random_body(7)
-    assert abs(p1[4:7] @ np.array([0.0, 0.0, 1.0])) < 0.99 * np.linalg.norm(p1[4:7])  # χ tilted
-    assert len(set(np.round(p1[0:3], 12))) == 3  # non-symmetric
-    return {"paper": (paper_y0, paper_params), "random": (y1, p1)}
-
-
-@pytest.mark.parametrize("scene", ["paper", "random"])
+@pytest.mark.parametrize("body", ["paper", "random", "diagonal"])
 @pytest.mark.parametrize("friction", ["trapezoid", "endpoint"])
-def test_discrete_kelvin_noether_law(friction, scene, paper_y0, paper_params):
-    """SPEC §4: the kernel's I_k (kelvin_noether_quantity) obeys, for every
-    solution of the scheme, trapezoid: I_{k+1} − I_k = −(c/2)h²Γ_{k+1}·(Ω_k + Ω_{k+1});
-    endpoint: I_{k+1} − I_k = −ch²Γ_{k+1}·Ω_{k+1}.  Residual ≤ 1e-12 · max|I_{k+1} − I_k|
-    over 2000 steps at h = 0.1.  The law of the *other* variant must fail
-    (relative residual > 1e-3), so the check discriminates between the variants."""
+def test_discrete_kelvin_noether_law_in_node_form(friction, body):
+    """J_k = Γ_k·μ_k obeys, for every solution of the scheme,
+    J_{k+1} − J_k = −h (w_L Γ_k + w_R Γ_{k+1})·C X_k (gravity does no work on it:
+    Γ·(Γ×g⃗) = 0), to ≤ 1e-12 of max |J_{k+1} − J_k| over 2000 steps at h = 0.1;
+    the law with the other weights fails (> 1e-3) whenever C is not isotropic
+    (for an isotropic C both read −h Γ_k·cX_k since Γ_{k+1}·X_k = Γ_k·X_k)."""
     assert LAW_KELVIN_NOETHER in METHODS["vi"].laws
-    assert friction in FRICTION
-    y0, p = _kn_scenes(paper_y0, paper_params)[scene]
+    if body == "paper":
+        phys, om0, R = paper_physics(), OMEGA0[None], R0[None]
+    else:
+        phys, om0, R = random_body(7, diagonal=(body == "diagonal"))
     h = H_PAPER
-    tr = simulate(y0, p, h, 2000, "vi", friction=friction)
+    tr = simulate(phys, om0, R, h, 2000, "vi", friction=friction)
     assert tr.status[0] == STATUS_OK
-    W, G = tr.omega[0], tr.gamma[0]
-    I_kernel = np.array([vi.kelvin_noether_quantity(W[k], G[k], p, h) for k in range(len(W))])
-    I_np = _kn_quantity_np(W, G, p, h)
-    np.testing.assert_allclose(I_kernel, I_np, rtol=1e-13, atol=1e-15 * np.abs(I_np).max())
-    dI = np.diff(I_kernel)
-    scale = np.abs(dI).max()
+    X, G, mu = tr.omega_step[0], tr.gamma[0], tr.momentum[0]
+    C = phys.friction[0]
+    J = np.einsum("ki,ki->k", G, mu)
+    dJ = np.diff(J)
+    scale = np.abs(dJ).max()
     assert scale > 0.0
-    resid = np.abs(dI - _kn_law(W, G, p, h, friction)).max() / scale
-    assert resid <= 1e-12, resid
-    other = "endpoint" if friction == "trapezoid" else "trapezoid"
-    assert np.abs(dI - _kn_law(W, G, p, h, other)).max() / scale > 1e-3
+
+    def law(wl, wr):
+        return -h * np.einsum("ki,ki->k", wl * G[:-1] + wr * G[1:], C * X[:-1])
+
+    wl, wr = vi.FRICTION_WEIGHTS[friction]
+    assert np.abs(dJ - law(wl, wr)).max() / scale <= 1e-12
+    if body == "diagonal":
+        wl2, wr2 = vi.FRICTION_WEIGHTS["endpoint" if friction == "trapezoid" else "trapezoid"]
+        assert np.abs(dJ - law(wl2, wr2)).max() / scale > 1e-3
 
 
 # ------------------------------------------------------------------ Newton
-def _newton_setup(seed=21, h=0.1, omega=(3.0, -8.0, 5.0), friction="trapezoid"):
-    _, p = random_body(seed)
-    omega = np.array(omega)
-    gamma = np.array([0.3, 0.4, math.sqrt(0.75)])
-    gnext = np.empty(3)
-    cayley_apply(-h * omega, gamma, gnext)
-    alpha, beta = FRICTION[friction]
-    b = np.empty(3)
-    vi.momentum_constant(omega, gnext, p, h, beta, b)
-    return p, h, omega, gnext, alpha, beta, b
+@jit
+def _residual_jacobian(model, v, X, b, xs, s1, F, J):
+    d0, d1, d2, ds, det = vi.newton_correction(model, v, X[0], X[1], X[2], xs, b[0], b[1], b[2], s1)
+    r = vi.residual_jacobian(model, v, X[0], X[1], X[2], b[0], b[1], b[2])
+    for i in range(3):
+        F[i] = r[i]
+        for j in range(3):
+            J[i, j] = r[3 + 3 * i + j]
+    return d0, d1, d2, det
 
 
-@pytest.mark.parametrize("friction", ["trapezoid", "endpoint"])
+@pytest.mark.parametrize("body", ["paper", "diagonal", "double_bracket"])
 @pytest.mark.parametrize("h", [0.01, 0.1, 0.3])
-def test_jacobian_matches_central_differences(friction, h):
-    """momentum_jacobian is ∂F/∂X of momentum_residual: central differences
-    (step 1e-6·max(1,|X_j|); F is cubic, so the truncation error is O(δ²)
-    and tiny) agree to ≤ 1e-7 relative, at random X far from the solution."""
-    p, h, omega, gnext, alpha, beta, b = _newton_setup(h=h, friction=friction)
+def test_jacobian_matches_central_differences(body, h):
+    """The analytic Jacobian is ∂F/∂X of the residual: central differences
+    (F is a polynomial of low degree: the truncation error is tiny) agree to
+    ≤ 1e-7 relative at random X far from the solution — with a diagonal
+    friction and with the double-bracket friction's own Jacobian."""
+    if body == "paper":
+        phys = paper_physics()
+    elif body == "diagonal":
+        phys = random_body(5, diagonal=True)[0]
+    else:
+        phys = replace(paper_physics(), internal_friction=np.array([0.7]))
+    model = build_model(phys).model
+    v = vi.vi_coefficients(model, h, 0.5, 0.5)
     rng = np.random.default_rng(8)
-    J = np.empty((3, 3))
-    Fp = np.empty(3)
-    Fm = np.empty(3)
+    b = rng.normal(size=3) * 1e-3
+    F, J, Fp, Fm, Jd = (np.empty(3), np.empty((3, 3)), np.empty(3), np.empty(3), np.empty((3, 3)))
     for _ in range(10):
         X = rng.normal(scale=5.0, size=3)
-        vi.momentum_jacobian(X, p, h, alpha, J)
+        _residual_jacobian(model, v, X, b, None, 0.0, F, J)
         Jfd = np.empty((3, 3))
         for j in range(3):
             dx = 1e-6 * max(1.0, abs(X[j]))
-            Xp = X.copy()
+            Xp, Xm = X.copy(), X.copy()
             Xp[j] += dx
-            Xm = X.copy()
             Xm[j] -= dx
-            vi.momentum_residual(Xp, b, p, h, alpha, Fp)
-            vi.momentum_residual(Xm, b, p, h, alpha, Fm)
+            _residual_jacobian(model, v, Xp, b, None, 0.0, Fp, Jd)
+            _residual_jacobian(model, v, Xm, b, None, 0.0, Fm, Jd)
             Jfd[:, j] = (Fp - Fm) / (2 * dx)
-        rel = np.abs(J - Jfd).max() / np.abs(J).max()
-        assert rel <= 1e-7, rel
+        assert np.abs(J - Jfd).max() / np.abs(J).max() <= 1e-7
 
 
-def test_momentum_residual_is_the_spec_residual():
-    """momentum_residual(X, momentum_constant(...)) = F(X) of SPEC §3 for both
-    friction variants (α, β) = (½, ½) and (1, 0), at arbitrary X."""
-    rng = np.random.default_rng(9)
-    for friction in ("trapezoid", "endpoint"):
-        p, h, omega, gnext, alpha, beta, b = _newton_setup(friction=friction)
-        F = np.empty(3)
-        for _ in range(10):
-            X = rng.normal(scale=5.0, size=3)
-            vi.momentum_residual(X, b, p, h, alpha, F)
-            Fs, scale = _spec_residual(X, omega, gnext, p, h, friction)
-            assert np.abs(F - Fs).max() <= 1e-14 * scale
+@jit
+def _coupled_F(model, v, X, xs, b, s1):
+    """The coupled top's 4-vector F(X, Δ) = (F₁, F₂) and its Newton correction."""
+    d0, d1, d2, ds, det = vi.newton_correction(model, v, X[0], X[1], X[2], xs, b[0], b[1], b[2], s1)
+    return d0, d1, d2, ds, det
 
 
-def test_solve3_matches_numpy():
-    """solve3(J, r) = J⁻¹r and returns det J (numpy.linalg.solve / det), relative
-    to cond(J)·eps; a singular J returns det 0 and leaves ``out`` untouched."""
-    rng = np.random.default_rng(10)
-    out = np.empty(3)
-    for _ in range(200):
-        J = rng.normal(size=(3, 3)) * 10.0 ** rng.uniform(-4, 4)
-        r = rng.normal(size=3)
-        det = vi.solve3(J, r, out)
-        x = np.linalg.solve(J, r)
-        cond = np.linalg.cond(J)
-        assert np.abs(out - x).max() <= 1e-14 * cond * np.abs(x).max()
-        assert det == pytest.approx(np.linalg.det(J), rel=1e-12 * cond)
-    S = np.array([[1.0, 2.0, 3.0], [2.0, 4.0, 6.0], [0.0, 1.0, 1.0]])
-    out[:] = [7.0, 8.0, 9.0]
-    assert vi.solve3(S, np.ones(3), out) == 0.0
-    np.testing.assert_array_equal(out, [7.0, 8.0, 9.0])
+def _coupled_residual_np(phys, h, X, D, b, s1):
+    """F(X, Δ) of the coupled top, written from docs/model.md independently of the kernels."""
+    I, C, cv, T0, al = (phys.inertia[0], phys.friction[0], phys.heat_capacity[0], phys.T0[0],
+                        phys.thermal_expansion[0])
+
+    def phi(s):
+        return 1.0 + al * (T0 * math.exp(s / cv) - T0)
+
+    ss = 0.5 * (phi(s1) ** 2 + phi(s1 + D) ** 2)
+    F1 = ss * _legendre(I, X, h) + 0.5 * h * C * X + b
+    U = lambda s: cv * T0 * math.exp(s / cv)  # noqa: E731
+    F2 = (U(s1 + D) - U(s1)) - 0.5 * (X @ (I * X)) * (phi(s1 + D) ** 2 - phi(s1) ** 2) - h * (X @ (C * X))
+    return np.concatenate([F1, [F2]])
 
 
-@pytest.mark.parametrize("friction", ["trapezoid", "endpoint"])
-def test_newton_converges_quadratically(friction):
-    """Newton's method with the exact Jacobian converges quadratically:
-    e_{k+1} ≤ C e_k² with C = 2·|J(X*)⁻¹|∞·M/2, M = Imax(1 + 1.5h|X*|) a bound
-    on |D²F| (½X×𝕀X and (h/4)(X·𝕀X)X are the quadratic/cubic terms), for every
-    pair of steps above round-off.  Instrumented by hand with the kernel
-    functions at a hard step (h = 0.3, |Ω| ≈ 27, h|Ω| ≈ 8: 6 iterations from
-    the predictor).
-    A wrong Jacobian converges linearly and breaks the bound as e_k → 0."""
-    p, h, omega, gnext, alpha, beta, b = _newton_setup(h=0.3, omega=(10.0, -20.0, 15.0),
-                                                       friction=friction)
-    X = np.empty(3)
-    vi.predictor(omega, gnext, p, h, X)
-    F = np.empty(3)
-    J = np.empty((3, 3))
-    d = np.empty(3)
+def test_coupled_newton_correction_is_the_newton_step_of_the_documented_residual():
+    """For the coupled top the kernel's correction (d_X, d_Δ) equals
+    J⁻¹F of the documented 4-vector residual, with J from central
+    differences, to ≤ 1e-6 relative (at points off the solution)."""
+    phys = replace(paper_physics(), heat_capacity=np.array([1e-3]), thermal_expansion=np.array([1e-3]))
+    model = build_model(phys).model
+    h = 0.05
+    v = vi.vi_coefficients(model, h, 0.5, 0.5)
+    rng = np.random.default_rng(2)
+    for _ in range(6):
+        X = rng.normal(scale=2.0, size=3)
+        s1 = abs(rng.normal()) * 1e-5
+        D = abs(rng.normal()) * 1e-6
+        b = rng.normal(size=3) * 1e-3
+        d = np.array(_coupled_F(model, v, X, D, b, s1)[:4])
+        z = np.concatenate([X, [D]])
+        F = _coupled_residual_np(phys, h, X, D, b, s1)
+        Jfd = np.empty((4, 4))
+        for j in range(4):
+            dz = 1e-6 * max(1.0, abs(z[j])) if j < 3 else 1e-4 * max(abs(D), 1e-9)
+            zp, zm = z.copy(), z.copy()
+            zp[j] += dz
+            zm[j] -= dz
+            Jfd[:, j] = (_coupled_residual_np(phys, h, zp[:3], zp[3], b, s1)
+                         - _coupled_residual_np(phys, h, zm[:3], zm[3], b, s1)) / (2 * dz)
+        expect = np.linalg.solve(Jfd, F)
+        np.testing.assert_allclose(d, expect, rtol=1e-6, atol=1e-9 * np.abs(expect).max())
+
+
+def test_newton_converges_quadratically():
+    """Newton's method with the exact Jacobian converges quadratically: at a
+    hard step (h = 0.3, h|Ω| ≈ 8) the logarithm of the correction ratio
+    log(e₂/e₁)/log(e₁/e₀) of the last informative pairs is ≥ 1.7; a wrong
+    Jacobian would converge linearly (ratio → 1)."""
+    phys = random_body(21)[0]
+    model = build_model(phys).model
+    h = 0.3
+    v = vi.vi_coefficients(model, h, 0.5, 0.5)
+    X = np.array([10.0, -20.0, 15.0])
+    b = -_legendre(phys.inertia[0], X * 1.05, h)  # a solution near 1.05 X
+    F, J = np.empty(3), np.empty((3, 3))
     steps = []
-    for _ in range(10):
-        vi.momentum_residual(X, b, p, h, alpha, F)
-        vi.momentum_jacobian(X, p, h, alpha, J)
-        vi.solve3(J, F, d)
-        X -= d
-        steps.append(np.abs(d).max())
-    steps = np.array(steps)
+    for _ in range(12):
+        d0, d1, d2, det = _residual_jacobian(model, v, X, b, None, 0.0, F, J)
+        X = X - np.array([d0, d1, d2])
+        steps.append(max(abs(d0), abs(d1), abs(d2)))
     xs = np.abs(X).max()
-    vi.momentum_residual(X, b, p, h, alpha, F)
-    Fs, scale = _spec_residual(X, omega, gnext, p, h, friction)
-    assert np.abs(Fs).max() <= 1e-14 * scale  # converged to the SPEC solution
-    vi.momentum_jacobian(X, p, h, alpha, J)
-    M = p[0:3].max() * (1.0 + 1.5 * h * np.linalg.norm(X))
-    C = 2.0 * np.linalg.norm(np.linalg.inv(J), np.inf) * M / 2.0
-    pairs = [(e0, e1) for e0, e1 in zip(steps[:-1], steps[1:]) if e1 > 1e-13 * xs]
-    assert len(pairs) >= 3, steps
-    for e0, e1 in pairs:
-        assert e1 <= C * e0 * e0, (e0, e1, C)
-    # log-ratio ~ 2 on the last two informative pairs
-    (e0, e1), (e1b, e2) = pairs[-2], pairs[-1]
-    assert math.log(e2 / e1b) / math.log(e1 / e0) > 1.7
-    # and the kernel's own iteration agrees with the hand-run one
-    Xk = np.empty(3)
-    code, its = vi.newton_momentum(omega, gnext, p, h, alpha, beta, 1e-14, 30, Xk)
-    assert code == vi.NEWTON_OK and its <= 8
-    np.testing.assert_allclose(Xk, X, rtol=0, atol=4e-16 * xs * 10)
+    informative = [e for e in steps if e > 1e-12 * xs]
+    assert len(informative) >= 4, steps
+    e0, e1, e2 = informative[-3:]
+    assert math.log(e2 / e1) / math.log(e1 / e0) >= 1.7, steps
 
 
-def test_newton_maxiter_is_reported():
-    """At a hard step (h|Ω| ≈ 42) two Newton iterations cannot reach the
-    tolerance: newton_momentum returns NEWTON_MAXITER (not OK); with 30
-    iterations the same step converges (so it is the cap, not a singularity)."""
-    p, h, omega, gnext, alpha, beta, b = _newton_setup(omega=(0.0, 300.0, 300.0))
-    X = np.empty(3)
-    code, its = vi.newton_momentum(omega, gnext, p, h, alpha, beta, 1e-14, 2, X)
-    assert code == vi.NEWTON_MAXITER and its == 2
-    code, its = vi.newton_momentum(omega, gnext, p, h, alpha, beta, 1e-14, 30, X)
-    assert code == vi.NEWTON_OK and 2 < its <= 30
-
-
-def test_newton_failure_is_not_accepted(paper_y0, paper_params):
-    """simulate with newton_maxiter=2 on a huge spin (h|Ω| ≈ 42): the member gets
-    STATUS_NEWTON at step 1, takes no step (steps_done 0), and every stored state
-    after the initial one is NaN; the initial state is kept.  With the default
-    iteration cap the same run completes."""
-    y0 = paper_y0.copy()
-    y0[0:3] = [0.0, 300.0, 300.0]
-    tr = simulate(y0, paper_params, H_PAPER, 10, "vi", newton_maxiter=2)
-    assert tr.status[0] == STATUS_NEWTON
-    assert tr.fail_step[0] == 1 and tr.steps_done[0] == 0
-    np.testing.assert_array_equal(tr.states[0, 0], y0)
+def test_newton_failure_is_reported_and_not_accepted(paper):
+    """A huge spin (h|Ω| ≈ 42) with newton_maxiter = 2 cannot converge: the
+    member gets STATUS_NEWTON at step 1 (the first solve, from its node
+    momentum), takes no step, and every stored state after the initial one is
+    NaN; with the default iteration cap the same run completes."""
+    phys, om0, R = paper
+    om = np.array([[0.0, 300.0, 300.0]])
+    tr = simulate(phys, om, R, H_PAPER, 10, "vi", newton_maxiter=2)
+    assert tr.status[0] == STATUS_NEWTON and tr.fail_step[0] == 1 and tr.steps_done[0] == 0
     assert np.all(np.isnan(tr.states[0, 1:]))
-    ok = simulate(y0, paper_params, H_PAPER, 10, "vi")
+    ok = simulate(phys, om, R, H_PAPER, 10, "vi")
     assert ok.status[0] == STATUS_OK and np.all(np.isfinite(ok.states))
+    # a failure after a few steps (paper start: no solve before step 1)
+    tr = simulate(phys, om, R, H_PAPER, 10, "vi", start="node", newton_maxiter=3)
+    assert tr.status[0] == STATUS_NEWTON and tr.fail_step[0] == tr.steps_done[0] + 1
+    k = tr.steps_done[0]
+    assert np.all(np.isfinite(tr.states[0, : k + 1])) and np.all(np.isnan(tr.states[0, k + 1:]))
+
+
+def test_paper_numbers_match_the_scene_code():
+    """The paper scene built by the scene code (scene → physics) equals the one
+    built here from the paper's raw numbers."""
+    from liethermo.physics import physics_of_scene
+    from liethermo.scene import load_scene
+
+    d = paper_numbers()
+    p = physics_of_scene(load_scene("paper"))
+    np.testing.assert_allclose(p.inertia[0], d["inertia"], rtol=1e-15)
+    np.testing.assert_allclose(p.friction[0], [d["c"]] * 3, rtol=1e-15)
+    np.testing.assert_allclose(p.gravity_torque[0], d["gvec"], rtol=1e-15)
+    assert p.heat_capacity[0] == pytest.approx(d["cv"], rel=1e-15)
+    assert d["m"] == pytest.approx(1.4137166941154071, rel=1e-15)
+    assert d["ell"] == pytest.approx(0.00125, rel=1e-12)
+
+
+def test_make_physics_helper_is_the_paper():
+    d = paper_numbers()
+    p = make_physics(d["inertia"], d["c"], d["gvec"], d["cv"])
+    assert build_model(p).terms() == ["ConstantInertia", "IdealSolid", "StokesSphere", "Gravity"]

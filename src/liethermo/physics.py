@@ -246,7 +246,7 @@ def build_model(phys: Physics, attitude: bool = False) -> KernelModel:
         att = take(type(ATTITUDE)) if attitude else None
         return Model(inertia, th, fs, att)
 
-    template = assemble(P[0])
+    template = assemble(P[0] if N else np.zeros(P.shape[1]))
     assert len(gen.flatten(template)) == P.shape[1]
     bits = P.view(np.int64)
     shared = template if (N == 0 or bool((bits == bits[0]).all())) else None

@@ -170,3 +170,58 @@ def select_py(cond: bool, a: float, b: float) -> float:
 #: execute as slow microcode.  A select keeps the store unconditional: a
 #: blend and a plain store.
 select = select_py if numba.config.DISABLE_JIT else _select_intrinsic
+
+
+def _ld_py(a, i):
+    return a[i]
+
+
+def _st_py(a, i, v):
+    a[i] = v
+
+
+@intrinsic
+def _ld_intrinsic(typingctx, arr, idx):
+    if not isinstance(arr, types.Array) or arr.ndim != 1 or not isinstance(idx, types.Integer):
+        return None
+    sig = arr.dtype(arr, idx)
+
+    def codegen(context, builder, signature, args):
+        return builder.load(_element_ptr(context, builder, signature, args))
+
+    return sig, codegen
+
+
+@intrinsic
+def _st_intrinsic(typingctx, arr, idx, val):
+    if not isinstance(arr, types.Array) or arr.ndim != 1 or not isinstance(idx, types.Integer):
+        return None
+    sig = types.none(arr, idx, val)
+
+    def codegen(context, builder, signature, args):
+        v = context.cast(builder, args[2], signature.args[2], signature.args[0].dtype)
+        builder.store(v, _element_ptr(context, builder, signature, args))
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+def _element_ptr(context, builder, signature, args):
+    aryty = signature.args[0]
+    ary = context.make_array(aryty)(context, builder, args[0])
+    idx = context.cast(builder, args[1], signature.args[1], types.intp)
+    if aryty.layout == "C":
+        return builder.gep(ary.data, [idx], inbounds=True)
+    stride = cgutils.unpack_tuple(builder, ary.strides, 1)[0]
+    addr = builder.add(builder.ptrtoint(ary.data, cgutils.intp_t), builder.mul(idx, stride))
+    return builder.inttoptr(addr, ary.data.type)
+
+
+#: ``ld(a, i)`` = ``a[i]`` and ``st(a, i, v)``: ``a[i] = v`` for a 1-D array and an index
+#: the caller knows to be in range: no negative-index wraparound.  The lane loops
+#: index their block rows with ``offset + lane``; numba's wraparound test on such
+#: an index is a compare and a select per access, which LLVM removes only when it
+#: can prove the index non-negative — and when it could not (a lane loop with a
+#: few more rows), it left the loop scalar.
+ld = _ld_py if numba.config.DISABLE_JIT else _ld_intrinsic
+st = _st_py if numba.config.DISABLE_JIT else _st_intrinsic

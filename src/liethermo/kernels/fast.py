@@ -51,7 +51,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._jit import jit, lane, select
+from ._jit import jit, lane, ld, select, st
 from .gen import finite, none_dispatch, overload_by_class, tree_finite, tree_sum_finite, unflatten
 from .layout import (FS_MAX_H_OMEGA, IS_FAIL_STEP, IS_NEWTON_MAX, IS_NEWTON_TOTAL, IS_STATUS,
                      IS_STEPS, NEWTON_MAXITER, NEWTON_OK, NEWTON_SINGULAR, STATUS_NEWTON,
@@ -153,30 +153,37 @@ coupled_marker = overload_by_class(_coupled_marker, ThermalInertia, lambda inert
 
 
 def _store1(x, S, off):
-    S[off] = x
+    st(S, off, x)
 
 
 store1 = none_dispatch(_store1, lambda x, S, off: None)
 
 
 def _store9(x, S, off):
-    for k in range(9):
-        S[off + k * ROW] = x[k]
+    st(S, off, x[0])
+    st(S, off + ROW, x[1])
+    st(S, off + 2 * ROW, x[2])
+    st(S, off + 3 * ROW, x[3])
+    st(S, off + 4 * ROW, x[4])
+    st(S, off + 5 * ROW, x[5])
+    st(S, off + 6 * ROW, x[6])
+    st(S, off + 7 * ROW, x[7])
+    st(S, off + 8 * ROW, x[8])
 
 
 store9 = none_dispatch(_store9, lambda x, S, off: None)
 
 
 def _load1(marker, S, off):
-    return S[off]
+    return ld(S, off)
 
 
 load1_if = none_dispatch(_load1, lambda marker, S, off: None)
 
 
 def _load9(marker, S, off):
-    return (S[off], S[off + ROW], S[off + 2 * ROW], S[off + 3 * ROW], S[off + 4 * ROW],
-            S[off + 5 * ROW], S[off + 6 * ROW], S[off + 7 * ROW], S[off + 8 * ROW])
+    return (ld(S, off), ld(S, off + ROW), ld(S, off + 2 * ROW), ld(S, off + 3 * ROW), ld(S, off + 4 * ROW),
+            ld(S, off + 5 * ROW), ld(S, off + 6 * ROW), ld(S, off + 7 * ROW), ld(S, off + 8 * ROW))
 
 
 load9_if = none_dispatch(_load9, lambda marker, S, off: None)
@@ -186,16 +193,16 @@ load9_if = none_dispatch(_load9, lambda marker, S, off: None)
 def _track_w2(S, i, ww):
     """Running max of |Ω|² (row W2 starts at −1: no step yet)."""
     # + 0.0 is exact here (the row never holds −0) and keeps the store unconditional
-    m = S[O_W2 + i] + 0.0
-    S[O_W2 + i] = select(ww > m, ww, m)
+    m = ld(S, O_W2 + i) + 0.0
+    st(S, O_W2 + i, select(ww > m, ww, m))
 
 
 @lane
 def _max_h_omega(S, i, h):
     """max |h|·|Ω| over the member's steps: the value at entry or |h|·sqrt of
     the max of this call (as the straightforward kernel's max_h_omega)."""
-    hm = S[O_HW + i]
-    w = S[O_W2 + i]
+    hm = ld(S, O_HW + i)
+    w = ld(S, O_W2 + i)
     if not (w >= 0.0):
         return hm
     hw = abs(h) * np.sqrt(w)
@@ -230,7 +237,7 @@ def _rk_sweep(tab, model, shared, S, nb, h, flip):
         yn, small = explicit_step(tab, md, y, h, False)
         upd = tree_sum_finite(yn) & small
         store_rk_state(md, S, dst + i, ROW, yn)
-        S[O_FLAG + i] = select(upd, FLAG_OK, FLAG_EXACT)
+        st(S, O_FLAG + i, select(upd, FLAG_OK, FLAG_EXACT))
         nflag += 0 if upd else 1
     return nflag
 
@@ -242,15 +249,15 @@ def _rk_exact(tab, model, shared, S, nb, h, flip):
     src, dst = _rk_buffers(flip)
     nfail = 0
     for i in range(nb):
-        if S[O_FLAG + i] != FLAG_EXACT:
+        if ld(S, O_FLAG + i) != FLAG_EXACT:
             continue
         md = lane_model(shared, model, S, i)
         yn, ok = explicit_step(tab, md, load_rk_state(md, S, src + i, ROW), h, True)
         if tree_finite(yn):
             store_rk_state(md, S, dst + i, ROW, yn)
-            S[O_FLAG + i] = FLAG_OK
+            st(S, O_FLAG + i, FLAG_OK)
         else:
-            S[O_FLAG + i] = FLAG_NONFINITE
+            st(S, O_FLAG + i, FLAG_NONFINITE)
             nfail += 1
     return nfail
 
@@ -286,21 +293,21 @@ def _vi_prepare(model, shared, S, nb, vv, vvn, h, hn, g2, wl, wr, mode, tol, fir
         X = y[0]
         _track_w2(S, i, g2 * norm2_lane(X[0], X[1], X[2]))
         G1, s1, mu1, R1, b, xp, ps, sc0, scs, ok = vi_advance(md, v, vn, y, hn, mode, False)
-        S[O_GN + i] = G1[0]
-        S[O_GN + ROW + i] = G1[1]
-        S[O_GN + 2 * ROW + i] = G1[2]
+        st(S, O_GN + i, G1[0])
+        st(S, O_GN + ROW + i, G1[1])
+        st(S, O_GN + 2 * ROW + i, G1[2])
         store1(s1, S, O_SN + i)
-        S[O_MUN + i] = mu1[0]
-        S[O_MUN + ROW + i] = mu1[1]
-        S[O_MUN + 2 * ROW + i] = mu1[2]
+        st(S, O_MUN + i, mu1[0])
+        st(S, O_MUN + ROW + i, mu1[1])
+        st(S, O_MUN + 2 * ROW + i, mu1[2])
         store9(R1, S, O_RN + i)
         b0, b1, b2 = b
-        S[O_B + i] = b0
-        S[O_B + ROW + i] = b1
-        S[O_B + 2 * ROW + i] = b2
-        S[O_SC0 + i] = sc0
+        st(S, O_B + i, b0)
+        st(S, O_B + ROW + i, b1)
+        st(S, O_B + 2 * ROW + i, b2)
+        st(S, O_SC0 + i, sc0)
         store1(scs, S, O_SCS + i)
-        S[O_FLAG + i] = select(ok, FLAG_OK, FLAG_EXACT)
+        st(S, O_FLAG + i, select(ok, FLAG_OK, FLAG_EXACT))
         nexact += 0 if ok else 1
         x0, x1, x2 = xp
         d0, d1, d2, ds, det = newton_correction(md, vn, x0, x1, x2, ps, b0, b1, b2, s1)
@@ -312,14 +319,14 @@ def _vi_prepare(model, shared, S, nb, vv, vvn, h, hn, g2, wl, wr, mode, tol, fir
         step, conv = newton_stop(n0, n1, n2, ns, d0, d1, d2, ds, sc0, scs, tol)
         bad = sing | (not (step == step))
         stay = sing | (not first)
-        S[O_X + i] = select(stay, x0, n0)
-        S[O_X + ROW + i] = select(stay, x1, n1)
-        S[O_X + 2 * ROW + i] = select(stay, x2, n2)
+        st(S, O_X + i, select(stay, x0, n0))
+        st(S, O_X + ROW + i, select(stay, x1, n1))
+        st(S, O_X + 2 * ROW + i, select(stay, x2, n2))
         store1(sub_select(ps, not stay, ds), S, O_XS + i)
         code = select(bad, NEWTON_SINGULAR, select(conv, NEWTON_OK, NEWTON_MAXITER))
-        S[O_CODE + i] = select(first, code, NEWTON_MAXITER)
-        S[O_ITS + i] = select(first, 1.0, 0.0)
-        S[O_RUN + i] = select(first & (bad | conv), 0.0, 1.0)
+        st(S, O_CODE + i, select(first, code, NEWTON_MAXITER))
+        st(S, O_ITS + i, select(first, 1.0, 0.0))
+        st(S, O_RUN + i, select(first & (bad | conv), 0.0, 1.0))
     return nexact
 
 
@@ -327,14 +334,14 @@ def _vi_prepare(model, shared, S, nb, vv, vvn, h, hn, g2, wl, wr, mode, tol, fir
 def _vi_entropy_exact(model, shared, S, nb, vv, h, wl, wr, mode):
     """σ' with the straightforward kernel's operations for FLAG_EXACT lanes."""
     for i in range(nb):
-        if S[O_FLAG + i] != FLAG_EXACT:
+        if ld(S, O_FLAG + i) != FLAG_EXACT:
             continue
         md = lane_model(shared, model, S, i)
         v = lane_vi(vv, md, h, wl, wr)
         y = load_vi_state(md, S, O_Y + i, ROW)
         s1, ok = vi_entropy(md, v, y, mode, True)
         store1(s1, S, O_SN + i)
-        S[O_FLAG + i] = FLAG_OK
+        st(S, O_FLAG + i, FLAG_OK)
 
 
 @jit
@@ -346,37 +353,37 @@ def _newton_sweep(model, shared, S, nb, vvn, hn, wl, wr, tol, it):
     for i in range(nb):
         md = lane_model(shared, model, S, i)
         vn = lane_vi(vvn, md, hn, wl, wr)
-        run = S[O_RUN + i] != 0.0
-        x0 = S[O_X + i]
-        x1 = S[O_X + ROW + i]
-        x2 = S[O_X + 2 * ROW + i]
+        run = ld(S, O_RUN + i) != 0.0
+        x0 = ld(S, O_X + i)
+        x1 = ld(S, O_X + ROW + i)
+        x2 = ld(S, O_X + 2 * ROW + i)
         xs = load1_if(coupled_marker(md.inertia), S, O_XS + i)
         s1 = load1_if(md.thermo, S, O_SN + i)
-        d0, d1, d2, ds, det = newton_correction(md, vn, x0, x1, x2, xs, S[O_B + i],
-                                                S[O_B + ROW + i], S[O_B + 2 * ROW + i], s1)
+        d0, d1, d2, ds, det = newton_correction(md, vn, x0, x1, x2, xs, ld(S, O_B + i),
+                                                ld(S, O_B + ROW + i), ld(S, O_B + 2 * ROW + i), s1)
         sing = (det == 0.0) | (not finite(det))
         n0 = x0 - d0
         n1 = x1 - d1
         n2 = x2 - d2
         step, conv = newton_stop(n0, n1, n2, sub_select(xs, True, ds), d0, d1, d2, ds,
-                                 S[O_SC0 + i], load1_if(xs, S, O_SCS + i), tol)
+                                 ld(S, O_SC0 + i), load1_if(xs, S, O_SCS + i), tol)
         nanstep = not (step == step)
         move = run & (not sing)
         # A lane that stays keeps its row values.  Written as x − (d or +0), not as
         # "new if move else old" (a masked store); exact: x − (+0) is x for every x
-        S[O_X + i] = x0 - select(move, d0, 0.0)
-        S[O_X + ROW + i] = x1 - select(move, d1, 0.0)
-        S[O_X + 2 * ROW + i] = x2 - select(move, d2, 0.0)
+        st(S, O_X + i, x0 - select(move, d0, 0.0))
+        st(S, O_X + ROW + i, x1 - select(move, d1, 0.0))
+        st(S, O_X + 2 * ROW + i, x2 - select(move, d2, 0.0))
         store1(sub_select(xs, move, ds), S, O_XS + i)
         bad = sing | nanstep
-        code_old = S[O_CODE + i]
+        code_old = ld(S, O_CODE + i)
         code = select(bad, NEWTON_SINGULAR, select(conv, NEWTON_OK, code_old))
-        its_old = S[O_ITS + i]
+        its_old = ld(S, O_ITS + i)
         # codes and counts are small integers: old + (new − old) is new exactly
-        S[O_CODE + i] = code_old + select(run, code - code_old, 0.0)
-        S[O_ITS + i] = its_old + select(run, it - its_old, 0.0)
+        st(S, O_CODE + i, code_old + select(run, code - code_old, 0.0))
+        st(S, O_ITS + i, its_old + select(run, it - its_old, 0.0))
         still = run & (not bad) & (not conv)
-        S[O_RUN + i] = select(still, 1.0, 0.0)
+        st(S, O_RUN + i, select(still, 1.0, 0.0))
         nrun += 1 if still else 0
     return nrun
 
@@ -397,32 +404,32 @@ def _newton_compact(model, shared, S, S2, idx, nb, nparam, vvn, hn, wl, wr, tol,
     the results come back."""
     k = np.int64(0)
     for i in range(nb):
-        if S[O_RUN + i] != 0.0:
+        if ld(S, O_RUN + i) != 0.0:
             idx[k] = i
             k += 1
     for r in _COMPACT_ROWS:
         for j in range(k):
-            S2[r * ROW + j] = S[r * ROW + idx[j]]
+            st(S2, r * ROW + j, ld(S, r * ROW + idx[j]))
     if shared is None:
         for r in range(nparam):
             for j in range(k):
-                S2[O_P + r * ROW + j] = S[O_P + r * ROW + idx[j]]
+                st(S2, O_P + r * ROW + j, ld(S, O_P + r * ROW + idx[j]))
     nrun = k
     while its < maxiter and nrun > 0:
         its += 1
         nrun = _newton_sweep(model, shared, S2, k, vvn, hn, wl, wr, tol, its)
     for r in _BACK_ROWS:
         for j in range(k):
-            S[r * ROW + idx[j]] = S2[r * ROW + j]
+            st(S, r * ROW + idx[j], ld(S2, r * ROW + j))
 
 
 @lane
 def _new_state(md, S, i):
     """The state the step would accept, from the work rows."""
-    return ((S[O_X + i], S[O_X + ROW + i], S[O_X + 2 * ROW + i]),
-            (S[O_GN + i], S[O_GN + ROW + i], S[O_GN + 2 * ROW + i]),
+    return ((ld(S, O_X + i), ld(S, O_X + ROW + i), ld(S, O_X + 2 * ROW + i)),
+            (ld(S, O_GN + i), ld(S, O_GN + ROW + i), ld(S, O_GN + 2 * ROW + i)),
             load1_if(md.thermo, S, O_SN + i),
-            (S[O_MUN + i], S[O_MUN + ROW + i], S[O_MUN + 2 * ROW + i]),
+            (ld(S, O_MUN + i), ld(S, O_MUN + ROW + i), ld(S, O_MUN + 2 * ROW + i)),
             add_opt(load1_if(md.thermo, S, O_SN + i),
                     load1_if(coupled_marker(md.inertia), S, O_XS + i)),
             load9_if(md.attitude, S, O_RN + i))
@@ -437,15 +444,15 @@ def _vi_check(model, shared, S, nb):
     nfail = 0
     for i in range(nb):
         md = lane_model(shared, model, S, i)
-        its = S[O_ITS + i]
-        S[O_NTOT + i] += its
-        nm = S[O_NMAX + i]
+        its = ld(S, O_ITS + i)
+        st(S, O_NTOT + i, ld(S, O_NTOT + i) + its)
+        nm = ld(S, O_NMAX + i)
         # max of two small non-negative integers, exact, without a select on the
         # row's own value
-        S[O_NMAX + i] = 0.5 * ((its + nm) + abs(its - nm))
-        conv = S[O_CODE + i] == NEWTON_OK
-        upd = conv & tree_finite(_new_state(md, S, i)) & (S[O_FLAG + i] == FLAG_OK)
-        S[O_FLAG + i] = select(upd, FLAG_OK, select(conv, FLAG_NONFINITE, FLAG_NEWTON))
+        st(S, O_NMAX + i, 0.5 * ((its + nm) + abs(its - nm)))
+        conv = ld(S, O_CODE + i) == NEWTON_OK
+        upd = conv & tree_finite(_new_state(md, S, i)) & (ld(S, O_FLAG + i) == FLAG_OK)
+        st(S, O_FLAG + i, select(upd, FLAG_OK, select(conv, FLAG_NONFINITE, FLAG_NEWTON)))
         nfail += 0 if upd else 1
     return nfail
 
@@ -470,7 +477,7 @@ def _vi_substep(model, shared, S, S2, idx, nb, nparam, vv, vvn, h, hn, g2, wl, w
     its = np.int64(1) if first else np.int64(0)
     nrun = 0
     for i in range(nb):
-        nrun += S[O_RUN + i] != 0.0
+        nrun += ld(S, O_RUN + i) != 0.0
     while its < maxiter and nrun > 0:
         if nrun <= NEWTON_COMPACT and nrun < nb:
             _newton_compact(model, shared, S, S2, idx, nb, nparam, vvn, hn, wl, wr, tol, its,
@@ -490,21 +497,21 @@ def _retire(S, i, nb, nrows, n, cur, done, h, Y, ISTAT, FSTAT):
     """Write failed lane i back (status, failing step, statistics; the state
     is the last accepted one, in the rows at cur) and move lane nb−1 into its
     place."""
-    m = int(S[O_MEMBER + i])
+    m = int(ld(S, O_MEMBER + i))
     for k in range(n):
-        Y[m, k] = S[cur + k * ROW + i]
-    flag = S[O_FLAG + i]
+        Y[m, k] = ld(S, cur + k * ROW + i)
+    flag = ld(S, O_FLAG + i)
     ISTAT[m, IS_STATUS] = STATUS_NEWTON if flag == FLAG_NEWTON else STATUS_NONFINITE
-    steps = int(S[O_STEPS + i]) + done
+    steps = int(ld(S, O_STEPS + i)) + done
     ISTAT[m, IS_FAIL_STEP] = steps + 1
     ISTAT[m, IS_STEPS] = steps
-    ISTAT[m, IS_NEWTON_TOTAL] = int(S[O_NTOT + i])
-    ISTAT[m, IS_NEWTON_MAX] = int(S[O_NMAX + i])
+    ISTAT[m, IS_NEWTON_TOTAL] = int(ld(S, O_NTOT + i))
+    ISTAT[m, IS_NEWTON_MAX] = int(ld(S, O_NMAX + i))
     FSTAT[m, FS_MAX_H_OMEGA] = _max_h_omega(S, i, h)
     last = nb - 1
     if i != last:
         for r in range(nrows):
-            S[r * ROW + i] = S[r * ROW + last]
+            st(S, r * ROW + i, ld(S, r * ROW + last))
 
 
 @jit
@@ -521,15 +528,15 @@ def _fill_block(Y, P, m0, m1, nparam, with_scratch, ISTAT, FSTAT):
         if ISTAT[m, IS_STATUS] != STATUS_OK:
             continue
         for k in range(n):
-            S[O_Y + k * ROW + nb] = Y[m, k]
+            st(S, O_Y + k * ROW + nb, Y[m, k])
         for k in range(nparam):
-            S[O_P + k * ROW + nb] = P[m, k]
-        S[O_HW + nb] = FSTAT[m, FS_MAX_H_OMEGA]
-        S[O_W2 + nb] = -1.0
-        S[O_NTOT + nb] = ISTAT[m, IS_NEWTON_TOTAL]
-        S[O_NMAX + nb] = ISTAT[m, IS_NEWTON_MAX]
-        S[O_STEPS + nb] = ISTAT[m, IS_STEPS]
-        S[O_MEMBER + nb] = m
+            st(S, O_P + k * ROW + nb, P[m, k])
+        st(S, O_HW + nb, FSTAT[m, FS_MAX_H_OMEGA])
+        st(S, O_W2 + nb, -1.0)
+        st(S, O_NTOT + nb, ISTAT[m, IS_NEWTON_TOTAL])
+        st(S, O_NMAX + nb, ISTAT[m, IS_NEWTON_MAX])
+        st(S, O_STEPS + nb, ISTAT[m, IS_STEPS])
+        st(S, O_MEMBER + nb, m)
         nb += 1
     return S, S2, idx, nb, nrows
 
@@ -537,12 +544,12 @@ def _fill_block(Y, P, m0, m1, nparam, with_scratch, ISTAT, FSTAT):
 @jit
 def _write_back(S, nb, n, cur, done, h, Y, ISTAT, FSTAT):
     for i in range(nb):
-        m = int(S[O_MEMBER + i])
+        m = int(ld(S, O_MEMBER + i))
         for k in range(n):
-            Y[m, k] = S[cur + k * ROW + i]
-        ISTAT[m, IS_STEPS] = int(S[O_STEPS + i]) + done
-        ISTAT[m, IS_NEWTON_TOTAL] = int(S[O_NTOT + i])
-        ISTAT[m, IS_NEWTON_MAX] = int(S[O_NMAX + i])
+            Y[m, k] = ld(S, cur + k * ROW + i)
+        ISTAT[m, IS_STEPS] = int(ld(S, O_STEPS + i)) + done
+        ISTAT[m, IS_NEWTON_TOTAL] = int(ld(S, O_NTOT + i))
+        ISTAT[m, IS_NEWTON_MAX] = int(ld(S, O_NMAX + i))
         FSTAT[m, FS_MAX_H_OMEGA] = _max_h_omega(S, i, h)
 
 
@@ -551,7 +558,7 @@ def _retire_failed(S, nb, nrows, n, cur, done, h, Y, ISTAT, FSTAT):
     """Retire every lane whose flag is not FLAG_OK; returns the new lane count."""
     i = np.int64(0)
     while i < nb:
-        if S[O_FLAG + i] != FLAG_OK:
+        if ld(S, O_FLAG + i) != FLAG_OK:
             _retire(S, i, nb, nrows, n, cur, done, h, Y, ISTAT, FSTAT)
             nb -= 1
         else:
@@ -586,9 +593,9 @@ def advance_rk_blocks(tab, model, shared, Y, P, b0, b1, h, every, n_out, OUT, IS
             if nb == 0:
                 break
             for i in range(nb):
-                m = int(S[O_MEMBER + i])
+                m = int(ld(S, O_MEMBER + i))
                 for k in range(n):
-                    OUT[m, j, k] = S[cur + k * ROW + i]
+                    OUT[m, j, k] = ld(S, cur + k * ROW + i)
         _write_back(S, nb, n, cur, done, h, Y, ISTAT, FSTAT)
 
 
@@ -615,7 +622,7 @@ def advance_vi_blocks(model, shared, Y, P, b0, b1, h, factors, every, n_out, wl,
                 if ns > 1:
                     for k in range(n):
                         for i in range(nb):
-                            S[O_YB + k * ROW + i] = S[O_Y + k * ROW + i]
+                            st(S, O_YB + k * ROW + i, ld(S, O_Y + k * ROW + i))
                 for s in range(ns):
                     hs = factors[s] * h
                     hn = factors[(s + 1) % ns] * h
@@ -635,7 +642,7 @@ def advance_vi_blocks(model, shared, Y, P, b0, b1, h, factors, every, n_out, wl,
             if nb == 0:
                 break
             for i in range(nb):
-                m = int(S[O_MEMBER + i])
+                m = int(ld(S, O_MEMBER + i))
                 for k in range(n):
-                    OUT[m, j, k] = S[O_Y + k * ROW + i]
+                    OUT[m, j, k] = ld(S, O_Y + k * ROW + i)
         _write_back(S, nb, n, O_Y, done, h, Y, ISTAT, FSTAT)

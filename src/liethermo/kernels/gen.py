@@ -34,7 +34,7 @@ import numpy as np
 from numba import types
 from numba.extending import overload
 
-from ._jit import LANE_OPTIONS, fma, jit, lane
+from ._jit import LANE_OPTIONS, fma, jit, lane, ld
 
 _counter = itertools.count()
 
@@ -179,6 +179,14 @@ scale_opt = none_dispatch(scale_opt, lambda a, x: None, arg=1)
 
 
 @lane
+def abs_or_zero(x):
+    """|x|, or 0.0 when ``x`` is None."""
+    if x is None:
+        return 0.0
+    return abs(x)
+
+
+@lane
 def or_zero(x):
     """``x``, or 0.0 when ``x`` is None (an accumulator no term touched)."""
     if x is None:
@@ -198,7 +206,8 @@ def unflatten(template, p, base, stride):
 def _unflatten(template, p, base, stride):
     n = count_leaves(template)
     ns: dict = {}
-    expr = build(template, iter([f"p[base + {k} * stride]" for k in range(n)]), ns)
+    ns["ld"] = ld
+    expr = build(template, iter([f"ld(p, base + {k} * stride)" for k in range(n)]), ns)
     return compile_source(f"def impl(template, p, base, stride):\n    return {expr}\n", ns)
 
 

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 from numba.extending import overload
 
-from ._jit import LANE_OPTIONS
+from ._jit import LANE_OPTIONS, ld, st
 from .gen import compile_source, is_none
 
 STATUS_OK, STATUS_NEWTON, STATUS_NONFINITE = 0, 1, 2
@@ -126,26 +126,26 @@ def _make_io(family: str):
             if size == 0:
                 exprs.append("None")
             elif size == 1:
-                exprs.append(f"buf[base + {col} * stride]")
+                exprs.append(f"ld(buf, base + {col} * stride)")
             else:
-                exprs.append("(" + ", ".join(f"buf[base + {col + k} * stride]"
+                exprs.append("(" + ", ".join(f"ld(buf, base + {col + k} * stride)"
                                              for k in range(size)) + ")")
             col += size
         return compile_source(f"def impl(model, buf, base, stride):\n"
-                              f"    return ({', '.join(exprs)})\n", {})
+                              f"    return ({', '.join(exprs)})\n", {"ld": ld})
 
     @overload(store, jit_options=LANE_OPTIONS)
     def _store(model, buf, base, stride, y):
         lines, col = ["def impl(model, buf, base, stride, y):"], 0
         for p, (_, size) in enumerate(state_parts(traits(model), family)):
             if size == 1:
-                lines.append(f"    buf[base + {col} * stride] = y[{p}]")
+                lines.append(f"    st(buf, base + {col} * stride, y[{p}])")
             else:
                 for k in range(size):
-                    lines.append(f"    buf[base + {col + k} * stride] = y[{p}][{k}]")
+                    lines.append(f"    st(buf, base + {col + k} * stride, y[{p}][{k}])")
             col += size
         lines.append("    return None")
-        return compile_source("\n".join(lines) + "\n", {})
+        return compile_source("\n".join(lines) + "\n", {"st": st})
 
     return load, store
 

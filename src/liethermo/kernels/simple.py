@@ -34,7 +34,7 @@ from __future__ import annotations
 import math
 
 from ._jit import jit, lane
-from .gen import tree_finite, unflatten
+from .gen import abs_or_zero, tree_finite, unflatten
 from .layout import (FS_MAX_H_OMEGA, IS_FAIL_STEP, IS_NEWTON_MAX, IS_NEWTON_TOTAL, IS_NSUB,
                      IS_STATUS, IS_STEPS, NEWTON_OK, STATUS_NEWTON, STATUS_NONFINITE, STATUS_OK,
                      load_rk_state, load_vi_state, store_rk_state, store_vi_state)
@@ -174,7 +174,7 @@ def vi_start_members(model, shared, Y, P, m0, m1, h0, wl, wr, legendre, tol, max
             xp = (X[0] + hp * d0, X[1] + hp * d1, X[2] + hp * d2)
             ps = entropy_predictor(md.inertia, md, v, X, s)
             X1, xs, code, its = newton_solve(md, v, b, xp, ps, s, max(abs(X[0]), abs(X[1]),
-                                                                      abs(X[2])), abs(s), tol, maxiter)
+                                                                      abs(X[2])), abs_or_zero(s), tol, maxiter)
             if code != NEWTON_OK or not tree_finite((X1, xs)):
                 ISTAT[m, IS_STATUS] = STATUS_NEWTON
                 ISTAT[m, IS_FAIL_STEP] = 1

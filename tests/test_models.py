@@ -1,0 +1,284 @@
+"""The model layer: scenes choose their physics, and each model's laws hold.
+
+* which terms a scene compiles (absent terms are not in the model);
+* the ellipsoid: uniform inertia, Jeffery's resistance (sphere limit);
+* the coupled top 𝕀(S): energy conservation of the continuous model, the
+  variational integrator's reduction to the decoupled scheme at α → 0;
+* double-bracket friction: |μ| a Casimir, the flat spin on the major axis,
+  energy lost = heat gained;
+* scene validation of the new keys.
+"""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from conftest import OMEGA0, R0, paper_physics
+from liethermo.dataset import initial_energy, node_energies
+from liethermo.physics import build_model, jeffery_resistance, physics_of_scene
+from liethermo.scene import SceneError, builtin_scenes, load_scene
+from liethermo.simulate import STATUS_OK, simulate
+
+
+def _scene_ic(scene):
+    return np.array([scene.initial.omega]), np.array([scene.initial.R])
+
+
+def _energy_error(tr, om0, R):
+    e = node_energies(tr)
+    K0, V0 = initial_energy(tr.physics, om0, R)
+    return (e["K"] - K0[:, None]) + (e["V"] - V0[:, None]) + e["dU"]
+
+
+# ------------------------------------------------------------------ terms a scene compiles
+@pytest.mark.parametrize("name,terms", [
+    ("paper", ["ConstantInertia", "IdealSolid", "StokesSphere", "Gravity", "Attitude"]),
+    ("spherical_top", ["ConstantInertia", "IdealSolid", "StokesSphere"]),
+    ("free_ellipsoid", ["ConstantInertia", "IdealSolid", "StokesDiagonal"]),
+    ("ellipsoid", ["ConstantInertia", "IdealSolid", "StokesDiagonal", "Gravity"]),
+    ("coupled_egg", ["ThermalInertia", "IdealSolid", "StokesSphere", "Gravity", "Attitude"]),
+    ("flat_spin", ["ConstantInertia", "IdealSolid", "DoubleBracket"]),
+])
+def test_a_scene_compiles_only_its_terms(name, terms):
+    """The model of each built-in scene holds exactly the terms it needs: no
+    gravity term for a body without gravity torque (g = 0, or a uniform
+    ellipsoid about its centre), no friction or thermodynamics without
+    dissipation, 𝕀(S) only with thermal expansion, R only when asked."""
+    scene = load_scene(name)
+    km = build_model(physics_of_scene(scene), scene.output.attitude)
+    assert km.terms() == terms
+    assert set(builtin_scenes()) >= {"paper", "coupled_egg", "ellipsoid", "free_ellipsoid",
+                                      "spherical_top", "flat_spin"}
+
+
+def test_no_gravity_no_friction_leave_only_the_inertia():
+    scene = load_scene("paper", {"gravity.g": 0.0, "fluid.viscosity": 0.0, "output.attitude": False})
+    km = build_model(physics_of_scene(scene))
+    assert km.terms() == ["ConstantInertia"] and km.layout("rk").size == 6
+
+
+def test_per_member_parameters_are_rows_shared_ones_are_not():
+    phys = paper_physics(4)
+    assert build_model(phys).shared is not None
+    C = phys.friction.copy()
+    C[2] *= 2.0
+    km = build_model(replace(phys, friction=C))
+    assert km.shared is None and km.P.shape[0] == 4
+    assert np.array_equal(km.P[0], build_model(phys).P[0]) and not np.array_equal(km.P[2], km.P[0])
+
+
+# ------------------------------------------------------------------ the ellipsoid
+def test_jeffery_resistance_of_a_sphere_and_its_symmetries():
+    """A sphere of radius a has C = 8πμa³ on every axis; permuting the
+    semi-axes permutes C; a longer axis resists rotation about the others more."""
+    a, mu = 0.05, 0.1
+    np.testing.assert_allclose(jeffery_resistance([a, a, a], mu)[0], 8 * math.pi * mu * a**3, rtol=1e-14)
+    C = jeffery_resistance([0.06, 0.05, 0.04], mu)[0]
+    Cp = jeffery_resistance([0.05, 0.04, 0.06], mu)[0]
+    np.testing.assert_allclose(Cp, C[[1, 2, 0]], rtol=1e-14)
+    assert C[2] > C[1] > C[0]  # rotation about e3 moves the two longest axes through the fluid
+
+
+def test_jeffery_resistance_of_a_prolate_spheroid_matches_the_closed_form():
+    """Rotation of a prolate spheroid (a > b = c, e² = 1 − b²/a²) about its
+    symmetry axis: C = (32π/3) μ a b² e³ / (2e − (1 − e²) ln((1 + e)/(1 − e)))
+    (Perrin/Jeffery), to 1e-12."""
+    a, b, mu = 0.08, 0.03, 0.2
+    e = math.sqrt(1 - b * b / (a * a))
+    closed = (32 * math.pi / 3) * mu * a * b * b * e**3 / (2 * e - (1 - e * e) * math.log((1 + e) / (1 - e)))
+    assert jeffery_resistance([a, b, b], mu)[0, 0] == pytest.approx(closed, rel=1e-12)
+
+
+def test_ellipsoid_inertia_and_pivot():
+    """Uniform density: I₁ = m(a₂² + a₃²)/5 (cyclic) about the centre; a
+    centre of mass on axis 3 moves the pivot there (parallel-axis theorem on
+    I₁ and I₂, not I₃); no gravity term when G = 0."""
+    s = load_scene("free_ellipsoid")
+    p = physics_of_scene(s)
+    ax = np.array(s.body.semi_axes)
+    m = 4 / 3 * math.pi * ax.prod() * s.body.density
+    np.testing.assert_allclose(p.inertia[0], m / 5 * np.array([ax[1]**2 + ax[2]**2, ax[2]**2 + ax[0]**2,
+                                                                ax[0]**2 + ax[1]**2]), rtol=1e-14)
+    q = physics_of_scene(load_scene("free_ellipsoid", {"body.center_of_mass": [0.0, 0.0, 0.01]}))
+    np.testing.assert_allclose(q.inertia[0] - p.inertia[0], [m * 1e-4, m * 1e-4, 0.0], rtol=1e-12, atol=1e-18)
+    assert np.all(p.gravity_torque == 0.0)
+
+
+# ------------------------------------------------------------------ the coupled top
+@pytest.fixture(scope="module")
+def egg():
+    scene = load_scene("coupled_egg")
+    om0, R = _scene_ic(scene)
+    return physics_of_scene(scene), om0, R
+
+
+def test_coupled_top_conserves_energy_and_heats_by_18_kelvin(egg):
+    """The continuous coupled model conserves E = ½Ω·𝕀(S)Ω + V + U(S) (the
+    reference: ≤ 1e-12 of the mechanical energy over 30 s); the top heats
+    from 300 K to ≈ 318 K and its inertia grows by ≈ 4 %."""
+    phys, om0, R = egg
+    tr = simulate(phys, om0, R, 0.05, 600, "reference", every=10)
+    assert tr.status[0] == STATUS_OK
+    dE = _energy_error(tr, om0, R)
+    emech = 0.5 * om0[0] @ (phys.inertia[0] * om0[0]) + phys.gravity_torque[0] @ R[0, 2] + np.linalg.norm(phys.gravity_torque[0])
+    assert np.abs(dE).max() <= 1e-12 * emech
+    T = node_energies(tr)["T"][0]
+    assert 317.0 < T[-1] < 319.5
+    from liethermo.physics import inertia_scale
+
+    growth = inertia_scale(phys, tr.sigma[:, -1:])[0, 0]
+    assert 1.035 < growth < 1.045
+
+
+def test_coupled_reduces_to_the_decoupled_scheme_at_zero_expansion(egg):
+    """With α → 0 (α = 1e-300: the coupled kernel, with φ ≡ 1 in floating
+    point) the coupled variational integrator gives the decoupled scheme with
+    the symmetric entropy update, to round-off: Ω, Γ ≤ 1e-13, S ≤ 1e-13
+    relative, over 600 steps (vi and vi4)."""
+    phys, om0, R = egg
+    p0 = replace(phys, thermal_expansion=np.array([0.0]))
+    pt = replace(phys, thermal_expansion=np.array([1e-300]))
+    assert build_model(pt).terms()[0] == "ThermalInertia" and build_model(p0).terms()[0] == "ConstantInertia"
+    for method in ("vi", "vi4"):
+        a = simulate(p0, om0, R, 0.05, 600, method)
+        b = simulate(pt, om0, R, 0.05, 600, method)
+        assert np.all(a.status == 0) and np.all(b.status == 0)
+        assert np.abs(a.omega - b.omega).max() <= 1e-13
+        assert np.abs(a.gamma - b.gamma).max() <= 1e-13
+        assert np.abs(a.sigma - b.sigma).max() <= 1e-13 * np.abs(a.sigma).max()
+
+
+def test_coupled_energy_error_of_the_vi_family_falls_with_the_order(egg):
+    """The node-energy error of vi, vi4, vi6 on the coupled top at h = 0.05
+    stays bounded (no drift: the error at the end is below its maximum) and
+    falls with the order."""
+    phys, om0, R = egg
+    errs = []
+    for method in ("vi", "vi4", "vi6"):
+        tr = simulate(phys, om0, R, 0.05, 600, method)
+        dE = np.abs(_energy_error(tr, om0, R)[0])
+        errs.append(dE.max())
+        assert dE[-1] < dE.max()
+    assert errs[0] > errs[1] > errs[2]
+
+
+# ------------------------------------------------------------------ double-bracket friction
+@pytest.fixture(scope="module")
+def spin():
+    scene = load_scene("flat_spin")
+    om0, R = _scene_ic(scene)
+    return physics_of_scene(scene), om0, R
+
+
+def _casimir_drift(tr, om0):
+    I = tr.physics.inertia[0]
+    mu = tr.momentum if tr.momentum is not None else I * tr.omega
+    mu0 = np.linalg.norm(I * om0[0])
+    return np.abs(np.linalg.norm(mu[0], axis=-1) - mu0).max() / mu0
+
+
+def test_double_bracket_keeps_the_casimir_exactly_only_in_the_vi_family(spin):
+    """|μ| is a Casimir of double-bracket friction: the variational
+    integrators keep it to round-off (≤ 1e-13 relative, vi, vi4, vi6) and so
+    does the reference's flow (≤ 1e-12); RK2 and RK4 do not (> 1e-12)."""
+    phys, om0, R = spin
+    for method in ("vi", "vi4", "vi6"):
+        assert _casimir_drift(simulate(phys, om0, R, 0.01, 3000, method, every=10), om0) <= 1e-13
+    assert _casimir_drift(simulate(phys, om0, R, 0.01, 3000, "reference", every=10), om0) <= 1e-12
+    for method in ("rk2", "rk4"):
+        assert _casimir_drift(simulate(phys, om0, R, 0.01, 3000, method, every=10), om0) > 1e-12
+
+
+def test_flat_spin_ends_on_the_major_axis_with_heat_equal_to_energy_lost(spin):
+    """The free body loses kinetic energy at fixed |μ| down to |μ|²/(2 I_max)
+    and ends spinning about its major axis (axis 3, I₃ the largest): after
+    60 s, |Ω₁|, |Ω₂| < 1e-3 |Ω₃| and K − K_min < 1e-6 K₀; the heat gained
+    U(S) − U(S₀) equals the energy lost K₀ − K (the reference, ≤ 1e-12 of K₀)."""
+    phys, om0, R = spin
+    I = phys.inertia[0]
+    assert np.argmax(I) == 2
+    tr = simulate(phys, om0, R, 0.01, 6000, "reference", every=100)
+    e = node_energies(tr)
+    K, dU = e["K"][0], e["dU"][0]
+    K0 = K[0]
+    mu0 = np.linalg.norm(I * om0[0])
+    Kmin = mu0**2 / (2 * I.max())
+    assert K[-1] - Kmin < 1e-6 * K0 and K[-1] >= Kmin * (1 - 1e-12)
+    w = tr.omega[0, -1]
+    assert max(abs(w[0]), abs(w[1])) < 1e-3 * abs(w[2])
+    assert np.abs((K0 - K) - dU).max() <= 1e-12 * K0
+    # and the variational integrator ends on the same axis
+    v = simulate(phys, om0, R, 0.01, 6000, "vi", every=100).omega[0, -1]
+    assert max(abs(v[0]), abs(v[1])) < 1e-3 * abs(v[2])
+
+
+# ------------------------------------------------------------------ scene validation
+@pytest.mark.parametrize("override,key", [
+    ("body.semi_axes=[0.05, 0.0, 0.03]", "body.semi_axes"),
+    ("body.semi_axes=[0.05, -0.01, 0.03]", "body.semi_axes"),
+    ("body.semi_axes=[0.05, 0.03]", "body.semi_axes"),
+    ("body.thermal_expansion=-1e-3", "body.thermal_expansion"),
+    ("body.thermal_expansion=nan", "body.thermal_expansion"),
+    ("body.internal_friction=-1.0", "body.internal_friction"),
+    ("body.internal_friction=inf", "body.internal_friction"),
+    ("body.mass=0.0", "body.mass"),
+    ("body.mass=\"heavy\"", "body.mass"),
+    ("body.shape=\"cube\"", "body.shape"),
+    ("thermo.heat_capacity=-5.0", "thermo.heat_capacity"),
+    ("integrator.entropy=\"implicit\"", "integrator.entropy"),
+    ("integrator.start=\"middle\"", "integrator.start"),
+    ("integrator.method=\"vi8\"", "integrator.method"),
+])
+def test_bad_new_keys_are_rejected_naming_the_key(override, key):
+    with pytest.raises(SceneError) as exc:
+        load_scene("paper", [override])
+    assert exc.value.key == key
+
+
+def test_combinations_the_models_do_not_offer_are_rejected():
+    with pytest.raises(SceneError) as exc:
+        load_scene("coupled_egg", {"integrator.start": "node"})
+    assert exc.value.key == "integrator.start"
+    with pytest.raises(SceneError) as exc:
+        load_scene("coupled_egg", {"body.internal_friction": 1.0})
+    assert exc.value.key == "body.internal_friction"
+    with pytest.raises(SceneError) as exc:
+        load_scene("free_ellipsoid", {"body.center_of_mass": [0.01, 0.0, 0.01]})
+    assert exc.value.key == "body.center_of_mass"
+
+
+@pytest.mark.parametrize("override", ["body.internal_friction=-1", "body.semi_axes=[0,1,1]",
+                                      "body.thermal_expansion=-0.1"])
+def test_bad_new_keys_exit_2_with_one_line(override, tmp_path):
+    out = tmp_path / "x.nc"
+    p = subprocess.run([sys.executable, "-m", "liethermo.cli", "run", "paper", "-o", str(out),
+                        "--set", override], capture_output=True, text=True)
+    assert p.returncode == 2
+    lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and override.split("=")[0] in lines[0]
+    assert not out.exists()
+
+
+def test_every_builtin_scene_loads_and_runs_briefly():
+    """Each built-in scene is valid and runs its own method for a few steps."""
+    for name in builtin_scenes():
+        scene = load_scene(name, {"integrator.steps": 4, "output.every": 1})
+        om0, R = _scene_ic(scene)
+        tr = simulate(physics_of_scene(scene), om0, R, scene.integrator.h, 4, scene.integrator.method,
+                      start=scene.integrator.start, entropy=scene.integrator.entropy,
+                      friction=scene.integrator.friction, attitude=scene.output.attitude)
+        assert np.all(tr.status == STATUS_OK), name
+
+
+def test_paper_keys_are_the_papers():
+    s = load_scene("paper")
+    assert (s.integrator.start, s.integrator.entropy, s.integrator.friction) == ("node", "explicit", "trapezoid")
+    assert load_scene(None).integrator.start == "legendre"
+    np.testing.assert_array_equal(np.array(s.initial.R), R0)
+    np.testing.assert_array_equal(np.array(s.initial.omega), OMEGA0)
