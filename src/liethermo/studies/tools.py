@@ -62,9 +62,11 @@ def kelvin_noether_residual(traj: Trajectory) -> np.ndarray:
         J_{k+1} − J_k + h (w_L Γ_k + w_R Γ_{k+1})·C X_k = 0,   J_k = Γ_k·μ_k,
 
     relative to max_k |μ_k| (1).  For a composition the law holds per
-    substep; the stored steps are whole steps, so it is checked only for
-    ``vi`` (NaN for the others)."""
-    if traj.family != "vi" or traj.method != "vi" or traj.every != 1:
+    substep; the stored steps are whole steps, so with friction it is checked
+    only for ``vi`` (NaN for the others); without friction it reads
+    J_{k+1} = J_k for every variational method."""
+    frictionless = not np.any(traj.physics.friction != 0.0)
+    if traj.family != "vi" or traj.every != 1 or (traj.method != "vi" and not frictionless):
         return np.full(traj.states.shape[0], np.nan)
     from ..kernels.vi import FRICTION_WEIGHTS
 
