@@ -138,7 +138,7 @@ def point(scene, spec: dict, h: float, steps: int, every: int, kn_steps: int) ->
         "relative_energy_error_quantiles": (("quantile", "time"), band),
         "kernel_time": ((), tr.wall_time),
     }, coords={"member": np.arange(N), "quantile": q, "time": t},
-        attrs={"h": h, "steps": steps, "every": every, "compile_time": tr.compile_time})
+        attrs={"h": h, "steps": steps, "every": every})
 
 
 UNITS = {
