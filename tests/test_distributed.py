@@ -1,4 +1,4 @@
-"""Dask scale-out (issue 5): a 2-worker LocalCluster run equals the in-process run.
+"""Dask scale-out: a 2-worker LocalCluster run equals the in-process run.
 
 One LocalCluster (2 worker processes with nannies, 1 thread each) serves the
 whole module.  Faults are injected through ``run_scene_dask(task=...)`` with
@@ -244,7 +244,7 @@ def _study(kind: str) -> dict:
 
     study = load_study(STUDIES / f"{kind}.toml")
     if kind == "energy_drift":  # RK2 at the paper's h: part of the ensemble blows up (non-zero status)
-        study["reduced"]["methods"] = ["vi", "rk2"]
+        study["reduced"]["methods"] = ["vi:node:explicit", "rk2"]
     return study
 
 
@@ -279,7 +279,8 @@ def assert_same_study(a_dir: Path, b_dir: Path, name: str) -> None:
         pd.testing.assert_frame_equal(ta[cols], tb[cols], check_exact=False, rtol=1e-14)
 
 
-@pytest.mark.parametrize("kind", ["energy_drift", "viscosity_sweep"])
+@pytest.mark.slow
+@pytest.mark.parametrize("kind", ["energy_drift", "viscosity_sweep", "long_drift"])
 def test_study_on_dask_equals_in_process(client, tmp_path, kind):
     from liethermo.studies import get_study
 
@@ -300,6 +301,7 @@ def test_study_on_dask_equals_in_process(client, tmp_path, kind):
     assert_same_study(tmp_path / "dask", tmp_path / "inproc", kind)
 
 
+@pytest.mark.slow
 def test_cli_study_dask_address(client, tmp_path, capsys):
     """``liethermo study … --dask ADDRESS`` on a study with two rounds of tasks
     (convergence: references, then the errors against them)."""

@@ -14,7 +14,8 @@ from __future__ import annotations
 import importlib
 from types import ModuleType
 
-KINDS = ("paper", "convergence", "energy_drift", "work_precision", "stability", "viscosity_sweep")
+KINDS = ("paper", "convergence", "energy_drift", "work_precision", "stability", "viscosity_sweep",
+         "long_drift")
 
 
 def get_study(kind: str) -> ModuleType:

@@ -14,8 +14,8 @@ Contract of a study module ``liethermo.studies.<kind>``:
 3. Each sweep point (and method) is computed through :func:`cached_point`,
    so an interrupted study resumes without recomputing finished points.
 4. It writes one netCDF (:func:`study_netcdf_path`: sweep keys as dimensions
-   named by :func:`dim_name`, SPEC §7 variable names plus the study's
-   statistics), tables as CSV (:func:`write_table`), PNG figures, and the
+   named by :func:`dim_name`, the run datasets' variable names plus the
+   study's statistics), tables as CSV (:func:`write_table`), PNG figures, and the
    report; the first table of the report is its key table, which the
    command line prints.
 5. The method axis of a study dataset is called ``scheme`` (a dimension
@@ -170,9 +170,13 @@ def expand_sweep(sweep: dict | None) -> list[dict]:
     return [dict(zip(keys, combo)) for combo in itertools.product(*(sweep[k] for k in keys))]
 
 
+def _key_default(v):
+    return v.to_dict() if hasattr(v, "to_dict") else str(v)
+
+
 def point_key(d: dict) -> str:
     """Stable hash of a sweep point (plus method and anything else in ``d``)."""
-    text = json.dumps(d, sort_keys=True, default=str, separators=(",", ":"))
+    text = json.dumps(d, sort_keys=True, default=_key_default, separators=(",", ":"))
     return hashlib.sha1(text.encode()).hexdigest()[:16]
 
 
@@ -359,22 +363,52 @@ def stack_points(datasets: list[xr.Dataset], points: list[dict], keys: list[str]
 # ----------------------------------------------------------------------------- method variants
 
 def parse_method(spec: str) -> dict:
-    """``"vi"``, ``"vi:staggered"``, ``"vi:endpoint"``, ``"vi:endpoint:staggered"``,
-    ``"rk4"`` … → ``{"label", "method", "start", "friction"}`` (defaults: node
-    start, trapezoid friction).  Explicit methods ignore start and friction."""
-    from ..methods import FRICTION, METHODS, STARTS
+    """A method spec → ``{"label", "method", "family", "start", "friction", "entropy"}``.
 
-    parts = spec.split(":")
-    method = parts[0]
-    if method not in METHODS:
+    ``"vi"`` is the variational integrator with the package defaults (legendre
+    start, trapezoid friction, symmetric entropy update); variants after colons,
+    in any order and combination, change one choice each: starts ``legendre``,
+    ``node`` (the paper's Ω₀ := Ω(0)), ``staggered``; friction ``trapezoid``,
+    ``endpoint``; entropy ``symmetric``, ``explicit`` — e.g. ``"vi:node:explicit"``
+    for the paper's choices.  ``vi4`` and ``vi6`` accept and ignore variants
+    (they always use legendre, trapezoid, symmetric); explicit methods take
+    none.  The values are the effective ones (None where a choice does not
+    apply), so the dict says what really ran."""
+    from ..methods import ENTROPY_UPDATES, FRICTION, METHODS, STARTS
+
+    parts = spec.split(":") if isinstance(spec, str) else [spec]
+    name = parts[0]
+    if name not in METHODS:
         raise StudyError(f"methods: unknown method {spec!r}; known methods: {', '.join(sorted(METHODS))}")
-    start, friction = "node", "trapezoid"
+    m = METHODS[name]
+    chosen = {"start": "legendre", "friction": "trapezoid", "entropy": "symmetric"}
+    seen: set[str] = set()
     for p in parts[1:]:
-        if p in STARTS:
-            start = p
-        elif p in FRICTION:
-            friction = p
-        else:
+        what = ("start" if p in STARTS else "friction" if p in FRICTION
+                else "entropy" if p in ENTROPY_UPDATES else None)
+        if what is None:
             raise StudyError(f"methods: {spec!r}: unknown variant {p!r} (starts: {', '.join(STARTS)}; "
-                             f"friction: {', '.join(FRICTION)})")
-    return {"label": spec, "method": method, "start": start, "friction": friction}
+                             f"friction: {', '.join(FRICTION)}; entropy: {', '.join(ENTROPY_UPDATES)})")
+        if m.family != "vi":
+            raise StudyError(f"methods: {spec!r}: {name} is explicit and takes no variant")
+        if what in seen:
+            raise StudyError(f"methods: {spec!r}: more than one {what} variant")
+        seen.add(what)
+        chosen[what] = p
+    start = m.effective_start(chosen["start"]) if m.family == "vi" else None
+    return {"label": spec, "method": name, "family": m.family, "start": start,
+            "friction": m.effective_friction(chosen["friction"]),
+            "entropy": m.effective_entropy(chosen["entropy"])}
+
+
+def method_kwargs(spec: dict) -> dict:
+    """The ``simulate`` keywords of a parsed method spec."""
+    return {"friction": spec["friction"] or "trapezoid", "start": spec["start"] or "legendre",
+            "entropy": spec["entropy"] or "symmetric"}
+
+
+def method_overrides(spec: dict) -> dict:
+    """Scene overrides that make a scene run a parsed method spec."""
+    kw = method_kwargs(spec)
+    return {"integrator.method": spec["method"], "integrator.start": kw["start"],
+            "integrator.friction": kw["friction"], "integrator.entropy": kw["entropy"]}

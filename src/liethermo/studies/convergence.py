@@ -1,17 +1,16 @@
 """Convergence study: observed orders per variable and method against the reference.
 
-For each sweep point (any scene keys; often none) and each method variant
-(``vi`` = node start, ``vi:staggered``, ``vi:endpoint:staggered``, ``rk2``,
-``rk4``), the scene is integrated to ``t_end`` with h = h0, h0/2, …,
-h0/2^(levels−1) and compared at the common times t_j = j·h0 with the
-high-accuracy reference (fixed-step DOP853, ~1e-15):
+For each sweep point (any scene keys; often none) and each method spec
+(``vi`` = legendre start, ``vi:node:explicit`` = the paper's choices,
+``vi:staggered``, ``vi:endpoint``, ``vi4``, ``vi6``, ``rk2``, ``rk4``), the
+scene is integrated to ``t_end`` with h = h0, h0/2, …, h0/2^(levels−1) and
+compared at the common times t_j = j·h0 with the high-accuracy reference
+(fixed-step DOP853, ~1e-15), on NODE values for every method:
 
-* Ω: max_j |Ω_k − Ω_ref(t_k)|, except for the VI with the staggered start,
-  whose step velocity Ω_k is compared with Ω_ref(t_k + h/2) (SPEC §3, E4);
+* Ω: max_j |Ω(t_k) − Ω_ref(t_k)|, with Ω(t_k) the node velocity (for the
+  variational integrators 𝕀(S_k)⁻¹μ_k from the node momentum);
 * Γ: max_j |Γ_k − Γ_ref(t_k)|;  S: max_j |S_k − S_ref(t_k)|;
-* total energy: max_j |E_k − E_ref(t_k)| (= max |E_k − E_0|, since E is
-  conserved); for the VI with the staggered start E_k uses the node value
-  Ω̄_k = ½(Ω_{k−1} + Ω_k) (SPEC §3), otherwise the stored Ω_k.
+* total energy: max_j |E_k − E_ref(t_k)|, E_k from the node values.
 
 The observed order is the least-squares slope of log(error) against log(h)
 over the levels from the coarsest down to the round-off floor (a level
@@ -28,18 +27,20 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
-from ..dataset import energies
-from ..initial import initial_conditions, initial_states
+from ..initial import initial_conditions
 from ..methods import METHODS
-from ..scene import physical_parameters
+from ..physics import physics_of_scene
 from ..simulate import STATUS_MEANINGS, simulate
 from .common import (study_options, StudyError, cached_point, dim_name, expand_sweep, parse_method, point_is_cached, point_key,
                      progress_bar, stack_points, study_name, study_netcdf_path, study_scene,
                      write_netcdf_atomic, write_report, write_table, start_study, study_history)
+from .tools import NODE_VALUES_NOTE, energy_errors, fit_order, run_spec
 
 EXTRA_KEYS = ()
 VARIABLES = ("omega", "gamma", "entropy", "total_energy")
 UNITS = {"omega": "rad s-1", "gamma": "1", "entropy": "J K-1", "total_energy": "J"}
+TITLES = {"omega": "body angular velocity Ω", "gamma": "gravity direction Γ", "entropy": "entropy S",
+          "total_energy": "total energy E"}
 DEFAULT_OPTIONS = {"h0": 0.1, "levels": 7, "t_end": 5.0, "floor_rel": 1e-12}
 
 
@@ -62,57 +63,44 @@ def _levels(opt) -> list[float]:
     return [opt["h0"] / 2**i for i in range(opt["levels"])]
 
 
-def _reference(scene: dict, opt: dict) -> xr.Dataset:
+def _reference(scene, opt: dict) -> xr.Dataset:
     """Reference values at every t = j·h_f (h_f = finest h / 2) up to t_end + h0."""
     h_f = _levels(opt)[-1] / 2
     n = int(round((opt["t_end"] + opt["h0"]) / h_f))
     om0, R0 = initial_conditions(scene, 0, 1)
-    y0 = initial_states(om0, R0, False)
-    p = physical_parameters(scene)[None]
-    tr = simulate(y0, p, h_f, n, "reference")
-    K, V, dU = energies(tr.omega, tr.gamma, tr.sigma, p[:, None, :])
-    K0, V0, _ = energies(om0, R0[:, 2, :], np.zeros(1), p)
-    dE = (K - K0[:, None]) + (V - V0[:, None]) + dU
+    phys = physics_of_scene(scene)
+    tr = simulate(phys, om0, R0, h_f, n, "reference")
+    dE = energy_errors(tr, om0, R0)["node"]
     return xr.Dataset({"omega": (("time", "axis"), tr.omega[0]), "gamma": (("time", "axis"), tr.gamma[0]),
                        "sigma": (("time",), tr.sigma[0]), "energy_error": (("time",), dE[0]),
                        "status": ((), int(tr.status[0]))},
                       coords={"time": tr.times}, attrs={"h_fine": h_f, "substeps": tr.reference_substeps})
 
 
-def _errors(scene: dict, spec: dict, h: float, opt: dict, ref: xr.Dataset) -> xr.Dataset:
-    """Errors of one method variant at one h (max over the common times j·h0)."""
+def _errors(scene, spec: dict, h: float, opt: dict, ref: xr.Dataset) -> xr.Dataset:
+    """Errors of one method spec at one h on node values (max over the common times j·h0)."""
     steps = int(round(opt["t_end"] / h))
     every = int(round(opt["h0"] / h))
     om0, R0 = initial_conditions(scene, 0, 1)
-    y0 = initial_states(om0, R0, False)
-    p = physical_parameters(scene)[None]
+    phys = physics_of_scene(scene)
     t0 = time.perf_counter()
-    tr = simulate(y0, p, h, steps, spec["method"], friction=spec["friction"], start=spec["start"])
+    tr = run_spec(phys, om0, R0, h, steps, spec, every=every)
     wall = time.perf_counter() - t0
-    stag = tr.start == "staggered"
     om = tr.omega[0]
-    om_node = om.copy()
-    if stag:  # node values Ω̄_k = ½(Ω_{k−1} + Ω_k), Ω̄_0 = Ω(0)
-        om_node[1:] = 0.5 * (om[:-1] + om[1:])
-        om_node[0] = om0[0]
-    K, V, dU = energies(om_node, tr.gamma[0], tr.sigma[0], p[0])
-    K0, V0, _ = energies(om0, R0[:, 2, :], np.zeros(1), p)
-    dE = (K - K0[0]) + (V - V0[0]) + dU
-    ks = np.arange(every, steps + 1, every)  # compare at t = j h0, j ≥ 1
+    dE = energy_errors(tr, om0, R0)["node"][0]
     h_f = float(ref.attrs["h_fine"])
-    i_node = np.rint(ks * h / h_f).astype(int)
-    i_om = np.rint((ks * h + (0.5 * h if stag else 0.0)) / h_f).astype(int)
+    i_ref = np.rint(tr.times[1:] / h_f).astype(int)  # t = j h0, j ≥ 1
     r = {k: ref[k].values for k in ("omega", "gamma", "sigma", "energy_error")}
     err = {
-        "omega": np.max(np.linalg.norm(om[ks] - r["omega"][i_om], axis=-1)),
-        "gamma": np.max(np.linalg.norm(tr.gamma[0][ks] - r["gamma"][i_node], axis=-1)),
-        "entropy": np.max(np.abs(tr.sigma[0][ks] - r["sigma"][i_node])),
-        "total_energy": np.max(np.abs(dE[ks] - r["energy_error"][i_node])),
+        "omega": np.max(np.linalg.norm(om[1:] - r["omega"][i_ref], axis=-1)),
+        "gamma": np.max(np.linalg.norm(tr.gamma[0][1:] - r["gamma"][i_ref], axis=-1)),
+        "entropy": np.max(np.abs(tr.sigma[0][1:] - r["sigma"][i_ref])),
+        "total_energy": np.max(np.abs(dE[1:] - r["energy_error"][i_ref])),
     }
     if tr.status[0] != 0:
         err = {k: np.inf for k in err}
     data = {f"error_{k}": ((), float(v)) for k, v in err.items()}
-    # the final state, under the SPEC §7 names
+    # the final state (node values)
     data["omega"] = (("axis",), om[-1])
     data["gamma"] = (("axis",), tr.gamma[0][-1])
     data["entropy"] = ((), float(scene["thermo"]["S0"] + tr.sigma[0][-1]))
@@ -120,24 +108,6 @@ def _errors(scene: dict, spec: dict, h: float, opt: dict, ref: xr.Dataset) -> xr
     data["status"] = ((), int(tr.status[0]))
     data["wall_time"] = ((), wall)
     return xr.Dataset(data, coords={"axis": ["x", "y", "z"]})
-
-
-def fit_order(hs, errors, scale: float, floor_rel: float):
-    """(order, constant, levels used): least squares of log(err) on log(h) from
-    the coarsest level until the round-off floor or a stall."""
-    hs = np.asarray(hs, float)
-    errors = np.asarray(errors, float)
-    used = 0
-    for i, e in enumerate(errors):
-        if not np.isfinite(e) or e < floor_rel * scale:
-            break
-        if i > 0 and e > errors[i - 1] / 1.2:  # no longer decreasing: floor or pre-asymptotic noise
-            break
-        used = i + 1
-    if used < 3:
-        return float("nan"), float("nan"), used
-    slope, icept = np.polyfit(np.log(hs[:used]), np.log(errors[:used]), 1)
-    return float(slope), float(np.exp(icept)), used
 
 
 def _dask_points(outdir, dask, progress, opt, specs, hs, points, scenes, ref_keys, err_keys) -> None:
@@ -203,11 +173,11 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
             nused = {v: [] for v in VARIABLES}
             for i, spec in enumerate(specs):
                 m = METHODS[spec["method"]]
-                start = spec["start"] if m.name == "vi" else "node"
-                row = {"method": spec["label"], "start": start if m.name == "vi" else "—",
-                       "friction": spec["friction"] if m.name == "vi" else "—",
-                       "Omega compared at": "t_k + h/2" if start == "staggered" else "t_k",
-                       "declared order": m.order(start, spec.get("friction", "trapezoid"))}
+                vi = m.family == "vi"
+                row = {"method": spec["label"], "start": spec["start"] if vi else "—",
+                       "friction": spec["friction"] if vi else "—",
+                       "entropy update": spec["entropy"] if vi else "—",
+                       "declared order": m.order(spec["start"] or "legendre", spec["friction"] or "trapezoid")}
                 for v in VARIABLES:
                     p_, c_, n_ = fit_order(hs, ds[f"error_{v}"].values[i], scales[v], opt["floor_rel"])
                     orders[v].append(p_)
@@ -248,7 +218,7 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
                               flag_values=np.array(sorted(STATUS_MEANINGS), dtype=ds["status"].dtype),
                               flag_meanings=" ".join(STATUS_MEANINGS[k] for k in sorted(STATUS_MEANINGS)))
     ds["wall_time"].attrs.update(units="s", long_name="wall time of the run at this h")
-    ds["omega"].attrs.update(units="rad s-1", long_name="body angular velocity at t_end (VI: step velocity)")
+    ds["omega"].attrs.update(units="rad s-1", long_name="body angular velocity at t_end (node value)")
     ds["gamma"].attrs.update(units="1", long_name="direction of gravity in the body frame at t_end")
     ds["entropy"].attrs.update(units="J K-1", long_name="entropy at t_end")
     ds["energy_error"].attrs.update(units="J", long_name="total energy error E_k - E_0 at t_end")
@@ -256,21 +226,42 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
     ds.attrs.update({"title": "liethermo convergence study: errors against a DOP853 reference",
                      "study": study_name(study), "kind": "convergence", "reduced": int(reduced),
                      "t_end": opt["t_end"], "h0": opt["h0"], "levels": opt["levels"],
-                     "comparison": "max over t = j*h0; VI staggered Omega against Omega_ref(t_k + h/2)"})
+                     "comparison": "max over t = j*h0 of node values against the reference at t_k"})
     nc = write_netcdf_atomic(ds, study_netcdf_path(study, outdir),
                              history=study_history("convergence", study, outdir, reduced, history))
     figs = _figures(ds, outdir, keys)
     notes = (f"Scene: `{study.get('study', {}).get('base_scene', 'paper')}`, t_end = {opt['t_end']} s, "
              f"h = {opt['h0']} s halved {opt['levels'] - 1} times; errors are the max over t = j·{opt['h0']} s "
-             "against the fixed-step DOP853 reference (~1e-15). **Start:** the `start` column says which "
-             "start each VI row used; with the staggered start Ω_k is compared with Ω(t_k + h/2) and the "
-             "energy uses node values Ω̄_k = ½(Ω_{k−1}+Ω_k) (SPEC E4). The fit stops at the round-off "
+             "against the fixed-step DOP853 reference (~1e-15), on **node values** for every method (Ω(t_k), Γ_k, "
+             "S_k and E_k from them). **Start:** the `start` column says which start each VI row used "
+             "(legendre: μ₀ = 𝕀Ω(0); node: the paper's Ω₀ := Ω(0) as first step velocity; staggered: "
+             "Ω₀ := Ω(h/2) from the reference); vi4 and vi6 always use legendre. The fit stops at the round-off "
              f"floor (error < {opt['floor_rel']:g} × scale) or where the error stops decreasing; "
              f"'levels fitted' says how many levels entered each fit. Wall time "
              f"{time.perf_counter() - t_start:.1f} s.")
     files = f"netCDF: `{nc.name}`; figures: " + ", ".join(f"`{f.name}`" for f in figs)
     return write_report(outdir, f"Convergence study: {study_name(study)}" + (" (reduced)" if reduced else ""),
-                        tables[:1] + [notes] + tables[1:] + [files])
+                        tables[:1] + [_finding(per_point[0], specs), notes, NODE_VALUES_NOTE] + tables[1:]
+                        + [files])
+
+
+def _finding(ds: xr.Dataset, specs: list) -> str:
+    """One plain line per method: declared and observed orders (first sweep point)."""
+    lines = ["**Finding (node values, first sweep point).**", ""]
+    for i, spec in enumerate(specs):
+        m = METHODS[spec["method"]]
+        declared = m.order(spec["start"] or "legendre", spec["friction"] or "trapezoid")
+        obs = [float(ds[f"observed_order_{v}"].values[i]) for v in VARIABLES]
+        fin = [o for o in obs if np.isfinite(o)]
+        if not fin:
+            lines.append(f"- {spec['label']}: no order could be fitted (fewer than 3 levels above the "
+                         "round-off floor).")
+            continue
+        ok = all(abs(o - declared) <= 0.7 for o in fin)
+        lines.append(f"- {spec['label']}" + (f" (start {spec['start']})" if spec["start"] else "")
+                     + f": observed orders {', '.join(f'{o:.2f}' for o in obs)} (Ω, Γ, S, E); declared "
+                     f"{declared} — {'as declared' if ok else 'NOT as declared'}.")
+    return "\n".join(lines)
 
 
 def _figures(ds: xr.Dataset, outdir: Path, keys) -> list[Path]:
@@ -283,7 +274,7 @@ def _figures(ds: xr.Dataset, outdir: Path, keys) -> list[Path]:
         ds = ds.isel({dim_name(k): 0 for k in keys})
     from matplotlib.ticker import NullFormatter
 
-    fig, axes = plt.subplots(2, 2, figsize=(10, 8), layout="constrained")
+    fig, axes = plt.subplots(2, 2, figsize=(11, 8.5), layout="constrained")
     hs = ds["h"].values
     # x ticks at the step sizes themselves, at most 5 labelled (log axes over ~1 decade
     # otherwise label their minor ticks too, and 3×10⁻³4×10⁻³ run into each other)
@@ -293,15 +284,16 @@ def _figures(ds: xr.Dataset, outdir: Path, keys) -> list[Path]:
         for i, m in enumerate(ds["scheme"].values):
             e = ds[f"error_{v}"].values[i]
             p = float(ds[f"observed_order_{v}"].values[i])
-            ax.loglog(hs, e, "o-", label=f"{m} (p = {p:.2f})")
+            ok = np.isfinite(e) & (e > 0)
+            ax.loglog(hs[ok], e[ok], "o-", ms=4, label=f"{m} (p = {p:.2f})")
         ax.set_xticks(hs, xlabels)
         ax.xaxis.set_minor_formatter(NullFormatter())
         ax.set_xlabel("h (s)")
         ax.set_ylabel(f"max error ({UNITS[v]})")
-        ax.set_title(v)
+        ax.set_title(f"{TITLES[v]} (node values)")
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=7)
-    fig.suptitle("convergence against the reference (VI staggered: Omega at t_k + h/2)")
+    fig.suptitle("convergence against the reference, node values at t = j h0")
     path = Path(outdir) / "convergence.png"
     fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -2,8 +2,8 @@
 
 **Map.**  Over a grid of (h|Ω₀|, κ = c h / I_min) at a fixed step h, each grid
 cell is one ensemble member with its own physical parameters (spin magnitude
-|Ω₀| = (h|Ω₀|)/h along the scene's spin direction, Stokes coefficient
-c = κ I_min / h, i.e. the viscosity), all cells in a single ``simulate`` call
+|Ω₀| = (h|Ω₀|)/h along the scene's spin direction, friction C scaled so that
+its largest entry is c = κ I_min / h), all cells in a single ``simulate`` call
 per method.  Every cell is classified, never hiding a failure:
 
 * ``accurate``            status ok, bounded, error ≤ ``error_threshold``;
@@ -13,20 +13,29 @@ per method.  Every cell is classified, never hiding a failure:
 * ``newton_not_converged`` the VI's Newton iteration failed at some step;
 * ``non_finite``          the state overflowed to inf/NaN.
 
-Error = max over the run of max(|Ω_k − Ω_ref|/|Ω₀|, |Γ_k − Γ_ref|); the VI
-uses the staggered start and is compared at t_k + h/2 (Ω) and t_k (Γ).
-A method written ``"vi:endpoint"`` runs the VI with endpoint friction.
+Error = max over the run of max(|Ω(t_k) − Ω_ref(t_k)|/|Ω₀|, |Γ_k − Γ_ref(t_k)|)
+on node values, for every method (method specs as in the other studies:
+``vi`` = legendre start, ``vi:endpoint``, ``vi4``, ``vi6``, ``rk2``, ``rk4``).
+
+**Negative substeps.**  vi4 and vi6 are compositions whose substeps
+h_i = f_i h include negative factors (vi4: f₀ = 1 − 2γ₁ ≈ −1.70).  On a
+substep of size f h the trapezoid friction multiplies a decaying mode by
+r(f κ), r(z) = (1 − z/2)/(1 + z/2), and the Newton matrix has the factor
+1 + f κ/2: for f < 0 it is singular at κ = −2/f, and the product
+R(κ) = Π r(f_i κ) exceeds 1 in a band of κ around it — there a friction mode
+grows instead of decaying.  The study tabulates these κ from the factors and
+maps them.
 
 **Named cases** (``[[options.cases]]``: name, description, h, steps, scene
 overrides): each run with every method against the reference; the table
 records status, failure step and time, max h|Ω|, Newton iterations (max,
-mean), the max condition number of the VI's Newton Jacobian along the
-accepted steps, errors, the energy growth and the |Γ| defect.
+mean), the max condition number of the Newton Jacobian along the accepted
+steps (every substep size), errors, the energy growth and the |Γ| defect.
 """
 
 from __future__ import annotations
 
-import math
+import dataclasses
 import time
 from functools import partial
 from pathlib import Path
@@ -34,14 +43,14 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
-from ..initial import initial_conditions, initial_states
-from ..kernels.model import P_C, P_GX, P_GY, P_GZ, P_I1, P_I2, P_I3
-from ..methods import FRICTION
-from ..scene import physical_parameters
+from ..initial import initial_conditions
+from ..kernels.vi import COMPOSITIONS, FRICTION_WEIGHTS
+from ..physics import Physics, kinetic_energy, physics_of_scene, potential_energy
 from ..simulate import simulate
-from .common import (study_options, StudyError, cached_point, point_key, progress_bar, study_name,
+from .common import (fmt, parse_method, study_options, StudyError, cached_point, point_key, progress_bar, study_name,
                      study_netcdf_path, study_scene, write_netcdf_atomic, write_report, write_table, start_study,
                      study_history)
+from .tools import NODE_VALUES_NOTE, run_spec
 
 EXTRA_KEYS = ()
 
@@ -62,11 +71,6 @@ def options(study: dict) -> dict:
     return study_options(study, DEFAULT_OPTIONS, "stability")
 
 
-def parse_method(m: str) -> tuple[str, str]:
-    name, _, friction = m.partition(":")
-    return name, friction or "trapezoid"
-
-
 def validate(study: dict) -> None:
     opt = options(study)
     for k in ("h", "error_threshold", "growth_limit"):
@@ -78,11 +82,8 @@ def validate(study: dict) -> None:
         if not isinstance(opt[k], list) or not opt[k] or not all(isinstance(x, (int, float)) and x > 0 for x in opt[k]):
             raise StudyError(f"options.{k}: must be a non-empty list of numbers > 0")
     for m in study.get("methods", []):
-        name, fr = parse_method(m)
-        if name == "reference":
+        if parse_method(m)["method"] == "reference":
             raise StudyError("methods: 'reference' is the ground truth, not a compared method")
-        if fr not in FRICTION:
-            raise StudyError(f"methods: unknown friction {fr!r} in {m!r}; known: {', '.join(FRICTION)}")
     study_scene(study, opt["map_scene"])
     for i, c in enumerate(opt["cases"]):
         for k in ("name", "h", "steps"):
@@ -109,42 +110,38 @@ class single_thread:
         numba.set_num_threads(self.old)
 
 
-def sim(y0, P, h, steps, method, **kw):
-    """:func:`simulate` in one chunk (no per-chunk overhead)."""
-    return simulate(y0, P, h, steps, method, chunk_steps=max(int(steps), 1), **kw)
+def sim(phys, om, R, h, steps, spec, **kw):
+    """:func:`run_spec` in one chunk (no per-chunk overhead)."""
+    return run_spec(phys, om, R, h, steps, spec, chunk_steps=max(int(steps), 1), **kw)
 
 
-def mech_energy(omega, gamma, P):
-    """Mechanical energy above the resting state K + V + |g⃗| (J)."""
-    I = P[..., [P_I1, P_I2, P_I3]]
-    g = P[..., [P_GX, P_GY, P_GZ]]
-    return (0.5 * np.sum(I * omega * omega, axis=-1) + np.sum(g * gamma, axis=-1)
-            + np.linalg.norm(g, axis=-1))
+def mech_energy(phys: Physics, omega, gamma):
+    """Mechanical energy above the resting state K + V + |g⃗| (J); omega, gamma (N, T, 3) or (N, 3)."""
+    g = np.linalg.norm(phys.gravity_torque, axis=1)
+    g = g[:, None] if omega.ndim == 3 else g
+    return kinetic_energy(phys, omega, None) + potential_energy(phys, gamma) + g
 
 
-def references(y0, P, h, steps):
-    """Reference states at t_k (node) and t_k + h/2 (mid), k = 0..steps: (N, steps+1, 7) each."""
-    node = sim(y0, P, h, steps, "reference").states
-    half = sim(y0, P, 0.5 * h, 1, "reference").states[:, 1]
-    mid = sim(half, P, h, steps, "reference").states
-    return node, mid
+def references(phys, om, R, h, steps):
+    """Reference (Ω, Γ) at t_k, k = 0..steps: (N, steps+1, 3) each."""
+    tr = simulate(phys, om, R, h, steps, "reference", chunk_steps=max(int(steps), 1))
+    return tr.omega, tr.gamma
 
 
-def run_method(y0, P, h, steps, method: str, ref_node, ref_mid):
-    """Simulate every member with one method; per-member diagnostics (dict of arrays)."""
-    name, friction = parse_method(method)
-    start = "staggered" if name == "vi" else "node"
-    tr = sim(y0, P, h, steps, name, friction=friction, start=start)
-    om_ref = ref_mid if name == "vi" else ref_node
-    w0 = np.linalg.norm(y0[:, 0:3], axis=1)
+def run_method(phys, om, R, h, steps, method: str, ref):
+    """Simulate every member with one method spec; per-member diagnostics (dict of arrays)."""
+    spec = parse_method(method)
+    tr = sim(phys, om, R, h, steps, spec)
+    ref_om, ref_g = ref
+    w0 = np.linalg.norm(om, axis=1)
     with np.errstate(invalid="ignore", over="ignore"):
-        e = np.maximum(np.linalg.norm(tr.omega - om_ref[..., 0:3], axis=-1) / w0[:, None],
-                       np.linalg.norm(tr.gamma - ref_node[..., 3:6], axis=-1))
+        e = np.maximum(np.linalg.norm(tr.omega - ref_om, axis=-1) / w0[:, None],
+                       np.linalg.norm(tr.gamma - ref_g, axis=-1))
         e = np.where(np.isfinite(e), e, np.inf)
         err_max = e.max(axis=1)
         err_end = e[:, -1]
-        Em = mech_energy(tr.omega, tr.gamma, P[:, None, :])
-        Em0 = mech_energy(y0[:, 0:3], y0[:, 3:6], P)
+        Em = mech_energy(phys, tr.omega, tr.gamma)
+        Em0 = mech_energy(phys, om, R[:, 2, :])
         growth = np.nanmax(np.where(np.isfinite(Em), Em, np.nan), axis=1) / Em0
         gdef = np.nanmax(np.abs(np.linalg.norm(tr.gamma, axis=-1) - 1.0), axis=1)
     return tr, dict(error_max=err_max, error_end=err_end, energy_growth=growth, gamma_defect=gdef)
@@ -160,48 +157,69 @@ def classify(status, error_max, growth, gdef, threshold, growth_limit):
     return cls
 
 
-def jacobian_condition(tr, h: float, friction: str) -> np.ndarray:
-    """Max over accepted steps of cond₂ of the VI's Newton Jacobian at the solution Ω_{k+1}."""
-    from ..kernels.vi import momentum_jacobian
+def newton_jacobian(I, C, X, h, wl) -> np.ndarray:
+    """The VI's Newton Jacobian of a step of size h at the step velocity X:
+    diag(𝕀 + w_L h C) + (h/2)(X̂𝕀 − (𝕀X)^) + (h²/4)(2X(𝕀X)ᵀ + (X·𝕀X) Id)."""
+    def hat(v):
+        return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
-    alpha = FRICTION[friction][0]
-    J = np.empty((3, 3))
-    out = np.full(tr.states.shape[0], np.nan)
-    for m in range(tr.states.shape[0]):
+    Q = I * X
+    return (np.diag(I + wl * h * C) + 0.5 * h * (hat(X) @ np.diag(I) - hat(Q))
+            + 0.25 * h * h * (2.0 * np.outer(X, Q) + (X @ Q) * np.eye(3)))
+
+
+def jacobian_condition(tr, h: float) -> np.ndarray:
+    """Max over accepted steps and substep sizes f_i h of cond₂ of the VI's Newton
+    Jacobian at the stored step velocity X_k (for vi4/vi6 the step's own X
+    stands for its substeps' velocities)."""
+    wl = FRICTION_WEIGHTS[tr.friction][0]
+    factors = COMPOSITIONS[tr.method]
+    X = tr.omega_step
+    phys = tr.physics
+    out = np.full(X.shape[0], np.nan)
+    for m in range(X.shape[0]):
         best = 0.0
-        for k in range(1, tr.states.shape[1]):
-            X = tr.states[m, k, 0:3]
-            if not np.all(np.isfinite(X)):
+        for k in range(X.shape[1] - 1):
+            if not np.all(np.isfinite(X[m, k + 1])):
                 break
-            momentum_jacobian(np.ascontiguousarray(X), tr.params[m], h, alpha, J)
-            best = max(best, float(np.linalg.cond(J)))
+            for f in factors:
+                J = newton_jacobian(phys.inertia[m], phys.friction[m], X[m, k], f * h, wl)
+                best = max(best, float(np.linalg.cond(J)))
         out[m] = best if best > 0 else np.nan
     return out
 
 
-def map_point(scene: dict, opt: dict, method: str) -> xr.Dataset:
+def _map_physics(scene, N: int, kappa: np.ndarray, h: float) -> Physics:
+    """The scene's physics for N members with the friction scaled to κ = c_max h / I_min."""
+    phys = physics_of_scene(scene, N)
+    C = phys.friction[0]
+    shape = C / C.max() if C.max() > 0 else np.ones(3)
+    c = kappa * phys.inertia.min(axis=1) / h
+    return dataclasses.replace(phys, friction=c[:, None] * shape[None, :])
+
+
+def map_point(scene, opt: dict, method: str) -> xr.Dataset:
     h = float(opt["h"])
     steps = int(opt["steps"])
     hw = np.asarray(opt["h_omega"], float)
     ka = np.asarray(opt["kappa"], float)
-    p = physical_parameters(scene)
     d = np.asarray(scene["initial"]["omega"], float)
     d = d / np.linalg.norm(d)
-    R = np.asarray(scene["initial"]["R"], float)
+    R1 = np.asarray(scene["initial"]["R"], float)
     HW, KA = np.meshgrid(hw, ka, indexing="ij")
     N = HW.size
-    om0 = (HW.ravel() / h)[:, None] * d[None]
-    y0 = initial_states(om0, np.repeat(R[None], N, 0), False)
-    P = np.repeat(p[None], N, 0)
-    Imin = p[[P_I1, P_I2, P_I3]].min()
-    P[:, P_C] = KA.ravel() * Imin / h
-    ref_node, ref_mid = references(y0, P, h, steps)
-    tr, dg = run_method(y0, P, h, steps, method, ref_node, ref_mid)
+    om = (HW.ravel() / h)[:, None] * d[None]
+    R = np.repeat(R1[None], N, 0)
+    phys = _map_physics(scene, N, KA.ravel(), h)
+    ref = references(phys, om, R, h, steps)
+    tr, dg = run_method(phys, om, R, h, steps, method, ref)
     cls = classify(tr.status, dg["error_max"], dg["energy_growth"], dg["gamma_defect"],
                    float(opt["error_threshold"]), float(opt["growth_limit"]))
     shape = HW.shape
     fail = np.where(tr.status != 0, tr.fail_step, -1)
     dims = ("h_omega", "kappa")
+    visc = float(scene["fluid"]["viscosity"])
+    c_scene = float(physics_of_scene(scene).friction.max())
     return xr.Dataset({
         "regime": (dims, cls.reshape(shape)),
         "status": (dims, tr.status.reshape(shape)),
@@ -213,23 +231,21 @@ def map_point(scene: dict, opt: dict, method: str) -> xr.Dataset:
         "newton_mean": (dims, (tr.newton_iterations / np.maximum(tr.steps_done, 1)).reshape(shape)),
         "failed_at_step": (dims, fail.reshape(shape)),
         "max_h_omega": (dims, tr.max_h_omega.reshape(shape)),
-        "viscosity_equivalent": (dims, (P[:, P_C] / (8 * math.pi * float(scene["body"]["radius"]) ** 3)).reshape(shape)),
+        "viscosity_equivalent": (dims, (phys.friction.max(axis=1) * (visc / c_scene if c_scene > 0 else np.nan))
+                                 .reshape(shape)),
     }, coords={"h_omega": hw, "kappa": ka})
 
 
-def case_point(scene: dict, case: dict, method: str) -> xr.Dataset:
+def case_point(scene, case: dict, method: str) -> xr.Dataset:
     h = float(case["h"])
     steps = int(case["steps"])
-    p = physical_parameters(scene)
+    phys = physics_of_scene(scene)
     om, R = initial_conditions(scene, 0, 1)
-    y0 = initial_states(om, R, False)
-    P = p[None].copy()
-    ref_node, ref_mid = references(y0, P, h, steps)
+    ref = references(phys, om, R, h, steps)
     t0 = time.perf_counter()
-    tr, dg = run_method(y0, P, h, steps, method, ref_node, ref_mid)
+    tr, dg = run_method(phys, om, R, h, steps, method, ref)
     wall = time.perf_counter() - t0
-    name, friction = parse_method(method)
-    cond = jacobian_condition(tr, h, friction)[0] if name == "vi" else float("nan")
+    cond = jacobian_condition(tr, h)[0] if tr.family == "vi" else float("nan")
     return xr.Dataset({k: ("one", np.atleast_1d(v)) for k, v in {
         "status": tr.status[0], "failed_at_step": tr.fail_step[0] if tr.status[0] else -1,
         "steps_done": tr.steps_done[0], "max_h_omega": tr.max_h_omega[0],
@@ -237,28 +253,52 @@ def case_point(scene: dict, case: dict, method: str) -> xr.Dataset:
         "newton_max": tr.newton_max[0], "newton_mean": tr.newton_iterations[0] / max(tr.steps_done[0], 1),
         "jacobian_cond_max": cond, "error_max": dg["error_max"][0], "error_end": dg["error_end"][0],
         "energy_growth": dg["energy_growth"][0], "gamma_defect": dg["gamma_defect"][0],
-        "kappa": p[P_C] * h / p[[P_I1, P_I2, P_I3]].min(), "wall": wall,
+        "kappa": phys.friction[0].max() * h / phys.inertia[0].min(), "wall": wall,
     }.items()})
 
 
-def newton_limit(scene: dict, h: float, method: str = "vi", h_omegas=None, steps: int = 20) -> xr.Dataset:
-    """Push the VI's h|Ω₀| far beyond the map (up to 1000): Newton iterations and failures."""
+def newton_limit(scene, h: float, method: str = "vi", h_omegas=None, steps: int = 20) -> xr.Dataset:
+    """Push the VI's h|Ω₀| far beyond the map (up to 1e6): Newton iterations and failures."""
     h_omegas = np.asarray(h_omegas if h_omegas is not None else [1, 2, 5, 10, 100, 1e3, 1e4, 3e4, 1e5, 1e6], float)
-    name, friction = parse_method(method)
-    p = physical_parameters(scene)
+    spec = parse_method(method)
     d = np.asarray(scene["initial"]["omega"], float)
     d = d / np.linalg.norm(d)
-    R = np.asarray(scene["initial"]["R"], float)
+    R1 = np.asarray(scene["initial"]["R"], float)
     N = h_omegas.size
-    y0 = initial_states((h_omegas / h)[:, None] * d[None], np.repeat(R[None], N, 0), False)
-    P = np.repeat(p[None], N, 0)
-    tr = sim(y0, P, h, steps, name, friction=friction, start="node")
-    cond = jacobian_condition(tr, h, friction)
+    phys = physics_of_scene(scene, N)
+    tr = sim(phys, (h_omegas / h)[:, None] * d[None], np.repeat(R1[None], N, 0), h, steps, spec)
+    cond = jacobian_condition(tr, h)
     return xr.Dataset({"status": ("h_omega", tr.status), "newton_max": ("h_omega", tr.newton_max),
                        "newton_mean": ("h_omega", tr.newton_iterations / np.maximum(tr.steps_done, 1)),
                        "failed_at_step": ("h_omega", np.where(tr.status != 0, tr.fail_step, -1)),
                        "max_h_omega": ("h_omega", tr.max_h_omega), "jacobian_cond_max": ("h_omega", cond)},
                       coords={"h_omega": h_omegas})
+
+
+def friction_amplification(method: str, kappa: np.ndarray, friction: str = "trapezoid") -> np.ndarray:
+    """R(κ) = Π_i r(f_i κ): one step of the VI (family) on a purely frictional
+    linear mode, trapezoid friction r(z) = (1 − z/2)/(1 + z/2) (endpoint: 1/(1 + z))."""
+    kappa = np.asarray(kappa, float)
+    wl, wr = FRICTION_WEIGHTS[friction]
+    out = np.ones_like(kappa)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for f in COMPOSITIONS[method]:
+            out = out * (1.0 - wr * f * kappa) / (1.0 + wl * f * kappa)
+    return out
+
+
+def negative_substep_limits(method: str, friction: str = "trapezoid") -> dict:
+    """For a VI-family method: the most negative substep factor, the κ at which
+    a negative substep's Newton matrix 1 + w_L f κ vanishes, and the band of κ
+    where |R(κ)| > 1 (a friction mode grows), from a fine grid."""
+    f = np.asarray(COMPOSITIONS[method], float)
+    wl = FRICTION_WEIGHTS[friction][0]
+    neg = f[f < 0]
+    sing = sorted(set(np.round(-1.0 / (wl * neg), 4))) if neg.size else []
+    k = np.linspace(1e-3, 50.0, 200_000)
+    bad = np.abs(friction_amplification(method, k, friction)) > 1.0 + 1e-9
+    return {"min_factor": float(f.min()), "kappa_singular": sing,
+            "growth_band": (float(k[bad].min()), float(k[bad].max())) if bad.any() else None}
 
 
 def newton_analysis(limit: xr.Dataset, vi_maps: list) -> str:
@@ -276,20 +316,16 @@ def newton_analysis(limit: xr.Dataset, vi_maps: list) -> str:
     map_fail = sum(int(np.sum(d["status"].values == 1)) for d in vi_maps)
     map_hw = max(float(np.max(d["h_omega"].values)) for d in vi_maps) if vi_maps else float("nan")
     return (
-        f"**Where and why the VI's Newton iteration stops converging.** The Jacobian is never the problem: "
-        f"its 2-norm condition number at the accepted solutions stays ≤ {cond:.3g} at every h|Ω| tested "
-        f"(for h|X| ≫ 1 the dominant term (h/4)(2X(𝕀X)ᵀ + (X·𝕀X)Id) has eigenvalue ratio ≈ 3, and the "
-        f"gyroscopic part is only O(h|X|)). What grows is the distance of the starting guess: the explicit-Euler "
-        f"predictor adds h(Π×Ω)/𝕀 ~ h|Ω|², i.e. it overshoots the root by a factor ~h|Ω|, and far from the root "
-        f"the cubic term (h/4)(X·𝕀X)X dominates, where Newton only contracts by 2/3 per iteration "
-        f"(x ← x − x³/(3x²)). Hence the iteration count grows logarithmically: {slope:.1f} iterations per decade "
-        f"of h|Ω| (log(10)/log(3/2) = 5.7 predicted), reaching the cap of "
-        f"{int(nm.max())} iterations between h|Ω₀| = {last_ok:g} (last converged) and {first_fail} (first "
-        f"failure). On the map (h|Ω₀| ≤ {map_hw:g}) the VI's Newton iteration failed in {map_fail} cell(s) and "
-        f"needed at most {map_max} iterations in a step; what degrades there is "
-        f"accuracy, not solvability: the Cayley map turns by 2·atan(h|Ω|/2) < π per step instead of h|Ω|, so "
-        f"the discrete rotation saturates (aliasing) while |Γ| = 1 and the energy stay bounded. A predictor "
-        f"Ω_k (or a Cayley-consistent one) instead of explicit Euler would remove this growth."
+        f"**Where the VI's Newton iteration stops converging (measured).** The Jacobian is never the "
+        f"problem: its 2-norm condition number at the accepted solutions stays ≤ {cond:.3g} at every h|Ω| "
+        f"tested (for h|X| ≫ 1 the dominant term (h/4)(2X(𝕀X)ᵀ + (X·𝕀X)Id) has eigenvalue ratio ≈ 3). "
+        f"The step velocity solves a cubic, M_h(X) = μ + …, so h|X| grows only like (h|Ω₀|)^(1/3): the "
+        f"discrete rotation saturates while |Γ| = 1 and the energy stay bounded. The iteration count grows "
+        f"logarithmically, {slope:.1f} iterations per decade of h|Ω₀| (max {int(nm.max())}), up to "
+        f"h|Ω₀| = {last_ok:g} (last converged); the first failure is at {first_fail}, in the first solve, "
+        f"which starts from Ω(0) — far from the root when h|Ω₀| is huge, where Newton on the cubic contracts "
+        f"by only 2/3 per iteration. On the map (h|Ω₀| ≤ {map_hw:g}) the Newton iteration failed in "
+        f"{map_fail} cell(s) and needed at most {map_max} iterations in a step."
     )
 
 
@@ -329,7 +365,7 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
     import pandas as pd
 
     s, outdir, opt = start_study(study, outdir, reduced, validate, options)
-    methods = list(s.get("methods", ["vi", "vi:endpoint", "rk2", "rk4"]))
+    methods = list(s.get("methods", ["vi", "vi:endpoint", "vi4", "vi6", "rk2", "rk4"]))
     scene = study_scene(s, opt["map_scene"])
     h = float(opt["h"])
     t_wall = time.perf_counter()
@@ -346,7 +382,7 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
         for m in methods:
             key = point_key({"study": study_name(s), "kind": "case", "scene": sc, "case": c, "method": m})
             case_tasks.append((c, m, (key, case_point, (sc, c, m))))
-    vi_methods = [m for m in methods if parse_method(m)[0] == "vi"]
+    vi_methods = [m for m in methods if parse_method(m)["family"] == "vi"]
     limit_task = None
     if vi_methods:
         key = point_key({"study": study_name(s), "kind": "newton_limit", "scene": scene, "h": h})
@@ -372,7 +408,7 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
             case_ds.append((c["name"], m, ds))
             v = {k: ds[k].values[0] for k in ds.data_vars}
             st = int(v["status"])
-            name = parse_method(m)[0]
+            name = parse_method(m)["family"]
             case_rows.append({
                 "case": c["name"], "method": m, "h (s)": float(c["h"]), "steps": int(c["steps"]),
                 "h|Ω₀|": float(v["h_omega0"]), "κ = ch/I_min": float(v["kappa"]),
@@ -408,12 +444,12 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
                      "study": study_name(s), "h": h, "steps": int(opt["steps"]),
                      "error_threshold": float(opt["error_threshold"]),
                      "growth_limit": float(opt["growth_limit"]),
-                     "regime_flag_meanings": " ".join(CLASSES), "vi_start": "staggered"})
+                     "regime_flag_meanings": " ".join(CLASSES), "values": "node values"})
     if limit is not None:
         lim = _attrs(limit.rename({"h_omega": "limit_h_omega"}).rename(
             {k: f"limit_{k}" for k in limit.data_vars}))
         for k in limit.data_vars:
-            lim[f"limit_{k}"].attrs.update(units=UNITS[k][0], long_name=f"h|Omega| push (vi, node start): {UNITS[k][1]}")
+            lim[f"limit_{k}"].attrs.update(units=UNITS[k][0], long_name=f"h|Omega| push ({vi_methods[0]}): {UNITS[k][1]}")
         lim["limit_h_omega"].attrs.update(units="rad", long_name="h |Omega_0| of the Newton-limit push")
         mp = xr.merge([mp, lim])
     if case_ds:
@@ -438,7 +474,28 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
         row["largest h|Ω₀| bounded at every κ"] = float(hw_ok.max()) if hw_ok.size else float("nan")
         hw_acc = maps[m]["h_omega"].values[np.all(r == 0, axis=1)]
         row["largest h|Ω₀| accurate at every κ"] = float(hw_acc.max()) if hw_acc.size else float("nan")
+        ka = maps[m]["kappa"].values
+        ka_bad = ka[np.any(r >= 2, axis=0)]
+        row["κ with an unbounded or failed cell"] = ", ".join(f"{k:g}" for k in ka_bad) or "none"
         count_rows.append(row)
+    neg_rows = []
+    for m in vi_methods:
+        spec = parse_method(m)
+        lim = negative_substep_limits(spec["method"], spec["friction"])
+        r = maps[m]["regime"].values
+        ka = maps[m]["kappa"].values
+        ok_k = [k for j, k in enumerate(ka) if np.all(r[:, j] <= 1)]
+        first_bad = next((k for j, k in enumerate(ka) if np.any(r[:, j] >= 2)), None)
+        neg_rows.append({
+            "method": m, "most negative substep factor": lim["min_factor"],
+            "κ where a substep's Newton matrix is singular": ", ".join(f"{k:g}" for k in lim["kappa_singular"]) or "none",
+            "κ band where |R(κ)| > 1 (friction mode grows)": ("—" if lim["growth_band"] is None else
+                                                            f"{lim['growth_band'][0]:.3f} – {lim['growth_band'][1]:.3f}"),
+            "map: smallest κ with an unbounded or failed cell": first_bad if first_bad is not None else float("nan"),
+            "map: largest κ bounded at every h|Ω₀|": max(ok_k) if ok_k else float("nan"),
+            "map: κ where the smallest h|Ω₀| is not accurate": ", ".join(
+                f"{k:g}" for j, k in enumerate(ka) if r[0, j] != 0) or "none",
+        })
     regime_rows = []
     for m in methods:
         ds = maps[m]
@@ -451,13 +508,20 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
                             f"h = {h:g} s, {opt['steps']} steps)")]
     sections.append(
         f"Map scene `{scene['scene']['name']}` with overrides {opt['map_scene'] or 'none'} "
-        f"(|g⃗| = {np.linalg.norm(physical_parameters(scene)[[P_GX, P_GY, P_GZ]]):.3g} N m); each cell of the map is one member with Ω₀ = (h|Ω₀|/h)·Ω̂_scene and "
-        f"c = κ I_min/h (its own parameter row; one `simulate` call per method). Error = max over the run of "
-        f"max(|Ω_k − Ω_ref|/|Ω₀|, |Γ_k − Γ_ref|) against the fixed-step DOP853 reference (VI: staggered start, Ω "
-        f"compared at t_k + h/2). Regimes: *accurate* (error ≤ {opt['error_threshold']:g}), *bounded* (ok, "
-        f"mechanical energy above rest ≤ {opt['growth_limit']:g}× its initial value and ||Γ|−1| ≤ 0.1, but "
-        f"inaccurate), *unbounded*, *newton_not_converged*, *non_finite* — failures are counted, never hidden. "
-        f"`vi:endpoint` is the VI with endpoint friction (SPEC E3).")
+        f"(|g⃗| = {np.linalg.norm(physics_of_scene(scene).gravity_torque[0]):.3g} N m); each cell of the map is one "
+        f"member with Ω₀ = (h|Ω₀|/h)·Ω̂_scene and friction scaled to c = κ I_min/h (its own parameters; one "
+        f"`simulate` call per method). Error = max over the run of max(|Ω(t_k) − Ω_ref(t_k)|/|Ω₀|, "
+        f"|Γ_k − Γ_ref(t_k)|) on node values against the fixed-step DOP853 reference (dimensionless). Regimes: "
+        f"*accurate* (error ≤ {opt['error_threshold']:g}), *bounded* (ok, mechanical energy above rest ≤ "
+        f"{opt['growth_limit']:g}× its initial value and ||Γ|−1| ≤ 0.1, but inaccurate), *unbounded*, "
+        f"*newton_not_converged*, *non_finite* — failures are counted, never hidden. `vi` starts from the "
+        f"node momentum μ₀ = 𝕀Ω(0) (legendre); `vi:endpoint` is the VI with endpoint friction.")
+    if neg_rows:
+        sections.append(write_table(pd.DataFrame(neg_rows), outdir, "negative_substeps",
+                                    "Where the negative substeps of vi4/vi6 limit h at high viscosity "
+                                    "(κ = c h / I_min, dimensionless)"))
+        sections.append(_negative_substep_finding(neg_rows))
+    sections.append(NODE_VALUES_NOTE)
     sections.append("![stability map](stability_map.png)")
     if case_rows:
         sections.append(write_table(pd.DataFrame(case_rows), outdir, "named_cases",
@@ -474,7 +538,7 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
                   "cond(J) max": float(limit["jacobian_cond_max"].values[i])}
                  for i in range(limit.sizes["h_omega"])]
         sections.append(write_table(pd.DataFrame(lrows), outdir, "newton_limit",
-                                    f"VI Newton iteration far beyond the map ({vi_methods[0]}, node start, "
+                                    f"VI Newton iteration far beyond the map ({vi_methods[0]}, "
                                     f"h = {h:g} s, 20 steps)"))
         sections.append(newton_analysis(limit, [maps[m] for m in vi_methods]))
     sections.append(write_table(pd.DataFrame(regime_rows), outdir, "stability_regimes", "Regime of every map cell"))
@@ -482,6 +546,26 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
     wall = time.perf_counter() - t_wall
     sections.append(f"netCDF: `{nc.name}`. Study wall time {wall:.1f} s.")
     return write_report(outdir, "Stability: bounded and accurate regimes, hard cases, Newton limits", sections)
+
+
+def _negative_substep_finding(rows: list) -> str:
+    lines = ["**Finding (negative substeps; node values).** On a substep of size f h < 0 the trapezoid friction multiplies "
+             "a decaying mode by (1 − fκ/2)/(1 + fκ/2): its Newton matrix 𝕀(1 + fκ/2) + … is singular at "
+             "κ = −2/f and the step's product R(κ) of these factors exceeds 1 in a band around it, where "
+             "friction makes a mode grow.", ""]
+    for r in rows:
+        if r["most negative substep factor"] >= 0:
+            lines.append(f"- {r['method']}: no negative substep; the map's largest κ bounded at every h|Ω₀| is "
+                         f"{r['map: largest κ bounded at every h|Ω₀|']:g}.")
+            continue
+        lines.append(f"- {r['method']}: factor {r['most negative substep factor']:.3f}, singular Newton matrix "
+                     f"at κ = {r['κ where a substep' + chr(39) + 's Newton matrix is singular']}, growth band κ = "
+                     f"{r['κ band where |R(κ)| > 1 (friction mode grows)']}; on the map the first κ with an "
+                     f"unbounded or failed cell is {fmt(r['map: smallest κ with an unbounded or failed cell'])}, "
+                     f"and at the smallest h|Ω₀| the run is not accurate at κ = "
+                     f"{r['map: κ where the smallest h|Ω₀| is not accurate']}. "
+                     "Keep κ = c h / I_min below the band's lower end.")
+    return "\n".join(lines)
 
 
 def _figure(maps: dict, methods: list, outdir: Path, opt: dict) -> Path:
@@ -494,8 +578,8 @@ def _figure(maps: dict, methods: list, outdir: Path, opt: dict) -> Path:
     n = len(methods)
     # every panel has the same (h|Omega_0|, kappa) grid: shared axes, labels on the outer
     # panels only, and constrained layout so that titles, labels and colorbars do not collide
-    fig, axes = plt.subplots(2, n, figsize=(3.6 * n, 6.6), squeeze=False, sharex=True, sharey=True,
-                             layout="constrained")
+    fig, axes = plt.subplots(2, n, figsize=(3.3 * n + 1.5, 7.4), squeeze=False, sharex=True,
+                             sharey=True, layout="constrained")
     cmap = ListedColormap(["#2ca02c", "#bcbd22", "#ff7f0e", "#9467bd", "#d62728"])
     norm = BoundaryNorm(np.arange(-0.5, 5.5), cmap.N)
     for j, m in enumerate(methods):
@@ -506,11 +590,12 @@ def _figure(maps: dict, methods: list, outdir: Path, opt: dict) -> Path:
         yi = np.arange(ka.size)
         ax = axes[0, j]
         im = ax.pcolormesh(xi, yi, ds["regime"].values.T, cmap=cmap, norm=norm, shading="nearest")
-        if parse_method(m)[0] == "vi":
+        if parse_method(m)["family"] == "vi":
             for a in range(hw.size):
                 for b in range(ka.size):
                     ax.text(a, b, str(int(ds["newton_max"].values[a, b])), ha="center", va="center", fontsize=6)
-        ax.set_title(f"{m}" + (" (numbers: max Newton it.)" if parse_method(m)[0] == "vi" else ""), fontsize=9)
+        ax.set_title(f"{m}" + ("\n(numbers: max Newton it.)" if parse_method(m)["family"] == "vi" else ""),
+                     fontsize=9)
         ax2 = axes[1, j]
         err = np.log10(np.clip(ds["error_max"].values, 1e-16, 1e3))
         im2 = ax2.pcolormesh(xi, yi, err.T, cmap="viridis", vmin=-8, vmax=1, shading="nearest")
@@ -520,6 +605,7 @@ def _figure(maps: dict, methods: list, outdir: Path, opt: dict) -> Path:
     for ax in axes[:, 0]:
         ax.set_yticks(yi, [f"{v:g}" for v in ka], fontsize=7)
         ax.set_ylabel("κ = c h / I_min")
+    fig.suptitle("stability map (node values against the reference)")
     cb = fig.colorbar(im, ax=axes[0, :].tolist(), ticks=range(5), fraction=0.02)
     cb.ax.set_yticklabels(CLASSES, fontsize=7)
     fig.colorbar(im2, ax=axes[1, :].tolist(), fraction=0.02, label="log10 error")

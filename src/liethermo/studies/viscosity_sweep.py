@@ -17,7 +17,9 @@ The run length adapts to μ: t_end = ``t_end_factor`` × max(I_max/c, c/mgℓ) �
 the slowest relaxation time of an under-damped (I/c) and of an over-damped
 (c/mgℓ) top — clipped to [``t_end_min``, ``t_end_max``].
 
-Options: ``method`` (default "vi"; staggered start), ``h``, ``threshold``,
+Options: ``method`` (a method spec, default "vi": legendre start, trapezoid
+friction, symmetric entropy update — its heat balance U(S_{k+1}) − U(S_k) =
+friction work holds step by step), ``h``, ``threshold``,
 ``entropy_times``, ``t_end_factor``, ``t_end_min``, ``t_end_max``,
 ``outputs`` (stored steps per run, about).
 """
@@ -32,13 +34,13 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
-from ..initial import initial_conditions, initial_states
-from ..kernels.model import P_C, P_CV, P_GX, P_GY, P_GZ, P_I1, P_I2, P_I3, P_T0
-from ..scene import physical_parameters
-from ..simulate import simulate
-from .common import (study_options, StudyError, cached_point, expand_sweep, point_key, progress_bar,
+from ..dataset import node_energies
+from ..initial import initial_conditions
+from ..physics import Physics, physics_of_scene
+from .common import (parse_method, study_options, StudyError, cached_point, expand_sweep, point_key, progress_bar,
                      dim_name, stack_points, study_name, study_netcdf_path, study_scene, write_netcdf_atomic,
                      write_report, write_table, start_study, study_history)
+from .tools import NODE_VALUES_NOTE, run_spec
 
 EXTRA_KEYS = ()
 SWEEP_KEY = "fluid.viscosity"
@@ -70,19 +72,18 @@ def validate(study: dict) -> None:
             raise StudyError(f"options.{k}: must be a number > 0")
     if not 0 < opt["threshold"] < 1:
         raise StudyError("options.threshold: must lie in (0, 1)")
-    if opt["method"] not in ("vi", "rk2", "rk4", "reference"):
-        raise StudyError("options.method: must be one of vi, rk2, rk4, reference")
+    parse_method(opt["method"])
     if not (isinstance(opt["outputs"], int) and opt["outputs"] >= 10):
         raise StudyError("options.outputs: must be an integer ≥ 10")
 
 
 # ----------------------------------------------------------------------------- numerics
 
-def run_length(p: np.ndarray, opt: dict) -> float:
-    """t_end = factor × max(I_max/c, c/mgℓ), clipped."""
-    c = p[P_C]
-    Imax = p[[P_I1, P_I2, P_I3]].max()
-    g = float(np.linalg.norm(p[[P_GX, P_GY, P_GZ]]))
+def run_length(phys: Physics, opt: dict) -> float:
+    """t_end = factor × max(I_max/c, c/mgℓ) of member 0, clipped (c: the largest Stokes coefficient)."""
+    c = float(phys.friction[0].max())
+    Imax = float(phys.inertia[0].max())
+    g = float(np.linalg.norm(phys.gravity_torque[0]))
     tau = Imax / c
     if g > 0:
         tau = max(tau, c / g)
@@ -90,11 +91,9 @@ def run_length(p: np.ndarray, opt: dict) -> float:
     return float(np.clip(opt["t_end_factor"] * tau, lo, max(lo, float(opt["t_end_max"]))))
 
 
-def mech_energy(omega, gamma, P):
-    I = P[..., [P_I1, P_I2, P_I3]]
-    g = P[..., [P_GX, P_GY, P_GZ]]
-    return (0.5 * np.sum(I * omega * omega, axis=-1) + np.sum(g * gamma, axis=-1)
-            + np.linalg.norm(g, axis=-1))
+def mech_energy(phys: Physics, K: np.ndarray, V: np.ndarray) -> np.ndarray:
+    """Mechanical energy above the resting state K + V + |g⃗| (J), K and V (N, T)."""
+    return K + V + np.linalg.norm(phys.gravity_torque, axis=1)[:, None]
 
 
 def settling_times(t: np.ndarray, E: np.ndarray, E0: np.ndarray, threshold: float) -> np.ndarray:
@@ -117,36 +116,34 @@ def settling_times(t: np.ndarray, E: np.ndarray, E0: np.ndarray, threshold: floa
     return out
 
 
-def sweep_point(scene: dict, opt: dict) -> xr.Dataset:
-    p = physical_parameters(scene)
+def sweep_point(scene, opt: dict) -> xr.Dataset:
     N = int(scene["ensemble"]["members"])
+    phys = physics_of_scene(scene, N)
     om, R = initial_conditions(scene)
-    y0 = initial_states(om, R, False)
-    P = np.repeat(p[None], N, 0)
     h = float(opt["h"])
-    t_end = run_length(p, opt)
+    t_end = run_length(phys, opt)
     every = max(1, int(round(t_end / h / int(opt["outputs"]))))
     every = min(every, max(1, int(math.floor(min(opt["entropy_times"]) / h + 1e-9))))  # resolve t*
     steps = int(math.ceil(t_end / (h * every))) * every
-    method = opt["method"]
+    spec = parse_method(opt["method"])
     t0 = time.perf_counter()
-    tr = simulate(y0, P, h, steps, method, start="staggered" if method == "vi" else "node", every=every)
+    tr = run_spec(phys, om, R, h, steps, spec, every=every)
     wall = time.perf_counter() - t0
     t = tr.times
-    E = mech_energy(tr.omega, tr.gamma, P[:, None, :])
-    E0 = mech_energy(om, y0[:, 3:6], P)
+    e = node_energies(tr)
+    E = mech_energy(phys, e["K"], e["V"])
+    E0 = E[:, 0]
     ts = settling_times(t, E, E0, float(opt["threshold"]))
     sig = tr.sigma
-    T0 = p[P_T0]
-    cv = p[P_CV]
+    T0 = phys.T0
     data = {
         "settling_time": ("member", ts),
         "entropy_produced": ("member", sig[:, -1]),
         "mech_energy_initial": ("member", E0),
         "mech_energy_final": ("member", E[:, -1]),
-        # heat check: T0 * (entropy) against the mechanical energy lost, with T = T0 exp(sigma/cv)
-        "heat_ratio": ("member", cv * T0 * np.expm1(sig[:, -1] / cv) / (E0 - E[:, -1])),
-        "entropy_rate_initial": ("member", p[P_C] * np.sum(om * om, axis=1) / T0),
+        # heat check: U(S) - U(S0) against the mechanical energy lost
+        "heat_ratio": ("member", e["dU"][:, -1] / (E0 - E[:, -1])),
+        "entropy_rate_initial": ("member", np.sum(phys.friction * om * om, axis=1) / T0),
         "status": ("member", tr.status.astype(np.int8)),
     }
     for ti in opt["entropy_times"]:
@@ -177,7 +174,7 @@ UNITS = {
     "mech_energy_initial": ("J", "initial mechanical energy above the resting state K0 + V0 + mgl"),
     "mech_energy_final": ("J", "mechanical energy above the resting state at t_end"),
     "heat_ratio": ("1", "heat U - U0 produced by t_end over the mechanical energy lost (1 = exact balance)"),
-    "entropy_rate_initial": ("W K-2", "initial entropy production rate c |Omega0|^2 / T0"),
+    "entropy_rate_initial": ("W K-1", "initial entropy production rate Omega0 . C Omega0 / T0"),
     "status": ("1", "member status (0 ok, 1 newton_not_converged, 2 non_finite)"),
     "t_end": ("s", "simulated time (adapted to the viscosity)"),
     "wall_time": ("s", "wall time of the simulation"),
@@ -243,7 +240,7 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
             v = d[tk].values
             row[f"mean ΔS by {tv:g} s (J/K)"] = float(np.mean(v[np.isfinite(v)])) if np.isfinite(v).any() else float("nan")
         row["mean ΔS total (J/K)"] = float(np.mean(d["entropy_produced"].values))
-        row["T₀ΔS/ΔE_mech (mean)"] = float(np.mean(d["heat_ratio"].values))
+        row["(U − U₀)/ΔE_mech (mean)"] = float(np.mean(d["heat_ratio"].values))
         row["wall (s)"] = float(d["wall_time"])
         rows.append(row)
     df = pd.DataFrame(rows)
@@ -251,20 +248,23 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
     wall = time.perf_counter() - t_wall
     E0 = ds["mech_energy_initial"].isel({dim: 0}).values
     T0 = float(scene0["thermo"]["T0"])
-    g = np.linalg.norm(physical_parameters(scene0)[[P_GX, P_GY, P_GZ]])
-    Imin = physical_parameters(scene0)[[P_I1, P_I2, P_I3]].min()
+    phys0 = physics_of_scene(scene0)
+    g = float(np.linalg.norm(phys0.gravity_torque[0]))
+    Imin = float(phys0.inertia[0].min())
     a = float(scene0["body"]["radius"])
     mu_crit = 2 * math.sqrt(Imin * g) / (8 * math.pi * a ** 3) if g > 0 else float("inf")
     sections = [
         write_table(df, outdir, "viscosity_sweep", "Settling time and entropy production against viscosity"),
-        f"Scene `{scene0['scene']['name']}`, method {opt['method']} (staggered start), h = {opt['h']:g} s; "
+        f"Scene `{scene0['scene']['name']}`, method `{opt['method']}` (start "
+        f"{parse_method(opt['method'])['start'] or '—'}), h = {opt['h']:g} s; "
         f"{int(scene0['ensemble']['members'])} members with random initial conditions (seed "
         f"{int(scene0['ensemble']['seed'])}), the **same** for every μ. Settling time: after it, the mechanical "
         f"energy above rest stays below {opt['threshold']:g} × its initial value; *censored* members had not "
         f"settled by t_end = {opt['t_end_factor']:g} × max(I_max/c, c/mgℓ) (clipped to "
-        f"[max({opt['t_end_min']:g}, the entropy times), {opt['t_end_max']:g}] s). The heat balance "
-        f"T₀ΔS/ΔE_mech drifts from 1 when κ = ch/I_min is no longer small (the VI's entropy update is explicit "
-        f"while its friction is trapezoidal; their dissipations differ at O(κ)).",
+        f"[max({opt['t_end_min']:g}, the entropy times), {opt['t_end_max']:g}] s). Heat balance: "
+        f"(U(S) − U(S₀))/ΔE_mech at t_end on node values; with the symmetric entropy update the VI puts the "
+        f"friction work of each step into U exactly, so the ratio departs from 1 only by the difference of "
+        f"the node energies from the step's energy balance, which vanishes as the top settles.",
         f"**Physics.** (i) The total entropy produced by settling is fixed by the initial data, not by μ: "
         f"ΔS ≈ ΔE_mech/T₀ (T ≈ T₀ since c_v is large), here ensemble mean E_mech(0)/T₀ = "
         f"{np.mean(E0) / T0:.4e} J/K — viscosity changes how *fast* the entropy is produced (the initial rate "
@@ -274,6 +274,7 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
         f"{mu_crit:.3g} kg m⁻¹ s⁻¹, beyond which the top creeps down at rate mgℓ/c and the settling time grows "
         f"∝ μ again.",
         f"![viscosity sweep]({fig.name})",
+        NODE_VALUES_NOTE,
         f"netCDF: `{nc.name}` (dims `{dim}` × `member`). Study wall time {wall:.1f} s.",
     ]
     return write_report(outdir, "Viscosity sweep: entropy production and settling times", sections)
@@ -290,7 +291,7 @@ def _figure(ds, dim, opt, tkeys, outdir: Path) -> Path:
     med = np.array([np.nanmedian(r) if np.isfinite(r).any() else np.nan for r in ts])
     q25 = np.array([np.nanquantile(r, 0.25) if np.isfinite(r).any() else np.nan for r in ts])
     q75 = np.array([np.nanquantile(r, 0.75) if np.isfinite(r).any() else np.nan for r in ts])
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.3))
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.5), layout="constrained")
     ax = axes[0]
     ax.fill_between(mus, q25, q75, alpha=0.3, label="interquartile range")
     ax.loglog(mus, med, "o-", label="median settling time")
@@ -309,11 +310,10 @@ def _figure(ds, dim, opt, tkeys, outdir: Path) -> Path:
         ax.loglog(mus, mean, "o-", label=f"mean ΔS by t = {tk[11:].replace('p', '.')}")
     ax.loglog(mus, np.mean(ds["entropy_produced"].values, axis=1), "s-", label="mean ΔS by t_end (settled)")
     ax.set_xlabel("viscosity μ (kg m⁻¹ s⁻¹)")
-    ax.set_ylabel("entropy produced (J/K)")
+    ax.set_ylabel("entropy produced (J K⁻¹)")
     ax.set_title("entropy production")
     ax.legend(fontsize=8)
     ax.grid(True, which="both", alpha=0.3)
-    fig.tight_layout()
     path = Path(outdir) / "viscosity_sweep.png"
     fig.savefig(path, dpi=120)
     plt.close(fig)

@@ -3,10 +3,11 @@ evaluations) against the error at ``t_end``.
 
 Methods compared on the same ensemble of random initial conditions:
 
-* liethermo's kernels — the VI with the **staggered start** (Ω_N is compared
-  with the reference Ω(t_end + h/2), Γ_N with Γ(t_end); SPEC E4), RK2 and RK4
-  — at a ladder of fixed steps h; they run on **one thread** here, so that
-  their cost per member compares fairly with
+* liethermo's kernels — the variational integrators (``vi`` with the
+  legendre start, ``vi4``, ``vi6``, or any method spec), RK2 and RK4 — at a
+  ladder of fixed steps h, compared on NODE values (Ω(t_end), Γ(t_end)); they
+  run on **one thread** here, so that their cost per member compares fairly
+  with
 * scipy's ``solve_ivp`` (RK45, DOP853) at a ladder of tolerances, which is
   what a user would otherwise reach for.  scipy integrates **one member at a
   time, serially**, calling the numba-jitted right-hand side through a small
@@ -36,14 +37,14 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
-from ..initial import initial_conditions, initial_states
-from ..kernels.model import NSTATE_BASE, rhs
+from ..initial import initial_conditions
 from ..methods import METHODS
-from ..scene import physical_parameters
+from ..physics import physics_of_scene
 from ..simulate import simulate
-from .common import (study_options, StudyError, cached_point, point_key, progress_bar, study_name,
+from .common import (parse_method, study_options, StudyError, cached_point, point_key, progress_bar, study_name,
                      study_netcdf_path, study_scene, write_netcdf_atomic, write_report, write_table, start_study,
                      study_history)
+from .tools import NODE_VALUES_NOTE, continuous_rhs, run_spec
 
 EXTRA_KEYS = ()
 
@@ -93,31 +94,28 @@ def validate(study: dict) -> None:
         if m not in SCIPY_METHODS:
             raise StudyError(f"options.scipy_methods: unknown scipy method {m!r}; known: {', '.join(SCIPY_METHODS)}")
     for m in study.get("methods", ["vi", "rk2", "rk4"]):
-        if m == "reference":
+        if parse_method(m)["method"] == "reference":
             raise StudyError("methods: 'reference' is the ground truth, not a compared method")
 
 
 # ----------------------------------------------------------------------------- numerics
 
-def ensemble(scene: dict, members: int):
-    """(y0 (N, 7), params (N, 9), |Ω(0)| (N,)) of ``members`` random initial conditions."""
-    sc = copy.deepcopy(scene)
-    sc["ensemble"]["members"] = int(members)
+def ensemble(scene, members: int):
+    """(physics, Ω(0) (N, 3), R(0) (N, 3, 3), |Ω(0)| (N,)) of ``members`` random initial conditions."""
+    sc = scene.with_overrides({"ensemble.members": int(members)})
     om, R = initial_conditions(sc)
-    y0 = initial_states(om, R, False)
-    P = np.repeat(physical_parameters(sc)[None], members, 0)
-    return y0, P, np.linalg.norm(om, axis=1)
+    return physics_of_scene(sc, members), om, R, np.linalg.norm(om, axis=1)
 
 
-def reference_at(y0: np.ndarray, P: np.ndarray, T: float, *, check: bool = False):
-    """Reference state at time T (N, 7) (fixed-step DOP853, auto substeps);
-    with ``check``: also the max difference to twice as many substeps."""
-    tr = simulate(y0, P, float(T), 1, "reference")
-    ref = tr.states[:, 1]
+def reference_at(phys, om, R, T: float, *, check: bool = False):
+    """Reference (Ω, Γ) at time T, each (N, 3) (fixed-step DOP853, auto
+    substeps); with ``check``: also the max difference to twice as many substeps."""
+    tr = simulate(phys, om, R, float(T), 1, "reference")
+    ref = (tr.omega[:, 1], tr.gamma[:, 1])
     if not check:
         return ref, float("nan")
-    tr2 = simulate(y0, P, float(T), 1, "reference", ref_substeps=2 * tr.reference_substeps)
-    return ref, float(np.max(np.abs(tr2.states[:, 1, :6] - ref[:, :6])))
+    tr2 = simulate(phys, om, R, float(T), 1, "reference", ref_substeps=2 * tr.reference_substeps)
+    return ref, float(max(np.max(np.abs(tr2.omega[:, 1] - ref[0])), np.max(np.abs(tr2.gamma[:, 1] - ref[1]))))
 
 
 def member_errors(omega, gamma, ref_omega, ref_gamma, omega0_norm):
@@ -146,33 +144,32 @@ def timed(fn, min_time: float):
     return first, best
 
 
-def run_kernel_point(method: str, h: float, t_end: float, y0, P, w0, threads: int, min_time: float) -> xr.Dataset:
-    """One (method, h) level; the whole call (staggered start included) runs on
-    ``threads`` numba threads."""
+def run_kernel_point(method: str, h: float, t_end: float, phys, om, R, w0, threads: int,
+                     min_time: float) -> xr.Dataset:
+    """One (method spec, h) level; the whole call runs on ``threads`` numba threads."""
     import numba
 
     old = numba.get_num_threads()
     numba.set_num_threads(threads)
     try:
-        return _kernel_point(method, h, t_end, y0, P, w0, threads, min_time)
+        return _kernel_point(method, h, t_end, phys, om, R, w0, threads, min_time)
     finally:
         numba.set_num_threads(old)
 
 
-def _kernel_point(method, h, t_end, y0, P, w0, threads, min_time):
+def _kernel_point(method, h, t_end, phys, om, R, w0, threads, min_time):
     steps = int(round(t_end / h))
-    start = "staggered" if method == "vi" else "node"
-    simulate(y0[:1], P[:1], h, 2, method, start=start, threads=threads)  # compile / warm up
-    tr, wall = timed(lambda: simulate(y0, P, h, steps, method, start=start, every=steps, threads=threads),
-                     min_time)
-    N = y0.shape[0]
-    ref_T, _ = reference_at(y0, P, t_end)
-    ref_O = reference_at(y0, P, t_end + 0.5 * h)[0] if method == "vi" else ref_T
-    err = member_errors(tr.omega[:, -1], tr.gamma[:, -1], ref_O[:, 0:3], ref_T[:, 3:6], w0)
-    if METHODS[method].implicit:
+    spec = parse_method(method)
+    run_spec(phys, om, R, h, 2, spec, every=2, threads=threads)  # compile / warm up, same shapes
+    tr, wall = timed(lambda: run_spec(phys, om, R, h, steps, spec, every=steps, threads=threads), min_time)
+    N = om.shape[0]
+    (ref_O, ref_G), _ = reference_at(phys, om, R, t_end)
+    err = member_errors(tr.omega[:, -1], tr.gamma[:, -1], ref_O, ref_G, w0)
+    m = METHODS[spec["method"]]
+    if m.implicit:
         evals = tr.newton_iterations.astype(float)
     else:
-        evals = np.full(N, float(METHODS[method].rhs_evals_per_step * steps))
+        evals = np.full(N, float(m.evaluations_per_step * steps))
     return xr.Dataset({
         "error": ("member", err),
         "evals": ("member", evals),
@@ -182,28 +179,22 @@ def _kernel_point(method, h, t_end, y0, P, w0, threads, min_time):
     }, attrs={"wall": wall, "steps": steps, "h": h, "members": N})
 
 
-def run_scipy_point(sp_method: str, rtol: float, atol: float, t_end: float, y0, P, w0) -> xr.Dataset:
+def run_scipy_point(sp_method: str, rtol: float, atol: float, t_end: float, phys, om, R, w0) -> xr.Dataset:
     from scipy.integrate import solve_ivp
 
-    M = y0.shape[0]
-    ref_T, _ = reference_at(y0, P, t_end)
-    _warm = np.empty(NSTATE_BASE)
-    solve_ivp(lambda t, y: (rhs(y, P[0], NSTATE_BASE, _warm), _warm.copy())[1], (0.0, 0.1), y0[0].copy(),
-              method=sp_method, rtol=rtol, atol=atol)  # warm scipy's first-call paths
+    M = om.shape[0]
+    (ref_O, ref_G), _ = reference_at(phys, om, R, t_end)
+    y0 = np.concatenate([om, R[:, 2, :], np.zeros((M, 1))], axis=1)
+    f0 = continuous_rhs(phys, 0)
+    solve_ivp(f0, (0.0, 0.1), y0[0].copy(), method=sp_method, rtol=rtol, atol=atol)  # warm scipy and numba
     walls = np.empty(M)
     nfev = np.empty(M)
     nsteps = np.empty(M)
     err = np.empty(M)
     ok = np.empty(M, dtype=np.int8)
     for m in range(M):
-        p = P[m].copy()
-
-        def f(t, y, p=p):
-            dy = np.empty(NSTATE_BASE)
-            rhs(y, p, NSTATE_BASE, dy)
-            return dy
-
-        f(0.0, y0[m])  # compiled already; warm
+        f = continuous_rhs(phys, m)
+        f(0.0, y0[m])
         t0 = time.perf_counter()
         sol = solve_ivp(f, (0.0, t_end), y0[m].copy(), method=sp_method, rtol=rtol, atol=atol)
         walls[m] = time.perf_counter() - t0
@@ -211,7 +202,7 @@ def run_scipy_point(sp_method: str, rtol: float, atol: float, t_end: float, y0, 
         nsteps[m] = sol.t.size - 1
         ok[m] = 0 if sol.success else 2
         y = sol.y[:, -1]
-        err[m] = member_errors(y[0:3], y[3:6], ref_T[m, 0:3], ref_T[m, 3:6], w0[m]) if sol.success else np.inf
+        err[m] = member_errors(y[0:3], y[3:6], ref_O[m], ref_G[m], w0[m]) if sol.success else np.inf
     return xr.Dataset({
         "error": ("member", err), "evals": ("member", nfev), "status": ("member", ok),
         "wall_member": ("member", walls), "scipy_steps": ("member", nsteps),
@@ -263,14 +254,14 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
     scene = study_scene(s)
     t_end = float(opt["t_end"])
     N = int(opt["members"])
-    y0, P, w0 = ensemble(scene, N)
+    phys, om, R, w0 = ensemble(scene, N)
     M = int(opt["scipy_members"])
     hs = [float(h) for h in opt["h"]]
     rtols = [float(r) for r in opt["scipy_rtol"]]
     sp_methods = list(opt["scipy_methods"])
     tag = {"study": study_name(s), "scene": scene, "t_end": t_end, "members": N}
     t_wall = time.perf_counter()
-    _, ref_check = reference_at(y0, P, t_end, check=True)
+    _, ref_check = reference_at(phys, om, R, t_end, check=True)
 
     total = len(methods) * len(hs) + len(sp_methods) * len(rtols)
     bar = progress_bar(total, progress, f"{study_name(s)}")
@@ -279,10 +270,11 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
     try:
         for m in methods:
             errs, times = [], []
+            implicit = METHODS[parse_method(m)["method"]].implicit
             for h in hs:
                 key = point_key({**tag, "kind": "kernel", "method": m, "h": h, "threads": opt["threads"]})
                 ds = cached_point(outdir, key, lambda m=m, h=h: run_kernel_point(
-                    m, h, t_end, y0, P, w0, int(opt["threads"]), float(opt["min_timing"])))
+                    m, h, t_end, phys, om, R, w0, int(opt["threads"]), float(opt["min_timing"])))
                 steps = int(ds.attrs["steps"])
                 wall_member = float(ds.attrs["wall"]) / N
                 e = float(np.max(ds["error"].values))
@@ -291,10 +283,10 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
                     "method": m, "h (s)": h, "rtol": float("nan"), "steps": steps,
                     "wall/member (s)": wall_member, "wall/member-step (s)": wall_member / steps,
                     "evals/member": float(np.mean(ds["evals"].values)),
-                    "eval kind": "Newton iterations" if METHODS[m].implicit else "rhs evaluations",
+                    "eval kind": "Newton iterations" if implicit else "rhs evaluations",
                     "error at t_end (max)": e, "error (median)": float(np.median(ds["error"].values)),
                     "failed members": failed,
-                    "max Newton it./step": int(ds["newton_max"].max()) if METHODS[m].implicit else float("nan"),
+                    "max Newton it./step": int(ds["newton_max"].max()) if implicit else float("nan"),
                 })
                 errs.append(e)
                 times.append(wall_member)
@@ -307,7 +299,7 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
                 atol = float(opt["scipy_atol_factor"]) * r
                 key = point_key({**tag, "kind": "scipy", "method": sm, "rtol": r, "atol": atol, "M": M})
                 ds = cached_point(outdir, key, lambda sm=sm, r=r, atol=atol: run_scipy_point(
-                    sm, r, atol, t_end, y0[:M], P[:M], w0[:M]))
+                    sm, r, atol, t_end, phys.take(slice(0, M)), om[:M], R[:M], w0[:M]))
                 wall_member = float(np.mean(ds["wall_member"].values))
                 nst = float(np.mean(ds["scipy_steps"].values))
                 e = float(np.max(ds["error"].values))
@@ -341,8 +333,10 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
     slope_rows = []
     for m in methods:
         lev, errs, _ = curves[m]
-        slope_rows.append({"method": m, "start": "staggered" if m == "vi" else "node",
-                           "expected order": METHODS[m].order("staggered" if m == "vi" else "node"),
+        spec = parse_method(m)
+        slope_rows.append({"method": m, "start": spec["start"] or "—",
+                           "expected order": METHODS[spec["method"]].order(spec["start"] or "legendre",
+                                                                           spec["friction"] or "trapezoid"),
                            "observed slope": observed_slope(lev, errs)})
 
     # --- netCDF
@@ -383,7 +377,7 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
                             "level": ("level", np.arange(L), {"long_name": "step/tolerance level (coarse to fine)", "units": "1"})},
                     attrs={"title": "liethermo work-precision study: time per member-step against error",
                            "study": study_name(s), "t_end": t_end, "members": N, "scipy_members": M,
-                           "kernel_threads": int(opt["threads"]), "vi_start": "staggered",
+                           "kernel_threads": int(opt["threads"]), "values": "node values at t_end",
                            "reference_self_check": ref_check})
     nc = write_netcdf_atomic(ds, study_netcdf_path(s, outdir),
                              history=study_history("work_precision", study, outdir, reduced, history))
@@ -399,13 +393,16 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
                     "Wall time per member to reach error ε (log–log interpolation between ladder levels)"),
         f"Scene `{scene['scene']['name']}`, {N} members with random initial conditions "
         f"(seed {scene['ensemble']['seed']}), t_end = {t_end:g} s. Error = max over members of "
-        f"max(|Ω − Ω_ref|/|Ω(0)|, |Γ − Γ_ref|) at t_end. The VI uses the **staggered start** and its Ω_N is "
-        f"compared with Ω_ref(t_end + h/2). liethermo kernels run on {opt['threads']} thread(s); "
+        f"max(|Ω − Ω_ref|/|Ω(0)|, |Γ − Γ_ref|) at t_end on **node values** (dimensionless; the VI's Ω(t_end) is "
+        f"its node velocity 𝕀⁻¹μ_N). Cost per member-step: wall time of the whole `simulate` call (best of "
+        f"repeats) over members × steps; vi4 and vi6 take 3 and 9 Newton solves per step. liethermo kernels "
+        f"run on {opt['threads']} thread(s); "
         f"scipy `solve_ivp` integrates {M} member(s) **one at a time, serially**, calling the numba-jitted "
         f"right-hand side through a Python wrapper (atol = {opt['scipy_atol_factor']:g}·rtol). "
         f"Reference: fixed-step DOP853 with automatic substeps; |ref − ref(2× substeps)| = {ref_check:.1e}. "
         f"\"coarsest\" in the time-to-ε table means the coarsest level already reaches ε (the time is an "
         f"upper bound); \"not reached\" means no level did (round-off floor or too coarse a ladder).",
+        NODE_VALUES_NOTE,
         write_table(pd.DataFrame(slope_rows), outdir, "slopes", "Observed slope of log error against log h"),
         write_table(df, outdir, "work_precision", "All runs"),
         f"![work–precision]({fig.name})",
@@ -422,7 +419,7 @@ def _figure(curves: dict, methods: list, outdir: Path) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.5))
+    fig, axes = plt.subplots(1, 2, figsize=(12, 5), layout="constrained")
     for name, (lev, errs, times) in curves.items():
         e = np.asarray(errs, float)
         t = np.asarray(times, float)
@@ -430,18 +427,17 @@ def _figure(curves: dict, methods: list, outdir: Path) -> Path:
         axes[0].loglog(e[ok], t[ok], "o-" if name in methods else "s--", label=name)
         if name in methods:
             axes[1].loglog(np.asarray(lev)[ok], e[ok], "o-", label=name)
-    axes[0].set_xlabel("error at t_end")
+    axes[0].set_xlabel("error at t_end, node values (1)")
     axes[0].set_ylabel("wall time per member (s)")
     axes[0].invert_xaxis()
     axes[0].set_title("work–precision (kernels: 1 thread; scipy: serial)")
     axes[0].legend(fontsize=8)
     axes[0].grid(True, which="both", alpha=0.3)
     axes[1].set_xlabel("h (s)")
-    axes[1].set_ylabel("error at t_end")
-    axes[1].set_title("error against step (VI: staggered start)")
+    axes[1].set_ylabel("error at t_end, node values (1)")
+    axes[1].set_title("error against step")
     axes[1].legend(fontsize=8)
     axes[1].grid(True, which="both", alpha=0.3)
-    fig.tight_layout()
     path = Path(outdir) / "work_precision.png"
     fig.savefig(path, dpi=120)
     plt.close(fig)

@@ -1,0 +1,160 @@
+"""Numerics shared by the study modules: running a method spec, relative
+energy errors on node values and in the paper's convention, the discrete
+Kelvin–Noether residual, order fits and the continuous right-hand side for
+scipy.
+
+Node values and step velocities: every method reports the state at the
+instants t_k = k h (the *node values*: Ω(t_k), Γ_k, S_k, and E_k computed from
+them).  The variational integrators also produce a *step velocity* Ω_k, the
+constant angular velocity of the step from t_k to t_k + h, which approximates
+Ω(t_k + h/2); the paper evaluates the energy with Ω_k beside Γ_k and S_k,
+mixing two instants, which adds an O(h) error of the diagnostic itself
+(``energy_error_paper``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..dataset import node_energies
+from ..physics import Physics, kinetic_energy, mechanical_energy_scale, potential_energy
+from ..simulate import Trajectory, simulate
+from .common import method_kwargs
+
+#: the sentence every report uses to say what node values are
+NODE_VALUES_NOTE = (
+    "**Node values vs step velocities.** Every method gives the state at the instants t_k = k h — the "
+    "*node values* Ω(t_k), Γ_k, S_k — and E_k is the energy of those values. The variational integrators "
+    "also carry a *step velocity* Ω_k, the constant angular velocity of the step from t_k to t_k + h "
+    "(≈ Ω(t_k + h/2)); the paper computes the energy from Ω_k with Γ_k and S_k, which mixes two instants "
+    "and so adds an O(h) error of the diagnostic itself (\"paper convention\").")
+
+
+def run_spec(phys: Physics, omega0, R0, h: float, steps: int, spec: dict, **kw) -> Trajectory:
+    """:func:`simulate` with the method, start, friction and entropy of a parsed spec."""
+    return simulate(phys, omega0, R0, h, steps, spec["method"], **method_kwargs(spec), **kw)
+
+
+def energy_errors(traj: Trajectory, omega0: np.ndarray, R0: np.ndarray) -> dict:
+    """E_k − E₀ (J) on node values (``node``) and, for the variational
+    integrators, in the paper's convention (``paper``: step velocity Ω_k with
+    Γ_k, S_k; None otherwise), and the scale E_mech,0 = K₀ + V₀ + |g⃗| (J) —
+    the definitions of ``energy_error`` / ``energy_error_paper`` of
+    :func:`liethermo.dataset.trajectory_dataset`."""
+    phys = traj.physics
+    with np.errstate(over="ignore", invalid="ignore"):
+        e = node_energies(traj)
+        K0 = kinetic_energy(phys, omega0, None)
+        V0 = potential_energy(phys, R0[:, 2, :])
+        dV = e["V"] - V0[:, None]
+        node = (e["K"] - K0[:, None]) + dV + e["dU"]
+        paper = None
+        if traj.family == "vi":
+            s = traj.sigma if traj.layout.has("sigma") else None
+            paper = (kinetic_energy(phys, traj.omega_step, s) - K0[:, None]) + dV + e["dU"]
+    return {"node": node, "paper": paper, "scale": mechanical_energy_scale(phys, omega0, R0[:, 2, :])}
+
+
+def kelvin_noether_residual(traj: Trajectory) -> np.ndarray:
+    """Per member, max over steps of the residual of the discrete Kelvin–Noether
+    law of the variational integrator in node form (needs ``every = 1``):
+
+        J_{k+1} − J_k + h (w_L Γ_k + w_R Γ_{k+1})·C X_k = 0,   J_k = Γ_k·μ_k,
+
+    relative to max_k |μ_k| (1).  For a composition the law holds per
+    substep; the stored steps are whole steps, so with friction it is checked
+    only for ``vi`` (NaN for the others); without friction it reads
+    J_{k+1} = J_k for every variational method."""
+    frictionless = not np.any(traj.physics.friction != 0.0)
+    if traj.family != "vi" or traj.every != 1 or (traj.method != "vi" and not frictionless):
+        return np.full(traj.states.shape[0], np.nan)
+    from ..kernels.vi import FRICTION_WEIGHTS
+
+    wl, wr = FRICTION_WEIGHTS[traj.friction]
+    G = traj.gamma
+    mu = traj.momentum
+    X = traj.omega_step
+    C = traj.physics.friction[:, None, :]
+    J = np.sum(G * mu, axis=-1)
+    CX = C * X[:, :-1]
+    res = J[:, 1:] - J[:, :-1] + traj.h * np.sum((wl * G[:, :-1] + wr * G[:, 1:]) * CX, axis=-1)
+    scale = np.nanmax(np.linalg.norm(mu, axis=-1), axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.nanmax(np.abs(res), axis=1) / scale
+
+
+def continuous_kelvin_noether_residual(traj: Trajectory) -> np.ndarray:
+    """Per member, max over the stored steps of the defect of the continuous
+    law d(Γ·μ)/dt = −Γ·CΩ integrated by the trapezoid rule between stored
+    nodes, relative to max |μ| (1): what any method can be held to (its own
+    quadrature error included)."""
+    phys = traj.physics
+    om = traj.omega
+    G = traj.gamma
+    mu = phys.inertia[:, None, :] * om if traj.family != "vi" else traj.momentum
+    J = np.sum(G * mu, axis=-1)
+    f = np.sum(G * phys.friction[:, None, :] * om, axis=-1)
+    dt = traj.h * traj.every
+    res = J[:, 1:] - J[:, :-1] + 0.5 * dt * (f[:, 1:] + f[:, :-1])
+    scale = np.nanmax(np.linalg.norm(mu, axis=-1), axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.nanmax(np.abs(res), axis=1) / scale
+
+
+def drift_fit(t: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per row of y (N, T): (least-squares slope of y against t, standard
+    deviation of the residual about that line).  Rows with a non-finite value
+    give NaN."""
+    t = np.asarray(t, float)
+    tc = t - t.mean()
+    with np.errstate(invalid="ignore", over="ignore"):
+        ym = y.mean(axis=1, keepdims=True)
+        slope = (y - ym) @ tc / (tc @ tc)
+        resid = y - ym - slope[:, None] * tc[None, :]
+        spread = np.sqrt(np.mean(resid * resid, axis=1))
+    bad = ~np.all(np.isfinite(y), axis=1)
+    slope[bad] = np.nan
+    spread[bad] = np.nan
+    return slope, spread
+
+
+def fit_order(hs, errors, scale: float, floor_rel: float):
+    """(order, constant, levels used): least squares of log(err) on log(h) from
+    the coarsest level until the round-off floor (error < ``floor_rel`` ×
+    ``scale``) or a stall (the error no longer falls by 1.2×)."""
+    hs = np.asarray(hs, float)
+    errors = np.asarray(errors, float)
+    used = 0
+    for i, e in enumerate(errors):
+        if not np.isfinite(e) or e < floor_rel * scale:
+            break
+        if i > 0 and e > errors[i - 1] / 1.2:
+            break
+        used = i + 1
+    if used < 3:
+        return float("nan"), float("nan"), used
+    slope, icept = np.polyfit(np.log(hs[:used]), np.log(errors[:used]), 1)
+    return float(slope), float(np.exp(icept)), used
+
+
+# ----------------------------------------------------------------------------- continuous rhs (scipy)
+
+def continuous_rhs(phys: Physics, member: int = 0):
+    """f(t, y) of the continuous equations of one member, y = (Ω, Γ, σ) (7,),
+    for scipy's ``solve_ivp``: d(𝕀Ω)/dt = 𝕀Ω×Ω − CΩ + Γ×g⃗, Γ̇ = Γ×Ω,
+    σ̇ = Ω·CΩ / (T₀ e^{σ/c_v}).  Constant inertia and no internal friction only."""
+    if np.any(phys.thermal_expansion != 0.0) or np.any(phys.internal_friction != 0.0):
+        raise ValueError("continuous_rhs: only bodies without thermal expansion and internal friction")
+    I = np.ascontiguousarray(phys.inertia[member])
+    C = np.ascontiguousarray(phys.friction[member])
+    g = np.ascontiguousarray(phys.gravity_torque[member])
+    T0 = float(phys.T0[member])
+    cv = float(phys.heat_capacity[member])
+    from ._rhs import rhs7
+
+    def f(t, y):
+        out = np.empty(7)
+        rhs7(y, I, C, g, T0, cv, out)
+        return out
+
+    return f
