@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-import xarray as xr
+from liethermo import cf
 
 from liethermo.cli import main
 from liethermo.methods import METHODS
@@ -27,7 +27,7 @@ def ld(tmp_path_factory):
     study = load_study(STUDIES / "long_drift.toml")
     validate_study(study)
     report = get_study("long_drift").run(study, out, reduced=True, progress=False)
-    return out, report, xr.load_dataset(out / "long_drift.nc"), pd.read_csv(out / "long_drift.csv")
+    return out, report, cf.load_dataset(out / "long_drift.nc"), pd.read_csv(out / "long_drift.csv")
 
 
 def test_files_and_units(ld):

@@ -146,7 +146,7 @@ def test_stability_negative_substeps(stab):
     from liethermo.studies.stability import friction_amplification, negative_substep_limits
 
     _, out = stab
-    ds = xr.open_dataset(out / "stability.nc")
+    ds = cf.open_dataset(out / "stability.nc")
     hw0 = ds["h_omega"].values.min()
     for m in ("vi4", "vi6"):
         lim = negative_substep_limits(m)
