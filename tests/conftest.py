@@ -206,13 +206,16 @@ def random_ensemble(n: int, seed: int = 0, scale: float = math.sqrt(2.0)):
 
 
 # ---------------------------------------------------------------- order fit
-def fit_order(hs, errors, floor: float = 1e-11, min_levels: int = 4) -> float:
-    """Slope of log(error) against log(h) by least squares, dropping the levels
-    whose error is below the round-off ``floor``; at least ``min_levels``
-    levels must remain."""
+def fit_order(hs, errors, floor: float = 1e-11, min_levels: int = 3, last: int | None = 3) -> float:
+    """Slope of log(error) against log(h) by least squares over the ``last``
+    finest levels whose error is above the round-off ``floor`` (the
+    asymptotic regime: coarse levels of a high-order method are often
+    pre-asymptotic); at least ``min_levels`` levels must remain."""
     hs = np.asarray(hs, float)
     errors = np.asarray(errors, float)
     assert np.all(np.isfinite(errors)), errors
-    keep = errors >= floor
-    assert keep.sum() >= min_levels, f"only {keep.sum()} levels above {floor}: {errors}"
+    keep = np.flatnonzero(errors >= floor)
+    if last is not None:
+        keep = keep[-last:]
+    assert keep.size >= min_levels, f"only {keep.size} levels above {floor}: {errors}"
     return float(np.polyfit(np.log(hs[keep]), np.log(errors[keep]), 1)[0])
