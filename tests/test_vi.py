@@ -127,20 +127,23 @@ def _start(model, y_row, h):
     return code
 
 
-@pytest.mark.parametrize("body", ["paper", "random", "coupled"])
+@pytest.mark.parametrize("body", ["paper", "random", "coupled", "double_bracket"])
 def test_node_map_is_symmetric(body):
     """Φ_{−h} ∘ Φ_h = id for trapezoid friction and the symmetric entropy
     update: a step with h from the node (Γ, μ, σ[, R]), then one with −h,
     returns to (Γ, μ, σ, R) to round-off (≤ 1e-13 relative) — the property
     that lets compositions raise the order; for the paper top, a random body
-    with diagonal friction, and the coupled top (𝕀(S))."""
+    with diagonal friction, the coupled top (𝕀(S)) and double-bracket friction."""
     if body == "paper":
         phys, om0, R = paper_physics(), OMEGA0[None], R0[None]
     elif body == "random":
         phys, om0, R = random_body(3, diagonal=True)
-    else:
+    elif body == "coupled":
         phys = replace(paper_physics(), heat_capacity=np.array([1e-3]), thermal_expansion=np.array([1e-3]))
         om0, R = OMEGA0[None] * 3.0, R0[None]
+    else:
+        phys = replace(paper_physics(), internal_friction=np.array([20.0]))
+        om0, R = np.array([[3.0, -1.0, 2.0]]), R0[None]
     km = build_model(phys, attitude=True)
     lay = km.layout("vi")
     h = 0.1

@@ -46,8 +46,13 @@ def cmd_run(args) -> int:
     for m in scene["output"]["compare"]:
         if m != scene["integrator"]["method"]:
             outputs[m] = _compare_path(out, m)
+    from .warmup import start_warming
+
+    warming = None if args.dask else start_warming(scene, list(outputs))
     summaries = []
-    for method, path in outputs.items():
+    for i, (method, path) in enumerate(outputs.items()):
+        if i == 1 and warming is not None:
+            warming.join()  # its kernels are in the cache now
         sc = scene.with_overrides({"integrator.method": method})
         if args.dask:
             from .distributed import run_scene_dask
@@ -63,6 +68,8 @@ def cmd_run(args) -> int:
         if args.dask:
             print(f"  dask: {summ.tasks} task(s), {summ.tasks_skipped} already done (resumed); "
                   f"overhead {summ.task_overhead:.3f} s per task; combine {summ.combine_time:.2f} s")
+    if warming is not None and warming.is_alive():
+        warming.terminate()  # what it still compiles, this run no longer needs
     if scene["output"]["figures"]:
         from .plotting import scene_figures
 
@@ -134,16 +141,12 @@ def entry() -> None:
     After ``liethermo run`` (without ``--dask``) the process leaves with
     ``os._exit`` once its output is flushed: every file it wrote is closed by
     then, and the interpreter's own teardown (module and LLVM clean-up, no
-    effect outside the process) took ~0.7 s of a ~4 s warm
-    ``liethermo run paper`` on the 2-core benchmark machine."""
+    effect outside the process) is a noticeable part of a warm run."""
     # LLVM -O2 instead of numba's default -O3 for the kernels this command
-    # compiles: a cold `liethermo run paper` compiles in ~22 s instead of ~28 s
-    # on the 2-core benchmark VM, the kernels run as fast (liethermo bench: VI
-    # 12.2 / RK2 1.76 / RK4 7.0 ns against 12.3 / 1.77 / 7.5), and the results are
-    # bitwise the same (no fast-math: every optimization level must keep IEEE
-    # semantics; checked on VI, RK2 and RK4 ensembles).  Set here, before numba
-    # is imported, so only this process is affected; a NUMBA_OPT of the user's
-    # own wins.
+    # compiles: a shorter cold start, kernels as fast (benchmarks/README.md) and
+    # bitwise the same results (no fast-math: every optimization level keeps IEEE
+    # semantics).  Set here, before numba is imported, so only this process is
+    # affected; a NUMBA_OPT of the user's own wins.
     os.environ.setdefault("NUMBA_OPT", "2")
     argv = sys.argv[1:]
     rc = main(argv)

@@ -86,13 +86,19 @@ def _trajectory_dataset(traj, omega0, R0, member_offset):
     dims_t = ("member", "time")
     dims_v = ("member", "time", "axis")
     vi = traj.family == "vi"
+    mom = _momentum(traj, e["omega"])
     node_note = ("node velocity I(S_k)^-1 mu_k from the node momentum (discrete Legendre transform)"
                  if vi else "node value Omega(t_k)")
     data = {
         "omega": _var(e["omega"], dims_v, "rad s-1", "body angular velocity at t_k",
                       comment=node_note),
-        "angular_momentum": _var(_momentum(traj, e["omega"]), dims_v, "kg m2 s-1",
+        "angular_momentum": _var(mom, dims_v, "kg m2 s-1",
                                  "body angular momentum mu = I(S) Omega at t_k"),
+        "angular_momentum_norm": _var(np.linalg.norm(mom, axis=-1), dims_t, "kg m2 s-1",
+                                      "|mu|: a Casimir, kept by friction of the double-bracket form"),
+        "vertical_angular_momentum": _var(np.sum(traj.gamma * mom, axis=-1), dims_t, "kg m2 s-1",
+                                          "Gamma . mu: angular momentum about the vertical (the "
+                                          "Kelvin-Noether quantity; d/dt = -Gamma . C Omega)"),
         "gamma": _var(traj.gamma, dims_v, "1", "direction of gravity in the body frame (R^T e3)"),
         "entropy": _var(phys.S0[:, None] + traj.sigma, dims_t, "J K-1", "entropy S of body and fluid"),
         "temperature": _var(e["T"], dims_t, "K", "temperature T = -dL/dS (T0 exp((S - S0)/c_v) "

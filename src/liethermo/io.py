@@ -104,11 +104,6 @@ class ChunkedWriter:
                 self.nc.variables[name][offset:offset + n, ...] = var.values
         self.written += n
 
-    def set_attrs(self, attrs: dict) -> None:
-        self.attrs.update(attrs)
-        if self.nc is not None:
-            self.nc.setncatts({k: _nc_attr(a) for k, a in attrs.items()})
-
     def close(self) -> None:
         if self.nc is None:
             raise RuntimeError("nothing was written")
@@ -130,10 +125,3 @@ class ChunkedWriter:
             self.tmp.unlink()
         except FileNotFoundError:
             pass
-
-
-def write_dataset(ds: xr.Dataset, path: str | os.PathLike, history: str | None = None) -> Path:
-    """Write an in-memory dataset atomically (same layout as a chunked run)."""
-    with ChunkedWriter(path, ds.sizes.get("member", 0), ds.attrs, history) as w:
-        w.write(ds, 0)
-    return Path(path)

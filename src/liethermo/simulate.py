@@ -182,7 +182,8 @@ def simulate(
     progress: Callable[[int], None] | None = None,
     threads: int | None = None,
     kernel: str = "auto",
-) -> Trajectory:
+    compile_only: bool | str = False,
+) -> Trajectory | None:
     """Integrate an ensemble.
 
     ``physics`` (N members), initial body angular velocities ``omega0``
@@ -196,7 +197,10 @@ def simulate(
     ``progress(n)`` is called with the number of steps just advanced.
     ``kernel``: "fast" (vectorized blocks), "simple" (one member at a time)
     or "auto" (= "fast"; the reference always runs on "simple"); both give
-    bitwise the same results.
+    bitwise the same results.  ``compile_only``: compile the kernels this
+    run needs (or load them from numba's cache) and return None — what a
+    process warming the cache for another one does; ``"start"``: only the
+    variational integrators' start kernel.
     """
     m: Method = get_method(method)
     if kernel not in ("auto", "fast", "simple"):
@@ -263,8 +267,6 @@ def simulate(
             Y[:, layout.slice("attitude")] = R0.reshape(N, 9)
         start_args = (km.model, km.shared, Y, km.P, 0, N, float(factors[0] * h), wl, wr,
                       eff_start == "legendre", float(newton_tol), int(newton_maxiter), IS)
-        compile_time += _ensure_compiled(_simple.vi_start_members, start_args)
-        _par.run_ranges(_simple.vi_start_members, N, start_args[:4], start_args[6:], threads)
         if fast:
             fn, n_items = _fast.advance_vi_blocks, -(-N // _fast.BLOCK)
         else:
@@ -273,7 +275,6 @@ def simulate(
         post_tail = (wl, wr, mode, float(newton_tol), int(newton_maxiter))
 
     states = np.full((N, n_out + 1, layout.size), np.nan)
-    states[:, 0] = Y
     if chunk_steps is None:
         chunk_steps = max(every, min(steps, CHUNK_MEMBER_STEPS // max(N, 1)))
     out_per_chunk = max(1, chunk_steps // every)
@@ -283,16 +284,24 @@ def simulate(
             return pre, post + (int(nj), OUT, IS, FS)
         return pre, post + (int(nj),) + post_tail + (OUT, IS, FS)
 
+    # compile the main kernel first, then the variational integrators' start:
+    # a process warming the cache for this run compiles the start meanwhile
+    if n_out and N and compile_only != "start":
+        a, b = args_for(states[:, 1:1 + min(out_per_chunk, n_out)], min(out_per_chunk, n_out))
+        compile_time += _ensure_compiled(fn, a + (0, min(1, n_items)) + b)
+    if m.family == "vi" and N:
+        compile_time += _ensure_compiled(_simple.vi_start_members, start_args)
+        if not compile_only:
+            _par.run_ranges(_simple.vi_start_members, N, start_args[:4], start_args[6:], threads)
+    if compile_only:
+        return None
+    states[:, 0] = Y
     t0 = time.perf_counter()
     j = 0
     while j < n_out:
         nj = min(out_per_chunk, n_out - j)
         OUT = states[:, 1 + j: 1 + j + nj]  # strided view, written in place
         a, b = args_for(OUT, nj)
-        if j == 0 and N:
-            dt = _ensure_compiled(fn, a + (0, min(1, n_items)) + b)
-            compile_time += dt
-            t0 += dt
         _par.run_ranges(fn, n_items, a, b, threads)
         j += nj
         if progress is not None:
