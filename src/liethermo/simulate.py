@@ -139,6 +139,8 @@ def reference_substeps(h: float, physics: Physics, omega0: np.ndarray) -> np.nda
 
 def _ensure_compiled(fn, args) -> float:
     """Compile (or load from the cache) ``fn`` for these arguments; seconds spent."""
+    if not hasattr(fn, "overloads"):  # NUMBA_DISABLE_JIT: plain Python
+        return 0.0
     t0 = time.perf_counter()
     sig = tuple(numba.typeof(a) for a in args)
     if sig not in fn.overloads:

@@ -37,7 +37,12 @@ def _inertia_cls(model):
 
 def omega_rate(model, w0, w1, w2, G0, G1, G2, s, exact):
     """Ω̇ (rad s⁻²) at (Ω, Γ, σ)."""
-    raise NotImplementedError("numba only")
+    if isinstance(model.inertia, ThermalInertia):
+        return _thermal_rates(model, w0, w1, w2, G0, G1, G2, s)[0]
+    I = model.inertia
+    a0, a1, a2 = sum_angular_acceleration(model.forces, I, None, w0, w1, w2, G0, G1, G2,
+                                          None, None, None)
+    return madd(I.A1 * w1, w2, a0), madd(I.A2 * w2, w0, a1), madd(I.A3 * w0, w1, a2)
 
 
 @overload(omega_rate, jit_options=LANE_OPTIONS)
@@ -84,7 +89,12 @@ def _thermal_rates(model, w0, w1, w2, G0, G1, G2, s):
 
 def entropy_and_omega_rates(model, w0, w1, w2, G0, G1, G2, s, exact):
     """((Ω̇), σ̇ or None, small)."""
-    raise NotImplementedError("numba only")
+    if isinstance(model.inertia, ThermalInertia):
+        wd, sd = _thermal_rates(model, w0, w1, w2, G0, G1, G2, s)
+        return wd, sd, True
+    P = sum_dissipated_power(model.forces, model.inertia, None, w0, w1, w2, None)
+    sd, small = entropy_rate(model.thermo, P, s, exact)
+    return omega_rate(model, w0, w1, w2, G0, G1, G2, s, exact), sd, small
 
 
 @overload(entropy_and_omega_rates, jit_options=LANE_OPTIONS)
@@ -107,7 +117,7 @@ def _rates(model, w0, w1, w2, G0, G1, G2, s, exact):
 
 def attitude_rate(R, w0, w1, w2):
     """Ṙ = RΩ̂ (9-tuple), or None without the attitude."""
-    raise NotImplementedError("numba only")
+    return None if R is None else attitude_rate_lane(R, w0, w1, w2)
 
 
 @overload(attitude_rate, jit_options=LANE_OPTIONS)

@@ -141,7 +141,9 @@ def none_dispatch(present, absent, arg: int = 0):
 
     args = ", ".join(inspect.signature(present).parameters)
     ns: dict = {}
-    exec(f"def {present.__name__}({args}):\n    raise NotImplementedError('numba only')\n", ns)
+    ns.update(present=present, absent=absent)
+    exec(f"def {present.__name__}({args}):\n"
+         f"    return (absent if ({args},)[{arg}] is None else present)({args})\n", ns)
     fn = ns[present.__name__]
     fn.__doc__ = present.__doc__
     tns = {"is_none": is_none, "present": present, "absent": absent}
@@ -159,7 +161,9 @@ def overload_by_class(default, cls, special, arg: int = 0):
 
     args = ", ".join(inspect.signature(default).parameters)
     ns: dict = {}
-    exec(f"def {default.__name__}({args}):\n    raise NotImplementedError('numba only')\n", ns)
+    ns.update(default=default, special=special, cls=cls)
+    exec(f"def {default.__name__}({args}):\n"
+         f"    return (special if isinstance(({args},)[{arg}], cls) else default)({args})\n", ns)
     fn = ns[default.__name__]
     fn.__doc__ = default.__doc__
     tns = {"default": default, "special": special, "cls": cls}
@@ -199,7 +203,20 @@ def or_zero(x):
 
 def unflatten(template, p, base, stride):
     """A tree of the template's type from ``p[base + k·stride]``, k = 0, 1, …"""
-    raise NotImplementedError("numba only")
+    k = 0
+
+    def rebuild(t):
+        nonlocal k
+        if t is None:
+            return None
+        if isinstance(t, tuple):
+            parts = [rebuild(x) for x in t]
+            return type(t)(*parts) if hasattr(t, "_fields") else tuple(parts)
+        v = float(p[base + k * stride])
+        k += 1
+        return v
+
+    return rebuild(template)
 
 
 @overload(unflatten, jit_options=LANE_OPTIONS)
@@ -211,9 +228,34 @@ def _unflatten(template, p, base, stride):
     return compile_source(f"def impl(template, p, base, stride):\n    return {expr}\n", ns)
 
 
+def _tree_map(f, *trees):
+    t0 = trees[0]
+    if t0 is None:
+        return None
+    if isinstance(t0, tuple):
+        parts = [_tree_map(f, *xs) for xs in zip(*trees)]
+        return type(t0)(*parts) if hasattr(t0, "_fields") else tuple(parts)
+    return f(*trees)
+
+
+def _leaves(t) -> list:
+    if t is None:
+        return []
+    if isinstance(t, tuple):
+        return [v for x in t for v in _leaves(x)]
+    return [t]
+
+
+def _pairwise(terms: list):
+    while len(terms) > 1:
+        terms = [terms[k] + terms[k + 1] if k + 1 < len(terms) else terms[k]
+                 for k in range(0, len(terms), 2)]
+    return terms[0]
+
+
 def tree_fma(a, x, y):
     """Leaf-wise ``fma(a, x, y)`` of two trees of the same shape."""
-    raise NotImplementedError("numba only")
+    return _tree_map(lambda u, v: fma(a, u, v), x, y)
 
 
 @overload(tree_fma, jit_options=LANE_OPTIONS)
@@ -229,7 +271,8 @@ def _tree_fma(a, x, y):
 def tree_finite(x):
     """Whether every leaf is finite, decided exactly: the sum of (v − v) over
     the leaves is 0 exactly when all are (it adds zeros, so it cannot overflow)."""
-    raise NotImplementedError("numba only")
+    lx = _leaves(x)
+    return not lx or _pairwise([v - v for v in lx]) == 0.0
 
 
 @overload(tree_finite, jit_options=LANE_OPTIONS)
@@ -248,7 +291,11 @@ def tree_sum_finite(x):
     """A cheap test: whether the sum of the leaves is finite.  True implies
     every leaf is finite; False may also mean that finite leaves overflowed
     in the sum (the caller then decides exactly, with :func:`tree_finite`)."""
-    raise NotImplementedError("numba only")
+    lx = _leaves(x)
+    if not lx:
+        return True
+    s = _pairwise(list(lx))
+    return s - s == 0.0
 
 
 @overload(tree_sum_finite, jit_options=LANE_OPTIONS)
@@ -265,7 +312,7 @@ def _tree_sum_finite(x):
 
 def tree_select(c, x, y):
     """Leaf-wise ``x if c else y`` as selects (no branch)."""
-    raise NotImplementedError("numba only")
+    return _tree_map(lambda u, v: u if c else v, x, y)
 
 
 @overload(tree_select, jit_options=LANE_OPTIONS)
@@ -292,7 +339,13 @@ def make_fold(protocol, n_args: int, n_acc: int, name: str):
     acc0 = [f"a{k}" for k in range(n_acc)]
     sig = ", ".join(["terms"] + args + acc0)
     ns: dict = {}
-    exec(f"def {name}({sig}):\n    raise NotImplementedError('numba only')\n", ns)
+    py = [f"def {name}({sig}):", f"    acc = ({', '.join(acc0)}{',' if n_acc == 1 else ''})",
+          "    for term in terms:",
+          f"        acc = protocol(term, {', '.join(args + [f'acc[{k}]' for k in range(n_acc)])})",
+          f"        acc = (acc,)" if n_acc == 1 else "        pass",
+          "    return acc[0]" if n_acc == 1 else "    return acc"]
+    ns["protocol"] = protocol
+    exec("\n".join(py) + "\n", ns)
     fold = ns[name]
 
     def typer(terms, *rest):

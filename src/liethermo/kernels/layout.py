@@ -111,10 +111,26 @@ def state_layout(model, family: str) -> StateLayout:
 
 def _make_io(family: str):
     def load(model, buf, base, stride):
-        raise NotImplementedError("numba only")
+        out, col = [], 0
+        for _, size in state_parts(traits(model), family):
+            if size == 0:
+                out.append(None)
+            elif size == 1:
+                out.append(float(buf[base + col * stride]))
+            else:
+                out.append(tuple(float(buf[base + (col + k) * stride]) for k in range(size)))
+            col += size
+        return tuple(out)
 
     def store(model, buf, base, stride, y):
-        raise NotImplementedError("numba only")
+        col = 0
+        for p, (_, size) in enumerate(state_parts(traits(model), family)):
+            if size == 1:
+                buf[base + col * stride] = y[p]
+            else:
+                for k in range(size):
+                    buf[base + (col + k) * stride] = y[p][k]
+            col += size
 
     load.__name__ = load.__qualname__ = f"load_{family}_state"
     store.__name__ = store.__qualname__ = f"store_{family}_state"
@@ -166,7 +182,7 @@ def state_size_fn(family: str):
     """A generic function ``n(model)`` → the state size (a compile-time constant)."""
 
     def n(model):
-        raise NotImplementedError("numba only")
+        return state_size(model, family)
 
     @overload(n, jit_options=LANE_OPTIONS)
     def _n(model):

@@ -87,7 +87,21 @@ def explicit_step(tab, model, y, h, exact):
     """(y', small): one step of size h of the tableau ``tab`` from the
     ``rk``-layout state y; ``small`` says whether every stage's inline exp was
     valid (always with ``exact``)."""
-    raise NotImplementedError("numba only")
+    cls = type(tab)
+    k, small = [], True
+    for i in range(cls.stages):
+        z = y
+        for j, a in enumerate(cls.A[i]):
+            if a != 0.0:
+                z = tree_fma(h * a, k[j], z)
+        ki, si = rk_rhs(model, z, exact)
+        k.append(ki)
+        small = small & si
+    z = y
+    for j, bj in enumerate(cls.b):
+        if bj != 0.0:
+            z = tree_fma(h * bj, k[j], z)
+    return z, small
 
 
 @overload(explicit_step, jit_options=LANE_OPTIONS)

@@ -68,13 +68,20 @@ class Attitude(namedtuple("Attitude", "on")):
 ATTITUDE = Attitude(1.0)
 
 _PROTOCOLS: dict[str, tuple] = {}
+#: (protocol name, term class) → implementation: what numba compiles, and what
+#: plain Python (NUMBA_DISABLE_JIT=1) calls
+_IMPLEMENTATIONS: dict[tuple[str, type], object] = {}
 
 
 def _protocol(name: str, args: str, passthrough: str):
     """Declare a protocol function with the given argument list; terms that
     do not implement it return ``passthrough`` (their accumulators)."""
-    ns: dict = {}
-    exec(f"def {name}({args}):\n    raise NotImplementedError('numba only')\n", ns)
+    ns: dict = {"_IMPLEMENTATIONS": _IMPLEMENTATIONS}
+    exec(f"def {name}({args}):\n"
+         f"    impl = _IMPLEMENTATIONS.get(({name!r}, type(term)))\n"
+         f"    if impl is None:\n"
+         f"        return {passthrough}\n"
+         f"    return impl({args})\n", ns)
     fn = ns[name]
     _PROTOCOLS[name] = (fn, args)
 
@@ -110,6 +117,8 @@ def implements(protocol, cls):
     cls.ROLES = frozenset(getattr(cls, "ROLES", frozenset())) | {protocol.__name__}
 
     def deco(impl):
+        _IMPLEMENTATIONS[(protocol.__name__, cls)] = impl
+
         def typer(term, *rest):
             if getattr(term, "instance_class", None) is cls:
                 return impl

@@ -110,7 +110,12 @@ def log1p_small(x, exact):
 
 def entropy_rate(thermo, P, s, exact):
     """(σ̇, small) = (P/T(σ), small) in J K⁻¹ s⁻¹; (None, True) without thermodynamics."""
-    raise NotImplementedError("numba only")
+    if thermo is None:
+        return None, True
+    if P is None:
+        return 0.0 * s, True
+    f, small = inverse_temperature(thermo, s, exact)
+    return P * f, small
 
 
 @overload(entropy_rate, jit_options=LANE_OPTIONS)
@@ -130,7 +135,15 @@ def _entropy_rate(thermo, P, s, exact):
 def entropy_step(thermo, mode, h, P, s, exact):
     """(σ', small): the variational integrator's entropy update over a step
     of size h dissipating P (explicit or symmetric, by the type of ``mode``)."""
-    raise NotImplementedError("numba only")
+    if thermo is None:
+        return None, True
+    if P is None:
+        return s, True
+    f, small = inverse_temperature(thermo, s, exact)
+    if isinstance(mode, Explicit):
+        return fma(h, P * f, s), small
+    L, small2 = log1p_small(((h * P) * f) * thermo.icv, exact)
+    return fma(thermo.cv, L, s), small & small2
 
 
 @overload(entropy_step, jit_options=LANE_OPTIONS)
