@@ -13,7 +13,7 @@ import xarray as xr
 
 from liethermo import cf
 from liethermo.cli import main
-from liethermo.run import run_scene
+from liethermo.runner import run_scene
 from liethermo.scene import SceneError, load_scene
 
 # (override, key named in the message) — one case per rule of SPEC §5
@@ -231,7 +231,7 @@ assert ds['status'].attrs['flag_meanings'] == 'ok newton_not_converged non_finit
 for a in ['Conventions','history','method','h','friction','start','scene','software_version','created']:
     assert a in ds.attrs, a
 assert ds.attrs['Conventions'] == 'CF-1.11'
-assert ds.attrs['history'].startswith(ds.attrs['created'] + ': liethermo.run.run_scene(')
+assert ds.attrs['history'].startswith(ds.attrs['created'] + ': liethermo.runner.run_scene(')
 assert {str(out)!r} in ds.attrs['history']
 assert ds.attrs['method'] == 'rk4' and '[integrator]' in ds.attrs['scene']
 print('OK')

@@ -22,7 +22,7 @@ distributed = pytest.importorskip("distributed")
 
 from liethermo import cf
 from liethermo import distributed as ld  # noqa: E402
-from liethermo.run import run_scene  # noqa: E402
+from liethermo.runner import run_scene  # noqa: E402
 
 BASE = ["ensemble.members=600", "ensemble.seed=7", "output.every=10", "output.compare=[]",
         "output.figures=false"]

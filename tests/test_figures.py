@@ -21,7 +21,7 @@ import pytest  # noqa: E402
 
 from layout import SAVED_FIGURES, layout_problems  # noqa: E402
 from liethermo.plotting import scene_figures  # noqa: E402
-from liethermo.run import run_scene  # noqa: E402
+from liethermo.runner import run_scene  # noqa: E402
 
 
 @pytest.fixture

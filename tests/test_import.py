@@ -7,7 +7,7 @@ import sys
 def test_import_compiles_nothing():
     code = """
 import numba.core.dispatcher as d
-import liethermo, liethermo.cli, liethermo.scene, liethermo.simulate, liethermo.run
+import liethermo, liethermo.cli, liethermo.scene, liethermo.simulate, liethermo.runner
 from liethermo.kernels import ensemble, vi, rk, so3, model
 import liethermo.kernels.fast as fast
 jitted = [obj for mod in (ensemble, vi, rk, so3, model, fast) for obj in vars(mod).values()

@@ -25,7 +25,7 @@ from cfcheck import assert_cf_clean, cf_report
 from liethermo import cf
 from liethermo.cli import main
 from liethermo.io import ChunkedWriter
-from liethermo.run import run_scene
+from liethermo.runner import run_scene
 from liethermo.studies.common import write_netcdf_atomic
 
 pytest.importorskip("compliance_checker")
@@ -217,7 +217,7 @@ def test_history_default_names_the_api_call(tmp_path):
     out = tmp_path / "api.nc"
     run_scene("paper", out, overrides=["ensemble.members=2", "integrator.steps=5", "output.compare=[]"],
               progress=False)
-    assert _history_command(out) == ("liethermo.run.run_scene('paper', " + repr(str(out))
+    assert _history_command(out) == ("liethermo.runner.run_scene('paper', " + repr(str(out))
                                      + ", overrides=['ensemble.members=2', 'integrator.steps=5', "
                                        "'output.compare=[]'])")
     run_scene("paper", out, overrides=["ensemble.members=2", "integrator.steps=5"], progress=False,

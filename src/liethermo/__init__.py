@@ -1,7 +1,14 @@
 """liethermo: structure-preserving simulation of thermodynamic systems on Lie groups.
 
-Importing the package compiles nothing; kernels compile (or load from the
-numba cache) on first use.
+The Python interface (docs/api.md)::
+
+    import liethermo
+    ds = liethermo.run("paper", {"integrator.h": 0.05})     # an xarray Dataset
+    ds.liethermo.relative_energy_error().plot.line(x="time")
+
+``run``, ``study``, ``load_scene``, ``open_dataset`` and the ``ds.liethermo``
+accessor come from :mod:`liethermo.api`.  Importing the package compiles
+nothing; kernels compile (or load from the numba cache) on first use.
 """
 
 from __future__ import annotations
@@ -12,3 +19,7 @@ try:
     __version__ = _version("liethermo")
 except Exception:  # pragma: no cover - not installed
     __version__ = "0+unknown"
+
+from .api import StudyResult, load_scene, open_dataset, run, study  # noqa: E402
+
+__all__ = ["run", "study", "load_scene", "open_dataset", "StudyResult", "__version__"]

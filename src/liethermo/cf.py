@@ -75,8 +75,8 @@ def _arg(value) -> str:
 
 
 def api_call(func: str, *args, **kwargs) -> str:
-    """The text of a Python call, for ``history``: ``api_call("liethermo.run.run_scene",
-    "paper", out="x.nc")`` → ``liethermo.run.run_scene('paper', out='x.nc')``.
+    """The text of a Python call, for ``history``: ``api_call("liethermo.runner.run_scene",
+    "paper", out="x.nc")`` → ``liethermo.runner.run_scene('paper', out='x.nc')``.
     Dicts (resolved scenes, studies) appear by name; ``None`` keywords are left out."""
     parts = [_arg(a) for a in args] + [f"{k}={_arg(v)}" for k, v in kwargs.items() if v is not None]
     return f"{func}({', '.join(parts)})"

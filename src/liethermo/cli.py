@@ -39,7 +39,7 @@ def cmd_run(args) -> int:
         print(f"liethermo: error: {exc}", file=sys.stderr)
         return EXIT_INVALID
 
-    from .run import run_scene
+    from .runner import run_scene
 
     progress = None if not args.no_progress else False
     outputs = {scene["integrator"]["method"]: out}

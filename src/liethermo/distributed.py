@@ -3,7 +3,7 @@
 ``liethermo run SCENE --dask local|ADDRESS`` calls :func:`run_scene_dask`.
 The ensemble is cut into member ranges ``[lo, hi)``; each range is one Dask
 task (:func:`compute_part`) that runs the *same* code as an in-process run
-(:func:`liethermo.run.run_chunk`) and writes its own chunk file
+(:func:`liethermo.runner.run_chunk`) and writes its own chunk file
 ``<OUT>.parts/part-<lo>-<hi>.nc`` atomically (temporary name, then
 ``os.replace``).  Member i's initial condition depends only on (seed, i)
 (:mod:`liethermo.initial`) and members never interact in the kernels, so the
@@ -55,7 +55,7 @@ import numpy as np
 
 from . import __version__, cf
 from .io import ChunkedWriter
-from .run import ChunkStats, RunSummary, _progress_bar, finish_summary, run_chunk, scene_setup
+from .runner import ChunkStats, RunSummary, _progress_bar, finish_summary, run_chunk, scene_setup
 from .scene import scene_to_toml
 
 INDEX_NAME = "index.json"
@@ -325,7 +325,7 @@ def run_scene_dask(scene: dict | str, out: str | os.PathLike, *, address: Any = 
                    keep_parts: bool = False, combine: bool = True, retries: int = 2,
                    numba_threads: int | None = None, task: Callable = compute_part,
                    history: str | None = None) -> tuple[None, RunSummary]:
-    """Run a scene's ensemble as Dask tasks; same output file as :func:`liethermo.run.run_scene`.
+    """Run a scene's ensemble as Dask tasks; same output file as :func:`liethermo.runner.run_scene`.
 
     ``address``: ``"local"``, a scheduler address, or an existing Client.
     ``task_members``: members per task (default: :func:`default_task_members`;

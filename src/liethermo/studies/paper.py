@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
-from ..run import run_scene
+from ..runner import run_scene
 from .common import (StudyError, cached_point, method_overrides, parse_method, point_key, progress_bar,
                      resolve_study, study_name, study_netcdf_path, study_scene, write_netcdf_atomic,
                      write_report, write_table, study_history)

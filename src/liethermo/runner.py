@@ -228,10 +228,10 @@ def run_scene(scene, out: str | Path | None = None, *, overrides=None,
     With ``out``: streams member chunks into the netCDF file (atomically) and
     returns ``(None, summary)``; without: returns the in-memory dataset.
     ``history``: the command line or API call recorded in the ``history``
-    attribute (default: this call, ``liethermo.run.run_scene(...)``).
+    attribute (default: this call, ``liethermo.runner.run_scene(...)``).
     """
     if history is None:
-        history = cf.api_call("liethermo.run.run_scene", scene, out, overrides=overrides)
+        history = cf.api_call("liethermo.runner.run_scene", scene, out, overrides=overrides)
     scene, attrs, summ = scene_setup(scene, overrides, history)
     members, steps = summ.members, summ.steps
     chunk = int(scene["output"]["member_chunk"])

@@ -1,0 +1,168 @@
+"""The Python interface: what the command line does, for notebooks and scripts.
+
+.. code-block:: python
+
+    import liethermo
+
+    scene = liethermo.load_scene("paper", {"integrator.h": 0.05})
+    ds = liethermo.run(scene)                           # in memory, writes nothing
+    ds = liethermo.run("paper", {"ensemble.members": 64}, output="paper64.nc")
+    res = liethermo.study("studies/convergence.toml", reduced=True, output="conv")
+    ds = liethermo.open_dataset("paper64.nc")           # time in seconds, labels as indexes
+    ds.liethermo.relative_energy_error()                # (E_k − E₀)/E_mech,0 on node values
+    ds.liethermo.ok                                     # members that completed
+    ds.liethermo.quantiles("energy_error")              # 5 / 50 / 95 % over the members
+
+The command line (``liethermo run``, ``liethermo study``) calls these same
+functions.  Inputs are validated before any work, as on the command line:
+an invalid scene raises :class:`liethermo.scene.SceneError` naming the key
+and the rule.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import xarray as xr
+
+from . import cf
+from .scene import Scene, SceneError  # noqa: F401  (re-exported)
+from .scene import load_scene as _load_scene
+
+
+def load_scene(scene: str | Path | dict | Scene = "paper", overrides: dict | list | None = None) -> Scene:
+    """The typed, validated scene: a built-in name (``liethermo.scene.builtin_scenes()``),
+    a TOML file, a dict of tables, or a Scene; ``overrides`` as ``{"section.key": value}``
+    (or ``--set`` strings)."""
+    return _load_scene(scene, overrides)
+
+
+def run(scene: str | Path | dict | Scene = "paper", overrides: dict | list | None = None, *,
+        output: str | Path | None = None, progress: bool = False,
+        history: str | None = None) -> xr.Dataset:
+    """Run a scene with its own method and return its dataset.
+
+    Runs in memory and writes nothing unless ``output`` (a ``.nc`` path) is
+    given: then the dataset is written there atomically, member chunk by
+    member chunk, and returned opened lazily from the file.  ``progress``:
+    a progress bar over member-steps.  The returned dataset carries the run's
+    summary as ``ds.attrs["summary"]`` (one line per fact, as the command
+    line prints it)."""
+    from .runner import run_scene
+
+    sc = load_scene(scene, overrides)
+    if history is None:
+        history = cf.api_call("liethermo.run", scene if not isinstance(scene, Scene) else sc.name,
+                              overrides=overrides, output=output)
+    if output is not None:
+        out = Path(output)
+        if out.suffix != ".nc":
+            raise SceneError("output", "the output file must end in .nc", str(out))
+        _, summ = run_scene(sc, out, progress=progress, history=history)
+        ds = open_dataset(out)
+    else:
+        ds, summ = run_scene(sc, None, progress=progress, history=history)
+    ds.attrs["summary"] = "\n".join(summ.lines())
+    return ds
+
+
+@dataclass(frozen=True)
+class StudyResult:
+    """What :func:`study` made: the folder, its report, its netCDF (opened) and figures."""
+
+    outdir: Path
+    report: Path
+    dataset: xr.Dataset | None
+    figures: tuple[Path, ...]
+
+    def report_text(self) -> str:
+        return self.report.read_text()
+
+
+def study(path: str | Path, *, reduced: bool = False, output: str | Path | None = None,
+          dask: Any = None, progress: bool = False, history: str | None = None) -> StudyResult:
+    """Run a study file (``studies/*.toml``) and return its results.
+
+    ``output``: the study's folder (default ``data/runs/<name>``, with
+    ``-reduced`` in reduced mode); an interrupted study resumes there.
+    ``dask``: ``"local"``, a scheduler address or a Client, to run sweep
+    points as Dask tasks."""
+    from .studies import get_study
+    from .studies.common import study_netcdf_path
+    from .studies.runner import default_outdir, load_study, validate_study
+
+    s = load_study(path)
+    validate_study(s)
+    outdir = Path(output) if output is not None else default_outdir(s, reduced)
+    if history is None:
+        history = cf.api_call("liethermo.study", str(path), reduced=reduced, output=output)
+    mod = get_study(s["study"]["kind"])
+    report = Path(mod.run(s, outdir, reduced=reduced, progress=progress, dask=dask, history=history))
+    from .studies.common import resolve_study
+
+    nc = study_netcdf_path(resolve_study(s, reduced), outdir)
+    ds = cf.open_dataset(nc) if nc.is_file() else None
+    figs = tuple(sorted(outdir.glob("*.png")))
+    return StudyResult(outdir, report, ds, figs)
+
+
+def open_dataset(path: str | Path, **kwargs) -> xr.Dataset:
+    """Open a liethermo netCDF file: time in seconds (not decoded to dates),
+    label variables (``axis``, ``scheme``, …) as the indexes of their
+    dimensions.  Keywords go to ``xarray.open_dataset`` (e.g. ``chunks={}``
+    for a lazy, chunked read of a large ensemble)."""
+    return cf.open_dataset(path, **kwargs)
+
+
+@xr.register_dataset_accessor("liethermo")
+class LiethermoAccessor:
+    """``ds.liethermo``: the quantities analysts of a run dataset compute again and again."""
+
+    def __init__(self, ds: xr.Dataset):
+        self._ds = ds
+
+    @property
+    def ok(self) -> xr.DataArray:
+        """Members that completed every step (status ok)."""
+        return self._ds["status"] == 0
+
+    @property
+    def failed(self) -> xr.DataArray:
+        """Members that failed (Newton did not converge, or the state overflowed)."""
+        return self._ds["status"] != 0
+
+    def status_counts(self) -> dict[str, int]:
+        """Members per status meaning."""
+        st = self._ds["status"]
+        meanings = str(st.attrs.get("flag_meanings", "ok newton_not_converged non_finite")).split()
+        values = np.asarray(st.attrs.get("flag_values", range(len(meanings)))).tolist()
+        return {m: int((st == v).sum()) for m, v in zip(meanings, values)}
+
+    def relative_energy_error(self, convention: str = "node") -> xr.DataArray:
+        """(E_k − E₀)/E_mech,0 (dimensionless) with E_mech,0 = K₀ + V₀ + |m g ℓ|, the
+        energy friction can turn into heat.  ``convention="node"``: node values
+        (every method); ``"paper"``: the variational integrators' step velocity
+        with the node values (the paper's figure)."""
+        name = {"node": "energy_error", "paper": "energy_error_paper"}.get(convention)
+        if name is None:
+            raise ValueError(f"convention must be 'node' or 'paper', got {convention!r}")
+        if name not in self._ds:
+            raise KeyError(f"{name}: this dataset has no energy error in the {convention} convention "
+                           "(it exists for the variational integrators only)")
+        rel = self._ds[name] / self._ds["mechanical_energy_initial"]
+        rel.attrs = {"units": "1", "long_name": f"relative total energy error ({convention} values)"}
+        return rel
+
+    def quantiles(self, variable: str | xr.DataArray, q=(0.05, 0.5, 0.95), *,
+                  only_ok: bool = False) -> xr.DataArray:
+        """Quantiles over the members (e.g. the 5–95 % band and the median of an
+        energy error over time); ``only_ok``: over the members that completed.
+        A failed member's NaN values count as +inf (they are above every band)."""
+        da = self._ds[variable] if isinstance(variable, str) else variable
+        if only_ok:
+            da = da.where(self.ok, drop=True)
+        da = da.fillna(np.inf)
+        return da.quantile(list(q), dim="member", method="inverted_cdf")
