@@ -1,4 +1,4 @@
-"""Importing liethermo compiles no kernel (issue 4: fast start)."""
+"""Importing liethermo compiles no kernel, and the kernel cache never runs stale code."""
 
 import subprocess
 import sys
@@ -8,9 +8,9 @@ def test_import_compiles_nothing():
     code = """
 import numba.core.dispatcher as d
 import liethermo, liethermo.cli, liethermo.scene, liethermo.simulate, liethermo.runner
-from liethermo.kernels import ensemble, vi, rk, so3, model
+from liethermo.kernels import simple, vi, rk, so3, equations, gen
 import liethermo.kernels.fast as fast
-jitted = [obj for mod in (ensemble, vi, rk, so3, model, fast) for obj in vars(mod).values()
+jitted = [obj for mod in (simple, vi, rk, so3, equations, gen, fast) for obj in vars(mod).values()
           if isinstance(obj, d.Dispatcher)]
 assert len(jitted) > 10, len(jitted)
 compiled = [f.py_func.__name__ for f in jitted if f.signatures]
@@ -29,7 +29,11 @@ def test_stale_kernel_cache_is_dropped(tmp_path, monkeypatch):
     from liethermo.kernels._jit import _drop_stale_cache
 
     monkeypatch.setattr(numba.config, "CACHE_DIR", "")
+    (tmp_path / "terms").mkdir()
+    (tmp_path / "terms" / "gravity.py").write_text("x = 1\n")
     (tmp_path / "model.py").write_text("x = 1\n")
+    (tmp_path / "terms" / "__pycache__").mkdir()
+    (tmp_path / "terms" / "__pycache__" / "gravity.g-1.py311.nbi").write_text("fresh")
     cache = tmp_path / "__pycache__"
     cache.mkdir()
     (cache / "ensemble.f-1.py311.nbi").write_text("fresh")
@@ -38,9 +42,10 @@ def test_stale_kernel_cache_is_dropped(tmp_path, monkeypatch):
     assert (cache / "ensemble.f-1.py311.nbi").exists()
     _drop_stale_cache(tmp_path)                       # sources unchanged: kept
     assert (cache / "ensemble.f-1.py311.nbi").exists()
-    (tmp_path / "model.py").write_text("x = 2\n")     # a callee's source changes
+    (tmp_path / "terms" / "gravity.py").write_text("x = 2\n")   # a term's source changes
     _drop_stale_cache(tmp_path)
     assert not (cache / "ensemble.f-1.py311.nbi").exists()
+    assert not (tmp_path / "terms" / "__pycache__" / "gravity.g-1.py311.nbi").exists()
 
 
 def test_cache_guard_targets_numbas_own_folder(tmp_path, monkeypatch):
@@ -51,10 +56,11 @@ def test_cache_guard_targets_numbas_own_folder(tmp_path, monkeypatch):
     import numba
     from numba.core.caching import _CacheLocator
 
-    import liethermo.kernels.model as model
+    import liethermo.kernels.simple as simple
     from liethermo.kernels._jit import _cache_dirs
 
     monkeypatch.setattr(numba.config, "CACHE_DIR", str(tmp_path))
-    here = Path(model.__file__).resolve().parent
-    expected = tmp_path / _CacheLocator.get_suitable_cache_subpath(str(here / "model.py"))
-    assert _cache_dirs(here) == [expected]
+    here = Path(simple.__file__).resolve().parent
+    expected = [tmp_path / _CacheLocator.get_suitable_cache_subpath(str(here / "simple.py")),
+                tmp_path / _CacheLocator.get_suitable_cache_subpath(str(here / "terms" / "gravity.py"))]
+    assert _cache_dirs(here) == expected
