@@ -297,7 +297,7 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
     scene0 = study_scene(s, points[0])
     members = int(scene0["ensemble"]["members"])
     phys0 = physics_of_scene(scene0)
-    ds.attrs.update(study=study_name(s), kind="flat_spin", reduced=int(reduced), members=members,
+    ds.attrs.update(title="liethermo study: double-bracket friction and the flat spin of a free asymmetric body", study=study_name(s), kind="flat_spin", reduced=int(reduced), members=members,
                     seed=int(scene0["ensemble"]["seed"]), values="node values",
                     lambda_t_end=float(opt["lambda_t_end"]), settle_fraction=float(opt["settle_fraction"]),
                     axis_tolerance=float(opt["axis_tolerance"]), casimir_lambda=lam_c)
