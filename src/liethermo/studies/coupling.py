@@ -604,8 +604,13 @@ def _finding(kdf, mdf, odf, ddf, opt, labels, ref_lab) -> str:
                 continue
             a, b = r["median max|ΔE|/E_mech,0, first half (1)"], r["median max|ΔE|/E_mech,0, second half (1)"]
             hb = r["median heat/E_mech,0 at t_end (1)"] / max(r["median heat/E_mech,0 at t_end/2 (1)"], 1e-300)
-            verdict = ("bounded: no larger in the second half" if b <= a * 1.05 else
-                       f"grows by {b / a:.2f}× while the heat grows by {hb:.2f}×")
+            if b <= a * 1.05:
+                verdict = "bounded: no larger in the second half"
+            elif b / a <= hb * 1.05:
+                verdict = (f"grows by {b / a:.2f}× while the heat grows by {hb:.2f}×: no faster than the heat "
+                           "released (an O(h^p) error of the dissipated energy), no drift of its own")
+            else:
+                verdict = f"grows by {b / a:.2f}×, faster than the heat ({hb:.2f}×): a drift"
             lines.append(f"  {r['method']}: {verdict}.")
     for lab in labels:
         g = odf[odf["method"] == lab].dropna(subset=["observed order"])

@@ -333,7 +333,7 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
             "λ (s kg⁻¹ m⁻²)": lam, "method": lab, "members": row["members"],
             "settling time (s), median [5 %, 95 %]": band_text(q50, q5, q95),
             "on major axis": f"{int((onax == 1).sum())}/{onax.size}",
-            "max \|Δt\| vs reference (s)": row["max |settling − reference| (s)"],
+            "max |Δt| vs reference (s)": row["max |settling − reference| (s)"],
             "max Casimir drift (1)": row["max Casimir drift (1)"],
             "max |ΔU − (K₀ − K)|/K₀ (1)": row["max |ΔU − (K0 − K)|/K0 (1)"],
         })
