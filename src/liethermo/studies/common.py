@@ -27,7 +27,7 @@ Study TOML layout::
     [study]
     kind = "convergence"
     name = "convergence"
-    base_scene = "paper"          # or a scene file (relative to the study file) or an inline table
+    base_scene = "paper"          # a built-in scene, a scene file (relative to the study file) or an inline table
     [scene.integrator]            # optional: scene keys applied on top of the base scene
     steps = 100
     [sweep]
@@ -52,7 +52,7 @@ import numpy as np
 import xarray as xr
 
 from .. import cf
-from ..scene import load_scene
+from ..scene import builtin_scene_text, load_scene
 
 #: Top-level keys every study accepts.
 BASE_KEYS = frozenset({"study", "scene", "sweep", "methods", "report", "reduced", "options"})
@@ -116,7 +116,9 @@ def study_scene(study: dict, overrides: dict | None = None) -> dict:
     table ← ``overrides`` (``{"section.key": value}`` or nested)."""
     st = study.get("study", {})
     base = st.get("base_scene", "paper")
-    if isinstance(base, str) and base != "paper":
+    builtin = (isinstance(base, str) and "/" not in base and not base.endswith(".toml")
+               and builtin_scene_text(base) is not None)
+    if isinstance(base, str) and not builtin:  # a scene file, relative to the study file
         p = Path(base)
         src = study.get("_source")
         if not p.is_absolute() and src is not None and not p.is_file():
