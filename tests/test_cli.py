@@ -95,7 +95,8 @@ def test_console_run_leaves_complete_files(tmp_path):
 
 def test_missing_scene_file_is_reported(tmp_path, capsys):
     assert main(["run", str(tmp_path / "nope.toml")]) == 2
-    assert "no such scene file" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert f"scene file '{tmp_path / 'nope.toml'}': not found" in err and err.count("\n") == 1
 
 
 def test_toml_scene_file_and_overrides(tmp_path):

@@ -35,10 +35,10 @@ R_GAS = 8.314462618  # J mol⁻¹ K⁻¹ (SPEC §2)
 class SceneError(ValueError):
     """An invalid scene: the message names the key and the rule it breaks."""
 
-    def __init__(self, key: str, rule: str, value: Any = None, *, show_value: bool = True):
+    def __init__(self, key: str, rule: str, value: Any = None, *, show_value: bool = True, what: str = "key"):
         self.key = key
         self.rule = rule
-        msg = f"scene key '{key}': {rule}"
+        msg = f"scene {what} '{key}': {rule}"
         if show_value:
             msg += f" (got {value!r})"
         super().__init__(msg)
@@ -155,12 +155,14 @@ def load_scene(source: str | Path | dict | None = "paper", overrides: list[str] 
         else:
             path = Path(src)
             if not path.is_file():
-                raise SceneError("SCENE", f"no such scene file, and not a built-in scene "
-                                 f"({', '.join(BUILTIN)})", src)
+                raise SceneError(src, f"not found, and not a built-in scene ({', '.join(BUILTIN)})",
+                                 show_value=False, what="file")
             try:
                 data = tomllib.loads(path.read_text())
-            except tomllib.TOMLDecodeError as exc:
-                raise SceneError("SCENE", f"{path} is not valid TOML: {exc}", show_value=False) from None
+            except OSError as exc:
+                raise SceneError(str(path), f"cannot be read ({exc.strerror})", show_value=False, what="file") from None
+            except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+                raise SceneError(str(path), f"not valid TOML: {exc}", show_value=False, what="file") from None
             _merge(scene, data, str(path))
             if scene["scene"]["name"] == "custom":
                 scene["scene"]["name"] = path.stem
