@@ -257,11 +257,10 @@ def compute_part(scene: dict, lo: int, hi: int, path: str, key: str, attrs: dict
         "liethermo_part_key": key, "liethermo_part_lo": int(lo), "liethermo_part_hi": int(hi),
         "liethermo_part_stats": json.dumps(st.to_dict()),
     })
-    path.parent.mkdir(parents=True, exist_ok=True)
+    # the writer's temporary is created exclusively and locked: two copies of one
+    # task (a worker presumed lost that is still running) never write the same
+    # temporary file, and a rerun tells a live task's temporary from a dead one's
     w = ChunkedWriter(path, hi - lo, part_attrs)
-    # unique temporary name: two copies of one task (a worker presumed lost
-    # that is still running) never write the same temporary file
-    w.tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex}.tmp")
     t2 = time.perf_counter()
     with w:
         w.write(ds, 0)
