@@ -93,6 +93,9 @@ def default_outdir(study: dict, reduced: bool) -> Path:
 
 
 def main_study(args) -> int:
+    from ..faults import Busy, Interrupted, OutputLock, folder_leftovers, human_bytes, remove_files
+    from ..io import WriteError
+
     try:
         study = load_study(args.study)
         validate_study(study)
@@ -101,14 +104,57 @@ def main_study(args) -> int:
         return EXIT_INVALID
     reduced = bool(getattr(args, "reduced", False))
     outdir = Path(args.outdir) if getattr(args, "outdir", None) else default_outdir(study, reduced)
-    progress = False if getattr(args, "no_progress", False) else None
-    mod = get_study(study["study"]["kind"])
-    t0 = time.perf_counter()
-    report = mod.run(study, outdir, reduced=reduced, progress=progress, dask=getattr(args, "dask", None))
-    wall = time.perf_counter() - t0
+    try:
+        lock = _prepare_outdir(outdir)
+    except (StudyError, Busy) as exc:
+        print(f"liethermo: error: {exc}", file=sys.stderr)
+        return EXIT_INVALID
+    try:
+        # what interrupted or killed studies left in this folder (their points stay: they resume)
+        n, size = remove_files(folder_leftovers(outdir) + folder_leftovers(outdir / "points"))
+        if n:
+            print(f"liethermo: removed {n} temporary file{'s' if n != 1 else ''} ({human_bytes(size)}) "
+                  f"left by interrupted or killed runs in {outdir}", file=sys.stderr)
+        progress = False if getattr(args, "no_progress", False) else None
+        mod = get_study(study["study"]["kind"])
+        t0 = time.perf_counter()
+        try:
+            report = mod.run(study, outdir, reduced=reduced, progress=progress, dask=getattr(args, "dask", None))
+        except WriteError as exc:
+            print(f"liethermo: error: {exc}", file=sys.stderr)
+            return EXIT_INVALID
+        except Interrupted as exc:
+            n = len(list((outdir / "points").glob("*.nc")))
+            print(f"liethermo: interrupted by {exc.name}: {n} finished sweep point{'s' if n != 1 else ''} "
+                  f"kept in {outdir / 'points'} (rerun the same command to continue)", file=sys.stderr)
+            return exc.exit_code
+        wall = time.perf_counter() - t0
+    finally:
+        lock.release()
     table = first_table(report)
     if table:
         print(table)
     print(f"study {study['study'].get('name', study['study']['kind'])!r}"
           f"{' (reduced)' if reduced else ''}: {wall:.1f} s, report {report}")
     return 0
+
+
+def _prepare_outdir(outdir: Path):
+    """The study's folder exists, takes files, and is locked for this process."""
+    import os
+
+    from ..faults import OutputLock
+
+    if outdir.exists() and not outdir.is_dir():
+        raise StudyError(f"cannot write the study to {outdir}: it is not a folder")
+    try:
+        outdir.mkdir(parents=True, exist_ok=True)
+        probe = outdir / f".probe.{os.getpid()}"
+        probe.touch()
+        probe.unlink()
+    except OSError as exc:
+        raise StudyError(f"cannot write the study to {outdir}: {exc.strerror or exc}") from None
+    try:
+        return OutputLock(outdir, folder=True).acquire()
+    except OSError as exc:
+        raise StudyError(f"cannot write the study to {outdir}: {exc.strerror or exc}") from None
