@@ -302,7 +302,7 @@ def validate(scene: dict) -> None:
         if not isinstance(scene["output"][key], bool):
             raise SceneError(f"output.{key}", "must be true or false", scene["output"][key])
     comp = scene["output"]["compare"]
-    if not isinstance(comp, list) or any(c not in METHODS for c in comp):
+    if not isinstance(comp, list) or any(not isinstance(c, str) or c not in METHODS for c in comp):
         raise SceneError("output.compare", f"must be a list of methods from {sorted(METHODS)}", comp)
     _integer(scene, "output", "member_chunk")
 
