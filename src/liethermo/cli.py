@@ -17,7 +17,9 @@ EXIT_INVALID = 2  # invalid input, refused run, failed write: one line on stderr
 
 
 def _error(msg) -> int:
-    print(f"liethermo: error: {msg}", file=sys.stderr)
+    from .faults import one_line
+
+    print(f"liethermo: error: {one_line(msg)}", file=sys.stderr)
     return EXIT_INVALID
 
 
@@ -31,14 +33,17 @@ def cmd_run(args) -> int:
             raise PreflightError("--resume keeps what an earlier run left and --force replaces it: "
                                  "give one of them")
         plan = prepare_run(scene, args.output, force=args.force, resume=args.resume,
-                           dask=bool(args.dask), combine=not args.no_combine)
+                           dask=bool(args.dask), combine=not args.no_combine, clean=not args.check)
     except (SceneError, PreflightError) as exc:
         return _error(exc)
     try:
+        from .faults import one_line
+
         for line in plan.notes:
-            print(line, file=sys.stderr)
+            print(one_line(line), file=sys.stderr)
         if args.check:
             print(f"scene {scene['scene']['name']!r} is valid: {plan.check_line()}")
+            plan.remove_created()
             return 0
         return _run_outputs(args, scene, plan)
     finally:
@@ -80,8 +85,10 @@ def _run_outputs(args, scene, plan) -> int:
     except WriteError as exc:
         return _error(exc)
     except Interrupted as exc:
+        from .faults import one_line
+
         done = [f"{w} written" for w in written] + exc.kept
-        print(f"liethermo: interrupted by {exc.name}: {'; '.join(done) or 'nothing written'}",
+        print(one_line(f"liethermo: interrupted by {exc.name}: {'; '.join(done) or 'nothing written'}"),
               file=sys.stderr)
         return exc.exit_code
     return 0

@@ -141,7 +141,7 @@ def temp_name(path: Path, pid: int | None = None, n: int = 0) -> Path:
 
 
 def _temp_re(name: str) -> re.Pattern:
-    return re.compile(rf"^\.{re.escape(name)}\.(?P<pid>\d+)(?:\.\d+)?\.tmp(?P<side>\.json)?$")
+    return re.compile(rf"^\.{re.escape(name)}\.(?P<pid>\d+)(?:\.\d+)?\.tmp(?P<side>\.json(?:\.new)?)?$")
 
 
 def create_temp(path: str | os.PathLike) -> tuple[Path, int | None]:
@@ -219,7 +219,7 @@ def leftovers(path: str | os.PathLike) -> list[Path]:
         if not m:
             continue
         p = path.parent / name
-        data = p.with_name(name[:-len(".json")]) if m["side"] else p
+        data = p.with_name(name[:-len(m["side"])]) if m["side"] else p
         if data.exists():
             if _owner_alive(data, int(m["pid"])):
                 continue
@@ -232,7 +232,7 @@ def leftovers(path: str | os.PathLike) -> list[Path]:
 def folder_leftovers(folder: str | os.PathLike) -> list[Path]:
     """Stale temporaries of every file in ``folder`` (not recursive)."""
     folder = Path(folder)
-    pat = re.compile(r"^\.(?P<name>.+)\.(?P<pid>\d+)(?:\.\d+)?\.tmp(?P<side>\.json)?$")
+    pat = re.compile(r"^\.(?P<name>.+)\.(?P<pid>\d+)(?:\.\d+)?\.tmp(?P<side>\.json(?:\.new)?)?$")
     try:
         names = os.listdir(folder)
     except OSError:
@@ -258,11 +258,14 @@ def remove_files(paths) -> tuple[int, int]:
     return n, size
 
 
-def removed_line(what: str, n: int, size: int, names=()) -> str:
-    """The one line saying stale files were removed."""
-    shown = ", ".join(str(x) for x in list(names)[:3]) + (", ..." if len(names) > 3 else "")
-    return (f"liethermo: removed {n} stale temporary file{'s' if n != 1 else ''} ({human_bytes(size)}) "
-            f"left by dead processes for {what}" + (f": {shown}" if shown else ""))
+def one_line(text) -> str:
+    """``text`` on one printable line: control characters (a newline in a key
+    name, say) and undecodable bytes are shown escaped."""
+    text = str(text)
+    if text.isprintable():
+        return text
+    return "".join(c if c.isprintable() else c.encode("unicode_escape", "backslashreplace").decode("ascii")
+                   for c in text)
 
 
 def human_bytes(n: float) -> str:

@@ -93,21 +93,21 @@ def default_outdir(study: dict, reduced: bool) -> Path:
 
 
 def main_study(args) -> int:
-    from ..faults import Busy, Interrupted, OutputLock, folder_leftovers, human_bytes, remove_files
+    from ..faults import Busy, Interrupted, folder_leftovers, human_bytes, one_line, remove_files
     from ..io import WriteError
 
     try:
         study = load_study(args.study)
         validate_study(study)
     except (StudyError, SceneError) as exc:
-        print(f"liethermo: error: {exc}", file=sys.stderr)
+        print(f"liethermo: error: {one_line(exc)}", file=sys.stderr)
         return EXIT_INVALID
     reduced = bool(getattr(args, "reduced", False))
     outdir = Path(args.outdir) if getattr(args, "outdir", None) else default_outdir(study, reduced)
     try:
         lock = _prepare_outdir(outdir)
     except (StudyError, Busy) as exc:
-        print(f"liethermo: error: {exc}", file=sys.stderr)
+        print(f"liethermo: error: {one_line(exc)}", file=sys.stderr)
         return EXIT_INVALID
     try:
         # what interrupted or killed studies left in this folder (their points stay: they resume)
@@ -121,7 +121,7 @@ def main_study(args) -> int:
         try:
             report = mod.run(study, outdir, reduced=reduced, progress=progress, dask=getattr(args, "dask", None))
         except WriteError as exc:
-            print(f"liethermo: error: {exc}", file=sys.stderr)
+            print(f"liethermo: error: {one_line(exc)}", file=sys.stderr)
             return EXIT_INVALID
         except Interrupted as exc:
             n = len(list((outdir / "points").glob("*.nc")))
