@@ -246,6 +246,15 @@ class RunPlan:
     disk_free: int | None = None
     memory_available: int | None = None
     resume_sources: dict = field(default_factory=dict)  # {path: ResumeSource}
+    created: list = field(default_factory=list)  # folders made for the outputs
+
+    def remove_created(self) -> None:
+        """Remove the folders made for the outputs, if still empty (a check-only run)."""
+        for d in reversed(self.created):
+            try:
+                d.rmdir()
+            except OSError:
+                pass
 
     def release(self) -> None:
         for lock in self.locks:
@@ -260,6 +269,43 @@ class RunPlan:
         avail = f", {human_bytes(self.memory_available)} available" if self.memory_available is not None else ""
         return (f"{n} output file(s), about {human_bytes(self.disk_need)} on disk{free}; "
                 f"about {mem} of memory per member chunk of {e.chunk_members} member(s){avail}")
+
+
+#: Scene keys the kernel parameters are derived from.
+PARAMETER_KEYS = ("body.radius", "body.density", "body.molar_mass", "body.upper_mass_fraction", "body.inertia",
+                  "body.center_of_mass", "fluid.viscosity", "gravity.g", "thermo.T0")
+
+
+#: Integer keys the kernels and arrays take as 64-bit integers.
+INT64_KEYS = ("integrator.steps", "integrator.newton_maxiter", "output.every", "output.member_chunk",
+              "ensemble.members")
+
+
+def check_parameters(scene: dict) -> None:
+    """The kernels get numbers they can take: integers that fit in 64 bits, and
+    finite parameters (every key may be valid on its own and the derived mass,
+    moments, friction, heat capacity or gravity torque still overflow or
+    vanish: a radius of 1e-300 m)."""
+    from .kernels.model import NPARAM
+    from .scene import physical_parameters
+
+    for key in INT64_KEYS:
+        section, name = key.split(".")
+        v = scene[section][name]
+        if isinstance(v, int) and v > np.iinfo(np.int64).max:
+            raise PreflightError(f"scene key '{key}': too large for the kernels (at most "
+                                 f"{np.iinfo(np.int64).max}) (got {v})")
+
+    try:
+        with np.errstate(all="ignore"):
+            p = physical_parameters(scene)
+        bad = not (p.shape == (NPARAM,) and np.all(np.isfinite(p)))
+        why = "not finite numbers"
+    except ArithmeticError as exc:
+        bad, why = True, f"not computable ({exc})"
+    if bad:
+        raise PreflightError(f"the kernel parameters derived from the scene (mass, moments of inertia, friction, "
+                             f"heat capacity, gravity torque) are {why}; check {', '.join(PARAMETER_KEYS)}")
 
 
 def _first_existing(p: Path) -> Path:
@@ -296,16 +342,18 @@ def _check_folder(path: Path, created: list[Path]) -> None:
 
 
 def prepare_run(scene: dict, output=None, *, force: bool = False, resume: bool = False,
-                dask: bool = False, combine: bool = True, check_memory: bool = True) -> RunPlan:
+                dask: bool = False, combine: bool = True, check_memory: bool = True, clean: bool = True) -> RunPlan:
     """Every check before a run; returns the plan (holding the output locks:
-    call ``plan.release()`` when done).  Raises :class:`PreflightError`."""
+    call ``plan.release()`` when done).  Raises :class:`PreflightError`.
+    ``clean=False``: leave what earlier runs left (a check only)."""
     from .distributed import parts_dir
     from .io import journal_path, partial_path, resume_sources
     from .scene import scene_to_toml
 
+    check_parameters(scene)
     outs = [Output(m, p, method_scene(scene, m)) for m, p in output_paths(scene, output).items()]
     plan = RunPlan(outs)
-    created: list[Path] = []
+    created = plan.created
     try:
         for o in outs:
             if o.path.suffix != ".nc":
@@ -358,12 +406,11 @@ def prepare_run(scene: dict, output=None, *, force: bool = False, resume: bool =
         _check_sizes(plan, scene, dask=dask, combine=combine, check_memory=check_memory and not dask)
     except BaseException:
         plan.release()
-        for d in reversed(created):
-            try:
-                d.rmdir()
-            except OSError:
-                pass
+        plan.remove_created()
         raise
+    plan.resume_sources = chosen
+    if not clean:
+        return plan
     # what earlier runs of these outputs left: removed, but for the resume sources
     stale: list[Path] = []
     where: list[str] = []
@@ -372,8 +419,10 @@ def prepare_run(scene: dict, output=None, *, force: bool = False, resume: bool =
         if o.path in chosen:
             keep = {chosen[o.path].data, chosen[o.path].journal_file}
         cands = list(leftovers(o.path))
+        pj = journal_path(partial_path(o.path))
+        cands += [p for p in (pj.with_name(pj.name + ".new"),) if p.exists()]  # a journal cut short
         if not resume or dask:
-            cands += [p for p in (partial_path(o.path), journal_path(partial_path(o.path))) if p.exists()]
+            cands += [p for p in (partial_path(o.path), pj) if p.exists()]
         if dask:
             cands += folder_leftovers(parts_dir(o.path))
         mine = [p for p in cands if p not in keep]
@@ -384,7 +433,6 @@ def prepare_run(scene: dict, output=None, *, force: bool = False, resume: bool =
     if n:
         plan.notes.append(f"liethermo: removed {n} file{'s' if n != 1 else ''} ({human_bytes(size)}) "
                           f"left by interrupted or killed runs of {' and '.join(where)}")
-    plan.resume_sources = chosen
     return plan
 
 
