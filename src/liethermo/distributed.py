@@ -84,9 +84,11 @@ def make_client(address: Any = "local"):
     if address in (None, "local"):
         n = os.cpu_count() or 1
         with _workers_ignore_sigint():
-            # dashboard on a free local port: no warning when another cluster holds 8787
+            # dashboard on a free local port: no warning when another cluster holds 8787;
+            # the workers' logs silenced: a task's error reaches the client as its exception,
+            # and a stopped run's shutdown (workers losing the scheduler) is not an error
             cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                                   dashboard_address="127.0.0.1:0", silence_logs=logging.ERROR,
+                                   dashboard_address="127.0.0.1:0", silence_logs=logging.CRITICAL,
                                    env={"NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"})
         client = Client(cluster)
         client._liethermo_cluster = cluster  # closed by close_client
