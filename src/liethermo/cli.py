@@ -43,6 +43,7 @@ def cmd_run(args) -> int:
             print(one_line(line), file=sys.stderr)
         if args.check:
             print(f"scene {scene['scene']['name']!r} is valid: {plan.check_line()}")
+            plan.release()
             plan.remove_created()
             return 0
         return _run_outputs(args, scene, plan)

@@ -369,7 +369,6 @@ def run_scene_dask(scene: dict | str, out: str | os.PathLike, *, address: Any = 
     """
     scene, attrs, summ = scene_setup(scene, overrides)
     out = Path(out)
-    members, steps = summ.members, summ.steps
     key = scene_key(scene)
     parts = parts_dir(out)
     t_wall = time.perf_counter()

@@ -268,7 +268,7 @@ class RunPlan:
         free = f", {human_bytes(self.disk_free)} free" if self.disk_free is not None else ""
         avail = f", {human_bytes(self.memory_available)} available" if self.memory_available is not None else ""
         return (f"{n} output file(s), about {human_bytes(self.disk_need)} on disk{free}; "
-                f"about {mem} of memory per member chunk of {e.chunk_members} member(s){avail}")
+                f"at most about {mem} of memory (member chunks of {e.chunk_members}){avail}")
 
 
 #: Scene keys the kernel parameters are derived from.
@@ -449,7 +449,7 @@ def _check_sizes(plan: RunPlan, scene: dict, *, dask: bool, combine: bool, check
         root = _first_existing(o.path.parent)
         dev = os.stat(root).st_dev
         b = ests[o.method].file_bytes * (2 if dask and combine else 1)
-        ent = need.setdefault(dev, [root, 0, []])
+        ent = need.setdefault(dev, [o.path.parent, 0, []])
         ent[1] += b
         ent[2].append(o)
     plan.disk_need = sum(v[1] for v in need.values())
@@ -462,7 +462,7 @@ def _check_sizes(plan: RunPlan, scene: dict, *, dask: bool, combine: bool, check
             raise PreflightError(
                 f"{names} would need about {human_bytes(b)} ({e.members} members x "
                 f"{human_bytes(e.file_per_member)}{' x 2 for the Dask parts' if dask and combine else ''}) "
-                f"but {root} has {human_bytes(free)} free; run fewer members (ensemble.members) "
+                f"but the disk of {root} has {human_bytes(free)} free; run fewer members (ensemble.members) "
                 f"or store less (output.every, output.attitude)")
     if not check_memory:
         return

@@ -207,7 +207,7 @@ def finish_summary(summ: RunSummary, st: ChunkStats) -> RunSummary:
 
 
 def run_scene(scene: dict | str, out: str | Path | None = None, *, overrides=None,
-              progress: bool | None = None, kernel: str | None = None, resume: bool | "ResumeSource" = False
+              progress: bool | None = None, kernel: str | None = None, resume=False
               ) -> tuple[xr.Dataset | None, RunSummary]:
     """Run one scene with its own method.
 
@@ -216,7 +216,7 @@ def run_scene(scene: dict | str, out: str | Path | None = None, *, overrides=Non
 
     ``resume``: go on from what an interrupted or killed run of the same
     scene left for ``out`` (``True``: the best of
-    :func:`liethermo.io.resume_sources`, or a given source); the scene must be
+    :func:`liethermo.io.resume_sources`, or a given :class:`liethermo.io.ResumeSource`); the scene must be
     the same (the caller checks it: :func:`liethermo.preflight.prepare_run`).
     On a stop signal (:class:`liethermo.faults.Interrupted`) the chunks done
     are kept in ``<out>.partial`` for a resume, and the exception goes on
@@ -256,7 +256,7 @@ def _run_to_file(scene, attrs, out: Path, summ: RunSummary, total: ChunkStats, b
     """The chunk loop of a run with an output file: write, flush and journal
     each chunk; resume; keep the partial file on a stop signal."""
     from .faults import Interrupted, critical
-    from .io import ChunkedWriter, Journal, journal_path, partial_path, resume_sources
+    from .io import ChunkedWriter, Journal, journal_path, resume_sources
 
     members, steps = summ.members, summ.steps
     chunk = int(scene["output"]["member_chunk"])
