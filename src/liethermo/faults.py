@@ -334,8 +334,11 @@ class OutputLock:
             if not same:
                 os.close(fd)
                 continue
-            os.ftruncate(fd, 0)
-            os.write(fd, f"pid {os.getpid()} on {socket.gethostname()}\n".encode())
+            try:  # who holds it, for the message of a refused second process
+                os.ftruncate(fd, 0)
+                os.write(fd, f"pid {os.getpid()} on {socket.gethostname()}\n".encode())
+            except OSError:
+                pass  # a full disk: the lock holds all the same
             self.fd = fd
             return self
         raise Busy(self.target, "lock file keeps changing")  # pragma: no cover
