@@ -76,12 +76,8 @@ def _run_outputs(args, scene, plan) -> int:
                 print(f"  dask: {summ.tasks} task(s), {summ.tasks_skipped} already done (resumed); "
                       f"overhead {summ.task_overhead:.3f} s per task; combine {summ.combine_time:.2f} s")
         if scene["output"]["figures"] and not (args.dask and args.no_combine):
-            from .plotting import scene_figures
-
-            main = plan.outputs[0].path
             stem = Path(args.output).stem if args.output else scene["scene"]["name"]
-            figs = scene_figures({o.method: o.path for o in plan.outputs}, main.parent, stem=stem)
-            for f in figs:
+            for f in _figures(plan, stem):
                 print(f"  figure {f}")
     except WriteError as exc:
         return _error(exc)
@@ -93,6 +89,31 @@ def _run_outputs(args, scene, plan) -> int:
               file=sys.stderr)
         return exc.exit_code
     return 0
+
+
+def _figures(plan, stem: str) -> list[Path]:
+    """Draw the run's figures next to its first output, each complete or not
+    at all: drawn in a temporary folder there, then renamed into place."""
+    import shutil
+    import tempfile
+
+    from .io import WriteError, io_cause
+    from .plotting import scene_figures
+
+    folder = plan.outputs[0].path.parent
+    tmp = Path(tempfile.mkdtemp(prefix=f".{stem}_figures.", dir=folder))
+    try:
+        try:
+            drawn = scene_figures({o.method: o.path for o in plan.outputs}, tmp, stem=stem)
+            final = []
+            for f in drawn:
+                os.replace(f, folder / f.name)
+                final.append(folder / f.name)
+            return final
+        except OSError as exc:
+            raise WriteError(folder / f"{stem}_*.png", io_cause(exc)) from None
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
 
 
 def build_parser() -> argparse.ArgumentParser:

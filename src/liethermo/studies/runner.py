@@ -123,6 +123,10 @@ def main_study(args) -> int:
         except WriteError as exc:
             print(f"liethermo: error: {one_line(exc)}", file=sys.stderr)
             return EXIT_INVALID
+        except OSError as exc:  # a figure (drawn straight to its file)
+            what = f"cannot write {exc.filename or 'a figure in ' + str(outdir)}: {exc.strerror or exc}"
+            print(f"liethermo: error: {one_line(what)}", file=sys.stderr)
+            return EXIT_INVALID
         except Interrupted as exc:
             n = len(list((outdir / "points").glob("*.nc")))
             print(f"liethermo: interrupted by {exc.name}: {n} finished sweep point{'s' if n != 1 else ''} "
