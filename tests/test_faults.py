@@ -290,6 +290,24 @@ def test_library_error_while_writing(tmp_path, monkeypatch, capsys):
     assert names(tmp_path) == []
 
 
+def test_disk_full_while_drawing_the_figures(tmp_path, monkeypatch, capsys):
+    """A figure is complete or absent: one half-written when the disk fills is removed."""
+    import errno
+
+    import liethermo.plotting as pl
+
+    def full(outputs, folder, stem="run", member=0):
+        (Path(folder) / f"{stem}_energies.png").write_bytes(b"\x89PNG half")
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(pl, "scene_figures", full)
+    out = tmp_path / "p.nc"
+    assert main(["run", "paper", "-o", str(out), "--no-progress", "--set", "integrator.steps=20"]) == 2
+    assert one_line(capsys.readouterr().err) == (f"liethermo: error: cannot write {tmp_path / 'p_*.png'}: "
+                                                 "No space left on device (ENOSPC)")
+    assert names(tmp_path) == ["p.nc", "p_rk2.nc"]  # the datasets are complete; no figure, no temporary
+
+
 # ---------------------------------------------------------------- refused before any work
 @pytest.fixture
 def no_simulation(monkeypatch):
