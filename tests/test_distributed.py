@@ -265,6 +265,31 @@ def test_ctrl_c_under_dask_local(tmp_path):
         raise AssertionError("processes of the stopped run are still alive")
 
 
+def stop_on_item(item):
+    """Item 2 sends the client a SIGTERM; every item takes a moment and leaves a marker."""
+    client_pid, folder, i = item
+    if i == 2:
+        os.kill(client_pid, signal.SIGTERM)
+    time.sleep(0.3)
+    (Path(folder) / f"ran-{i}").touch()
+    return i
+
+
+def test_stop_signal_cancels_mapped_tasks(client, tmp_path):
+    """What `liethermo study --dask` relies on: a stop signal in the client
+    cancels the remaining sweep-point tasks and goes on as Interrupted."""
+    from liethermo.faults import Interrupted, stop_on_signals
+
+    items = [(os.getpid(), str(tmp_path), i) for i in range(12)]
+    t0 = time.perf_counter()
+    with stop_on_signals(), pytest.raises(Interrupted) as exc:
+        ld.map_tasks(stop_on_item, items, client, progress=False)
+    assert exc.value.exit_code == 143
+    assert time.perf_counter() - t0 < 12 * 0.3 / 2  # it did not wait for the other tasks
+    time.sleep(3.0)  # long enough for every task to have run, had they not been cancelled
+    assert len(list(tmp_path.glob("ran-*"))) < 8
+
+
 def test_map_tasks_in_order(client):
     assert ld.map_tasks(abs, [-3, 2, -1, 0], client, progress=False) == [3, 2, 1, 0]
     assert ld.map_tasks(abs, [], client) == []
