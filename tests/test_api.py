@@ -43,9 +43,16 @@ def test_run_validates_before_any_work(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     with pytest.raises(SceneError, match="integrator.h"):
         liethermo.run("paper", {"integrator.h": 0.0}, output="x.nc")
-    with pytest.raises(SceneError, match="output"):
+    with pytest.raises(liethermo.PreflightError, match="x.txt: the output file must end in .nc"):
         liethermo.run("paper", output="x.txt")
-    assert list(tmp_path.iterdir()) == []
+    (tmp_path / "d.nc").mkdir()
+    with pytest.raises(liethermo.PreflightError, match="cannot write d.nc: it is a folder"):
+        liethermo.run("paper", output="d.nc")
+    (tmp_path / "notes.nc").write_text("mine")
+    with pytest.raises(liethermo.PreflightError, match="notes.nc exists and is not a liethermo output"):
+        liethermo.run("paper", output="notes.nc")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["d.nc", "notes.nc"]
+    assert (tmp_path / "notes.nc").read_text() == "mine"
 
 
 def test_accessor_definitions():

@@ -96,7 +96,8 @@ def test_console_run_leaves_complete_files(tmp_path):
 
 def test_missing_scene_file_is_reported(tmp_path, capsys):
     assert main(["run", str(tmp_path / "nope.toml")]) == 2
-    assert "no such scene file" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert f"scene file '{tmp_path / 'nope.toml'}': not found" in err and err.count("\n") == 1
 
 
 def test_toml_scene_file_and_overrides(tmp_path):
@@ -107,7 +108,7 @@ def test_toml_scene_file_and_overrides(tmp_path):
     assert sc["integrator"]["method"] == "rk4"
     assert sc["integrator"]["h"] == 0.025            # --set wins over the file
     assert sc["integrator"]["friction"] == "endpoint"  # bare word taken as a string
-    assert sc["initial"]["omega"] == [2.0, -1.0, 0.5]
+    assert sc["initial"]["omega"] == (2.0, -1.0, 0.5)  # list values are tuples in the typed scene
     assert sc["fluid"]["viscosity"] == 0.1            # defaults are the paper's values
 
 
@@ -119,15 +120,18 @@ def test_unknown_key_in_file(tmp_path):
 
 
 def test_paper_scene_derived_values():
-    """SPEC §2's derived values."""
-    from liethermo.scene import body
+    """The paper body's derived values (docs/model.md): m = ρ 2πa³/3 per hemisphere
+    mixture, ℓ = 3m₁a/(8m) − m₂a/(2m), c = 8πμa³, c_v = 3 (m/M) R, the printed 𝕀."""
+    from liethermo.physics import physics_of_scene
 
-    b = body(load_scene("paper"))
-    assert b.mass == pytest.approx(1.4137166941154071, rel=1e-15)
-    assert b.ell == pytest.approx(0.00125, rel=1e-12)
-    assert b.stokes_coefficient == pytest.approx(3.1415926535897936e-4, rel=1e-15)
-    assert b.heat_capacity == pytest.approx(1306.9263327416309, rel=1e-15)
-    np.testing.assert_allclose(b.inertia, [6.6783e-4, 6.6783e-4, 1.31947e-3], rtol=1e-4)
+    b = physics_of_scene(load_scene("paper"))
+    assert b.mass[0] == pytest.approx(1.4137166941154071, rel=1e-15)
+    np.testing.assert_allclose(b.center_of_mass[0], [0.0, 0.0, 0.00125], rtol=1e-12)
+    np.testing.assert_allclose(b.friction[0], 3.1415926535897936e-4, rtol=1e-15)
+    assert b.isotropic_friction
+    assert b.heat_capacity[0] == pytest.approx(1306.9263327416309, rel=1e-15)
+    np.testing.assert_allclose(b.inertia[0], [6.6783e-4, 6.6783e-4, 1.31947e-3], rtol=1e-4)
+    np.testing.assert_allclose(b.gravity_torque[0], b.mass[0] * 9.81 * b.center_of_mass[0], rtol=1e-15)
 
 
 def _small(members=1, **kw):
@@ -139,10 +143,17 @@ def _small(members=1, **kw):
 
 
 def test_members_1_uses_the_scene_initial_data_exactly():
-    ds, _ = run_scene(_small(initial__omega=[0.3, -0.2, 1.7]), progress=False)
-    np.testing.assert_array_equal(ds["initial_omega"].values[0], [0.3, -0.2, 1.7])
-    np.testing.assert_array_equal(ds["omega"].values[0, 0], [0.3, -0.2, 1.7])
-    np.testing.assert_array_equal(ds["gamma"].values[0, 0], [0.0, 1.0, 0.0])  # Γ0 = R0ᵀe3 (E1)
+    """One member starts from initial.omega exactly: the node velocity Ω(0) of
+    RK and of the VI's Legendre start; the paper's node start takes it as
+    the first step velocity Ω₀ instead."""
+    w = [0.3, -0.2, 1.7]
+    for method, start, var in (("vi", "legendre", "omega"), ("rk4", "legendre", "omega"),
+                               ("vi", "node", "omega_step")):
+        ds, _ = run_scene(_small(initial__omega=w, integrator__method=method, integrator__start=start),
+                          progress=False)
+        np.testing.assert_array_equal(ds["initial_omega"].values[0], w)
+        np.testing.assert_array_equal(ds[var].values[0, 0], w)
+        np.testing.assert_array_equal(ds["gamma"].values[0, 0], [0.0, 1.0, 0.0])  # Γ0 = R0ᵀe3 (E1)
 
 
 def test_seed_reproducible_and_distribution():
@@ -169,10 +180,10 @@ def test_member_chunking_does_not_change_results():
 def test_energy_error_without_cancellation():
     """E_k − E_0 computed from differences agrees with the naive difference of totals
     to the naive difference's own round-off, and is far more precise."""
-    ds, _ = run_scene(_small(), progress=False)
+    ds, _ = run_scene(_small(integrator__start="legendre"), progress=False)  # node 0 is Ω(0)
     naive = ds["total_energy"] - ds["total_energy"].isel(time=0)
     E = float(ds["total_energy"].values[0, 0])
-    assert E == pytest.approx(3.9e5, rel=0.02)  # c_v T0 dominates (SPEC §4)
+    assert E == pytest.approx(3.9e5, rel=0.02)  # c_v T0 dominates
     assert np.abs(ds["energy_error"] - naive).max() < 8 * np.finfo(float).eps * E
     assert ds["energy_error"].values[0, 0] == 0.0
 
@@ -292,14 +303,6 @@ def test_summary_of_a_run_where_every_member_failed():
     text = "\n".join(summ.lines())
     assert "no member completed" in text and "nan" not in text
     assert summ.first_fail_step == 142  # the paper's RK2 at h = 0.1 (t = 14.2 s)
-
-
-def test_bench_help_reaches_the_bench_parser(capsys):
-    """`liethermo bench --help` shows the benchmark's own options (not the top parser's error)."""
-    with pytest.raises(SystemExit) as exc:
-        main(["bench", "--help"])
-    assert exc.value.code == 0
-    assert "--members" in capsys.readouterr().out
 
 
 @pytest.mark.parametrize("preset,expected", [(None, "2"), ("3", "3")])

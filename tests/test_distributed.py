@@ -11,7 +11,12 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shlex
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -118,6 +123,17 @@ def fail_256(scene, lo, hi, path, key, attrs, numba_threads=None):
     return ld.compute_part(scene, lo, hi, path, key, attrs, numba_threads)
 
 
+def stop_client(scene, lo, hi, path, key, attrs, numba_threads=None):
+    """Chunk 256 sends the client a SIGTERM (a batch system's time limit), once,
+    and is still running when the client stops."""
+    m = _marker(path, "stopped", lo)
+    if lo == 2 * TASK and not m.exists():
+        m.touch()
+        os.kill(int(_marker(path, "client", 0).read_text()), signal.SIGTERM)
+        time.sleep(1.0)
+    return ld.compute_part(scene, lo, hi, path, key, attrs, numba_threads)
+
+
 def count_calls(scene, lo, hi, path, key, attrs, numba_threads=None):
     _marker(path, "called", lo).touch()
     return ld.compute_part(scene, lo, hi, path, key, attrs, numba_threads)
@@ -200,6 +216,83 @@ def test_resume_recomputes_nothing_finished(client, tmp_path, ref_vi):
     assert out.stat().st_mtime_ns == before
     idx2 = json.loads((parts / ld.INDEX_NAME).read_text())
     assert idx2["scene_key"] != idx["scene_key"] and all((parts / f).exists() for f in idx2["files"])
+
+
+def test_stop_signal_cancels_the_tasks_and_keeps_the_parts(client, tmp_path, ref_vi):
+    from liethermo.faults import Interrupted, stop_on_signals
+
+    out = tmp_path / "stopped.nc"
+    parts = ld.parts_dir(out)
+    (tmp_path / "client-0").write_text(str(os.getpid()))
+    with stop_on_signals(), pytest.raises(Interrupted) as exc:
+        ld.run_scene_dask("paper", out, overrides=VI, address=client, task_members=TASK, progress=False,
+                          task=stop_client)
+    assert exc.value.exit_code == 143
+    (msg,) = exc.value.kept
+    m = re.fullmatch(rf"stopped with (\d)/5 member chunks of {re.escape(str(out))} done, kept in "
+                     rf"{re.escape(str(parts))}/ \(rerun the same command to continue\)", msg)
+    assert m and 0 < int(m[1]) < 5, msg
+    assert not out.exists()
+    # the rerun takes over the finished chunks and gives the in-process result
+    _, summ = ld.run_scene_dask("paper", out, overrides=VI, address=client, progress=False)
+    assert summ.tasks == 5 and summ.tasks_skipped >= int(m[1])
+    assert_same_run(out, ref_vi)
+
+
+def test_ctrl_c_under_dask_local(tmp_path):
+    """Ctrl-C at a terminal signals the whole process group, the local
+    cluster's workers too: one line, exit status 130, no process left."""
+    out = tmp_path / "x.nc"
+    sets = ["ensemble.members=100000", "output.member_chunk=2000", "integrator.steps=3000", "output.every=300",
+            "output.compare=[]", "output.figures=false", "output.attitude=false"]
+    cmd = [sys.executable, "-m", "liethermo.cli", "run", "paper", "-o", str(out), "--no-progress", "--dask", "local"]
+    p = subprocess.Popen(cmd + [a for x in sets for a in ("--set", x)], stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE, text=True, start_new_session=True)
+    parts = ld.parts_dir(out)
+    deadline = time.time() + 120
+    while time.time() < deadline and not (parts / ld.INDEX_NAME).exists():  # the tasks are submitted
+        assert p.poll() is None, p.communicate()
+        time.sleep(0.02)
+    time.sleep(0.5)
+    os.killpg(p.pid, signal.SIGINT)
+    _, err = p.communicate(timeout=120)
+    assert p.returncode == 130, err
+    assert err.count("\n") == 1 and "Traceback" not in err, err
+    assert err.startswith("liethermo: interrupted by SIGINT: stopped "), err
+    assert not out.exists() and not [f for f in os.listdir(parts) if f.startswith(".")]
+    for _ in range(100):  # the workers are gone with the cluster
+        try:
+            os.killpg(p.pid, 0)
+        except ProcessLookupError:
+            break
+        time.sleep(0.05)
+    else:
+        raise AssertionError("processes of the stopped run are still alive")
+
+
+def stop_on_item(item):
+    """Item 2 sends the client a SIGTERM; every item takes a moment and leaves a marker."""
+    client_pid, folder, i = item
+    if i == 2:
+        os.kill(client_pid, signal.SIGTERM)
+    time.sleep(0.3)
+    (Path(folder) / f"ran-{i}").touch()
+    return i
+
+
+def test_stop_signal_cancels_mapped_tasks(client, tmp_path):
+    """What `liethermo study --dask` relies on: a stop signal in the client
+    cancels the remaining sweep-point tasks and goes on as Interrupted."""
+    from liethermo.faults import Interrupted, stop_on_signals
+
+    items = [(os.getpid(), str(tmp_path), i) for i in range(12)]
+    t0 = time.perf_counter()
+    with stop_on_signals(), pytest.raises(Interrupted) as exc:
+        ld.map_tasks(stop_on_item, items, client, progress=False)
+    assert exc.value.exit_code == 143
+    assert time.perf_counter() - t0 < 12 * 0.3 / 2  # it did not wait for the other tasks
+    time.sleep(3.0)  # long enough for every task to have run, had they not been cancelled
+    assert len(list(tmp_path.glob("ran-*"))) < 8
 
 
 def test_map_tasks_in_order(client):

@@ -6,8 +6,9 @@ The Python interface (docs/api.md)::
     ds = liethermo.run("paper", {"integrator.h": 0.05})     # an xarray Dataset
     ds.liethermo.relative_energy_error().plot.line(x="time")
 
-``run``, ``study``, ``load_scene``, ``open_dataset`` and the ``ds.liethermo``
-accessor come from :mod:`liethermo.api`.  Importing the package compiles
+``run``, ``study``, ``load_scene``, ``open_dataset``, the ``ds.liethermo``
+accessor and the errors they raise on bad input (``SceneError``,
+``PreflightError``) come from :mod:`liethermo.api`.  Importing the package compiles
 nothing; kernels compile (or load from the numba cache) on first use.
 """
 
@@ -20,6 +21,7 @@ try:
 except Exception:  # pragma: no cover - not installed
     __version__ = "0+unknown"
 
-from .api import StudyResult, load_scene, open_dataset, run, study  # noqa: E402
+from .api import PreflightError, SceneError, StudyResult, load_scene, open_dataset, run, study  # noqa: E402
 
-__all__ = ["run", "study", "load_scene", "open_dataset", "StudyResult", "__version__"]
+__all__ = ["run", "study", "load_scene", "open_dataset", "StudyResult", "SceneError", "PreflightError",
+           "__version__"]

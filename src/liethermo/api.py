@@ -29,6 +29,7 @@ import numpy as np
 import xarray as xr
 
 from . import cf
+from .preflight import PreflightError  # noqa: F401  (re-exported)
 from .scene import Scene, SceneError  # noqa: F401  (re-exported)
 from .scene import load_scene as _load_scene
 
@@ -41,31 +42,53 @@ def load_scene(scene: str | Path | dict | Scene = "paper", overrides: dict | lis
 
 
 def run(scene: str | Path | dict | Scene = "paper", overrides: dict | list | None = None, *,
-        output: str | Path | None = None, progress: bool = False,
-        history: str | None = None) -> xr.Dataset:
+        output: str | Path | None = None, progress: bool = False, force: bool = False,
+        resume: Any = False, preflight: bool = True, history: str | None = None) -> xr.Dataset:
     """Run a scene with its own method and return its dataset.
 
     Runs in memory and writes nothing unless ``output`` (a ``.nc`` path) is
     given: then the dataset is written there atomically, member chunk by
-    member chunk, and returned opened lazily from the file.  ``progress``:
-    a progress bar over member-steps.  The returned dataset carries the run's
-    summary as ``ds.attrs["summary"]`` (one line per fact, as the command
-    line prints it)."""
+    member chunk, and returned opened lazily from the file.  Before any
+    work, the output is checked as on the command line
+    (:func:`liethermo.preflight.prepare_run`: its folder takes files, no
+    other process writes it, an existing file holds a run of the same scene
+    unless ``force``, disk and memory suffice), raising
+    :class:`liethermo.preflight.PreflightError`; ``resume=True`` goes on from
+    what an interrupted or killed run of the same scene left.
+    ``progress``: a progress bar over member-steps.  The returned dataset
+    carries the run's summary as ``ds.attrs["summary"]`` (one line per fact,
+    as the command line prints it).  A write that fails raises
+    :class:`liethermo.io.WriteError` and leaves no file; Ctrl-C keeps the
+    complete member chunks in ``<output>.partial`` for ``resume=True``."""
     from .runner import run_scene
 
     sc = load_scene(scene, overrides)
     if history is None:
         history = cf.api_call("liethermo.run", scene if not isinstance(scene, Scene) else sc.name,
                               overrides=overrides, output=output)
-    if output is not None:
-        out = Path(output)
-        if out.suffix != ".nc":
-            raise SceneError("output", "the output file must end in .nc", str(out))
-        _, summ = run_scene(sc, out, progress=progress, history=history)
-        ds = open_dataset(out)
-    else:
+    if output is None:
         ds, summ = run_scene(sc, None, progress=progress, history=history)
-    ds.attrs["summary"] = "\n".join(summ.lines())
+        ds.attrs["summary"] = "\n".join(summ.lines())
+        return ds
+    out = Path(output)
+    plan = None
+    if preflight:
+        from .preflight import prepare_run
+
+        # this output only: the command line runs output.compare's methods
+        sc = sc.with_overrides({"output.compare": []})
+        plan = prepare_run(sc, out, force=force, resume=bool(resume))
+        resume = plan.resume_sources.get(out, False) if resume is True else resume
+    try:
+        if plan is not None and plan.outputs[0].skip:  # complete already: resume has nothing to do
+            summ = None
+        else:
+            _, summ = run_scene(sc, out, progress=progress, history=history, resume=resume)
+    finally:
+        if plan is not None:
+            plan.release()
+    ds = open_dataset(out)
+    ds.attrs["summary"] = "\n".join(summ.lines()) if summ is not None else f"{out}: complete, kept"
     return ds
 
 
@@ -90,17 +113,15 @@ def study(path: str | Path, *, reduced: bool = False, output: str | Path | None 
     ``-reduced`` in reduced mode); an interrupted study resumes there.
     ``dask``: ``"local"``, a scheduler address or a Client, to run sweep
     points as Dask tasks."""
-    from .studies import get_study
     from .studies.common import study_netcdf_path
-    from .studies.runner import default_outdir, load_study, validate_study
+    from .studies.runner import default_outdir, load_study, run_study, validate_study
 
     s = load_study(path)
     validate_study(s)
     outdir = Path(output) if output is not None else default_outdir(s, reduced)
     if history is None:
         history = cf.api_call("liethermo.study", str(path), reduced=reduced, output=output)
-    mod = get_study(s["study"]["kind"])
-    report = Path(mod.run(s, outdir, reduced=reduced, progress=progress, dask=dask, history=history))
+    report = run_study(s, outdir, reduced=reduced, progress=progress, dask=dask, history=history)
     from .studies.common import resolve_study
 
     nc = study_netcdf_path(resolve_study(s, reduced), outdir)

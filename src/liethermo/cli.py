@@ -14,69 +14,120 @@ from pathlib import Path
 
 from . import __version__
 
-EXIT_INVALID = 2
+EXIT_INVALID = 2  # invalid input, refused run, failed write: one line on stderr
 
 
-def _default_out(scene: dict) -> Path:
-    return Path("data") / "runs" / f"{scene['scene']['name']}.nc"
+def _error(msg) -> int:
+    from .faults import one_line
 
-
-def _compare_path(out: Path, method: str) -> Path:
-    return out.with_name(f"{out.stem}_{method}{out.suffix}")
+    print(f"liethermo: error: {one_line(msg)}", file=sys.stderr)
+    return EXIT_INVALID
 
 
 def cmd_run(args) -> int:
+    from .preflight import PreflightError, prepare_run
     from .scene import SceneError, load_scene
 
     try:
         scene = load_scene(args.scene, args.set)
-        out = Path(args.output) if args.output else _default_out(scene)
-        if out.suffix != ".nc":
-            raise SceneError("-o/--output", "the output file must end in .nc", str(out))
-        if out.exists() and out.is_dir():
-            raise SceneError("-o/--output", "is a directory", str(out))
-    except SceneError as exc:
-        print(f"liethermo: error: {exc}", file=sys.stderr)
-        return EXIT_INVALID
+        if args.resume and args.force:
+            raise PreflightError("--resume keeps what an earlier run left and --force replaces it: "
+                                 "give one of them")
+        plan = prepare_run(scene, args.output, force=args.force, resume=args.resume,
+                           dask=bool(args.dask), combine=not args.no_combine, clean=not args.check)
+    except (SceneError, PreflightError) as exc:
+        return _error(exc)
+    try:
+        from .faults import one_line
 
-    from .runner import run_scene
+        for line in plan.notes:
+            print(one_line(line), file=sys.stderr)
+        if args.check:
+            print(f"scene {scene['scene']['name']!r} is valid: {plan.check_line()}")
+            plan.release()
+            plan.remove_created()
+            return 0
+        return _run_outputs(args, scene, plan)
+    finally:
+        plan.release()
 
-    progress = None if not args.no_progress else False
-    outputs = {scene["integrator"]["method"]: out}
-    for m in scene["output"]["compare"]:
-        if m != scene["integrator"]["method"]:
-            outputs[m] = _compare_path(out, m)
+
+def _run_outputs(args, scene, plan) -> int:
+    from . import api
+    from .faults import Interrupted
+    from .io import WriteError
     from .warmup import start_warming
 
-    warming = None if args.dask else start_warming(scene, list(outputs))
-    summaries = []
-    for i, (method, path) in enumerate(outputs.items()):
-        if i == 1 and warming is not None:
-            warming.join()  # its kernels are in the cache now
-        sc = scene.with_overrides({"integrator.method": method})
-        if args.dask:
-            from .distributed import run_scene_dask
+    progress = None if not args.no_progress else False
+    written = []
+    todo = [o for o in plan.outputs if not o.skip]
+    # a second process compiles the kernels of the later methods (and the
+    # variational integrators' start) into the cache while this one compiles the first
+    warming = None if (args.dask or not todo) else start_warming(scene, [o.method for o in todo])
+    try:
+        for i, o in enumerate(todo):
+            if i == 1 and warming is not None:
+                warming.join()  # its kernels are in the cache now
+            if args.dask:
+                from .distributed import run_scene_dask
 
-            _, summ = run_scene_dask(sc, path, address=args.dask, progress=progress,
-                                     keep_parts=args.keep_parts, combine=not args.no_combine,
-                                     history=args.command_line)
+                _, summ = run_scene_dask(o.scene, o.path, address=args.dask, progress=progress,
+                                         keep_parts=args.keep_parts, combine=not args.no_combine,
+                                         history=args.command_line)
+                lines = summ.lines() + [
+                    f"  dask: {summ.tasks} task(s), {summ.tasks_skipped} already done (resumed); "
+                    f"overhead {summ.task_overhead:.3f} s per task; combine {summ.combine_time:.2f} s"]
+            else:
+                ds = api.run(o.scene, output=o.path, progress=progress, history=args.command_line,
+                             resume=plan.resume_sources.get(o.path, False), preflight=False)
+                lines = ds.attrs["summary"].splitlines()
+                ds.close()
+            written.append(str(o.path))
+            print("\n".join(lines))
+        if warming is not None and warming.is_alive():
+            warming.terminate()  # what it still compiles, this run no longer needs
+        if scene["output"]["figures"] and not (args.dask and args.no_combine):
+            stem = Path(args.output).stem if args.output else scene["scene"]["name"]
+            for f in _figures(plan, stem):
+                print(f"  figure {f}")
+    except WriteError as exc:
+        return _error(exc)
+    except Interrupted as exc:
+        from .faults import one_line
 
-        else:
-            _, summ = run_scene(sc, path, progress=progress, history=args.command_line)
-        summaries.append(summ)
-        print("\n".join(summ.lines()))
-        if args.dask:
-            print(f"  dask: {summ.tasks} task(s), {summ.tasks_skipped} already done (resumed); "
-                  f"overhead {summ.task_overhead:.3f} s per task; combine {summ.combine_time:.2f} s")
-    if warming is not None and warming.is_alive():
-        warming.terminate()  # what it still compiles, this run no longer needs
-    if scene["output"]["figures"]:
-        from .plotting import scene_figures
-
-        figs = scene_figures(outputs, out.parent, stem=out.stem)
-        for f in figs:
-            print(f"  figure {f}")
+        done = [f"{w} written" for w in written] + exc.kept
+        print(one_line(f"liethermo: interrupted by {exc.name}: {'; '.join(done) or 'nothing written'}"),
+              file=sys.stderr)
+        return exc.exit_code
+    finally:
+        if warming is not None and warming.is_alive():
+            warming.terminate()
     return 0
+
+
+def _figures(plan, stem: str) -> list[Path]:
+    """Draw the run's figures next to its first output, each complete or not
+    at all: drawn in a temporary folder there, then renamed into place."""
+    import shutil
+    import tempfile
+
+    from .io import WriteError, io_cause
+    from .plotting import scene_figures
+
+    folder = plan.outputs[0].path.parent
+    tmp = Path(tempfile.mkdtemp(prefix=f".{stem}_figures.", dir=folder))
+    try:
+        try:
+            drawn = scene_figures({o.method: o.path for o in plan.outputs}, tmp, stem=stem)
+            final = []
+            for f in drawn:
+                os.replace(f, folder / f.name)
+                final.append(folder / f.name)
+            return final
+        except OSError as exc:
+            raise WriteError(folder / f"{stem}_*.png", io_cause(exc)) from None
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -89,10 +140,21 @@ def build_parser() -> argparse.ArgumentParser:
     sub = ap.add_subparsers(dest="command", required=True)
     r = sub.add_parser("run", help="run a scene and write a netCDF dataset",
                        description="Run SCENE (a TOML file or the built-in 'paper') and write a netCDF "
-                       "dataset (default: data/runs/<scene name>.nc). Methods listed in output.compare "
-                       "are run too and written next to it as <OUT>_<method>.nc.")
+                       "dataset per method: data/runs/<scene name>_<method>.nc, or with -o OUT.nc that "
+                       "file for the scene's method and <OUT>_<method>.nc next to it for the methods "
+                       "in output.compare. An existing output is replaced only by a run of the same "
+                       "scene (or with --force). Ctrl-C, SIGTERM and SIGHUP stop the run cleanly; "
+                       "--resume continues it.")
     r.add_argument("scene", metavar="SCENE", help="TOML scene file, or 'paper'")
     r.add_argument("-o", "--output", metavar="OUT.nc", help="output netCDF path")
+    r.add_argument("--resume", action="store_true",
+                   help="continue an interrupted or killed run of the same scene from its last complete "
+                   "member chunk (outputs already complete are kept)")
+    r.add_argument("--force", action="store_true",
+                   help="replace existing outputs even if they hold runs of another scene")
+    r.add_argument("--check", action="store_true",
+                   help="only check: validate the scene and the outputs, estimate disk and memory, "
+                   "and exit")
     r.add_argument("--set", metavar="SECTION.KEY=VALUE", action="append", default=[],
                    help="override a scene key with a TOML value, e.g. --set integrator.h=0.05 "
                    "--set 'initial.omega=[2,-1,0.5]' (repeatable)")
@@ -132,7 +194,21 @@ def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     # what the files' 'history' attribute records
     args.command_line = shlex.join(["liethermo", *argv])
-    return args.func(args)
+    if args.command not in ("run", "study"):
+        return args.func(args)
+    import signal
+
+    from .faults import Interrupted, stop_on_signals
+
+    if hasattr(signal, "SIGXFSZ"):
+        # past a file-size limit, writes fail with EFBIG (reported) instead of killing the process
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+    with stop_on_signals():
+        try:
+            return args.func(args)
+        except Interrupted as exc:  # before any output was started
+            print(f"liethermo: interrupted by {exc.name}: nothing written", file=sys.stderr)
+            return exc.exit_code
 
 
 def entry() -> None:

@@ -54,6 +54,7 @@ from typing import Any, Callable, Iterable
 import numpy as np
 
 from . import __version__, cf
+from .faults import Interrupted, folder_leftovers, remove_files
 from .io import ChunkedWriter
 from .runner import ChunkStats, RunSummary, _progress_bar, finish_summary, run_chunk, scene_setup
 from .scene import scene_to_toml
@@ -82,15 +83,37 @@ def make_client(address: Any = "local"):
 
     if address in (None, "local"):
         n = os.cpu_count() or 1
-        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                               dashboard_address=None, silence_logs=logging.ERROR,
-                               env={"NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"})
+        with _workers_ignore_sigint():
+            # dashboard on a free local port: no warning when another cluster holds 8787;
+            # the workers' logs silenced: a task's error reaches the client as its exception,
+            # and a stopped run's shutdown (workers losing the scheduler) is not an error
+            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                                   dashboard_address="127.0.0.1:0", silence_logs=logging.CRITICAL,
+                                   env={"NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"})
         client = Client(cluster)
         client._liethermo_cluster = cluster  # closed by close_client
         return client
     if str(address).endswith(".json"):
         return Client(scheduler_file=str(address))
     return Client(address)
+
+
+@contextlib.contextmanager
+def _workers_ignore_sigint():
+    """Worker processes started within inherit an ignored SIGINT: a Ctrl-C at
+    the terminal (sent to the whole process group) stops the client, which
+    cancels the tasks and closes the cluster, instead of printing a traceback
+    from every worker."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    import signal
+
+    old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old)
 
 
 def close_client(client) -> None:
@@ -143,6 +166,9 @@ def map_tasks(func: Callable, items: Iterable, address: Any = "local", *, retrie
                     first_error = fut
                 if bar:
                     bar.update(1)
+        except Interrupted:
+            _cancel(client, futures)
+            raise
         finally:
             if bar:
                 bar.close()
@@ -257,11 +283,10 @@ def compute_part(scene: dict, lo: int, hi: int, path: str, key: str, attrs: dict
         "liethermo_part_key": key, "liethermo_part_lo": int(lo), "liethermo_part_hi": int(hi),
         "liethermo_part_stats": json.dumps(st.to_dict()),
     })
-    path.parent.mkdir(parents=True, exist_ok=True)
+    # the writer's temporary is created exclusively and locked: two copies of one
+    # task (a worker presumed lost that is still running) never write the same
+    # temporary file, and a rerun tells a live task's temporary from a dead one's
     w = ChunkedWriter(path, hi - lo, part_attrs)
-    # unique temporary name: two copies of one task (a worker presumed lost
-    # that is still running) never write the same temporary file
-    w.tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex}.tmp")
     t2 = time.perf_counter()
     with w:
         w.write(ds, 0)
@@ -340,19 +365,52 @@ def run_scene_dask(scene: dict | str, out: str | os.PathLike, *, address: Any = 
     ``task_timings`` (per computed task: task, kernel, run_chunk and write times, s).
     ``history``: the command line or API call recorded in the files' ``history``
     attribute (default: this call).
-    """
-    from dask.base import tokenize
-    from distributed import as_completed
 
+    On a stop signal (:class:`liethermo.faults.Interrupted`) the tasks are
+    cancelled, the finished chunk files kept for a rerun, and the exception
+    goes on with a phrase saying so in its ``kept`` list.
+    """
     if history is None:
         history = cf.api_call("liethermo.distributed.run_scene_dask", scene, out, overrides=overrides,
                               combine=None if combine else False)
     scene, attrs, summ = scene_setup(scene, overrides, history)
     out = Path(out)
-    members, steps = summ.members, summ.steps
     key = scene_key(scene)
     parts = parts_dir(out)
     t_wall = time.perf_counter()
+    chunks: list = []
+    try:
+        return _run_scene_dask(scene, attrs, summ, out, key, parts, t_wall, chunks, address, progress,
+                               task_members, keep_parts, combine, retries, numba_threads, task)
+    except Interrupted as exc:
+        # the tasks are cancelled and a local cluster is closed by now: the
+        # temporaries its workers were writing are stale, the finished parts stay
+        remove_files(folder_leftovers(parts))
+        n = sum(1 for lo, hi in chunks if part_path(parts, lo, hi).exists())
+        if chunks and n == len(chunks):
+            exc.kept.append(f"stopped while combining {out}: all {n} member chunks are kept in {parts}/ "
+                            "(rerun the same command to combine them)")
+        elif n:
+            exc.kept.append(f"stopped with {n}/{len(chunks)} member chunks of {out} done, kept in {parts}/ "
+                            "(rerun the same command to continue)")
+        else:
+            exc.kept.append(f"stopped before any member chunk of {out} was done: nothing kept")
+        raise
+
+
+def _cancel(client, futures) -> None:
+    try:
+        client.cancel(list(futures))
+    except Exception:  # pragma: no cover - the cluster may be going away already
+        pass
+
+
+def _run_scene_dask(scene, attrs, summ, out, key, parts, t_wall, chunks_out, address, progress, task_members,
+                    keep_parts, combine, retries, numba_threads, task):
+    from dask.base import tokenize
+    from distributed import as_completed
+
+    members, steps = summ.members, summ.steps
     with client_for(address) as client:
         chunks = _load_index(parts, key, members)
         if chunks is None or (task_members is not None and chunks != plan_chunks(members, task_members)):
@@ -361,6 +419,7 @@ def run_scene_dask(scene: dict | str, out: str | os.PathLike, *, address: Any = 
                 task_members = default_task_members(scene, nthreads)
             chunks = plan_chunks(members, task_members)
             _write_index(parts, key, members, chunks, out)
+        chunks_out[:] = chunks
         total = ChunkStats()
         todo = []
         for lo, hi in chunks:
@@ -401,6 +460,9 @@ def run_scene_dask(scene: dict | str, out: str | os.PathLike, *, address: Any = 
                                     "run": res.get("run_time"), "write": res.get("write_time")})
                 if bar:
                     bar.update((hi - lo) * steps)
+        except Interrupted:
+            _cancel(client, futures)
+            raise
         finally:
             if bar:
                 bar.close()

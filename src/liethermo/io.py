@@ -1,34 +1,109 @@
-"""Atomic, member-chunked netCDF4 output.
+"""Atomic, member-chunked netCDF4 output, resumable.
 
 :class:`ChunkedWriter` writes a dataset whose leading dimension ``member`` is
 filled chunk by chunk (so memory stays bounded by one chunk), into a
-temporary file in the destination folder, and renames it onto the output
-path only when everything was written: a run that is killed leaves either no
-file at the path or the previous complete one.  Variables are chunked along
-``member`` on disk so that ``xarray.open_dataset(path, chunks={})`` reads a
-large result lazily.  Every dataset passes through :func:`liethermo.cf.encode`
-(time units, string labels, ``coordinates``, ``Conventions`` and
-``history``): the files are CF-1.11 (docs/netcdf.md).
+temporary file in the destination folder (``.<name>.<pid>.tmp``, locked
+while its writer lives: :mod:`liethermo.faults`), and renames it onto the
+output path only when everything was written: a run that is killed leaves
+either no file at the path or the previous complete one.  Variables are
+chunked along ``member`` on disk so that ``xarray.open_dataset(path,
+chunks={})`` reads a large result lazily.  Every dataset passes through
+:func:`liethermo.cf.encode` (time units, string labels, ``coordinates``,
+``Conventions`` and ``history``): the files are CF-1.11 (docs/netcdf.md).
+
+Resume: after each member chunk a run flushes the file and records the chunk
+in a journal next to it (:class:`Journal`: the resolved scene, and per chunk
+its member range, a CRC-32 of every variable's values as written and its
+summary statistics).  An interrupted run keeps the file as ``<name>.partial``
+with its journal; a run killed outright leaves its temporary and journal
+behind.  Either is a :class:`ResumeSource`: a resumed run reads the recorded
+chunks back, checks their CRCs (a chunk that does not match is recomputed),
+writes them into a fresh file in the same order as an uninterrupted run, and
+goes on from there, so the finished file has the same bytes as an
+uninterrupted run's but for its creation time.
+
+Errors of the netCDF/HDF5 library or the operating system while writing are
+raised as :class:`WriteError`, naming the file and the cause (the cause of
+an HDF5 failure, which the library does not report, is found by a probe
+write: disk full, file-size limit, quota); the temporary is removed.
 """
 
 from __future__ import annotations
 
+import errno
+import json
 import os
+import zlib
+from dataclasses import dataclass
 from pathlib import Path
 
 import netCDF4
 import numpy as np
 import xarray as xr
 
-from . import cf
+from . import __version__, cf
+from .faults import create_temp, leftovers, release_temp
 
 CHUNK_BYTES = 4 * 2**20  # target on-disk chunk size
+RESUME_FORMAT = "liethermo-resume-1"
+
+
+class WriteError(Exception):
+    """Writing an output failed: ``path`` and ``cause`` (one line)."""
+
+    def __init__(self, path, cause: str):
+        self.path, self.cause = Path(path), cause
+        super().__init__(f"cannot write {path}: {cause}")
 
 
 def _nc_attr(value):
     if isinstance(value, (bool, np.bool_)):
         return int(value)
     return value
+
+
+def _errno_text(exc: OSError) -> str:
+    name = errno.errorcode.get(exc.errno or 0)
+    return f"{exc.strerror or exc}" + (f" ({name})" if name else "")
+
+
+def io_cause(exc: BaseException, probe: Path | None = None) -> str:
+    """A one-line cause for a failed write: the OS error if there is one,
+    else (the netCDF library says only "HDF error") the error of a probe
+    write at the end of ``probe``, else the library's message."""
+    if isinstance(exc, OSError) and exc.errno:
+        return _errno_text(exc)
+    if probe is not None:
+        try:
+            fd = os.open(probe, os.O_WRONLY | os.O_APPEND)
+        except OSError as e:
+            return _errno_text(e)
+        try:
+            block = b"\0" * (1 << 16)
+            for _ in range(64):  # up to 4 MiB: more than HDF5 writes at once here
+                os.write(fd, block)
+            os.fsync(fd)
+        except OSError as e:
+            return _errno_text(e)
+        finally:
+            os.close(fd)
+    return f"{exc}" or type(exc).__name__
+
+
+def disk_chunk_members(n_members: int, member_bytes: int) -> int:
+    """Members per on-disk chunk of a variable with ``member_bytes`` per member:
+    about CHUNK_BYTES, a power of two, so that member chunks of a run (powers
+    of two) fill whole disk chunks and none is read back to be completed."""
+    budget = max(1, CHUNK_BYTES // max(1, member_bytes))
+    return min(n_members, 1 << (budget.bit_length() - 1))
+
+
+def checksum(values: np.ndarray) -> int:
+    """CRC-32 of an array's values (C order)."""
+    a = np.asarray(values)
+    if a.dtype.kind == "O":
+        return zlib.crc32("\0".join(map(str, a.ravel())).encode())
+    return zlib.crc32(memoryview(np.ascontiguousarray(a)).cast("B"))
 
 
 class ChunkedWriter:
@@ -38,17 +113,22 @@ class ChunkedWriter:
     Use as a context manager; on an exception the temporary file is removed.
     ``attrs`` are the global attributes; ``history`` (the command line or API
     call that makes the file) replaces the ``history`` of ``attrs`` if given.
+    The temporary is created (and the folder checked) at construction.
     """
 
     def __init__(self, path: str | os.PathLike, n_members: int, attrs: dict | None = None,
                  history: str | None = None):
         self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self.tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.tmp")
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self.tmp, self._lock_fd = create_temp(self.path)
+        except OSError as exc:
+            raise WriteError(self.path, _errno_text(exc)) from None
         self.n_members = int(n_members)
         self.attrs = cf.encode_attrs(attrs or {}, history)
         self.nc: netCDF4.Dataset | None = None
         self.written = 0
+        self.member_vars: list[str] = []  # in the order they are written
 
     def __enter__(self):
         return self
@@ -60,12 +140,28 @@ class ChunkedWriter:
             self.abort()
         return False
 
+    def _fail(self, exc: BaseException):
+        """Remove the temporary and raise a WriteError naming the output and the cause."""
+        cause = io_cause(exc, self.tmp)
+        self.abort()
+        raise WriteError(self.path, cause) from None
+
+    def define(self, ds: xr.Dataset) -> None:
+        """Create the file's dimensions and variables from a chunk's layout
+        (member count aside, any chunk gives the same file), CF-encoded."""
+        try:
+            self._define(cf.encode_variables(ds))
+        except (OSError, RuntimeError) as exc:
+            self._fail(exc)
+
     def _define(self, ds: xr.Dataset) -> None:
         nc = netCDF4.Dataset(self.tmp, "w", format="NETCDF4")
         self.nc = nc
         for dim, size in ds.sizes.items():
             nc.createDimension(dim, self.n_members if dim == "member" else size)
         for name, var in list(ds.coords.items()) + list(ds.data_vars.items()):
+            if "member" in var.dims:
+                self.member_vars.append(name)
             if var.dtype.kind in "US":
                 v = nc.createVariable(name, str, var.dims)
                 v[:] = np.asarray(var.values, dtype=object)
@@ -73,10 +169,7 @@ class ChunkedWriter:
                 chunks = None
                 if "member" in var.dims and var.ndim > 1:
                     other = int(np.prod([ds.sizes[d] for d in var.dims if d != "member"]))
-                    budget = max(1, CHUNK_BYTES // max(1, other * var.dtype.itemsize))
-                    # a power of two, so that member chunks of a run (powers of two) fill
-                    # whole disk chunks and none is read back to be completed
-                    m = min(self.n_members, 1 << (budget.bit_length() - 1))
+                    m = disk_chunk_members(self.n_members, other * var.dtype.itemsize)
                     chunks = [m if d == "member" else ds.sizes[d] for d in var.dims]
                 v = nc.createVariable(name, var.dtype, var.dims, chunksizes=chunks)
                 if chunks is not None:
@@ -90,19 +183,45 @@ class ChunkedWriter:
             v.setncatts({k: _nc_attr(a) for k, a in var.attrs.items()})
         nc.setncatts({k: _nc_attr(a) for k, a in self.attrs.items()})
 
-    def write(self, ds: xr.Dataset, offset: int) -> None:
+    def write(self, ds: xr.Dataset, offset: int) -> dict[str, int]:
+        """Write a chunk at ``offset`` (CF-encoded: :func:`liethermo.cf.encode_variables`);
+        returns the CRC-32 of each member variable's values as written."""
         ds = cf.encode_variables(ds)
         if self.nc is None:
-            self._define(ds)
-        n = ds.sizes["member"]
+            self.define(ds)
+        arrays = {}
+        for name in self.member_vars:
+            var = ds[name]
+            if var.dims[0] != "member":
+                raise ValueError(f"variable {name}: 'member' must be its first dimension")
+            arrays[name] = var.values
+        return self.write_arrays(arrays, offset)
+
+    def write_arrays(self, arrays: dict, offset: int) -> dict[str, int]:
+        """Write the member variables' values of members ``offset:offset+n``
+        (as :meth:`write` does); returns their CRC-32s."""
+        n = len(next(iter(arrays.values()))) if arrays else 0
         if offset < 0 or offset + n > self.n_members:
             raise ValueError(f"chunk [{offset}, {offset + n}) outside 0..{self.n_members}")
-        for name, var in list(ds.coords.items()) + list(ds.data_vars.items()):
-            if "member" in var.dims:
-                if var.dims[0] != "member":
-                    raise ValueError(f"variable {name}: 'member' must be its first dimension")
-                self.nc.variables[name][offset:offset + n, ...] = var.values
+        crc = {}
+        try:
+            for name in self.member_vars:
+                a = arrays[name]
+                if a.dtype.kind != "O":
+                    a = np.ascontiguousarray(a)
+                crc[name] = checksum(a)
+                self.nc.variables[name][offset:offset + n, ...] = a
+        except (OSError, RuntimeError) as exc:
+            self._fail(exc)
         self.written += n
+        return crc
+
+    def sync(self) -> None:
+        """Flush everything written so far to the file."""
+        try:
+            self.nc.sync()
+        except (OSError, RuntimeError) as exc:
+            self._fail(exc)
 
     def close(self) -> None:
         if self.nc is None:
@@ -110,9 +229,24 @@ class ChunkedWriter:
         if self.written != self.n_members:
             self.abort()
             raise RuntimeError(f"only {self.written} of {self.n_members} members were written")
-        self.nc.close()
-        self.nc = None
-        os.replace(self.tmp, self.path)
+        try:
+            self.nc.close()
+            self.nc = None
+            os.replace(self.tmp, self.path)
+        except (OSError, RuntimeError) as exc:
+            self.nc = None
+            self._fail(exc)
+        release_temp(self._lock_fd)
+        self._lock_fd = None
+
+    def keep(self, dest: Path) -> None:
+        """Close the file as it is (the chunks written so far) and move it to ``dest``."""
+        if self.nc is not None:
+            self.nc.close()
+            self.nc = None
+        os.replace(self.tmp, dest)
+        release_temp(self._lock_fd)
+        self._lock_fd = None
 
     def abort(self) -> None:
         if self.nc is not None:
@@ -125,3 +259,123 @@ class ChunkedWriter:
             self.tmp.unlink()
         except FileNotFoundError:
             pass
+        release_temp(self._lock_fd)
+        self._lock_fd = None
+
+
+# ---------------------------------------------------------------- resume
+def partial_path(out: Path) -> Path:
+    """Where an interrupted run keeps its completed members: ``<OUT>.partial``."""
+    return out.with_name(out.name + ".partial")
+
+
+def journal_path(data: Path) -> Path:
+    """The journal of a partial or temporary file (a hidden side file)."""
+    return data.with_name(f"{'' if data.name.startswith('.') else '.'}{data.name}.json")
+
+
+class Journal:
+    """The resume record of one output: the resolved scene and the chunks done.
+
+    ``chunks``: ``[{"lo", "hi", "crc": {variable: CRC-32}, "stats": ChunkStats dict}]``,
+    a prefix of the run's chunk plan.
+    """
+
+    def __init__(self, out: Path, scene_toml: str, members: int, member_chunk: int,
+                 chunks: list | None = None, version: str = __version__):
+        self.out, self.scene_toml, self.members, self.member_chunk = Path(out), scene_toml, members, member_chunk
+        self.chunks = list(chunks or [])
+        self.version = version
+
+    def to_dict(self) -> dict:
+        return {"format": RESUME_FORMAT, "software_version": self.version, "output": self.out.name,
+                "members": self.members, "member_chunk": self.member_chunk, "scene": self.scene_toml,
+                "chunks": self.chunks}
+
+    @classmethod
+    def load(cls, path: Path, out: Path) -> "Journal | None":
+        try:
+            d = json.loads(Path(path).read_text())
+            if d.get("format") != RESUME_FORMAT:
+                return None
+            return cls(out, d["scene"], int(d["members"]), int(d["member_chunk"]), d["chunks"],
+                       d["software_version"])
+        except (OSError, ValueError, KeyError, TypeError):
+            return None
+
+    def save(self, path: Path) -> None:
+        """Write atomically (a side temporary, then rename)."""
+        new = path.with_name(path.name + ".new")
+        try:
+            new.write_text(json.dumps(self.to_dict()))
+            os.replace(new, path)
+        except OSError as exc:
+            try:
+                new.unlink()
+            except OSError:
+                pass
+            raise WriteError(self.out, _errno_text(exc)) from None
+
+    @property
+    def members_done(self) -> int:
+        return self.chunks[-1]["hi"] if self.chunks else 0
+
+
+@dataclass
+class ResumeSource:
+    """A file with completed member chunks of an earlier run of ``out`` and its journal."""
+
+    data: Path
+    journal_file: Path
+    journal: Journal
+
+    def remove(self) -> None:
+        for p in (self.data, self.journal_file):
+            try:
+                p.unlink()
+            except FileNotFoundError:
+                pass
+
+    def read_chunks(self, names: list[str]):
+        """Yield ``(chunk record, arrays)`` of the recorded chunks whose values
+        match their CRC-32s, in order, stopping at the first that does not (or
+        cannot be read)."""
+        try:
+            nc = netCDF4.Dataset(self.data, "r")
+        except (OSError, RuntimeError):
+            return
+        try:
+            nc.set_auto_mask(False)
+            for rec in self.journal.chunks:
+                lo, hi = int(rec["lo"]), int(rec["hi"])
+                arrays = {}
+                try:
+                    for name in names:
+                        a = nc.variables[name][lo:hi, ...]
+                        if checksum(a) != rec["crc"].get(name):
+                            return
+                        arrays[name] = a
+                except (OSError, RuntimeError, KeyError, IndexError, ValueError):
+                    return
+                yield rec, arrays
+        finally:
+            nc.close()
+
+
+def resume_sources(out: Path) -> list[ResumeSource]:
+    """Files an earlier run of ``out`` left to resume from, most members first:
+    its ``.partial`` (interrupted) and the temporaries of dead processes
+    (killed) that have a journal."""
+    out = Path(out)
+    cands = [partial_path(out)]
+    cands += [p for p in leftovers(out) if p.suffix == ".tmp"]
+    found = []
+    for data in cands:
+        jp = journal_path(data)
+        if not (data.is_file() and jp.is_file()):
+            continue
+        j = Journal.load(jp, out)
+        if j is not None:
+            found.append(ResumeSource(data, jp, j))
+    found.sort(key=lambda s: (-s.journal.members_done, -s.journal_file.stat().st_mtime))
+    return found

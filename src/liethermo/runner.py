@@ -18,7 +18,6 @@ import xarray as xr
 from . import cf
 from .dataset import global_attrs, trajectory_dataset
 from .initial import initial_conditions
-from .io import ChunkedWriter
 from .methods import get_method
 from .physics import build_model, physics_of_scene
 from .scene import Scene, load_scene, scene_to_toml
@@ -47,11 +46,13 @@ class RunSummary:
     max_h_omega: float = float("nan")
     first_fail_step: int = 0  # earliest step at which a member failed (0: none failed)
     path: Path | None = None
+    resumed_members: int = 0  # members taken over from an interrupted run
 
     @property
     def throughput(self) -> float:
-        """member-steps per second of kernel time."""
-        return self.members * self.steps / self.kernel_time if self.kernel_time > 0 else float("nan")
+        """member-steps per second of kernel time (of the members this run computed)."""
+        n = self.members - self.resumed_members
+        return n * self.steps / self.kernel_time if self.kernel_time > 0 else float("nan")
 
     def lines(self) -> list[str]:
         st = ", ".join(f"{k}: {v}" for k, v in self.status_counts.items())
@@ -80,6 +81,9 @@ class RunSummary:
             out.append("  no member completed: no accuracy figures")
         if get_method(self.method).family == "vi":
             out.append(f"  Newton iterations/step    mean {self.newton_mean:.2f}, max {self.newton_max}")
+        if self.resumed_members:
+            out.append(f"  resumed: members 0-{self.resumed_members - 1} came from the interrupted run "
+                       "(not in the times above)")
         if self.path is not None:
             out.append(f"  wrote {self.path}")
         return out
@@ -222,13 +226,21 @@ def finish_summary(summ: RunSummary, st: ChunkStats) -> RunSummary:
 
 def run_scene(scene, out: str | Path | None = None, *, overrides=None,
               progress: bool | None = None, kernel: str | None = None,
-              history: str | None = None) -> tuple[xr.Dataset | None, RunSummary]:
+              history: str | None = None, resume=False) -> tuple[xr.Dataset | None, RunSummary]:
     """Run one scene with its own method.
 
     With ``out``: streams member chunks into the netCDF file (atomically) and
     returns ``(None, summary)``; without: returns the in-memory dataset.
     ``history``: the command line or API call recorded in the ``history``
     attribute (default: this call, ``liethermo.runner.run_scene(...)``).
+
+    ``resume``: go on from what an interrupted or killed run of the same
+    scene left for ``out`` (``True``: the best of
+    :func:`liethermo.io.resume_sources`, or a given :class:`liethermo.io.ResumeSource`); the scene must be
+    the same (the caller checks it: :func:`liethermo.preflight.prepare_run`).
+    On a stop signal (:class:`liethermo.faults.Interrupted`) the chunks done
+    are kept in ``<out>.partial`` for a resume, and the exception goes on
+    with a phrase saying so in its ``kept`` list.
     """
     if history is None:
         history = cf.api_call("liethermo.runner.run_scene", scene, out, overrides=overrides)
@@ -238,35 +250,137 @@ def run_scene(scene, out: str | Path | None = None, *, overrides=None,
     t_wall = time.perf_counter()
     bar = _progress_bar(members * steps, progress, f"{scene['scene']['name']} [{summ.method}]")
     total = ChunkStats()
-    pieces = []
-    writer = ChunkedWriter(out, members, attrs) if out is not None else None
     try:
-        for lo in range(0, members, chunk):
-            hi = min(lo + chunk, members)
-            ds, st = run_chunk(scene, lo, hi, progress_cb=bar.update if bar else None, kernel=kernel)
-            total.merge(st)
-            if writer is not None:
-                writer.write(ds, lo)
-            else:
+        if out is None:
+            pieces = []
+            for lo in range(0, members, chunk):
+                hi = min(lo + chunk, members)
+                ds, st = run_chunk(scene, lo, hi, progress_cb=bar.update if bar else None, kernel=kernel)
+                total.merge(st)
                 pieces.append(ds)
-        if writer is not None:
-            writer.close()
-    except BaseException:
-        if writer is not None:
-            writer.abort()
-        raise
+        else:
+            _run_to_file(scene, attrs, Path(out), summ, total, bar, kernel, resume)
     finally:
         if bar:
             bar.close()
     summ.wall_time = time.perf_counter() - t_wall
     finish_summary(summ, total)
-    if writer is not None:
+    if out is not None:
         summ.path = Path(out)
         return None, summ
     ds = xr.concat(pieces, dim="member", data_vars="minimal", coords="minimal", compat="override",
                    join="override") if len(pieces) > 1 else pieces[0]
     ds.attrs.update(attrs)
     return ds, summ
+
+
+def _run_to_file(scene, attrs, out: Path, summ: RunSummary, total: ChunkStats, bar, kernel, resume) -> None:
+    """The chunk loop of a run with an output file: write, flush and journal
+    each chunk; resume; keep the partial file on a stop signal."""
+    from .faults import Interrupted, critical
+    from .io import ChunkedWriter, Journal, journal_path, resume_sources
+
+    members, steps = summ.members, summ.steps
+    chunk = int(scene["output"]["member_chunk"])
+    plan = [(lo, min(lo + chunk, members)) for lo in range(0, members, chunk)]
+    source = None
+    if resume is True:
+        found = resume_sources(out)
+        source = found[0] if found else None
+    elif resume:
+        source = resume
+    writer = ChunkedWriter(out, members, attrs)
+    journal = Journal(out, scene_to_toml(scene), members, chunk)
+    jpath = journal_path(writer.tmp)
+    i = 0
+    copying = finished = False
+    try:
+        if source is not None and source.journal.chunks:
+            copying = True
+            recs = source.journal.chunks[:len(plan)]
+            if all([r["lo"], r["hi"]] == list(plan[k]) for k, r in enumerate(recs)):
+                ds0, _ = run_chunk(scene, 0, 1, kernel=kernel)  # the file's layout, as chunk 0 gives it
+                writer.define(ds0)
+                del ds0
+                for rec, arrays in source.read_chunks(writer.member_vars):
+                    with critical():
+                        crc = writer.write_arrays(arrays, rec["lo"])
+                        journal.chunks.append({"lo": rec["lo"], "hi": rec["hi"], "crc": crc, "stats": rec["stats"]})
+                    st = ChunkStats.from_dict(rec["stats"])
+                    st.kernel_time = 0.0  # spent by the earlier run: not this run's throughput
+                    total.merge(st)
+                    if bar:
+                        bar.update((rec["hi"] - rec["lo"]) * steps)
+                    i += 1
+                    del arrays
+                with critical():
+                    writer.sync()
+                    journal.save(jpath)
+            copying = False
+            summ.resumed_members = journal.members_done
+            source.remove()  # superseded by this run's file and journal
+            source = None
+        for k in range(i, len(plan)):
+            lo, hi = plan[k]
+            ds, st = run_chunk(scene, lo, hi, progress_cb=bar.update if bar else None, kernel=kernel)
+            with critical():
+                crc = writer.write(ds, lo)
+                writer.sync()
+                journal.chunks.append({"lo": lo, "hi": hi, "crc": crc, "stats": st.to_dict()})
+                journal.save(jpath)
+            del ds
+            total.merge(st)
+        with critical():
+            writer.close()
+            _unlink(jpath)
+            finished = True
+    except Interrupted as exc:
+        if finished:  # the signal came while the file was being completed
+            exc.kept.append(f"{out} written")
+            raise
+        what = _interrupted(exc, writer, journal, jpath, out, plan, copying, source)
+        exc.kept.append(what)
+        raise
+    except BaseException:
+        writer.abort()
+        _unlink(jpath)
+        raise
+
+
+def _unlink(p: Path) -> None:
+    try:
+        p.unlink()
+    except FileNotFoundError:
+        pass
+
+
+def _interrupted(exc, writer, journal, jpath, out, plan, copying, source) -> str:
+    """Keep what a stopped run completed; the phrase for the one line."""
+    from .io import journal_path, partial_path
+
+    done = len(journal.chunks)
+    where = f"member chunk {min(done + 1, len(plan))}/{len(plan)} of {out}"
+    if copying or not done:
+        writer.abort()
+        _unlink(jpath)
+        if source is not None:
+            return (f"stopped at {where} while resuming: {source.data} kept as it was "
+                    "(rerun with --resume to continue)")
+        return f"stopped at {where}: no member chunk was complete, nothing kept"
+    part = partial_path(out)
+    try:
+        writer.keep(part)
+        journal.save(journal_path(part))
+    except Exception:  # the file could not be closed or kept: do not leave a broken one
+        writer.abort()
+        _unlink(part)
+        _unlink(journal_path(part))
+        return f"stopped at {where}: the partial file could not be kept"
+    finally:
+        _unlink(jpath)
+    hi = journal.members_done
+    return (f"stopped at {where}: members 0-{hi - 1} kept in {part} "
+            "(rerun with --resume to continue)")
 
 
 def _progress_bar(total: int, progress: bool | None, desc: str):

@@ -42,11 +42,10 @@ R_GAS = 8.314462618  # J mol⁻¹ K⁻¹
 class SceneError(ValueError):
     """An invalid scene: the message names the key and the rule it breaks."""
 
-    def __init__(self, key: str, rule: str, value: Any = None, *, show_value: bool = True):
+    def __init__(self, key: str, rule: str, value: Any = None, *, show_value: bool = True, what: str = "key"):
         self.key = key
         self.rule = rule
-        what = "scene file" if key == "SCENE" else f"scene key '{key}'"
-        msg = f"{what}: {rule}"
+        msg = f"scene {what} '{key}': {rule}"
         if show_value:
             msg += f" (got {value!r})"
         super().__init__(msg)
@@ -498,14 +497,14 @@ def load_scene(source: str | Path | dict | Scene | None = "paper",
         else:
             path = Path(src)
             if not path.is_file():
-                raise SceneError("SCENE", "no such scene file, and not a built-in scene "
-                                 f"({', '.join(builtin_scenes())})", src)
+                raise SceneError(src, f"not found, and not a built-in scene ({', '.join(builtin_scenes())})",
+                                 show_value=False, what="file")
             try:
                 data = tomllib.loads(path.read_text())
-            except tomllib.TOMLDecodeError as exc:
-                raise SceneError("SCENE", f"{path} is not valid TOML: {exc}", show_value=False) from None
-            except (OSError, UnicodeDecodeError) as exc:
-                raise SceneError("SCENE", f"cannot read {path}: {exc}", show_value=False) from None
+            except OSError as exc:
+                raise SceneError(str(path), f"cannot be read ({exc.strerror})", show_value=False, what="file") from None
+            except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+                raise SceneError(str(path), f"not valid TOML: {exc}", show_value=False, what="file") from None
             _merge(scene, data, str(path))
             if scene["scene"]["name"] == "custom":
                 scene["scene"]["name"] = path.stem

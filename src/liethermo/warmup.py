@@ -18,7 +18,11 @@ from .kernels._jit import CACHE
 
 
 def _warm(scene_toml: str, jobs: list[tuple[str, str]]) -> None:
+    import signal
     import sys
+
+    # Ctrl-C reaches the whole process group: the run decides, and terminates this process
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
     if sys.version_info >= (3, 11):
         import tomllib

@@ -52,6 +52,7 @@ import numpy as np
 import xarray as xr
 
 from .. import cf
+from ..faults import create_temp, release_temp
 from ..scene import builtin_scene_text, load_scene
 
 #: Top-level keys every study accepts.
@@ -210,6 +211,31 @@ def _clean_attrs(attrs: dict) -> dict:
     return out
 
 
+def _atomic(path: str | os.PathLike, write: Callable[[Path], None]) -> Path:
+    """``write(tmp)`` into a locked temporary next to ``path``, then rename it
+    onto ``path``: a killed process leaves no file or a complete one, and the
+    temporary is removed on any error (raised as a WriteError naming ``path``)."""
+    from ..io import WriteError, io_cause
+
+    path = Path(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp, fd = create_temp(path)
+    except OSError as exc:
+        raise WriteError(path, io_cause(exc)) from None
+    try:
+        try:
+            write(tmp)
+            os.replace(tmp, path)
+        except (OSError, RuntimeError) as exc:
+            raise WriteError(path, io_cause(exc, tmp)) from None
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+        release_temp(fd)
+    return path
+
+
 def write_netcdf_atomic(ds: xr.Dataset, path: str | os.PathLike, history: str | None = None,
                         conventions: bool = True) -> Path:
     """Write ``ds`` to a temporary file next to ``path``, then rename it onto
@@ -218,29 +244,15 @@ def write_netcdf_atomic(ds: xr.Dataset, path: str | os.PathLike, history: str | 
     API call that makes it, replaces the dataset's own ``history``;
     ``conventions=False`` leaves out the ``Conventions`` attribute (the resume
     cache, whose variables are not all labelled, claims no CF conformance)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     ds = cf.encode(ds, history, conventions)
     ds.attrs = _clean_attrs(ds.attrs)
     for name in list(ds.variables):
         ds[name].attrs = _clean_attrs(ds[name].attrs)
-    try:
-        ds.to_netcdf(tmp, engine="netcdf4", format="NETCDF4")
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-    return path
+    return _atomic(path, lambda tmp: ds.to_netcdf(tmp, engine="netcdf4", format="NETCDF4"))
 
 
 def write_text_atomic(text: str, path: str | os.PathLike) -> Path:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
-    return path
+    return _atomic(path, lambda tmp: tmp.write_text(text))
 
 
 def cached_point(outdir: str | os.PathLike, key: str, compute: Callable[[], xr.Dataset]) -> xr.Dataset:
@@ -294,11 +306,7 @@ def write_table(df_or_records, outdir: str | os.PathLike, name: str, title: str)
     import pandas as pd
 
     df = df_or_records if isinstance(df_or_records, pd.DataFrame) else pd.DataFrame(list(df_or_records))
-    outdir = Path(outdir)
-    outdir.mkdir(parents=True, exist_ok=True)
-    tmp = outdir / f".{name}.csv.{os.getpid()}.tmp"
-    df.to_csv(tmp, index=False)
-    os.replace(tmp, outdir / f"{name}.csv")
+    _atomic(Path(outdir) / f"{name}.csv", lambda tmp: df.to_csv(tmp, index=False))
     cols = [str(c) for c in df.columns]
     lines = [f"### {title}", "", "| " + " | ".join(c.replace("|", "\\|") for c in cols) + " |",
              "|" + "|".join("---" for _ in cols) + "|"]

@@ -92,20 +92,58 @@ def default_outdir(study: dict, reduced: bool) -> Path:
     return Path("data") / "runs" / (f"{name}-reduced" if reduced else str(name))
 
 
+def run_study(study: dict, outdir: Path, *, reduced: bool = False, progress: bool | None = None,
+              dask=None, history: str | None = None, notes=None) -> Path:
+    """Run a validated study into ``outdir`` (locked for this process while it
+    runs; what interrupted or killed studies left there is removed first,
+    their finished sweep points stay and are not recomputed); returns the
+    report's path.  Raises :class:`StudyError` (the folder), WriteError,
+    OSError (a figure) or :class:`liethermo.faults.Interrupted`.
+    ``notes(line)`` gets what is worth telling (removed leftovers)."""
+    from ..faults import folder_leftovers, human_bytes, remove_files
+
+    lock = _prepare_outdir(outdir)
+    try:
+        n, size = remove_files(folder_leftovers(outdir) + folder_leftovers(outdir / "points"))
+        if n and notes is not None:
+            notes(f"liethermo: removed {n} temporary file{'s' if n != 1 else ''} ({human_bytes(size)}) "
+                  f"left by interrupted or killed runs in {outdir}")
+        mod = get_study(study["study"]["kind"])
+        return Path(mod.run(study, outdir, reduced=reduced, progress=progress, dask=dask, history=history))
+    finally:
+        lock.release()
+
+
 def main_study(args) -> int:
+    from ..faults import Busy, Interrupted, one_line
+    from ..io import WriteError
+
     try:
         study = load_study(args.study)
         validate_study(study)
     except (StudyError, SceneError) as exc:
-        print(f"liethermo: error: {exc}", file=sys.stderr)
+        print(f"liethermo: error: {one_line(exc)}", file=sys.stderr)
         return EXIT_INVALID
     reduced = bool(getattr(args, "reduced", False))
     outdir = Path(args.outdir) if getattr(args, "outdir", None) else default_outdir(study, reduced)
     progress = False if getattr(args, "no_progress", False) else None
-    mod = get_study(study["study"]["kind"])
     t0 = time.perf_counter()
-    report = mod.run(study, outdir, reduced=reduced, progress=progress, dask=getattr(args, "dask", None),
-                     history=getattr(args, "command_line", None))
+    try:
+        report = run_study(study, outdir, reduced=reduced, progress=progress, dask=getattr(args, "dask", None),
+                           history=getattr(args, "command_line", None),
+                           notes=lambda line: print(one_line(line), file=sys.stderr))
+    except (StudyError, Busy, WriteError) as exc:
+        print(f"liethermo: error: {one_line(exc)}", file=sys.stderr)
+        return EXIT_INVALID
+    except OSError as exc:  # a figure (drawn straight to its file)
+        what = f"cannot write {exc.filename or 'a figure in ' + str(outdir)}: {exc.strerror or exc}"
+        print(f"liethermo: error: {one_line(what)}", file=sys.stderr)
+        return EXIT_INVALID
+    except Interrupted as exc:
+        n = len(list((outdir / "points").glob("*.nc")))
+        print(f"liethermo: interrupted by {exc.name}: {n} finished sweep point{'s' if n != 1 else ''} "
+              f"kept in {outdir / 'points'} (rerun the same command to continue)", file=sys.stderr)
+        return exc.exit_code
     wall = time.perf_counter() - t0
     table = first_table(report)
     if table:
@@ -113,3 +151,24 @@ def main_study(args) -> int:
     print(f"study {study['study'].get('name', study['study']['kind'])!r}"
           f"{' (reduced)' if reduced else ''}: {wall:.1f} s, report {report}")
     return 0
+
+
+def _prepare_outdir(outdir: Path):
+    """The study's folder exists, takes files, and is locked for this process."""
+    import os
+
+    from ..faults import OutputLock
+
+    if outdir.exists() and not outdir.is_dir():
+        raise StudyError(f"cannot write the study to {outdir}: it is not a folder")
+    try:
+        outdir.mkdir(parents=True, exist_ok=True)
+        probe = outdir / f".probe.{os.getpid()}"
+        probe.touch()
+        probe.unlink()
+    except OSError as exc:
+        raise StudyError(f"cannot write the study to {outdir}: {exc.strerror or exc}") from None
+    try:
+        return OutputLock(outdir, folder=True).acquire()
+    except OSError as exc:
+        raise StudyError(f"cannot write the study to {outdir}: {exc.strerror or exc}") from None

@@ -1,0 +1,361 @@
+"""Stopping cleanly: signals, output locks and temporary files.
+
+Signals
+    Inside :func:`stop_on_signals`, SIGINT, SIGTERM and SIGHUP raise
+    :class:`Interrupted` in the main thread at the next Python instruction,
+    so the current member chunk is abandoned within one kernel call
+    (~0.1 s).  Code that must not be cut in half (writing a chunk, renaming a
+    file) runs inside :func:`critical`: a signal arriving there is held and
+    raised when the section ends.  Once raised, further signals are ignored
+    while the program cleans up; a third one ends the process at once.
+
+Temporaries
+    Every file is written to a temporary ``.<name>.<pid>.tmp`` next to its
+    destination and renamed onto it when complete.  :func:`create_temp`
+    creates it and holds a POSIX record lock on it for as long as the writer
+    lives, so another process can tell a live writer's temporary from one
+    left by a process that died (killed, out of memory, lost node): the lock
+    is released by the kernel when its owner dies, also across machines on a
+    filesystem with network locks.  :func:`leftovers` lists the temporaries
+    of a destination whose owner is gone; a live writer's are never listed.
+
+Output locks
+    :class:`OutputLock` is held by the one process that writes a given
+    output (a run's netCDF file, a study's folder): a second process for the
+    same output is refused instead of clobbering the first, and whoever holds
+    the lock knows that every other temporary of that output is stale.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import os
+import re
+import signal
+import socket
+import threading
+from pathlib import Path
+
+try:
+    import fcntl
+except ImportError:  # pragma: no cover - not POSIX: no locks, liveness by pid
+    fcntl = None
+
+#: The signals that stop a run or a study cleanly.
+SIGNALS = tuple(s for s in (getattr(signal, n, None) for n in ("SIGINT", "SIGTERM", "SIGHUP")) if s is not None)
+
+
+class Interrupted(BaseException):
+    """A stop signal arrived.  A BaseException, like KeyboardInterrupt, so
+    that ``except Exception`` clauses on the way up do not swallow it.
+
+    ``kept`` collects what the interrupted work left for a rerun (one phrase
+    per output), for the one line the command prints.
+    """
+
+    def __init__(self, signum: int):
+        self.signum = int(signum)
+        self.kept: list[str] = []
+        super().__init__(self.name)
+
+    @property
+    def name(self) -> str:
+        return signal.Signals(self.signum).name
+
+    @property
+    def exit_code(self) -> int:
+        """128 + the signal number: 130 (SIGINT), 143 (SIGTERM), 129 (SIGHUP)."""
+        return 128 + self.signum
+
+
+class _State:
+    active = False
+    depth = 0  # nesting of critical sections
+    pending: int | None = None  # signal held by a critical section
+    raised = False
+    count = 0
+
+
+_state = _State()
+
+
+def _handler(signum, frame):
+    st = _state
+    st.count += 1
+    if st.count >= 3:  # the user insists: leave now, whatever is left behind
+        os._exit(128 + signum)
+    if st.raised or st.pending is not None:
+        return  # already stopping: let the clean-up finish
+    if st.depth > 0:
+        st.pending = signum
+        return
+    st.raised = True
+    raise Interrupted(signum)
+
+
+@contextlib.contextmanager
+def stop_on_signals():
+    """Turn SIGINT, SIGTERM and SIGHUP into :class:`Interrupted` within the block.
+
+    Only in the main thread (signal handlers live there); elsewhere a no-op.
+    The previous handlers are restored on exit.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = {s: signal.getsignal(s) for s in SIGNALS}
+    _state.active, _state.depth, _state.pending, _state.raised, _state.count = True, 0, None, False, 0
+    for s in SIGNALS:
+        signal.signal(s, _handler)
+    try:
+        yield
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+        _state.active = False
+
+
+class critical:
+    """A section that a stop signal does not cut: it is raised at the end."""
+
+    def __enter__(self):
+        _state.depth += 1
+        return self
+
+    def __exit__(self, exc_type, exc, tb):
+        _state.depth -= 1
+        if _state.depth == 0 and _state.pending is not None and not _state.raised and exc_type is None:
+            signum, _state.pending = _state.pending, None
+            _state.raised = True
+            raise Interrupted(signum)
+        return False
+
+
+def stopping() -> bool:
+    """True once a stop signal was raised (clean-up in progress)."""
+    return _state.raised
+
+
+# ---------------------------------------------------------------- temporaries
+def temp_name(path: Path, pid: int | None = None, n: int = 0) -> Path:
+    """``.<name>.<pid>.tmp`` next to ``path`` (``.<name>.<pid>.<n>.tmp`` if taken)."""
+    pid = os.getpid() if pid is None else pid
+    return path.with_name(f".{path.name}.{pid}{'.' + str(n) if n else ''}.tmp")
+
+
+def _temp_re(name: str) -> re.Pattern:
+    return re.compile(rf"^\.{re.escape(name)}\.(?P<pid>\d+)(?:\.\d+)?\.tmp(?P<side>\.json(?:\.new)?)?$")
+
+
+def create_temp(path: str | os.PathLike) -> tuple[Path, int | None]:
+    """Create and lock a fresh temporary for ``path``: ``(temp path, fd)``.
+
+    The fd holds the lock; :func:`release_temp` closes it.  Raises OSError if
+    the folder does not take a new file.
+    """
+    path = Path(path)
+    for n in range(100):
+        tmp = temp_name(path, n=n)
+        try:
+            fd = os.open(tmp, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666)
+        except FileExistsError:
+            continue
+        try:
+            if fcntl is not None:
+                fcntl.lockf(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            pass  # no record locks here: liveness falls back to the pid
+        return tmp, fd
+    raise FileExistsError(errno.EEXIST, "no free temporary name", str(path))
+
+
+def release_temp(fd: int | None) -> None:
+    if fd is not None:
+        try:
+            os.close(fd)
+        except OSError:
+            pass
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def _owner_alive(tmp: Path, pid: int) -> bool:
+    """Is the process that writes ``tmp`` alive?  Its record lock says so; where
+    the filesystem has no locks, whether ``pid`` runs on this machine."""
+    if pid == os.getpid():
+        return True
+    if fcntl is None:  # pragma: no cover
+        return _pid_alive(pid)
+    try:
+        fd = os.open(tmp, os.O_WRONLY | os.O_NONBLOCK)
+    except FileNotFoundError:
+        return False
+    except OSError:
+        return _pid_alive(pid)
+    try:
+        fcntl.lockf(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except (BlockingIOError, PermissionError):
+        return True  # locked: its writer lives
+    except OSError:
+        return _pid_alive(pid)
+    finally:
+        os.close(fd)  # also drops the test lock
+    return False
+
+
+def leftovers(path: str | os.PathLike) -> list[Path]:
+    """Temporaries of ``path`` (and their side files) whose writer is gone."""
+    path = Path(path)
+    pat = _temp_re(path.name)
+    try:
+        names = os.listdir(path.parent)
+    except OSError:
+        return []
+    found = []
+    for name in sorted(names):
+        m = pat.match(name)
+        if not m:
+            continue
+        p = path.parent / name
+        data = p.with_name(name[:-len(m["side"])]) if m["side"] else p
+        if data.exists():
+            if _owner_alive(data, int(m["pid"])):
+                continue
+        elif int(m["pid"]) == os.getpid() or _pid_alive(int(m["pid"])):
+            continue
+        found.append(p)
+    return found
+
+
+def folder_leftovers(folder: str | os.PathLike) -> list[Path]:
+    """Stale temporaries of every file in ``folder`` (not recursive)."""
+    folder = Path(folder)
+    pat = re.compile(r"^\.(?P<name>.+)\.(?P<pid>\d+)(?:\.\d+)?\.tmp(?P<side>\.json(?:\.new)?)?$")
+    try:
+        names = os.listdir(folder)
+    except OSError:
+        return []
+    targets = {pat.match(n)["name"] for n in names if pat.match(n)}
+    out: list[Path] = []
+    for t in sorted(targets):
+        out += leftovers(folder / t)
+    return out
+
+
+def remove_files(paths) -> tuple[int, int]:
+    """Remove files; ``(count, bytes)`` of those removed."""
+    n = size = 0
+    for p in paths:
+        try:
+            s = p.stat().st_size
+            p.unlink()
+        except FileNotFoundError:
+            continue
+        n += 1
+        size += s
+    return n, size
+
+
+def one_line(text) -> str:
+    """``text`` on one printable line: control characters (a newline in a key
+    name, say) and undecodable bytes are shown escaped."""
+    text = str(text)
+    if text.isprintable():
+        return text
+    return "".join(c if c.isprintable() else c.encode("unicode_escape", "backslashreplace").decode("ascii")
+                   for c in text)
+
+
+def human_bytes(n: float) -> str:
+    n = float(n)
+    for unit in ("B", "kB", "MB", "GB", "TB", "PB"):
+        if abs(n) < 1000 or unit == "PB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.3g} {unit}"
+        n /= 1000
+    return f"{n:.3g} PB"  # pragma: no cover
+
+
+# ---------------------------------------------------------------- output locks
+class Busy(Exception):
+    """Another live process holds the lock of this output."""
+
+    def __init__(self, path: Path, holder: str):
+        self.path, self.holder = path, holder
+        super().__init__(f"{path}: another liethermo process ({holder}) is writing it; "
+                         "wait for it to finish or write elsewhere")
+
+
+class OutputLock:
+    """Exclusive lock of one output (a file, or a study folder), held by this
+    process until :meth:`release`: ``.<name>.lock`` next to it (inside it for a
+    folder), with the holder's pid and host as its content.
+
+    Where the filesystem has no locks, acquiring always succeeds (and the
+    temporaries' liveness falls back to pids).
+    """
+
+    def __init__(self, target: str | os.PathLike, *, folder: bool = False):
+        target = Path(target)
+        self.target = target
+        self.path = target / ".liethermo.lock" if folder else target.with_name(f".{target.name}.lock")
+        self.fd: int | None = None
+
+    def acquire(self) -> "OutputLock":
+        if fcntl is None:  # pragma: no cover
+            return self
+        for _ in range(10):
+            fd = os.open(self.path, os.O_CREAT | os.O_RDWR, 0o666)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                try:
+                    holder = os.read(fd, 200).decode(errors="replace").strip() or "unknown"
+                finally:
+                    os.close(fd)
+                raise Busy(self.target, holder) from None
+            except OSError:
+                os.close(fd)  # no locks on this filesystem
+                return self
+            # the previous holder may have removed the file between our open and
+            # our lock: then we locked an unlinked inode, and must start over
+            try:
+                same = os.fstat(fd).st_ino == os.stat(self.path).st_ino
+            except FileNotFoundError:
+                same = False
+            if not same:
+                os.close(fd)
+                continue
+            try:  # who holds it, for the message of a refused second process
+                os.ftruncate(fd, 0)
+                os.write(fd, f"pid {os.getpid()} on {socket.gethostname()}\n".encode())
+            except OSError:
+                pass  # a full disk: the lock holds all the same
+            self.fd = fd
+            return self
+        raise Busy(self.target, "lock file keeps changing")  # pragma: no cover
+
+    def release(self) -> None:
+        if self.fd is None:
+            return
+        try:
+            self.path.unlink()
+        except OSError:
+            pass
+        os.close(self.fd)
+        self.fd = None
+
+    def __enter__(self):
+        return self.acquire()
+
+    def __exit__(self, *exc):
+        self.release()
+        return False

@@ -1,0 +1,485 @@
+"""Checks made before any kernel compiles or simulates.
+
+:func:`prepare_run` decides where each method's output goes
+(:func:`output_paths`), and refuses, with one line, what would fail later or
+lose a result:
+
+* an output path that is a folder, or a folder that does not take files
+  (a probe file is created and removed);
+* an output that another live process is writing (:class:`~liethermo.faults.OutputLock`);
+* an existing output made from another scene (unless ``force``): a run never
+  silently replaces another experiment's file; the first differing scene key
+  is named.  Rerunning the same scene replaces its file;
+* ``resume`` from an interrupted run of another scene (the first differing
+  key is named) or another liethermo version;
+* an output that does not fit on its disk, or a member chunk that does not
+  fit in the memory left (:func:`estimate`).
+
+Then it removes what interrupted or killed runs of the same outputs left
+(temporaries of dead processes, and without ``resume`` their partial files)
+and says so in one line.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .faults import Busy, OutputLock, folder_leftovers, human_bytes, leftovers, remove_files
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+DEFAULT_DIR = Path("data") / "runs"
+
+
+class PreflightError(Exception):
+    """A run refused before any work: the message is one line."""
+
+
+# ---------------------------------------------------------------- names
+def output_paths(scene: dict, output: str | os.PathLike | None) -> dict[str, Path]:
+    """``{method: path}`` for the scene's method and its ``output.compare`` methods.
+
+    Without ``output``: ``data/runs/<scene>_<method>.nc`` for every method.
+    With ``output``: that path for the scene's method, ``<stem>_<method>.nc``
+    next to it for the others.
+    """
+    method = scene["integrator"]["method"]
+    methods = [method] + [m for m in scene["output"]["compare"] if m != method]
+    methods = list(dict.fromkeys(methods))
+    name = scene["scene"]["name"]
+    if output is None:
+        return {m: DEFAULT_DIR / f"{name}_{m}.nc" for m in methods}
+    out = Path(output)
+    paths = {method: out}
+    for m in methods[1:]:
+        paths[m] = out.with_name(f"{out.stem}_{m}{out.suffix}")
+    return paths
+
+
+def method_scene(scene, method: str):
+    """The scene with ``integrator.method = method``."""
+    return scene.with_overrides({"integrator.method": method})
+
+
+# ---------------------------------------------------------------- scene identity
+def _fmt(v) -> str:
+    return repr(v) if isinstance(v, str) else str(v).replace("'", '"')
+
+
+def scene_difference(old_toml: str, new_toml: str) -> str | None:
+    """The first key in which two resolved scenes (TOML texts) differ, as
+    ``"section.key (A there, B here)"``; None if they are equal."""
+    if old_toml == new_toml:
+        return None
+    try:
+        old = tomllib.loads(old_toml)
+    except tomllib.TOMLDecodeError:
+        return "the scene (unreadable)"
+    new = tomllib.loads(new_toml)
+    missing = object()
+    for section in list(new) + [s for s in old if s not in new]:
+        a, b = old.get(section, {}), new.get(section, {})
+        if not isinstance(a, dict) or not isinstance(b, dict):
+            if a != b:
+                return section
+            continue
+        for key in list(b) + [k for k in a if k not in b]:
+            va, vb = a.get(key, missing), b.get(key, missing)
+            if va != vb and not (isinstance(va, float) and isinstance(vb, float) and np.isnan(va) and np.isnan(vb)):
+                there = "absent" if va is missing else _fmt(va)
+                here = "absent" if vb is missing else _fmt(vb)
+                return f"{section}.{key} ({there} there, {here} here)"
+    return None
+
+
+def file_scene(path: Path) -> str | None:
+    """The resolved scene stored in a liethermo output (None: not one)."""
+    import netCDF4
+
+    try:
+        with netCDF4.Dataset(path, "r") as nc:
+            s = nc.getncattr("scene")
+            return s if isinstance(s, str) else None
+    except (OSError, RuntimeError, AttributeError, KeyError, ValueError):
+        return None
+
+
+# ---------------------------------------------------------------- sizes
+@dataclass
+class Estimate:
+    """Bytes per member in the output file and in memory while its chunk is computed."""
+
+    file_per_member: int
+    memory_per_member: int
+    members: int
+    member_chunk: int
+
+    #: per variable with a member dimension: (bytes per member, members per disk chunk or 0)
+    layout: list = field(default_factory=list)
+
+    @property
+    def file_bytes(self) -> int:
+        """The file's size: every variable's values, its last disk chunk
+        stored whole (HDF5 does), and the header (names, attributes, index)."""
+        total = 0
+        for per, disk in self.layout:
+            n = -(-self.members // disk) * disk if disk else self.members
+            total += n * per
+        return total + FILE_OVERHEAD
+
+    @property
+    def chunk_members(self) -> int:
+        return min(self.members, self.member_chunk)
+
+    @property
+    def chunk_memory(self) -> int:
+        return self.chunk_members * self.memory_per_member
+
+    @property
+    def writer_memory(self) -> int:
+        """The netCDF writer's chunk cache: two disk chunks per variable."""
+        return sum(2 * min(disk, self.members) * per for per, disk in self.layout if disk)
+
+    @property
+    def memory(self) -> int:
+        """What a run needs at most: a member chunk, the writer and the program."""
+        return self.chunk_memory + self.writer_memory + BASE_MEMORY
+
+
+#: Memory of a chunk per byte of its labelled output, beyond the kernel state
+#: (Ω, Γ and R are views of the state; the energies are new arrays): 1.0
+#: matched the measured peak to within 6 % (README, "Failures").
+MEMORY_FACTOR = 1.0
+#: Bytes of a file besides the values (measured: 74 kB for the paper scene).
+FILE_OVERHEAD = 96 * 1024
+#: What a run needs besides its member chunk (Python, numba, xarray, netCDF).
+BASE_MEMORY = 300 * 2**20
+
+
+def estimate(scene: dict) -> Estimate:
+    """Output size and chunk memory of a resolved scene, from the layout of a
+    one-member, two-time dataset labelled like a run's (no kernel runs)."""
+    from .dataset import trajectory_dataset
+    from .io import disk_chunk_members
+    from .methods import get_method
+    from .physics import build_model, physics_of_scene
+    from .simulate import Trajectory
+
+    integ, outp = scene["integrator"], scene["output"]
+    steps, every = int(integ["steps"]), int(outp["every"])
+    n_t = steps // every + 1
+    method = get_method(integ["method"])
+    phys = physics_of_scene(scene, 1)
+    km = build_model(phys, bool(outp["attitude"]))
+    layout = km.layout(method.family)
+    width = layout.size
+    one = lambda dt: np.zeros(1, dtype=dt)  # noqa: E731
+    traj = Trajectory(method=method.name, family=method.family, friction=integ["friction"],
+                      start=integ["start"], entropy=integ["entropy"], h=float(integ["h"]), steps=every,
+                      every=every, physics=phys, layout=layout, terms=tuple(km.terms()),
+                      states=np.zeros((1, 2, width)), status=one(np.int8), fail_step=one(np.int64),
+                      newton_iterations=one(np.int64), newton_max=one(np.int64), steps_done=one(np.int64),
+                      max_h_omega=one(np.float64))
+    with np.errstate(all="ignore"):
+        ds = trajectory_dataset(traj, omega0=np.zeros((1, 3)), R0=np.eye(3)[None])
+    members = int(scene["ensemble"]["members"])
+    layout = []
+    for var in ds.variables.values():
+        if "member" not in var.dims:
+            continue
+        n = var.dtype.itemsize if var.dtype.kind != "O" else 16
+        for d in var.dims[1:]:
+            n *= n_t if d == "time" else ds.sizes[d]
+        layout.append((n, disk_chunk_members(members, n) if var.ndim > 1 else 0))
+    per = sum(n for n, _ in layout)
+    memory = int(MEMORY_FACTOR * per) + n_t * width * 8
+    return Estimate(per, memory, members, int(outp["member_chunk"]), layout)
+
+
+def available_memory() -> int | None:
+    """Bytes of memory this process may still use: the least of the system's
+    available memory and its control group's limit (batch schedulers set one)."""
+    vals = []
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                vals.append(int(line.split()[1]) * 1024)
+    except (OSError, ValueError, IndexError):
+        pass
+    for limit, usage in (("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory.current"),
+                         ("/sys/fs/cgroup/memory/memory.limit_in_bytes",
+                          "/sys/fs/cgroup/memory/memory.usage_in_bytes")):
+        try:
+            lim = Path(limit).read_text().strip()
+            if lim != "max" and int(lim) < 2**60:
+                vals.append(int(lim) - int(Path(usage).read_text().strip()))
+                break
+        except (OSError, ValueError):
+            continue
+    return max(0, min(vals)) if vals else None
+
+
+# ---------------------------------------------------------------- the run plan
+@dataclass
+class Output:
+    method: str
+    path: Path
+    scene: dict
+    skip: bool = False  # complete already (resume)
+
+
+@dataclass
+class RunPlan:
+    outputs: list[Output]
+    locks: list[OutputLock] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)  # lines for stderr
+    estimate: Estimate | None = None
+    disk_need: int = 0
+    disk_free: int | None = None
+    memory_available: int | None = None
+    resume_sources: dict = field(default_factory=dict)  # {path: ResumeSource}
+    created: list = field(default_factory=list)  # folders made for the outputs
+
+    def remove_created(self) -> None:
+        """Remove the folders made for the outputs, if still empty (a check-only run)."""
+        for d in reversed(self.created):
+            try:
+                d.rmdir()
+            except OSError:
+                pass
+
+    def release(self) -> None:
+        for lock in self.locks:
+            lock.release()
+        self.locks = []
+
+    def check_line(self) -> str:
+        e = self.estimate
+        n = len([o for o in self.outputs if not o.skip])
+        mem = human_bytes(e.memory)
+        free = f", {human_bytes(self.disk_free)} free" if self.disk_free is not None else ""
+        avail = f", {human_bytes(self.memory_available)} available" if self.memory_available is not None else ""
+        return (f"{n} output file(s), about {human_bytes(self.disk_need)} on disk{free}; "
+                f"at most about {mem} of memory (member chunks of {e.chunk_members}){avail}")
+
+
+#: Scene keys the kernel parameters are derived from.
+PARAMETER_KEYS = ("body.radius", "body.semi_axes", "body.density", "body.mass", "body.molar_mass",
+                  "body.upper_mass_fraction", "body.inertia", "thermo.heat_capacity",
+                  "body.center_of_mass", "fluid.viscosity", "gravity.g", "thermo.T0")
+
+
+#: Integer keys the kernels and arrays take as 64-bit integers.
+INT64_KEYS = ("integrator.steps", "integrator.newton_maxiter", "output.every", "output.member_chunk",
+              "ensemble.members")
+
+
+def check_parameters(scene: dict) -> None:
+    """The kernels get numbers they can take: integers that fit in 64 bits, and
+    finite parameters (every key may be valid on its own and the derived mass,
+    moments, friction, heat capacity or gravity torque still overflow or
+    vanish: a radius of 1e-300 m)."""
+    from .physics import build_model, physics_of_scene
+
+    for key in INT64_KEYS:
+        section, name = key.split(".")
+        v = scene[section][name]
+        if isinstance(v, int) and v > np.iinfo(np.int64).max:
+            raise PreflightError(f"scene key '{key}': too large for the kernels (at most "
+                                 f"{np.iinfo(np.int64).max}) (got {v})")
+
+    try:
+        with np.errstate(all="ignore"):
+            phys = physics_of_scene(scene, 1)
+            p = build_model(phys, bool(scene["output"]["attitude"])).P
+        bad = not all(np.all(np.isfinite(getattr(phys, f))) for f in
+                      ("inertia", "center_of_mass", "mass", "friction", "gravity_torque", "heat_capacity"))
+        bad = bad or not np.all(np.isfinite(p))
+        why = "not finite numbers"
+    except ArithmeticError as exc:
+        bad, why = True, f"not computable ({exc})"
+    if bad:
+        raise PreflightError(f"the kernel parameters derived from the scene (mass, moments of inertia, friction, "
+                             f"heat capacity, gravity torque) are {why}; check {', '.join(PARAMETER_KEYS)}")
+
+
+def _first_existing(p: Path) -> Path:
+    p = p.absolute()
+    while not p.exists() and p != p.parent:
+        p = p.parent
+    return p
+
+
+def _check_folder(path: Path, created: list[Path]) -> None:
+    """The output's folder exists (created if needed) and takes new files."""
+    parent = path.parent
+    missing = []
+    q = parent.absolute()
+    while not q.exists() and q != q.parent:
+        missing.append(q)
+        q = q.parent
+    if q.exists() and not q.is_dir():
+        raise PreflightError(f"cannot write {path}: {q} is not a folder")
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise PreflightError(f"cannot write {path}: cannot create the folder {parent} "
+                             f"({exc.strerror or exc})") from None
+    created += reversed(missing)
+    probe = parent / f".{path.name}.{os.getpid()}.probe"
+    try:
+        fd = os.open(probe, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666)
+    except OSError as exc:
+        raise PreflightError(f"cannot write {path}: the folder {parent} does not take new files "
+                             f"({exc.strerror or exc})") from None
+    os.close(fd)
+    probe.unlink()
+
+
+def prepare_run(scene: dict, output=None, *, force: bool = False, resume: bool = False,
+                dask: bool = False, combine: bool = True, check_memory: bool = True, clean: bool = True) -> RunPlan:
+    """Every check before a run; returns the plan (holding the output locks:
+    call ``plan.release()`` when done).  Raises :class:`PreflightError`.
+    ``clean=False``: leave what earlier runs left (a check only)."""
+    from .distributed import parts_dir
+    from .io import journal_path, partial_path, resume_sources
+    from .scene import scene_to_toml
+
+    check_parameters(scene)
+    outs = [Output(m, p, method_scene(scene, m)) for m, p in output_paths(scene, output).items()]
+    plan = RunPlan(outs)
+    created = plan.created
+    try:
+        for o in outs:
+            if o.path.suffix != ".nc":
+                raise PreflightError(f"output {o.path}: the output file must end in .nc")
+            if o.path.is_dir():
+                raise PreflightError(f"cannot write {o.path}: it is a folder")
+            _check_folder(o.path, created)
+        for o in outs:
+            try:
+                plan.locks.append(OutputLock(o.path).acquire())
+            except Busy as exc:
+                raise PreflightError(str(exc)) from None
+            except OSError as exc:
+                raise PreflightError(f"cannot write {o.path}: {exc.strerror or exc}") from None
+        for o in outs:
+            toml = scene_to_toml(o.scene)
+            if (dask and not combine) or not (o.path.exists() or o.path.is_symlink()):
+                continue
+            old = file_scene(o.path)
+            if old is not None and old == toml:
+                o.skip = resume  # a rerun replaces it; a resume has nothing left to do
+                if resume:
+                    plan.notes.append(f"liethermo: {o.path} is complete for this scene: kept")
+                continue
+            if force:
+                continue
+            what = ("is not a liethermo output" if old is None
+                    else f"holds a run of another scene, differing in {scene_difference(old, toml)}")
+            raise PreflightError(f"{o.path} exists and {what}: pass --force to replace it, "
+                                 f"or -o to write elsewhere")
+        chosen = {}
+        if resume and not dask:
+            for o in outs:
+                if o.skip:
+                    continue
+                src = resume_sources(o.path)
+                if not src:
+                    continue
+                j = src[0].journal
+                from . import __version__
+
+                if j.version != __version__:
+                    raise PreflightError(f"cannot resume {o.path}: its partial run was made by liethermo "
+                                         f"{j.version}, this is {__version__}; rerun without --resume to start over")
+                diff = scene_difference(j.scene_toml, scene_to_toml(o.scene))
+                if diff is not None:
+                    raise PreflightError(f"cannot resume {o.path}: the scene differs from the interrupted "
+                                         f"run's in {diff}; rerun without --resume to start over")
+                chosen[o.path] = src[0]
+        _check_sizes(plan, scene, dask=dask, combine=combine, check_memory=check_memory and not dask)
+    except BaseException:
+        plan.release()
+        plan.remove_created()
+        raise
+    plan.resume_sources = chosen
+    if not clean:
+        return plan
+    # what earlier runs of these outputs left: removed, but for the resume sources
+    stale: list[Path] = []
+    where: list[str] = []
+    for o in outs:
+        keep = set()
+        if o.path in chosen:
+            keep = {chosen[o.path].data, chosen[o.path].journal_file}
+        cands = list(leftovers(o.path))
+        pj = journal_path(partial_path(o.path))
+        cands += [p for p in (pj.with_name(pj.name + ".new"),) if p.exists()]  # a journal cut short
+        if not resume or dask:
+            cands += [p for p in (partial_path(o.path), pj) if p.exists()]
+        if dask:
+            cands += folder_leftovers(parts_dir(o.path))
+        mine = [p for p in cands if p not in keep]
+        if mine:
+            stale += mine
+            where.append(str(o.path))
+    n, size = remove_files(stale)
+    if n:
+        plan.notes.append(f"liethermo: removed {n} file{'s' if n != 1 else ''} ({human_bytes(size)}) "
+                          f"left by interrupted or killed runs of {' and '.join(where)}")
+    return plan
+
+
+def _check_sizes(plan: RunPlan, scene: dict, *, dask: bool, combine: bool, check_memory: bool) -> None:
+    todo = [o for o in plan.outputs if not o.skip]
+    if not todo:
+        plan.estimate = estimate(scene)
+        return
+    ests = {o.method: estimate(o.scene) for o in todo}
+    plan.estimate = ests[todo[0].method]
+    # disk: every output, on its own filesystem (parts and the combined file both, with Dask)
+    need: dict[int, list] = {}
+    for o in todo:
+        root = _first_existing(o.path.parent)
+        dev = os.stat(root).st_dev
+        b = ests[o.method].file_bytes * (2 if dask and combine else 1)
+        ent = need.setdefault(dev, [o.path.parent, 0, []])
+        ent[1] += b
+        ent[2].append(o)
+    plan.disk_need = sum(v[1] for v in need.values())
+    for root, b, os_ in need.values():
+        free = shutil.disk_usage(root).free
+        plan.disk_free = free if plan.disk_free is None else min(plan.disk_free, free)
+        if b > free:
+            e = ests[os_[0].method]
+            names = " and ".join(str(o.path) for o in os_)
+            raise PreflightError(
+                f"{names} would need about {human_bytes(b)} ({e.members} members x "
+                f"{human_bytes(e.file_per_member)}{' x 2 for the Dask parts' if dask and combine else ''}) "
+                f"but the disk of {root} has {human_bytes(free)} free; run fewer members (ensemble.members) "
+                f"or store less (output.every, output.attitude)")
+    if not check_memory:
+        return
+    avail = available_memory()
+    plan.memory_available = avail
+    worst = max(ests.values(), key=lambda e: e.memory)
+    if avail is not None and worst.memory > avail:
+        fixed = worst.memory - worst.chunk_memory
+        fit = max(0, (avail - fixed) // max(1, worst.memory_per_member))
+        hint = (f"lower output.member_chunk to at most {fit}" if fit >= 1
+                else "store fewer output times (output.every) or integrate fewer steps")
+        raise PreflightError(
+            f"a run would need about {human_bytes(worst.memory)} of memory (a member chunk of "
+            f"{worst.chunk_members} members x {human_bytes(worst.memory_per_member)}, plus "
+            f"{human_bytes(fixed)} for the program and its file buffers) but {human_bytes(avail)} "
+            f"are available; {hint}")
