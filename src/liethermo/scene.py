@@ -651,7 +651,8 @@ nothing else (docs/model.md, "Model terms"):
 * *Thermal expansion* — `body.thermal_expansion = α > 0` makes the inertia depend
   on the entropy, 𝕀(S) = 𝕀₀(1 + α(θ − T₀))²: the fully coupled top. Give it a small
   `thermo.heat_capacity` to see the heating (the built-in `coupled_egg`). With `vi`
-  it needs `integrator.start = "legendre"` and `integrator.friction = "trapezoid"`.
+  in a viscous fluid it needs `integrator.start = "legendre"` and
+  `integrator.friction = "trapezoid"`.
 * *Internal friction* — `body.internal_friction = λ > 0` adds the double-bracket
   friction λ μ×(μ×Ω), which keeps |μ|; with `fluid.viscosity = 0` and `gravity.g = 0`
   the body ends in a flat spin (the built-in `flat_spin`). Not together with
