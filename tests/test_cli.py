@@ -1,4 +1,4 @@
-"""Scenes, validation (SPEC §5), the command line and the written dataset (SPEC §7)."""
+"""Scenes and their validation (docs/scenes.md), the command line and the written dataset (docs/netcdf.md)."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ from liethermo.cli import main
 from liethermo.runner import run_scene
 from liethermo.scene import SceneError, load_scene
 
-# (override, key named in the message) — one case per rule of SPEC §5
+# (override, key named in the message) — one case per rule of docs/scenes.md
 INVALID = [
     ("body.inertia=[1e-3, 1e-3, 0.0]", "body.inertia"),       # non-positive inertia
     ("body.inertia=[1e-3, -1e-3, 1e-3]", "body.inertia"),
@@ -63,7 +63,7 @@ def test_invalid_input_is_rejected_naming_the_key(override, key, tmp_path, capsy
 
 
 def test_invalid_input_subprocess_exit_code(tmp_path):
-    """The console command itself: non-zero exit, the message, no file (SPEC §5)."""
+    """The console command itself: non-zero exit, the message, no file."""
     out = tmp_path / "bad.nc"
     p = subprocess.run([sys.executable, "-m", "liethermo.cli", "run", "paper", "-o", str(out),
                         "--set", "integrator.h=-1"], capture_output=True, text=True)
@@ -120,8 +120,7 @@ def test_unknown_key_in_file(tmp_path):
 
 
 def test_paper_scene_derived_values():
-    """The paper body's derived values (docs/model.md): m = ρ 2πa³/3 per hemisphere
-    mixture, ℓ = 3m₁a/(8m) − m₂a/(2m), c = 8πμa³, c_v = 3 (m/M) R, the printed 𝕀."""
+    """The derived values of docs/model.md, "The paper scene"."""
     from liethermo.physics import physics_of_scene
 
     b = physics_of_scene(load_scene("paper"))
@@ -183,7 +182,7 @@ def test_energy_error_without_cancellation():
     ds, _ = run_scene(_small(integrator__start="legendre"), progress=False)  # node 0 is Ω(0)
     naive = ds["total_energy"] - ds["total_energy"].isel(time=0)
     E = float(ds["total_energy"].values[0, 0])
-    assert E == pytest.approx(3.9e5, rel=0.02)  # c_v T0 dominates
+    assert E == pytest.approx(3.9e5, rel=0.02)  # c_v T0 dominates (docs/model.md, "The paper scene")
     assert np.abs(ds["energy_error"] - naive).max() < 8 * np.finfo(float).eps * E
     assert ds["energy_error"].values[0, 0] == 0.0
 
@@ -253,7 +252,7 @@ print('OK')
 
 
 def test_killed_run_leaves_no_file_at_the_output_path(tmp_path):
-    """A run killed mid-way leaves no file at the output path (atomic write, SPEC §5)."""
+    """A run killed mid-way leaves no file at the output path (atomic write)."""
     out = tmp_path / "long.nc"
     p = subprocess.Popen([sys.executable, "-m", "liethermo.cli", "run", "paper", "-o", str(out),
                           "--no-progress", "--set", "ensemble.members=20000", "--set", "integrator.steps=100000",

@@ -180,7 +180,21 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--dask", metavar="local|ADDRESS", default=None,
                    help="run sweep points as tasks on a Dask cluster ('local' or a scheduler address)")
     s.set_defaults(func=cmd_study)
+
+    k = sub.add_parser("keys", help="list every scene key with its unit, default and rule",
+                       description="Print every scene key with its unit, default, rule and meaning "
+                       "(the tables of docs/scenes.md, as plain text).")
+    k.add_argument("--markdown", action="store_true",
+                   help="print docs/scenes.md instead (introduction, built-in scenes, key tables)")
+    k.set_defaults(func=cmd_keys)
     return ap
+
+
+def cmd_keys(args) -> int:
+    from .scene import keys_table, scenes_markdown
+
+    sys.stdout.write(scenes_markdown() if args.markdown else keys_table(markdown=False))
+    return 0
 
 
 def cmd_study(args) -> int:

@@ -578,8 +578,8 @@ def keys_table(markdown: bool = True) -> str:
             lines += [f"### [{section}]", "", "| key | unit | default | rule | meaning |",
                       "|---|---|---|---|---|"]
             for k in ks:
-                lines.append(f"| `{k.path}` | {k.unit or '—'} | `{_toml_value(k.default)}` | "
-                             f"{k.rule} | {k.doc} |".replace("\n", " "))
+                lines.append(f"| `{k.path}` | {_md_cell(k.unit) or '—'} | `{_toml_value(k.default)}` | "
+                             f"{_md_cell(k.rule)} | {_md_cell(k.doc)} |")
             lines.append("")
         else:
             lines.append(f"[{section}]")
@@ -595,3 +595,91 @@ def _toml_value(v) -> str:
     if isinstance(v, (list, tuple)):
         return "[" + ", ".join(_toml_value(x) for x in v) + "]"
     return tomli_w.dumps({"v": v})[4:].strip()
+
+
+def _md_cell(text: str) -> str:
+    """Text as the content of a Markdown table cell: one line, with "|" (a
+    cell border) and "<" (the start of an HTML tag) escaped."""
+    return text.replace("\n", " ").replace("<", "&lt;").replace("|", "\\|")
+
+
+#: the command that writes docs/scenes.md
+SCENES_MARKDOWN_COMMAND = "python -m liethermo.cli keys --markdown > docs/scenes.md"
+
+SCENES_INTRO = """\
+A scene is what a run simulates — the body, the fluid, gravity, the thermodynamics,
+the initial data, the integrator, the ensemble and the output — as a TOML file of
+sections and keys:
+
+```toml
+[integrator]
+method = "vi4"
+h = 0.05
+```
+
+**How a scene resolves.** Every key has a default (the tables below: the paper's
+body and fluid, with the integrator choices recommended for new scenes). A built-in
+scene name or a TOML file overrides some of them, and overrides given last win:
+`--set SECTION.KEY=VALUE` on the command line (`VALUE` is a TOML value; a bare word
+is taken as a string), or `{"section.key": value}` in Python
+(`liethermo.scene.load_scene(source, overrides)`):
+
+    defaults  ←  built-in scene or TOML file  ←  --set SECTION.KEY=VALUE
+
+```bash
+liethermo run paper --set integrator.h=0.05 --set 'initial.omega=[2,-1,0.5]'
+liethermo run my_scene.toml -o out.nc --set integrator.method=rk4
+```
+
+Every rule below is checked before any work starts; a scene that breaks one is
+rejected with one line naming the key and the rule (exit status 2, no output file).
+Unknown sections and keys are errors too. `liethermo keys` prints these tables as
+plain text.
+
+**Choosing a model.** The kernels are compiled for the terms a scene needs and
+nothing else (docs/model.md, "Model terms"):
+
+* *The body* — `body.shape = "hemispheres"` is the paper's top: a ball of radius
+  `body.radius` made of a solid upper and a thin hollow lower hemisphere, spinning
+  about its centre, with the paper's printed inertia (docs/model.md, erratum E5) and
+  the Stokes friction of a sphere, 8πηa³ (η = `fluid.viscosity`). `body.shape = "ellipsoid"` is a triaxial
+  ellipsoid with `body.semi_axes`, uniform density about its centre unless
+  `body.mass`, `body.inertia` or `body.center_of_mass` say otherwise, with Jeffery's
+  diagonal rotational resistance. Either shape takes explicit principal moments
+  `body.inertia = [I1, I2, I3]`.
+* *Thermal expansion* — `body.thermal_expansion = α > 0` makes the inertia depend
+  on the entropy, 𝕀(S) = 𝕀₀(1 + α(θ − T₀))²: the fully coupled top. Give it a small
+  `thermo.heat_capacity` to see the heating (the built-in `coupled_egg`). With `vi`
+  in a viscous fluid it needs `integrator.start = "legendre"` and
+  `integrator.friction = "trapezoid"`.
+* *Internal friction* — `body.internal_friction = λ > 0` adds the double-bracket
+  friction λ μ×(μ×Ω), which keeps |μ|; with `fluid.viscosity = 0` and `gravity.g = 0`
+  the body ends in a flat spin (the built-in `flat_spin`). Not together with
+  thermal expansion.
+* *No gravity, no friction* — `gravity.g = 0` (or a centre of mass at the fixed
+  point, as for a uniform ellipsoid) removes the gravity torque; `fluid.viscosity = 0`
+  with `body.internal_friction = 0` removes all dissipation, and with it the
+  entropy (S stays S₀, T stays T₀).
+* *The integrator* — `integrator.method`, and for `vi` the `start`, `friction` and
+  `entropy` variants: their orders and the paper's choices are in docs/model.md
+  ("The variational integrator", "Orders of convergence"). The paper scene uses the
+  paper's choices (`start = "node"`, `entropy = "explicit"`).
+"""
+
+
+def scenes_markdown() -> str:
+    """The text of docs/scenes.md: a short introduction, the built-in scenes and
+    every key of :data:`KEYS` with its unit, default and rule."""
+    lines = ["# Scenes and their keys", "",
+             f"<!-- Generated from liethermo.scene.KEYS by `{SCENES_MARKDOWN_COMMAND}`; "
+             "edit the keys or liethermo.scene.SCENES_INTRO, not this file. -->", "",
+             SCENES_INTRO.rstrip("\n"), "",
+             "## Built-in scenes", "",
+             "`liethermo run NAME` runs one; the files are in `src/liethermo/scenes/`.", "",
+             "| scene | description |", "|---|---|"]
+    for name, description in builtin_scenes().items():
+        lines.append(f"| `{name}` | {_md_cell(description)} |")
+    lines += ["", "## Keys", "",
+              "Units are SI; 1 marks a dimensionless number, — a key without a unit.", "",
+              keys_table(markdown=True).rstrip("\n")]
+    return "\n".join(lines) + "\n"
