@@ -358,3 +358,19 @@ def test_symmetric_update_and_explicit_differ_only_in_entropy():
     rel = np.abs(a.sigma[:, -1] - b.sigma[:, -1]) / np.abs(b.sigma[:, -1])
     assert rel.max() < 1e-6  # both approximate the same heat
     assert math.isfinite(rel.max()) and type(EXPLICIT) is not type(SYMMETRIC)
+
+
+def test_auto_kernel_choice():
+    """"auto" runs small runs (where compiling the vectorized loop would take
+    longer than the run) on the one-member loop, large ones vectorized, the
+    reference always one member at a time; an unknown kernel is refused."""
+    from liethermo.simulate import SMALL_RUN_MEMBER_STEPS, kernel_for
+
+    assert kernel_for("vi", 1, 300) == "simple"
+    assert kernel_for("vi", 4096, 300) == "fast"
+    assert kernel_for("rk2", SMALL_RUN_MEMBER_STEPS, 1) == "simple"
+    assert kernel_for("rk2", SMALL_RUN_MEMBER_STEPS + 1, 1) == "fast"
+    assert kernel_for("reference", 10**6, 10**3) == "simple"
+    assert kernel_for("vi", 1, 300, "fast") == "fast"
+    with pytest.raises(ValueError, match="unknown kernel 'gpu'"):
+        kernel_for("vi", 1, 1, "gpu")

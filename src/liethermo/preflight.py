@@ -75,9 +75,15 @@ def _fmt(v) -> str:
     return repr(v) if isinstance(v, str) else str(v).replace("'", '"')
 
 
+#: keys that do not change what a run computes or writes into its file
+NOT_IN_RESULTS = {("output", "figures"), ("output", "compare"), ("output", "member_chunk")}
+
+
 def scene_difference(old_toml: str, new_toml: str) -> str | None:
     """The first key in which two resolved scenes (TOML texts) differ, as
-    ``"section.key (A there, B here)"``; None if they are equal."""
+    ``"section.key (A there, B here)"``; None if they are equal but for keys
+    that do not change the results (:data:`NOT_IN_RESULTS`: figures, the
+    other methods compared, the member chunk)."""
     if old_toml == new_toml:
         return None
     try:
@@ -93,6 +99,8 @@ def scene_difference(old_toml: str, new_toml: str) -> str | None:
                 return section
             continue
         for key in list(b) + [k for k in a if k not in b]:
+            if (section, key) in NOT_IN_RESULTS:
+                continue
             va, vb = a.get(key, missing), b.get(key, missing)
             if va != vb and not (isinstance(va, float) and isinstance(vb, float) and np.isnan(va) and np.isnan(vb)):
                 there = "absent" if va is missing else _fmt(va)
@@ -377,7 +385,7 @@ def prepare_run(scene: dict, output=None, *, force: bool = False, resume: bool =
             if (dask and not combine) or not (o.path.exists() or o.path.is_symlink()):
                 continue
             old = file_scene(o.path)
-            if old is not None and old == toml:
+            if old is not None and scene_difference(old, toml) is None:
                 o.skip = resume  # a rerun replaces it; a resume has nothing left to do
                 if resume:
                     plan.notes.append(f"liethermo: {o.path} is complete for this scene: kept")

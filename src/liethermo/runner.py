@@ -21,7 +21,7 @@ from .initial import initial_conditions
 from .methods import get_method
 from .physics import build_model, physics_of_scene
 from .scene import Scene, load_scene, scene_to_toml
-from .simulate import STATUS_MEANINGS, simulate
+from .simulate import STATUS_MEANINGS, kernel_for, simulate
 
 
 @dataclass
@@ -176,6 +176,9 @@ def run_chunk(scene: dict, lo: int, hi: int, *, progress_cb=None, kernel: str | 
     method, h, steps = integ["method"], float(integ["h"]), int(integ["steps"])
     every = int(scene["output"]["every"])
     attitude = bool(scene["output"]["attitude"])
+    # one loop for every chunk of a run (and every Dask task): chosen on the full chunk size
+    kernel = kernel_for(method, min(int(scene["ensemble"]["members"]), int(scene["output"]["member_chunk"])),
+                        steps, kernel or "auto")
     phys = physics_of_scene(scene, hi - lo)
     om0, R0 = initial_conditions(scene, lo, hi)
     traj = simulate(phys, om0, R0, h, steps, method, friction=integ["friction"],
@@ -183,7 +186,7 @@ def run_chunk(scene: dict, lo: int, hi: int, *, progress_cb=None, kernel: str | 
                     every=every, newton_tol=float(integ["newton_tol"]),
                     newton_maxiter=int(integ["newton_maxiter"]),
                     progress=(lambda n, k=hi - lo: progress_cb(n * k)) if progress_cb else None,
-                    threads=threads, **({"kernel": kernel} if kernel else {}))
+                    threads=threads, kernel=kernel)
     ds = trajectory_dataset(traj, omega0=om0, R0=R0, member_offset=lo)
     st = ChunkStats(members=hi - lo, kernel_time=traj.wall_time, compile_time=traj.compile_time)
     ncounts = len(STATUS_MEANINGS)

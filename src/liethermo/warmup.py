@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import sys
 
 from .kernels._jit import CACHE
 
@@ -21,8 +22,14 @@ def _warm(scene_toml: str, jobs: list[tuple[str, str]]) -> None:
     import signal
     import sys
 
-    # Ctrl-C reaches the whole process group: the run decides, and terminates this process
+    # Ctrl-C reaches the whole process group: the run decides, and terminates
+    # this process (SIGTERM, its default action: nothing here needs cleaning up,
+    # numba writes each cache file whole); the run's own handlers, inherited by
+    # a fork, are not for this process
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    for name in ("SIGTERM", "SIGHUP"):
+        if hasattr(signal, name):
+            signal.signal(getattr(signal, name), signal.SIG_DFL)
 
     if sys.version_info >= (3, 11):
         import tomllib
@@ -32,7 +39,7 @@ def _warm(scene_toml: str, jobs: list[tuple[str, str]]) -> None:
     from .initial import initial_conditions
     from .physics import physics_of_scene
     from .scene import load_scene
-    from .simulate import simulate
+    from .simulate import kernel_for, simulate
 
     scene = load_scene(tomllib.loads(scene_toml))
     for method, part in jobs:
@@ -40,10 +47,13 @@ def _warm(scene_toml: str, jobs: list[tuple[str, str]]) -> None:
         integ = sc.integrator
         om0, R0 = initial_conditions(sc, 0, 1)
         every = int(sc.output.every)
+        # the loop the run's member chunks use, compiled on one member
+        chunk = min(int(sc.ensemble.members), int(sc.output.member_chunk))
         simulate(physics_of_scene(sc, 1), om0, R0, float(integ.h), every, method,
                  friction=integ.friction, start=integ.start, entropy=integ.entropy,
                  attitude=bool(sc.output.attitude), every=every,
                  newton_tol=float(integ.newton_tol), newton_maxiter=int(integ.newton_maxiter),
+                 kernel=kernel_for(method, chunk, int(integ.steps)),
                  compile_only="start" if part == "start" else True)
 
 
@@ -62,7 +72,10 @@ def start_warming(scene, methods: list[str]):
     jobs += [(m, "all") for m in methods[1:]]
     if not jobs:
         return None
-    proc = multiprocessing.get_context("spawn").Process(
+    # fork where it is safe (Linux: no threads run yet in this process): the
+    # child starts with everything imported, which on a warm cache is most of its work
+    method = "fork" if sys.platform.startswith("linux") else "spawn"
+    proc = multiprocessing.get_context(method).Process(
         target=_warm, args=(scene.to_toml(), jobs), daemon=True, name="liethermo-warmup")
     proc.start()
     return proc
