@@ -239,6 +239,7 @@ def test_stop_signal_cancels_the_tasks_and_keeps_the_parts(client, tmp_path, ref
     assert_same_run(out, ref_vi)
 
 
+@pytest.mark.slow
 def test_ctrl_c_under_dask_local(tmp_path):
     """Ctrl-C at a terminal signals the whole process group, the local
     cluster's workers too: one line, exit status 130, no process left."""

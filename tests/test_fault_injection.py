@@ -22,6 +22,8 @@ import sys
 
 import pytest
 
+pytestmark = pytest.mark.slow  # 20 kills and resumes, 4 studies: about half a minute
+
 DRIVER = r'''
 import json, os, random, shutil, signal, sys, time, traceback
 from pathlib import Path

@@ -265,6 +265,7 @@ def test_bad_new_keys_exit_2_with_one_line(override, tmp_path):
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_every_builtin_scene_loads_and_runs_briefly():
     """Each built-in scene is valid and runs its own method for a few steps."""
     for name in builtin_scenes():

@@ -109,6 +109,7 @@ def test_time_to_error_interpolation():
 
 # ----------------------------------------------------------------------------- stability
 
+@pytest.mark.slow
 def test_stability_map(stab):
     report, out = stab
     ds = cf.open_dataset(out / "stability.nc")
@@ -138,6 +139,7 @@ def test_stability_map(stab):
         hw.size * ka.size).all()
 
 
+@pytest.mark.slow
 def test_stability_negative_substeps(stab):
     """vi4/vi6: a substep of factor f < 0 makes the friction factor 1 + fκ/2 vanish at
     κ = −2/f; inside the growth band the composed step loses the small-step accuracy
@@ -169,6 +171,7 @@ def reg_at(ds, m, hw, k):
     return int(ds["regime"].sel({"method": m, "h_omega": hw, "kappa": k}).item())
 
 
+@pytest.mark.slow
 def test_stability_named_cases(stab):
     _, out = stab
     df = pd.read_csv(out / "named_cases.csv")
@@ -191,6 +194,7 @@ def test_stability_named_cases(stab):
     assert (failed["failed at step"] != "—").all()
 
 
+@pytest.mark.slow
 def test_stability_newton_limit(stab):
     """Newton fails only from a predictor far from the root, not from conditioning."""
     _, out = stab
