@@ -9,13 +9,21 @@ import numpy as np
 
 
 def same_but_created(a: Path, b: Path) -> bool:
-    """The two files hold the same data but for their provenance (``created``
-    and ``history``, the time and the command that made them): the same
+    """The two files are the same but for when they were made: the same
     dimensions, variables (types, chunking, filters, attributes) and values
-    bit for bit, and the same global attributes otherwise."""
+    bit for bit, the same global attributes but ``created``, and the same
+    ``history`` command but for its time stamp and the file's own path."""
+    def glob(nc, path):
+        out = {k: str(nc.getncattr(k)) for k in nc.ncattrs() if k != "created"}
+        stamp, _, command = out.get("history", "").partition(": ")
+        if stamp != nc.getncattr("created"):
+            return None
+        out["history"] = command.replace(str(path), "<this file>")
+        return out
+
     with netCDF4.Dataset(a) as x, netCDF4.Dataset(b) as y:
-        glob = lambda nc: {k: str(nc.getncattr(k)) for k in nc.ncattrs() if k not in ("created", "history")}  # noqa: E731
-        if glob(x) != glob(y) or {k: len(d) for k, d in x.dimensions.items()} != \
+        gx = glob(x, a)
+        if gx is None or gx != glob(y, b) or {k: len(d) for k, d in x.dimensions.items()} != \
                 {k: len(d) for k, d in y.dimensions.items()} or list(x.variables) != list(y.variables):
             return False
         for name, va in x.variables.items():

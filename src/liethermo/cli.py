@@ -15,6 +15,8 @@ from pathlib import Path
 from . import __version__
 
 EXIT_INVALID = 2  # invalid input, refused run, failed write: one line on stderr
+#: flags that do not change what a command writes, left out of the files' history
+NOT_IN_HISTORY = {"--resume", "--force", "--no-progress"}
 
 
 def _error(msg) -> int:
@@ -206,8 +208,10 @@ def cmd_study(args) -> int:
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     args = build_parser().parse_args(argv)
-    # what the files' 'history' attribute records
-    args.command_line = shlex.join(["liethermo", *argv])
+    # what the files' 'history' attribute records: the command that makes the
+    # data, without the flags that do not change it (a resumed file then says
+    # what an uninterrupted run's does)
+    args.command_line = shlex.join(["liethermo", *[a for a in argv if a not in NOT_IN_HISTORY]])
     if args.command not in ("run", "study"):
         return args.func(args)
     import signal
