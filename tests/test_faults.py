@@ -19,7 +19,7 @@ import pytest
 from liethermo.cli import main
 from liethermo.faults import Interrupted, OutputLock
 from liethermo.runner import run_scene
-from ncsame import same_but_created
+from ncsame import same_bytes_but_time, same_but_created
 from liethermo.scene import load_scene
 
 CLI = [sys.executable, "-m", "liethermo.cli"]
@@ -58,10 +58,12 @@ def start_and_signal(out: Path, sig: int, extra=()) -> subprocess.CompletedProce
 
 # ---------------------------------------------------------------- signals and resume
 def test_sigterm_keeps_the_partial_run_and_resume_is_bit_identical(tmp_path):
-    ref = tmp_path / "ref" / "x.nc"
-    r = subprocess.run(CLI + ["run", "paper", "-o", str(ref), *SLOW], capture_output=True, text=True)
-    assert r.returncode == 0, r.stderr
     out = tmp_path / "x.nc"
+    r = subprocess.run(CLI + ["run", "paper", "-o", str(out), *SLOW], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    ref = tmp_path / "ref" / "x.nc"  # the uninterrupted run, written to the same path
+    ref.parent.mkdir()
+    out.rename(ref)
     p = start_and_signal(out, signal.SIGTERM)
     assert p.returncode == 143, p.stderr
     line = one_line(p.stderr)
@@ -74,6 +76,7 @@ def test_sigterm_keeps_the_partial_run_and_resume_is_bit_identical(tmp_path):
     assert "resumed: members 0-" in r.stdout
     assert names(tmp_path) == ["ref", "x.nc"]
     assert same_but_created(out, ref)
+    assert same_bytes_but_time(out, ref)
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGHUP])
