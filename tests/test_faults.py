@@ -296,6 +296,26 @@ def test_disk_full_while_drawing_the_figures(tmp_path, monkeypatch, capsys):
     assert names(tmp_path) == ["p.nc", "p_rk2.nc"]  # the datasets are complete; no figure, no temporary
 
 
+def test_figure_drafts_of_killed_runs_are_removed(tmp_path, monkeypatch, capsys):
+    """A run killed while drawing leaves its hidden draft folder; the next run
+    drawing there removes it (one line), and leaves a live process's draft alone."""
+    import liethermo.plotting as pl
+
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
+                          text=True).stdout.strip()
+    stale = tmp_path / f".p_figures.{dead}.x1y2"
+    live = tmp_path / f".p_figures.{os.getppid()}.z3w4"
+    for d in (stale, live):
+        d.mkdir()
+        (d / "p_energies.png").write_bytes(b"\x89PNG half")
+    monkeypatch.setattr(pl, "scene_figures", lambda outputs, folder, stem="run", member=0: [])
+    out = tmp_path / "p.nc"
+    assert main(["run", "paper", "-o", str(out), "--no-progress", "--set", "integrator.steps=20"]) == 0
+    assert one_line(capsys.readouterr().err) == (
+        f"liethermo: removed 1 unfinished figure folder left by killed runs in {tmp_path}")
+    assert names(tmp_path) == [live.name, "p.nc", "p_rk2.nc"]
+
+
 # ---------------------------------------------------------------- refused before any work
 @pytest.fixture
 def no_simulation(monkeypatch):

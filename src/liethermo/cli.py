@@ -116,8 +116,16 @@ def _figures(plan, stem: str) -> list[Path]:
     from .io import WriteError, io_cause
     from .plotting import scene_figures
 
+    from .faults import figure_drafts, one_line
+
     folder = plan.outputs[0].path.parent
-    tmp = Path(tempfile.mkdtemp(prefix=f".{stem}_figures.", dir=folder))
+    drafts = figure_drafts(folder, stem)  # of runs killed while drawing
+    for d in drafts:
+        shutil.rmtree(d, ignore_errors=True)
+    if drafts:
+        print(one_line(f"liethermo: removed {len(drafts)} unfinished figure folder{'s' if len(drafts) > 1 else ''} "
+                       f"left by killed runs in {folder}"), file=sys.stderr)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{stem}_figures.{os.getpid()}.", dir=folder))
     try:
         try:
             drawn = scene_figures({o.method: o.path for o in plan.outputs}, tmp, stem=stem)

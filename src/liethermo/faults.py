@@ -251,6 +251,23 @@ def folder_leftovers(folder: str | os.PathLike) -> list[Path]:
     return out
 
 
+def figure_drafts(folder: str | os.PathLike, stem: str) -> list[Path]:
+    """Folders ``.<stem>_figures.<pid>.*`` in which a process that is gone was
+    drawing figures (a run draws into such a folder, then renames the files)."""
+    folder = Path(folder)
+    pat = re.compile(r"^\." + re.escape(stem) + r"_figures\.(?P<pid>\d+)\.")
+    try:
+        names = sorted(os.listdir(folder))
+    except OSError:
+        return []
+    out = []
+    for n in names:
+        m = pat.match(n)
+        if m and (folder / n).is_dir() and int(m["pid"]) != os.getpid() and not _pid_alive(int(m["pid"])):
+            out.append(folder / n)
+    return out
+
+
 def remove_files(paths) -> tuple[int, int]:
     """Remove files; ``(count, bytes)`` of those removed."""
     n = size = 0
