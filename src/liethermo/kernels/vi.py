@@ -55,13 +55,12 @@ from __future__ import annotations
 
 from collections import namedtuple
 
-import math
-
 import numpy as np
 
 from ._jit import fma, lane, select
 from .equations import omega_rate
 from .gen import axpy_opt, finite, madd, none_dispatch, or_zero, overload_by_class, scale_opt
+from .lanemath import expm1_lane
 from .layout import NEWTON_MAXITER, NEWTON_OK, NEWTON_SINGULAR
 from .so3 import attitude_lane, cayley_lane, cross_lane
 from .terms import sum_discrete_power, sum_linear_friction, sum_nonlinear_friction, sum_torque
@@ -186,7 +185,7 @@ def _coupled_correction(model, v, x0, x1, x2, xs, b0, b1, b2, s1):
     I = model.inertia
     al = I.alpha
     thp = temperature(th, s1)
-    e = math.expm1(xs * th.icv)
+    e = expm1_lane(xs * th.icv)
     thn = fma(thp, e, thp)
     phip = fma(al, thp - th.T0, 1.0)
     phin = fma(al, thn - th.T0, 1.0)
