@@ -183,3 +183,13 @@ def expm1_small(x):
     hi2 = x + r2
     lo2 = (x - hi2) + r2
     return select(x == 0.0, x, hi2 + (t + lo2)), abs(x) <= SMALL
+
+
+@lane
+def expm1_sel(x, exact):
+    """(expm1(x), ok): with ``exact`` expm1_lane (ok True), else expm1_small —
+    the same bits where ok, so that a lane flagged by a vectorized sweep and
+    redone with ``exact`` computes what the straightforward kernel computes."""
+    if exact:
+        return expm1_lane(x), True
+    return expm1_small(x)
