@@ -16,7 +16,7 @@ import pytest
 from numba import njit
 
 from liethermo.kernels._jit import ld, st
-from liethermo.kernels.lanemath import SMALL, exp_lane, exp_small, expm1_lane, expm1_small
+from liethermo.kernels.lanemath import SMALL, SMALL_M1, exp_lane, exp_small, expm1_lane, expm1_small
 
 
 @njit
@@ -134,18 +134,19 @@ def test_edge_cases_are_those_of_the_c_library(name, f, libf):
 
 def test_small_forms_give_the_same_bits_and_flag_their_range():
     """exp_small / expm1_small equal exp_lane / expm1_lane bit for bit where
-    they say they are valid (|x| ≤ SMALL), and say so exactly there."""
+    they say they are valid (|x| ≤ SMALL, resp. SMALL_M1), and say so
+    exactly there."""
     rng = np.random.default_rng(3)
-    x = np.concatenate([rng.uniform(-SMALL, SMALL, 100_000),
+    x = np.concatenate([rng.uniform(-SMALL, SMALL, 100_000), rng.uniform(-SMALL_M1, SMALL_M1, 100_000),
                         10.0 ** rng.uniform(-320, math.log10(SMALL), 20_000) * rng.choice([-1.0, 1.0], 20_000),
-                        [0.0, -0.0, SMALL, -SMALL, np.nextafter(SMALL, 1.0), 0.5, -3.0, 800.0,
-                         math.inf, -math.inf, math.nan]])
+                        [0.0, -0.0, SMALL, -SMALL, np.nextafter(SMALL, 1.0), SMALL_M1, -SMALL_M1,
+                         np.nextafter(SMALL_M1, 1.0), 0.5, -3.0, 800.0, math.inf, -math.inf, math.nan]])
     out = np.empty((x.size, 2))
     ok = np.empty((x.size, 2), dtype=np.bool_)
     _small(x, out, ok)
-    inside = np.abs(x) <= SMALL
-    assert np.array_equal(ok[:, 0], inside) and np.array_equal(ok[:, 1], inside)
-    for j, f in enumerate((_exp, _expm1)):
+    for j, (f, bound) in enumerate(((_exp, SMALL), (_expm1, SMALL_M1))):
+        inside = np.abs(x) <= bound
+        assert np.array_equal(ok[:, j], inside)
         full = _apply(f, x[inside])
         assert np.array_equal(out[inside, j].view(np.int64), full.view(np.int64))
 
@@ -165,7 +166,7 @@ def test_plain_python_gives_the_jitted_bits(tmp_path):
     arithmetic) the functions give the jitted bits."""
     rng = np.random.default_rng(11)
     x = np.concatenate([EDGES, rng.uniform(-5, 5, 300), rng.uniform(-745, 709, 100),
-                        rng.uniform(-SMALL, SMALL, 100)])
+                        rng.uniform(-SMALL, SMALL, 100), rng.uniform(-SMALL_M1, SMALL_M1, 100)])
     np.save(tmp_path / "x.npy", x)
     env = dict(os.environ, NUMBA_DISABLE_JIT="1")
     subprocess.run([sys.executable, "-c", _PLAIN, str(tmp_path / "x.npy"), str(tmp_path / "y.npy")],

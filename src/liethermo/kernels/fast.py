@@ -82,7 +82,8 @@ ROW_PARTS = (
     ("GN", 3), ("SN", 1), ("MUN", 3), ("RN", 9),  # VI: Γ', σ', μ', R' of the step
     ("X", 3), ("XS", 1), ("B", 3),  # VI: Newton iterate (X and, coupled, Δ) and the
     # constant part of its function
-    ("TN", 1),  # VI, coupled: T(σ'), the same in every Newton iteration of the step
+    ("TN", 1),  # VI, coupled: T(σ'), the same in every Newton iteration of the step and
+    # T(σ) of the next step (σ' is its σ)
     ("SC0", 1), ("SCS", 1),  # VI: |X_k|∞ (and, coupled, |σ'|): scales of the stopping rule
     ("RUN", 1), ("CODE", 1), ("ITS", 1),  # VI: Newton mask, outcome, iterations
     ("HW", 1), ("NTOT", 1), ("NMAX", 1), ("STEPS", 1), ("MEMBER", 1),  # statistics at entry
@@ -301,7 +302,9 @@ def _vi_prepare(model, shared, S, nb, vv, vvn, h, hn, g2, wl, wr, mode, tol, fir
         y = load_vi_state(md, S, O_Y + i, ROW)
         X = y[0]
         _track_w2(S, i, g2 * norm2_lane(X[0], X[1], X[2]))
-        G1, s1, mu1, R1, b, xp, ps, sc0, scs, ok = vi_advance(md, v, vn, y, hn, mode, False)
+        # T(σ) of the coupled top: row TN holds it since the previous step (or _init_tn)
+        t0 = load1_if(coupled_marker(md.inertia), S, O_TN + i)
+        G1, s1, mu1, R1, b, xp, ps, sc0, scs, ok = vi_advance(md, v, vn, y, hn, mode, False, t0)
         tn = newton_data(md.inertia, md, s1)
         store1(tn, S, O_TN + i)
         st(S, O_GN + i, G1[0])
@@ -341,6 +344,16 @@ def _vi_prepare(model, shared, S, nb, vv, vvn, h, hn, g2, wl, wr, mode, tol, fir
         st(S, O_RUN + i, select(first & (bad | conv | redo), 0.0, 1.0))
         nredo += 1 if redo else 0
     return nexact, nredo
+
+
+@jit
+def _init_tn(model, shared, S, nb):
+    """Row TN of the coupled top at the start of a call: T(σ) of every lane
+    (afterwards each step leaves the T(σ') that is the next step's T(σ))."""
+    for i in range(nb):
+        md = lane_model(shared, model, S, i)
+        y = load_vi_state(md, S, O_Y + i, ROW)
+        store1(newton_data(md.inertia, md, y[2]), S, O_TN + i)
 
 
 @jit
@@ -662,6 +675,7 @@ def advance_vi_blocks(model, shared, Y, P, b0, b1, h, factors, every, n_out, wl,
                                             ISTAT, FSTAT)
         if nb == 0:
             continue
+        _init_tn(model, shared, S, nb)
         done = np.int64(0)
         # the state at the start of a step: in Y for one substep (a failed step
         # is not accepted), else in YB (copied before the first substep)

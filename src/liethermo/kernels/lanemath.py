@@ -31,10 +31,13 @@ passes through):
    (2ᵏ − 1 is exact up to k = 53; beyond, the −1 joins the small rest); for
    k > 1022 (x > 708.7), where 2ᵏ(1 + r) could overflow, exp(x); ±0 stays ±0.
 
-:func:`exp_small` and :func:`expm1_small` are the same arithmetic for
-|x| ≤ ``SMALL`` < ln2/2, where k = 0 and steps 1, 2 and 4 are exact no-ops:
-the same bits at half the cost, with a flag that says whether x was in
-range (the coupled top's entropy increment of a Newton iteration always is).
+:func:`exp_small` is the same arithmetic for |x| ≤ ``SMALL`` < ln2/2, where
+k = 0 and steps 1, 2 and 4 are exact no-ops: the same bits at half the
+cost.  :func:`expm1_small` is x + x²q(x) with a short Taylor polynomial q for
+|x| ≤ ``SMALL_M1`` = 1/16, a quarter of the cost; expm1_lane returns it
+there.  Both return a flag that says whether x was in their range, for
+sweeps that redo a flagged lane with the full function (the coupled top's
+Newton iteration: its entropy increment Δ/c_v is far below 1/16).
 
 Accuracy (tests/test_lanemath.py, against the C library and 64-bit-mantissa
 references): at most 0.55 ulp for exp and 0.56 ulp for expm1 on normal
@@ -57,8 +60,10 @@ U_BIAS = 0x4338000000000000 - 2048
 #: beyond these x, exp(x) is inf or 0 (in double precision) anyway
 X_HIGH = 710.0
 X_LOW = -746.0
-#: |x| up to which exp_small and expm1_small are valid (k = 0: |x| log₂e < ½)
+#: |x| up to which exp_small is valid (k = 0: |x| log₂e < ½)
 SMALL = 0.34
+#: |x| up to which expm1_small is valid (and used by expm1_lane)
+SMALL_M1 = 0.0625
 
 # Taylor coefficients 1/n!, n = 3 … 14 (the doubles nearest)
 _C3 = 0.16666666666666666
@@ -127,7 +132,8 @@ def exp_lane(x):
 
 @lane
 def expm1_lane(x):
-    """expm1(x) = eˣ − 1 (≤ 1 ulp, with full relative accuracy near 0)."""
+    """expm1(x) = eˣ − 1 (≤ 1 ulp, with full relative accuracy near 0):
+    expm1_small where that is valid, else the reduction."""
     r, r2, t, s1, s2, k = exp_parts(x)
     # k ≤ 1022: (2ᵏ − 1) + 2ᵏr summed exactly (|2ᵏ − 1| ≥ |2ᵏr| for k ≠ 0), then the
     # rest; 2ᵏ − 1 is exact up to k = 53, beyond it the −1 goes with the rest
@@ -143,7 +149,8 @@ def expm1_lane(x):
     small = hi2 + fma(s, t, lo + lo2)
     # k > 1022: eˣ − 1 rounds to eˣ (the small form would overflow in 2ᵏ(1 + r))
     big = _exp_scaled(r, r2, t, s1, s2)
-    return select(x == 0.0, x, select(k > 1022.0, big, small))
+    near0, ok = expm1_small(x)
+    return select(ok, near0, select(k > 1022.0, big, small))
 
 
 @lane
@@ -178,11 +185,19 @@ def exp_small(x):
 
 @lane
 def expm1_small(x):
-    """(expm1(x), ok): ok when |x| ≤ SMALL, and then the bits of expm1_lane(x)."""
-    r2, t = _small_parts(x)
-    hi2 = x + r2
-    lo2 = (x - hi2) + r2
-    return select(x == 0.0, x, hi2 + (t + lo2)), abs(x) <= SMALL
+    """(expm1(x), ok): ok when |x| ≤ SMALL_M1, and then what expm1_lane(x)
+    returns (it uses this form there): x + x²q(x), q the Taylor polynomial
+    1/2! + x/3! + … + x⁷/9! (the first dropped term, x¹⁰/10!, is below
+    2⁻⁵⁸ of the result), one rounding but for x² and q, whose errors weigh
+    |x|/2 ≤ 2⁻⁵; ±0 stays ±0."""
+    q = fma(x, _C9, _C8)
+    q = fma(x, q, _C7)
+    q = fma(x, q, _C6)
+    q = fma(x, q, _C5)
+    q = fma(x, q, _C4)
+    q = fma(x, q, _C3)
+    q = fma(x, q, 0.5)
+    return select(x == 0.0, x, fma(x * x, q, x)), abs(x) <= SMALL_M1
 
 
 @lane

@@ -300,17 +300,19 @@ def vi_entropy(model, v, y, mode, exact):
 
 
 @lane
-def vi_advance(model, v, vn, y, hn, mode, exact):
+def vi_advance(model, v, vn, y, hn, mode, exact, t0=None):
     """Everything of one step of the ``vi`` layout state y = (X, Γ, σ, μ, σₙ, R)
     but the Newton solve of the next step: returns
     ``(Γ', σ', μ', R', b, X₀, Δ₀, |X|∞, scale_s, ok)`` with b = −r the
     constant part of the next step's Newton function, X₀ (and, for the
     coupled top, Δ₀; else None) its predictor, and ``ok`` whether every
-    inline exp/log1p was valid (see thermo)."""
-    return _advance(model.inertia, model, v, vn, y, hn, mode, exact)
+    inline exp/log1p was valid (see thermo).  ``t0``: the coupled top's
+    T(σ) if the caller has it (the :func:`newton_data` of the step that
+    ended at this node: the same bits), else None."""
+    return _advance(model.inertia, model, v, vn, y, hn, mode, exact, t0)
 
 
-def _advance_constant(inertia, model, v, vn, y, hn, mode, exact):
+def _advance_constant(inertia, model, v, vn, y, hn, mode, exact, t0):
     X, G, s, mu, sn, R = y
     x0, x1, x2 = X
     h = v.h
@@ -341,7 +343,7 @@ def _advance_constant(inertia, model, v, vn, y, hn, mode, exact):
             max(abs(x0), abs(x1), abs(x2)), None, ok)
 
 
-def _advance_coupled(inertia, model, v, vn, y, hn, mode, exact):
+def _advance_coupled(inertia, model, v, vn, y, hn, mode, exact, t0):
     """The coupled top: σ' is the σ_{k+1} solved with X; μ' uses the mean
     inertia of the step, s* 𝕀₀ with s* = ½(φ(σ)² + φ(σ')²)."""
     X, G, s, mu, sn, R = y
@@ -352,7 +354,7 @@ def _advance_coupled(inertia, model, v, vn, y, hn, mode, exact):
     th = model.thermo
     R1 = attitude_step(R, h * x0, h * x1, h * x2)
     s1 = sn
-    th0 = temperature(th, s)
+    th0 = known_or_temperature(t0, th, s)
     th1 = temperature(th, s1)
     phi0 = fma(I.alpha, th0 - th.T0, 1.0)
     phi1 = fma(I.alpha, th1 - th.T0, 1.0)
@@ -381,6 +383,14 @@ def _advance_coupled(inertia, model, v, vn, y, hn, mode, exact):
 
 
 _advance = overload_by_class(_advance_constant, ThermalInertia, _advance_coupled)
+
+
+def _known(t, th, s):
+    return t
+
+
+#: t if given, else T(σ) = temperature(th, s)
+known_or_temperature = none_dispatch(_known, lambda t, th, s: temperature(th, s))
 
 
 @lane
