@@ -32,6 +32,7 @@ import functools
 import hashlib
 import math
 import os
+import struct
 from pathlib import Path
 
 import numba
@@ -225,3 +226,46 @@ def _element_ptr(context, builder, signature, args):
 #: few more rows), it left the loop scalar.
 ld = _ld_py if numba.config.DISABLE_JIT else _ld_intrinsic
 st = _st_py if numba.config.DISABLE_JIT else _st_intrinsic
+
+
+def _float_bits_py(x) -> int:
+    return struct.unpack("<q", struct.pack("<d", float(x)))[0]
+
+
+def _bits_float_py(i) -> float:
+    return struct.unpack("<d", struct.pack("<Q", int(i) & 0xFFFF_FFFF_FFFF_FFFF))[0]
+
+
+@intrinsic
+def _float_bits_intrinsic(typingctx, x):
+    if not isinstance(x, types.Float):
+        return None
+    sig = types.int64(x)
+
+    def codegen(context, builder, signature, args):
+        v = context.cast(builder, args[0], signature.args[0], types.float64)
+        return builder.bitcast(v, ir.IntType(64))
+
+    return sig, codegen
+
+
+@intrinsic
+def _bits_float_intrinsic(typingctx, i):
+    if not isinstance(i, types.Integer):
+        return None
+    sig = types.float64(i)
+
+    def codegen(context, builder, signature, args):
+        v = context.cast(builder, args[0], signature.args[0], types.int64)
+        return builder.bitcast(v, ir.DoubleType())
+
+    return sig, codegen
+
+
+#: ``float_bits(x)``: the IEEE 754 bits of the float64 x as an int64, and
+#: ``bits_float(i)``: the float64 whose bits are the int64 i (its low 64 bits in
+#: plain Python).  One LLVM ``bitcast`` each — no instruction at all in a
+#: vectorized loop, where the lanes already sit in the same register — so
+#: that :mod:`.lanemath` can build 2ᵏ from its exponent bits.
+float_bits = _float_bits_py if numba.config.DISABLE_JIT else _float_bits_intrinsic
+bits_float = _bits_float_py if numba.config.DISABLE_JIT else _bits_float_intrinsic

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 from numba.extending import overload
 
-from ._jit import LANE_OPTIONS, jit, lane
+from ._jit import LANE_OPTIONS, fma, jit, lane
 from .gen import madd, or_zero
 from .so3 import attitude_rate_lane, cross_lane
 from .terms import sum_angular_acceleration, sum_dissipated_power
@@ -70,10 +70,12 @@ def _thermal_rates(model, w0, w1, w2, G0, G1, G2, s):
     I = model.inertia
     th = model.thermo
     theta = temperature(th, s)
-    phi = 1.0 + I.alpha * (theta - th.T0)
+    # φ, Ω·𝕀₀Ω and T written as the variational integrator writes them, so that
+    # where both run on the same (Ω, σ) (its predictor) LLVM computes them once
+    phi = fma(I.alpha, theta - th.T0, 1.0)
     sc = phi * phi
     dphi = (I.alpha * theta) * th.icv
-    K2 = (I.I1 * w0) * w0 + (I.I2 * w1) * w1 + (I.I3 * w2) * w2
+    K2 = fma(I.I1 * w0, w0, fma(I.I2 * w1, w1, (I.I3 * w2) * w2))
     T = theta - (phi * dphi) * K2
     P = sum_dissipated_power(model.forces, I, sc, w0, w1, w2, None)
     sd = or_zero(P) / T

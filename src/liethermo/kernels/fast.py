@@ -60,8 +60,8 @@ from .layout import (FS_MAX_H_OMEGA, IS_FAIL_STEP, IS_NEWTON_MAX, IS_NEWTON_TOTA
 from .rk import explicit_step
 from .so3 import norm2_lane
 from .terms.inertia import ThermalInertia
-from .vi import (add_opt, newton_correction, newton_stop, sub_select, vi_advance, vi_coefficients,
-                 vi_entropy)
+from .vi import (add_opt, newton_data, newton_iterate, newton_step, newton_stop, sub_select,
+                 vi_advance, vi_coefficients, vi_entropy)
 
 #: members per block (lanes)
 BLOCK = 128
@@ -82,6 +82,8 @@ ROW_PARTS = (
     ("GN", 3), ("SN", 1), ("MUN", 3), ("RN", 9),  # VI: Γ', σ', μ', R' of the step
     ("X", 3), ("XS", 1), ("B", 3),  # VI: Newton iterate (X and, coupled, Δ) and the
     # constant part of its function
+    ("TN", 1),  # VI, coupled: T(σ'), the same in every Newton iteration of the step and
+    # T(σ) of the next step (σ' is its σ)
     ("SC0", 1), ("SCS", 1),  # VI: |X_k|∞ (and, coupled, |σ'|): scales of the stopping rule
     ("RUN", 1), ("CODE", 1), ("ITS", 1),  # VI: Newton mask, outcome, iterations
     ("HW", 1), ("NTOT", 1), ("NMAX", 1), ("STEPS", 1), ("MEMBER", 1),  # statistics at entry
@@ -99,8 +101,9 @@ def _row_map(parts):
 
 
 ROWS, NROWS_FIXED = _row_map(ROW_PARTS)
-O_Y, O_YB, O_GN, O_SN, O_MUN, O_RN, O_X, O_XS, O_B, O_SC0, O_SCS, O_RUN, O_CODE, O_ITS, O_HW, \
-    O_NTOT, O_NMAX, O_STEPS, O_MEMBER, O_FLAG, O_W2 = (ROWS[name][0] * ROW for name, _ in ROW_PARTS)
+O_Y, O_YB, O_GN, O_SN, O_MUN, O_RN, O_X, O_XS, O_B, O_TN, O_SC0, O_SCS, O_RUN, O_CODE, O_ITS, \
+    O_HW, O_NTOT, O_NMAX, O_STEPS, O_MEMBER, O_FLAG, O_W2 = (ROWS[name][0] * ROW
+                                                              for name, _ in ROW_PARTS)
 #: the first parameter row (rows mode)
 O_P = NROWS_FIXED * ROW
 
@@ -109,6 +112,11 @@ FLAG_OK = 0.0
 FLAG_NEWTON = 1.0  # Newton failed: STATUS_NEWTON
 FLAG_NONFINITE = 2.0  # STATUS_NONFINITE
 FLAG_EXACT = 3.0  # an inline polynomial was out of range: redo with the exact operations
+
+#: Newton outcome (row CODE) of a lane whose vectorized iteration used an inline
+#: polynomial out of its range: _newton_redo finishes its solve with the exact
+#: operations (never seen outside a substep)
+NEWTON_REDO = 3.0
 
 
 def buffer_size(nparam: int) -> int:
@@ -283,8 +291,10 @@ def _vi_prepare(model, shared, S, nb, vv, vvn, h, hn, g2, wl, wr, mode, tol, fir
     Newton function's constant part b, the predictor, |X|∞, the Newton mask
     and, if ``first``, Newton iteration 1 (as _newton_sweep does it; the
     predictor never leaves the registers).  Returns the number of lanes whose
-    entropy needs the exact operations (FLAG_EXACT)."""
+    entropy needs the exact operations (FLAG_EXACT) and the number whose
+    Newton iteration does (NEWTON_REDO)."""
     nexact = 0
+    nredo = 0
     for i in range(nb):
         md = lane_model(shared, model, S, i)
         v = lane_vi(vv, md, h, wl, wr)
@@ -292,7 +302,11 @@ def _vi_prepare(model, shared, S, nb, vv, vvn, h, hn, g2, wl, wr, mode, tol, fir
         y = load_vi_state(md, S, O_Y + i, ROW)
         X = y[0]
         _track_w2(S, i, g2 * norm2_lane(X[0], X[1], X[2]))
-        G1, s1, mu1, R1, b, xp, ps, sc0, scs, ok = vi_advance(md, v, vn, y, hn, mode, False)
+        # T(σ) of the coupled top: row TN holds it since the previous step (or _init_tn)
+        t0 = load1_if(coupled_marker(md.inertia), S, O_TN + i)
+        G1, s1, mu1, R1, b, xp, ps, sc0, scs, ok = vi_advance(md, v, vn, y, hn, mode, False, t0)
+        tn = newton_data(md.inertia, md, s1)
+        store1(tn, S, O_TN + i)
         st(S, O_GN + i, G1[0])
         st(S, O_GN + ROW + i, G1[1])
         st(S, O_GN + 2 * ROW + i, G1[2])
@@ -310,7 +324,8 @@ def _vi_prepare(model, shared, S, nb, vv, vvn, h, hn, g2, wl, wr, mode, tol, fir
         st(S, O_FLAG + i, select(ok, FLAG_OK, FLAG_EXACT))
         nexact += 0 if ok else 1
         x0, x1, x2 = xp
-        d0, d1, d2, ds, det = newton_correction(md, vn, x0, x1, x2, ps, b0, b1, b2, s1)
+        d0, d1, d2, ds, det, okn = newton_step(md, vn, x0, x1, x2, ps, b0, b1, b2, tn, False)
+        redo = first & (not okn)
         sing = (det == 0.0) | (not finite(det))
         n0 = x0 - d0
         n1 = x1 - d1
@@ -318,16 +333,27 @@ def _vi_prepare(model, shared, S, nb, vv, vvn, h, hn, g2, wl, wr, mode, tol, fir
         ns = sub_select(ps, True, ds)
         step, conv = newton_stop(n0, n1, n2, ns, d0, d1, d2, ds, sc0, scs, tol)
         bad = sing | (not (step == step))
-        stay = sing | (not first)
+        stay = sing | (not first) | redo
         st(S, O_X + i, select(stay, x0, n0))
         st(S, O_X + ROW + i, select(stay, x1, n1))
         st(S, O_X + 2 * ROW + i, select(stay, x2, n2))
         store1(sub_select(ps, not stay, ds), S, O_XS + i)
         code = select(bad, NEWTON_SINGULAR, select(conv, NEWTON_OK, NEWTON_MAXITER))
-        st(S, O_CODE + i, select(first, code, NEWTON_MAXITER))
-        st(S, O_ITS + i, select(first, 1.0, 0.0))
-        st(S, O_RUN + i, select(first & (bad | conv), 0.0, 1.0))
-    return nexact
+        st(S, O_CODE + i, select(redo, NEWTON_REDO, select(first, code, NEWTON_MAXITER)))
+        st(S, O_ITS + i, select(first & (not redo), 1.0, 0.0))
+        st(S, O_RUN + i, select(first & (bad | conv | redo), 0.0, 1.0))
+        nredo += 1 if redo else 0
+    return nexact, nredo
+
+
+@jit
+def _init_tn(model, shared, S, nb):
+    """Row TN of the coupled top at the start of a call: T(σ) of every lane
+    (afterwards each step leaves the T(σ') that is the next step's T(σ))."""
+    for i in range(nb):
+        md = lane_model(shared, model, S, i)
+        y = load_vi_state(md, S, O_Y + i, ROW)
+        store1(newton_data(md.inertia, md, y[2]), S, O_TN + i)
 
 
 @jit
@@ -347,8 +373,9 @@ def _vi_entropy_exact(model, shared, S, nb, vv, h, wl, wr, mode):
 @jit
 def _newton_sweep(model, shared, S, nb, vvn, hn, wl, wr, tol, it):
     """Newton iteration number ``it`` on every lane whose mask is set (the
-    straightforward kernel's stopping rules, per lane).  Returns the number of
-    lanes still running."""
+    straightforward kernel's stopping rules, per lane).  A lane whose iteration
+    needs the exact operations stops with NEWTON_REDO and its iterate and
+    count unchanged.  Returns the number of lanes still running."""
     nrun = 0
     for i in range(nb):
         md = lane_model(shared, model, S, i)
@@ -358,9 +385,10 @@ def _newton_sweep(model, shared, S, nb, vvn, hn, wl, wr, tol, it):
         x1 = ld(S, O_X + ROW + i)
         x2 = ld(S, O_X + 2 * ROW + i)
         xs = load1_if(coupled_marker(md.inertia), S, O_XS + i)
-        s1 = load1_if(md.thermo, S, O_SN + i)
-        d0, d1, d2, ds, det = newton_correction(md, vn, x0, x1, x2, xs, ld(S, O_B + i),
-                                                ld(S, O_B + ROW + i), ld(S, O_B + 2 * ROW + i), s1)
+        tn = load1_if(coupled_marker(md.inertia), S, O_TN + i)
+        d0, d1, d2, ds, det, okn = newton_step(md, vn, x0, x1, x2, xs, ld(S, O_B + i),
+                                               ld(S, O_B + ROW + i), ld(S, O_B + 2 * ROW + i), tn,
+                                               False)
         sing = (det == 0.0) | (not finite(det))
         n0 = x0 - d0
         n1 = x1 - d1
@@ -368,7 +396,7 @@ def _newton_sweep(model, shared, S, nb, vvn, hn, wl, wr, tol, it):
         step, conv = newton_stop(n0, n1, n2, sub_select(xs, True, ds), d0, d1, d2, ds,
                                  ld(S, O_SC0 + i), load1_if(xs, S, O_SCS + i), tol)
         nanstep = not (step == step)
-        move = run & (not sing)
+        move = run & okn & (not sing)
         # A lane that stays keeps its row values.  Written as x − (d or +0), not as
         # "new if move else old" (a masked store); exact: x − (+0) is x for every x
         st(S, O_X + i, x0 - select(move, d0, 0.0))
@@ -377,20 +405,21 @@ def _newton_sweep(model, shared, S, nb, vvn, hn, wl, wr, tol, it):
         store1(sub_select(xs, move, ds), S, O_XS + i)
         bad = sing | nanstep
         code_old = ld(S, O_CODE + i)
-        code = select(bad, NEWTON_SINGULAR, select(conv, NEWTON_OK, code_old))
+        code = select(okn, select(bad, NEWTON_SINGULAR, select(conv, NEWTON_OK, code_old)),
+                      NEWTON_REDO)
         its_old = ld(S, O_ITS + i)
         # codes and counts are small integers: old + (new − old) is new exactly
         st(S, O_CODE + i, code_old + select(run, code - code_old, 0.0))
-        st(S, O_ITS + i, its_old + select(run, it - its_old, 0.0))
-        still = run & (not bad) & (not conv)
+        st(S, O_ITS + i, its_old + select(run & okn, it - its_old, 0.0))
+        still = run & okn & (not bad) & (not conv)
         st(S, O_RUN + i, select(still, 1.0, 0.0))
         nrun += 1 if still else 0
     return nrun
 
 
-#: the rows a compacted Newton lane needs: X, B, SC0, RUN, CODE, ITS
-_COMPACT_ROWS = tuple(ROWS[name][0] + k for name in ("X", "XS", "B", "SC0", "SCS", "RUN", "CODE",
-                                                     "ITS", "SN")
+#: the rows a compacted Newton lane needs: X, XS, B, TN, SC0, SCS, RUN, CODE, ITS
+_COMPACT_ROWS = tuple(ROWS[name][0] + k for name in ("X", "XS", "B", "TN", "SC0", "SCS", "RUN",
+                                                     "CODE", "ITS")
                       for k in range(ROWS[name][1]))
 _BACK_ROWS = tuple(ROWS[name][0] + k for name in ("X", "XS", "RUN", "CODE", "ITS")
                    for k in range(ROWS[name][1]))
@@ -421,6 +450,38 @@ def _newton_compact(model, shared, S, S2, idx, nb, nparam, vvn, hn, wl, wr, tol,
     for r in _BACK_ROWS:
         for j in range(k):
             st(S, r * ROW + idx[j], ld(S2, r * ROW + j))
+
+
+def _newton_redo(marker, model, shared, S, nb, vvn, hn, wl, wr, tol, maxiter):
+    """Finish the Newton solve of every NEWTON_REDO lane from its iterate
+    with the exact operations (vi.newton_iterate, as the straightforward
+    kernel iterates)."""
+    for i in range(nb):
+        if ld(S, O_CODE + i) != NEWTON_REDO:
+            continue
+        md = lane_model(shared, model, S, i)
+        vn = lane_vi(vvn, md, hn, wl, wr)
+        X, xs, code, its = newton_iterate(
+            md, vn, (ld(S, O_B + i), ld(S, O_B + ROW + i), ld(S, O_B + 2 * ROW + i)),
+            (ld(S, O_X + i), ld(S, O_X + ROW + i), ld(S, O_X + 2 * ROW + i)),
+            load1_if(marker, S, O_XS + i), load1_if(marker, S, O_TN + i), ld(S, O_SC0 + i),
+            load1_if(marker, S, O_SCS + i), tol, np.int64(ld(S, O_ITS + i)), maxiter)
+        st(S, O_X + i, X[0])
+        st(S, O_X + ROW + i, X[1])
+        st(S, O_X + 2 * ROW + i, X[2])
+        store1(xs, S, O_XS + i)
+        st(S, O_CODE + i, code)
+        st(S, O_ITS + i, its)
+        st(S, O_RUN + i, 0.0)
+
+
+def _no_redo(marker, model, shared, S, nb, vvn, hn, wl, wr, tol, maxiter):
+    return None
+
+
+#: _newton_redo for the coupled top (the only model whose Newton step has an
+#: inline polynomial), compiled into the substep; nothing for the others
+newton_redo = none_dispatch(_newton_redo, _no_redo)
 
 
 @lane
@@ -471,7 +532,7 @@ def _vi_substep(model, shared, S, S2, idx, nb, nparam, vv, vvn, h, hn, g2, wl, w
     """One substep of lanes [0, nb) up to _vi_check; returns the number of
     failed lanes (FLAG_NEWTON or FLAG_NONFINITE)."""
     first = maxiter >= 1
-    nexact = _vi_prepare(model, shared, S, nb, vv, vvn, h, hn, g2, wl, wr, mode, tol, first)
+    nexact, nredo = _vi_prepare(model, shared, S, nb, vv, vvn, h, hn, g2, wl, wr, mode, tol, first)
     if nexact:
         _vi_entropy_exact(model, shared, S, nb, vv, h, wl, wr, mode)
     its = np.int64(1) if first else np.int64(0)
@@ -485,6 +546,7 @@ def _vi_substep(model, shared, S, S2, idx, nb, nparam, vv, vvn, h, hn, g2, wl, w
             break
         its += 1
         nrun = _newton_sweep(model, shared, S, nb, vvn, hn, wl, wr, tol, its)
+    newton_redo(coupled_marker(model.inertia), model, shared, S, nb, vvn, hn, wl, wr, tol, maxiter)
     return _vi_check(model, shared, S, nb)
 
 
@@ -613,6 +675,7 @@ def advance_vi_blocks(model, shared, Y, P, b0, b1, h, factors, every, n_out, wl,
                                             ISTAT, FSTAT)
         if nb == 0:
             continue
+        _init_tn(model, shared, S, nb)
         done = np.int64(0)
         # the state at the start of a step: in Y for one substep (a failed step
         # is not accepted), else in YB (copied before the first substep)

@@ -55,13 +55,12 @@ from __future__ import annotations
 
 from collections import namedtuple
 
-import math
-
 import numpy as np
 
 from ._jit import fma, lane, select
-from .equations import omega_rate
+from .equations import entropy_and_omega_rates, omega_rate
 from .gen import axpy_opt, finite, madd, none_dispatch, or_zero, overload_by_class, scale_opt
+from .lanemath import expm1_sel
 from .layout import NEWTON_MAXITER, NEWTON_OK, NEWTON_SINGULAR
 from .so3 import attitude_lane, cayley_lane, cross_lane
 from .terms import sum_discrete_power, sum_linear_friction, sum_nonlinear_friction, sum_torque
@@ -104,7 +103,7 @@ class VICoefficients(namedtuple("VICoefficients",
 def vi_coefficients(model, h, wl, wr):
     """The :class:`VICoefficients` of a step of size h (s).  For the coupled
     top the linear friction is not folded into M and L (its inertia scales
-    with S; see _coupled_residual)."""
+    with S; see _coupled_step)."""
     I = model.inertia
     c0, c1, c2 = _folded_friction(model.inertia, model.forces)
     cl = wl * h
@@ -164,29 +163,43 @@ def solve3_lane(J00, J01, J02, J10, J11, J12, J20, J21, J22, r0, r1, r2):
     return d0, d1, d2, det
 
 
-def newton_correction(model, v, x0, x1, x2, xs, b0, b1, b2, s1):
-    """One Newton correction d = J⁻¹F: (d₀, d₁, d₂, d_s, det J).  For a
-    constant inertia the unknown is X alone (``xs`` and d_s are None); for
-    the coupled top it is (X, Δ) with σ_{k+1} = σ' + Δ (see _coupled_correction)."""
+def newton_data(inertia, model, s1):
+    """What the Newton corrections of one solve share and need not recompute:
+    T(σ') for the coupled top (σ' = s1), None otherwise."""
+    return None
+
+
+newton_data = overload_by_class(newton_data, ThermalInertia,
+                                lambda inertia, model, s1: temperature(model.thermo, s1))
+
+
+def newton_step(model, v, x0, x1, x2, xs, b0, b1, b2, tn, exact):
+    """One Newton correction d = J⁻¹F: (d₀, d₁, d₂, d_s, det J, ok).  For a
+    constant inertia the unknown is X alone (``xs`` and d_s are None; ok is
+    True); for the coupled top it is (X, Δ) with σ_{k+1} = σ' + Δ (see
+    _coupled_step), ``tn`` = :func:`newton_data`, and with ``exact`` False
+    the correction uses the small-argument expm1 and ok says whether that
+    was valid (else the lane redoes it with ``exact``, as the entropy)."""
     F0, F1, F2, J00, J01, J02, J10, J11, J12, J20, J21, J22 = residual_jacobian(
         model, v, x0, x1, x2, b0, b1, b2)
     d0, d1, d2, det = solve3_lane(J00, J01, J02, J10, J11, J12, J20, J21, J22, F0, F1, F2)
-    return d0, d1, d2, None, det
+    return d0, d1, d2, None, det, True
 
 
-def _coupled_correction(model, v, x0, x1, x2, xs, b0, b1, b2, s1):
+def _coupled_step(model, v, x0, x1, x2, xs, b0, b1, b2, tn, exact):
     """Newton correction of the coupled top, unknowns (X, Δ), σ_{k+1} = σ' + Δ:
 
         F₁ = s*(Δ) M_h⁰(X) + w_L h CX − r,     s* = ½(φ(σ')² + φ(σ'+Δ)²)
         F₂ = U(σ'+Δ) − U(σ') − ½(X·𝕀₀X)(φ(σ'+Δ)² − φ(σ')²) − h X·CX
 
     (M_h⁰: the discrete Legendre transform of 𝕀₀), solved by block
-    elimination of the 3×3 Jacobian of F₁ in X (det is that of the 4×4)."""
+    elimination of the 3×3 Jacobian of F₁ in X (det is that of the 4×4).
+    θ(σ') = ``tn``; θ(σ'+Δ) = θ(σ')(1 + expm1(Δ/c_v))."""
     th = model.thermo
     I = model.inertia
     al = I.alpha
-    thp = temperature(th, s1)
-    e = math.expm1(xs * th.icv)
+    thp = tn
+    e, ok = expm1_sel(xs * th.icv, exact)
     thn = fma(thp, e, thp)
     phip = fma(al, thp - th.T0, 1.0)
     phin = fma(al, thn - th.T0, 1.0)
@@ -218,11 +231,20 @@ def _coupled_correction(model, v, x0, x1, x2, xs, b0, b1, b2, s1):
                                 k * a2)
     den = jss - fma(r0, w0, fma(r1, w1, r2 * w2))
     ds = (Fs - fma(r0, u0, fma(r1, u1, r2 * u2))) / den
-    return u0 - w0 * ds, u1 - w1 * ds, u2 - w2 * ds, ds, det * den
+    return u0 - w0 * ds, u1 - w1 * ds, u2 - w2 * ds, ds, det * den, ok
 
 
-newton_correction = none_dispatch(_coupled_correction, newton_correction, arg=5)
-newton_correction.__doc__ = _coupled_correction.__doc__
+newton_step = none_dispatch(_coupled_step, newton_step, arg=5)
+newton_step.__doc__ = _coupled_step.__doc__
+
+
+@lane
+def newton_correction(model, v, x0, x1, x2, xs, b0, b1, b2, s1):
+    """(d₀, d₁, d₂, d_s, det J): :func:`newton_step` at σ' = s1 with the
+    exact operations (what the straightforward kernel computes)."""
+    d0, d1, d2, ds, det, ok = newton_step(model, v, x0, x1, x2, xs, b0, b1, b2,
+                                          newton_data(model.inertia, model, s1), True)
+    return d0, d1, d2, ds, det
 
 
 def _stop3(x0, x1, x2, xs, d0, d1, d2, ds, scale0, scales, tol):
@@ -278,17 +300,19 @@ def vi_entropy(model, v, y, mode, exact):
 
 
 @lane
-def vi_advance(model, v, vn, y, hn, mode, exact):
+def vi_advance(model, v, vn, y, hn, mode, exact, t0=None):
     """Everything of one step of the ``vi`` layout state y = (X, Γ, σ, μ, σₙ, R)
     but the Newton solve of the next step: returns
     ``(Γ', σ', μ', R', b, X₀, Δ₀, |X|∞, scale_s, ok)`` with b = −r the
     constant part of the next step's Newton function, X₀ (and, for the
     coupled top, Δ₀; else None) its predictor, and ``ok`` whether every
-    inline exp/log1p was valid (see thermo)."""
-    return _advance(model.inertia, model, v, vn, y, hn, mode, exact)
+    inline exp/log1p was valid (see thermo).  ``t0``: the coupled top's
+    T(σ) if the caller has it (the :func:`newton_data` of the step that
+    ended at this node: the same bits), else None."""
+    return _advance(model.inertia, model, v, vn, y, hn, mode, exact, t0)
 
 
-def _advance_constant(inertia, model, v, vn, y, hn, mode, exact):
+def _advance_constant(inertia, model, v, vn, y, hn, mode, exact, t0):
     X, G, s, mu, sn, R = y
     x0, x1, x2 = X
     h = v.h
@@ -319,7 +343,7 @@ def _advance_constant(inertia, model, v, vn, y, hn, mode, exact):
             max(abs(x0), abs(x1), abs(x2)), None, ok)
 
 
-def _advance_coupled(inertia, model, v, vn, y, hn, mode, exact):
+def _advance_coupled(inertia, model, v, vn, y, hn, mode, exact, t0):
     """The coupled top: σ' is the σ_{k+1} solved with X; μ' uses the mean
     inertia of the step, s* 𝕀₀ with s* = ½(φ(σ)² + φ(σ')²)."""
     X, G, s, mu, sn, R = y
@@ -330,7 +354,7 @@ def _advance_coupled(inertia, model, v, vn, y, hn, mode, exact):
     th = model.thermo
     R1 = attitude_step(R, h * x0, h * x1, h * x2)
     s1 = sn
-    th0 = temperature(th, s)
+    th0 = known_or_temperature(t0, th, s)
     th1 = temperature(th, s1)
     phi0 = fma(I.alpha, th0 - th.T0, 1.0)
     phi1 = fma(I.alpha, th1 - th.T0, 1.0)
@@ -351,15 +375,22 @@ def _advance_coupled(inertia, model, v, vn, y, hn, mode, exact):
     b1 = -axpy_opt(vn.hh, t1, m1)
     b2 = -axpy_opt(vn.hh, t2, m2)
     hp = 0.5 * (h + vn.h)
-    d0, d1, d2 = omega_rate(model, x0, x1, x2, G0, G1, G2, s1, exact)
-    P = fma(c0 * x0, x0, fma(c1 * x1, x1, (c2 * x2) * x2))
-    T = th1 - phi1 * ((I.alpha * th1) * th.icv) * K2
+    # predictors: Ω̇ and Ṡ of the continuous equations at (X, Γ', σ')
+    (d0, d1, d2), sd, _ = entropy_and_omega_rates(model, x0, x1, x2, G0, G1, G2, s1, exact)
     return ((G0, G1, G2), s1, (m0, m1, m2), R1, (b0, b1, b2),
-            (fma(hp, d0, x0), fma(hp, d1, x1), fma(hp, d2, x2)), vn.h * P / T,
+            (fma(hp, d0, x0), fma(hp, d1, x1), fma(hp, d2, x2)), vn.h * sd,
             max(abs(x0), abs(x1), abs(x2)), abs(s1), True)
 
 
 _advance = overload_by_class(_advance_constant, ThermalInertia, _advance_coupled)
+
+
+def _known(t, th, s):
+    return t
+
+
+#: t if given, else T(σ) = temperature(th, s)
+known_or_temperature = none_dispatch(_known, lambda t, th, s: temperature(th, s))
 
 
 @lane
@@ -368,14 +399,23 @@ def newton_solve(model, vn, b, xp, xs, s1, scale0, scales, tol, maxiter):
     kernel runs them: returns (X, Δ, code, iterations); Δ is None for a
     constant inertia.  On a singular or non-finite Jacobian the iterate is
     the last one before it."""
+    return newton_iterate(model, vn, b, xp, xs, newton_data(model.inertia, model, s1), scale0,
+                          scales, tol, 0, maxiter)
+
+
+@lane
+def newton_iterate(model, vn, b, xp, xs, tn, scale0, scales, tol, its, maxiter):
+    """Newton iterations its+1 … maxiter from the iterate (X, Δ) = (xp, xs)
+    with the exact operations (``tn`` = :func:`newton_data`): the rest of a
+    solve (the block kernel finishes here a lane whose vectorized iteration
+    was out of the small-argument range)."""
     x0, x1, x2 = xp
     b0, b1, b2 = b
-    its = 0
     code = NEWTON_MAXITER
     run = maxiter >= 1
     while run and its < maxiter:
         its += 1
-        d0, d1, d2, ds, det = newton_correction(model, vn, x0, x1, x2, xs, b0, b1, b2, s1)
+        d0, d1, d2, ds, det, ok = newton_step(model, vn, x0, x1, x2, xs, b0, b1, b2, tn, True)
         if det == 0.0 or not finite(det):
             code = NEWTON_SINGULAR
             break

@@ -14,7 +14,13 @@ takes ``exact``: with ``exact=False`` (the vectorized sweeps) it always uses
 the cubic and returns whether that was valid; with ``exact=True`` it uses the
 cubic where valid and ``math.exp`` elsewhere.  The straightforward kernel
 always passes True; the block kernel redoes with True every lane whose cubic
-was not valid, so both compute the same bits.
+was not valid, so both compute the same bits.  (``math.exp`` stays there:
+the redo is a scalar loop, where the C library's short-latency exp is
+faster than :func:`..lanemath.exp_lane`'s long chain of fused multiply-adds.)
+
+:func:`temperature` (the coupled top) is T₀·exp(σ/c_v) with
+:func:`..lanemath.exp_lane` (plain float arithmetic, ≤ 1 ulp): no library
+call, so the coupled top's lane loops vectorize.
 
 Entropy updates of the variational integrator, for a step of size h whose
 friction dissipates the power P (W) at the step velocity:
@@ -37,6 +43,7 @@ from numba.extending import overload
 
 from .._jit import LANE_OPTIONS, fma, jit, lane
 from ..gen import is_none
+from ..lanemath import exp_lane
 
 #: |σ/c_v| up to which 1/T(σ) is its cubic Taylor polynomial
 EXP_SMALL = 2.0**-16
@@ -91,8 +98,8 @@ def inverse_temperature(th, s, exact):
 
 @lane
 def temperature(th, s):
-    """T(σ) = T₀ exp(σ/c_v) in K (math.exp)."""
-    return th.T0 * math.exp(-(s * th.m))
+    """T(σ) = T₀ exp(σ/c_v) in K (``exp_lane``: vectorizable)."""
+    return th.T0 * exp_lane(-(s * th.m))
 
 
 @lane
