@@ -119,6 +119,16 @@ def test_unknown_key_in_file(tmp_path):
         load_scene(f)
 
 
+@pytest.mark.parametrize("value,message", [(0, "must be ≥ 1"), (201, "must be ≤ 200"), (10**6, "must be ≤ 200"),
+                                           (2.5, "must be an integer"), (True, "must be an integer")])
+def test_newton_maxiter_bounded(value, message):
+    """A Newton limit in the millions would make one kernel call outlast a stop
+    signal: it is refused, naming the key."""
+    with pytest.raises(SceneError, match=f"integrator.newton_maxiter.*{message}"):
+        load_scene("paper", [f"integrator.newton_maxiter={str(value).lower()}"])
+    assert load_scene("paper", ["integrator.newton_maxiter=200"])["integrator"]["newton_maxiter"] == 200
+
+
 def test_paper_scene_derived_values():
     """The derived values of docs/model.md, "The paper scene"."""
     from liethermo.physics import physics_of_scene

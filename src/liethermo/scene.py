@@ -75,12 +75,20 @@ def number(lo=None, hi=None, *, lo_open=False, hi_open=False):
     return check
 
 
-def integer(minimum=1):
+#: most Newton iterations a step may take: a converging solve takes fewer than 30
+#: even at h|Ω| ≈ 1; with this bound one kernel call of the run driver (≈ 2·10⁶
+#: member-steps) cannot outlast a stop signal by more than about a second
+NEWTON_MAXITER_LIMIT = 200
+
+
+def integer(minimum=1, maximum=None):
     def check(name, v, scene):
         if isinstance(v, bool) or not isinstance(v, int):
             raise SceneError(name, "must be an integer", v)
         if v < minimum:
             raise SceneError(name, f"must be ≥ {minimum}", v)
+        if maximum is not None and v > maximum:
+            raise SceneError(name, f"must be ≤ {maximum}", v)
         return int(v)
 
     return check
@@ -272,8 +280,10 @@ KEYS: tuple[Key, ...] = (
         "the paper's S' = S + h P/T(S).  vi4/vi6 always use symmetric", choice(*ENTROPY_UPDATES)),
     Key("integrator", "newton_tol", 1e-14, "1", "in (0, 1e-3)",
         "relative step tolerance of the Newton iteration", _tol_check),
-    Key("integrator", "newton_maxiter", 30, "1", "integer ≥ 1",
-        "Newton iterations before a step counts as failed", integer()),
+    Key("integrator", "newton_maxiter", 30, "1", f"integer in [1, {NEWTON_MAXITER_LIMIT}]",
+        "Newton iterations before a step counts as failed (a converging solve needs fewer than 30; "
+        "the bound keeps one kernel call short enough to stop on a signal)",
+        integer(1, NEWTON_MAXITER_LIMIT)),
     Key("ensemble", "members", 1, "1", "integer ≥ 1",
         "members; with more than one, initial conditions are drawn from the seed", integer()),
     Key("ensemble", "seed", 0, "1", "integer ≥ 0", "seed of the random initial conditions",
