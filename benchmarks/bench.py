@@ -166,7 +166,7 @@ def startup_report(warm_runs: int = 3) -> dict:
         cold = once()
         warm = [once() for _ in range(warm_runs)]
     rss = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024.0
-    return dict(command=" ".join(os.path.basename(c) for c in cmd[:3]) + " paper", cold_s=cold,
+    return dict(command="liethermo run paper", cold_s=cold,
                 warm_s=min(warm), warm_runs_s=warm, warm_peak_rss_mb=rss)
 
 
