@@ -4,7 +4,6 @@ accessor's definitions)."""
 
 from __future__ import annotations
 
-import os
 import re
 from pathlib import Path
 

@@ -9,7 +9,6 @@ import sys
 import time
 import numpy as np
 import pytest
-import xarray as xr
 
 from liethermo import cf
 from liethermo.cli import main

@@ -10,7 +10,6 @@ checked.
 
 from __future__ import annotations
 
-from pathlib import Path
 
 import matplotlib
 

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 from numba.extending import overload
 
-from ._jit import LANE_OPTIONS, fma, jit, lane
+from ._jit import LANE_OPTIONS, fma, lane
 from .gen import madd, or_zero
 from .so3 import attitude_rate_lane, cross_lane
 from .terms import sum_angular_acceleration, sum_dissipated_power

@@ -34,7 +34,7 @@ import numpy as np
 from numba import types
 from numba.extending import overload
 
-from ._jit import LANE_OPTIONS, fma, jit, lane, ld
+from ._jit import LANE_OPTIONS, fma, lane, ld
 
 _counter = itertools.count()
 
@@ -342,7 +342,7 @@ def make_fold(protocol, n_args: int, n_acc: int, name: str):
     py = [f"def {name}({sig}):", f"    acc = ({', '.join(acc0)}{',' if n_acc == 1 else ''})",
           "    for term in terms:",
           f"        acc = protocol(term, {', '.join(args + [f'acc[{k}]' for k in range(n_acc)])})",
-          f"        acc = (acc,)" if n_acc == 1 else "        pass",
+          "        acc = (acc,)" if n_acc == 1 else "        pass",
           "    return acc[0]" if n_acc == 1 else "    return acc"]
     ns["protocol"] = protocol
     exec("\n".join(py) + "\n", ns)

@@ -15,7 +15,7 @@ array functions write into caller-allocated ``out`` arrays.
 
 from __future__ import annotations
 
-from ._jit import LANE_OPTIONS, fma, jit, lane
+from ._jit import fma, jit, lane
 
 
 @lane

@@ -515,8 +515,10 @@ def _report(s, outdir, opt, reduced, ds, oset, dset, specs, labels, scene0, nc, 
                          f"kg m⁻¹ s⁻¹, α = {float(opt['check_alpha']):g} K⁻¹, t_end = "
                          f"{float(opt['drift_t_end']):g} s, h = {float(scene0['integrator']['h']):g} s, node values)")
 
-    figs = [_settling_figure(ds, labels, mm, outdir), _trace_figure(ds, opt, mm, outdir),
-            _attitude_figure(ds, mm, outdir), _energy_figure(ds, dset, labels, opt, outdir)]
+    _settling_figure(ds, labels, mm, outdir)
+    _trace_figure(ds, opt, mm, outdir)
+    _attitude_figure(ds, mm, outdir)
+    _energy_figure(ds, dset, labels, opt, outdir)
     phys0 = physics_of_scene(scene0)
     sections = [
         display_table(pd.DataFrame(key_disp), f"Coupled against decoupled top ({mm}, {members} members, "

@@ -356,8 +356,9 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
     ctable = write_table(cdf, outdir, "flat_spin_casimir",
                          f"Casimir drift against the step (λ = {lam_c:g} s kg⁻¹ m⁻², "
                          f"{int(opt['casimir_members'])} members, t_end = {float(cdss[0]['casimir_t_end']):g} s)")
-    figs = [_energy_figure(dss, allpts, labels, opt, outdir), _casimir_figure(dss, allpts, labels, cdf, opt, outdir),
-            _settling_figure(df, labels, outdir)]
+    _energy_figure(dss, allpts, labels, opt, outdir)
+    _casimir_figure(dss, allpts, labels, cdf, opt, outdir)
+    _settling_figure(df, labels, outdir)
     wall = time.perf_counter() - t_wall
     I = phys0.inertia[0]
     sections = [
@@ -406,7 +407,6 @@ def _vs_reference(d: xr.Dataset, ref: xr.Dataset | None) -> float:
 
 def _finding(df, cdf, opt, labels) -> str:
     vi = df[df["method"].map(lambda m: parse_method(m)["family"] == "vi")]
-    rk = df[df["method"].map(lambda m: parse_method(m)["family"] != "vi")]
     lines = ["**Findings (node values).**", ""]
     allon = df["on major axis (fraction)"] == 1.0
     if allon.all():

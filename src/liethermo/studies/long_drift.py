@@ -228,7 +228,8 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
             "failed": int((~ok).sum()),
         })
     df = pd.DataFrame(rows)
-    figs = [_error_figure(dss, tasks, outdir, opt), _rate_figure(df, outdir)]
+    _error_figure(dss, tasks, outdir, opt)
+    _rate_figure(df, outdir)
     wall = time.perf_counter() - t_wall
     members = int(scene0["ensemble"]["members"])
     sections = [

@@ -28,7 +28,6 @@ for the liethermo kernels, default 1).
 
 from __future__ import annotations
 
-import copy
 import math
 import sys
 import time

@@ -41,7 +41,7 @@ from collections import namedtuple
 import numpy as np
 from numba.extending import overload
 
-from .._jit import LANE_OPTIONS, fma, jit, lane
+from .._jit import LANE_OPTIONS, fma, lane
 from ..gen import is_none
 from ..lanemath import exp_lane
 
