@@ -76,8 +76,8 @@ def number(lo=None, hi=None, *, lo_open=False, hi_open=False):
 
 
 #: most Newton iterations a step may take: a converging solve takes fewer than 30
-#: even at h|Ω| ≈ 1; with this bound one kernel call of the run driver (≈ 2·10⁶
-#: member-steps) cannot outlast a stop signal by more than about a second
+#: even at h|Ω| ≈ 1; the bound keeps a solve that does not converge from making
+#: one kernel call of the run driver (≈ 0.1 s) outlast a stop signal for long
 NEWTON_MAXITER_LIMIT = 200
 
 
