@@ -307,12 +307,18 @@ def write_table(df_or_records, outdir: str | os.PathLike, name: str, title: str)
 
     df = df_or_records if isinstance(df_or_records, pd.DataFrame) else pd.DataFrame(list(df_or_records))
     _atomic(Path(outdir) / f"{name}.csv", lambda tmp: df.to_csv(tmp, index=False))
+    return markdown_table(df, title, f"(CSV: `{name}.csv`)")
+
+
+def markdown_table(df, title: str, footer: str) -> str:
+    """``df`` as a markdown table under a ``### title`` heading, values through
+    :func:`fmt`, with a ``footer`` line."""
     cols = [str(c) for c in df.columns]
     lines = [f"### {title}", "", "| " + " | ".join(c.replace("|", "\\|") for c in cols) + " |",
              "|" + "|".join("---" for _ in cols) + "|"]
     for row in df.itertuples(index=False):
         lines.append("| " + " | ".join(fmt(v) for v in row) + " |")
-    lines += ["", f"(CSV: `{name}.csv`)", ""]
+    lines += ["", footer, ""]
     return "\n".join(lines)
 
 

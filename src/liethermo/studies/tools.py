@@ -241,12 +241,7 @@ def display_table(df, title: str, csv_name: str) -> str:
     """A markdown table of the (already formatted) ``df`` with a ``### title``
     heading and a link to ``csv_name.csv``, which holds the same rows in
     numbers (written separately by :func:`~.common.write_table`)."""
-    from .common import fmt
+    from .common import markdown_table
 
-    cols = [str(c) for c in df.columns]
-    lines = [f"### {title}", "", "| " + " | ".join(c.replace("|", "\\|") for c in cols) + " |",
-             "|" + "|".join("---" for _ in cols) + "|"]
-    for row in df.itertuples(index=False):
-        lines.append("| " + " | ".join(fmt(v) for v in row) + " |")
-    lines += ["", f"(numbers, with the 5 % and 95 % quantiles in columns of their own: `{csv_name}.csv`)", ""]
-    return "\n".join(lines)
+    return markdown_table(df, title, f"(numbers, with the 5 % and 95 % quantiles in columns of their own: "
+                                     f"`{csv_name}.csv`)")
