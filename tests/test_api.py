@@ -52,6 +52,11 @@ def test_run_validates_before_any_work(tmp_path, monkeypatch):
         liethermo.run("paper", output="notes.nc")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["d.nc", "notes.nc"]
     assert (tmp_path / "notes.nc").read_text() == "mine"
+    # the remedy is named in Python's words, not the command line's
+    with pytest.raises(liethermo.PreflightError) as err:
+        liethermo.run("paper", output="notes.nc")
+    assert str(err.value).endswith("pass force=True to replace it, or another output= to write elsewhere")
+    assert "--" not in str(err.value)
 
 
 def test_accessor_definitions():

@@ -77,7 +77,10 @@ def run(scene: str | Path | dict | Scene = "paper", overrides: dict | list | Non
 
         # this output only: the command line runs output.compare's methods
         sc = sc.with_overrides({"output.compare": []})
-        plan = prepare_run(sc, out, force=force, resume=bool(resume))
+        try:
+            plan = prepare_run(sc, out, force=force, resume=bool(resume))
+        except PreflightError as exc:
+            raise PreflightError(_in_python_words(str(exc))) from None
         resume = plan.resume_sources.get(out, False) if resume is True else resume
     try:
         if plan is not None and plan.outputs[0].skip:  # complete already: resume has nothing to do
@@ -90,6 +93,18 @@ def run(scene: str | Path | dict | Scene = "paper", overrides: dict | list | Non
     ds = open_dataset(out)
     ds.attrs["summary"] = "\n".join(summ.lines()) if summ is not None else f"{out}: complete, kept"
     return ds
+
+
+#: the command line's words in the checks' messages, and this module's
+_CLI_TO_PYTHON = (("pass --force to replace it", "pass force=True to replace it"),
+                  ("or -o to write elsewhere", "or another output= to write elsewhere"),
+                  ("rerun without --resume to start over", "run with resume=False to start over"))
+
+
+def _in_python_words(message: str) -> str:
+    for cli, python in _CLI_TO_PYTHON:
+        message = message.replace(cli, python)
+    return message
 
 
 @dataclass(frozen=True)
