@@ -604,6 +604,15 @@ def _fill_block(Y, P, m0, m1, nparam, with_scratch, ISTAT, FSTAT):
 
 
 @jit
+def _store_output(S, nb, n, cur, OUT, j):
+    """Output j of every running lane: its state in the rows at cur."""
+    for i in range(nb):
+        m = int(ld(S, O_MEMBER + i))
+        for k in range(n):
+            OUT[m, j, k] = ld(S, cur + k * ROW + i)
+
+
+@jit
 def _write_back(S, nb, n, cur, done, h, Y, ISTAT, FSTAT):
     for i in range(nb):
         m = int(ld(S, O_MEMBER + i))
@@ -654,10 +663,7 @@ def advance_rk_blocks(tab, model, shared, Y, P, b0, b1, h, every, n_out, OUT, IS
                 done += 1
             if nb == 0:
                 break
-            for i in range(nb):
-                m = int(ld(S, O_MEMBER + i))
-                for k in range(n):
-                    OUT[m, j, k] = ld(S, cur + k * ROW + i)
+            _store_output(S, nb, n, cur, OUT, j)
         _write_back(S, nb, n, cur, done, h, Y, ISTAT, FSTAT)
 
 
@@ -704,8 +710,5 @@ def advance_vi_blocks(model, shared, Y, P, b0, b1, h, factors, every, n_out, wl,
                 done += 1
             if nb == 0:
                 break
-            for i in range(nb):
-                m = int(ld(S, O_MEMBER + i))
-                for k in range(n):
-                    OUT[m, j, k] = ld(S, O_Y + k * ROW + i)
+            _store_output(S, nb, n, O_Y, OUT, j)
         _write_back(S, nb, n, O_Y, done, h, Y, ISTAT, FSTAT)
