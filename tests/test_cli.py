@@ -285,7 +285,8 @@ def test_progress_summary_is_printed(tmp_path, capsys):
                  "--set", "output.figures=false", "--set", "ensemble.members=4"]) == 0
     text = capsys.readouterr().out
     for needle in ("4 member(s) x 300 steps", "member-steps/s", "ok: 4", "max |E_k - E_0|",
-                   "max ||Gamma| - 1|", "Newton iterations/step", "wrote"):
+                   "max ||Gamma| - 1|", "Newton iterations         mean",
+                   "per solve (one per step)", "in one solve", "wrote"):
         assert needle in text, needle
 
 

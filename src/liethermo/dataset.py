@@ -151,7 +151,8 @@ def _trajectory_dataset(traj, omega0, R0, member_offset):
                     "energy_error is the node-value error")
         steps = np.maximum(traj.steps_done, 1)
         data["newton_iterations_mean"] = _var(traj.newton_iterations / steps, ("member",), "1",
-                                              "mean Newton iterations per step")
+                                              "mean Newton iterations per step, summed over the step's "
+                                              "solves (one for vi, 3 for vi4, 9 for vi6)")
         data["newton_iterations_max"] = _var(traj.newton_max.astype(np.int64), ("member",), "1",
                                              "max Newton iterations in one solve")
     R = traj.attitude

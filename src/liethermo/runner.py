@@ -17,6 +17,7 @@ import xarray as xr
 
 from . import cf
 from .dataset import global_attrs, trajectory_dataset
+from .findings import chunk_findings, finding_lines, merge_findings, physics_lines
 from .initial import initial_conditions
 from .methods import get_method
 from .physics import build_model, physics_of_scene
@@ -47,6 +48,10 @@ class RunSummary:
     first_fail_step: int = 0  # earliest step at which a member failed (0: none failed)
     path: Path | None = None
     resumed_members: int = 0  # members taken over from an interrupted run
+    #: what the run's physics shows (liethermo.findings): lines from its parameters,
+    #: and {name: [min, max]} over the completed members
+    physics_notes: list = field(default_factory=list)
+    findings: dict = field(default_factory=dict)
 
     @property
     def throughput(self) -> float:
@@ -77,10 +82,16 @@ class RunSummary:
             if self.max_rel_energy_error_paper == self.max_rel_energy_error_paper:
                 out.append(f"  (paper convention, step velocity with node values: "
                            f"{self.max_rel_energy_error_paper:.3e})")
+            out += finding_lines(self.findings)
         else:
             out.append("  no member completed: no accuracy figures")
-        if get_method(self.method).family == "vi":
-            out.append(f"  Newton iterations/step    mean {self.newton_mean:.2f}, max {self.newton_max}")
+        out += self.physics_notes
+        m = get_method(self.method)
+        if m.family == "vi":
+            n = m.evaluations_per_step
+            per_solve = (f"mean {self.newton_mean / n:.2f} per solve ({self.newton_mean:.2f} per step "
+                         f"of {n} solves)" if n > 1 else f"mean {self.newton_mean:.2f} per solve (one per step)")
+            out.append(f"  Newton iterations         {per_solve}, max {self.newton_max} in one solve")
         if self.resumed_members:
             out.append(f"  resumed: members 0-{self.resumed_members - 1} came from the interrupted run "
                        "(not in the times above)")
@@ -117,6 +128,7 @@ class ChunkStats:
     nsteps_total: int = 0
     nmax: int = 0
     first_fail: int = 0  # earliest failing step over the chunk's members (0: none)
+    findings: dict = field(default_factory=dict)  # liethermo.findings: {name: [min, max]}
 
     def merge(self, other: "ChunkStats") -> "ChunkStats":
         self.members += other.members
@@ -133,6 +145,7 @@ class ChunkStats:
         self.nmax = max(self.nmax, other.nmax)
         fails = [f for f in (self.first_fail, other.first_fail) if f]
         self.first_fail = min(fails) if fails else 0
+        merge_findings(self.findings, other.findings)
         return self
 
     def to_dict(self) -> dict:
@@ -155,13 +168,16 @@ def scene_setup(scene, overrides=None, history: str | None = None) -> tuple[Scen
     method, h, steps = integ["method"], float(integ["h"]), int(integ["steps"])
     members = int(scene["ensemble"]["members"])
     m = get_method(method)
-    terms = build_model(physics_of_scene(scene), bool(scene["output"]["attitude"])).terms()
+    phys = physics_of_scene(scene)
+    terms = build_model(phys, bool(scene["output"]["attitude"])).terms()
     attrs = global_attrs(scene_to_toml(scene), method=method, h=h,
                          friction=m.effective_friction(integ["friction"]),
                          start=m.effective_start(integ["start"]),
                          entropy=m.effective_entropy(integ["entropy"]), terms=terms,
                          history=history)
-    return scene, attrs, RunSummary(scene["scene"]["name"], method, members, steps, h)
+    summ = RunSummary(scene["scene"]["name"], method, members, steps, h)
+    summ.physics_notes = physics_lines(phys)
+    return scene, attrs, summ
 
 
 def run_chunk(scene: dict, lo: int, hi: int, *, progress_cb=None, kernel: str | None = None,
@@ -206,6 +222,8 @@ def run_chunk(scene: dict, lo: int, hi: int, *, progress_cb=None, kernel: str | 
     st.nsteps_total = int(traj.steps_done.sum())
     st.nmax = int(traj.newton_max.max(initial=0))
     st.first_fail = int(traj.fail_step[~ok].min()) if not ok.all() else 0
+    with np.errstate(over="ignore", invalid="ignore"):
+        st.findings = chunk_findings(ds, phys)
     return ds, st
 
 
@@ -224,6 +242,7 @@ def finish_summary(summ: RunSummary, st: ChunkStats) -> RunSummary:
                         if (get_method(summ.method).family == "vi" and st.nsteps_total) else nan)
     summ.newton_max = st.nmax
     summ.first_fail_step = st.first_fail
+    summ.findings = dict(st.findings)
     return summ
 
 
