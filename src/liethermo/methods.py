@@ -11,6 +11,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
+
 #: Laws a method may satisfy exactly (to round-off).
 LAW_UNIT_GAMMA = "unit_gamma"  # | |Γ_k| − 1 | at round-off
 LAW_ROTATION = "rotation"  # R_kᵀR_k = I at round-off (attitude)
@@ -86,6 +88,31 @@ METHODS: dict[str, Method] = {
                         "fixed-step DOP853 (order 8) with substeps: high-accuracy reference",
                         8, False, 12, ()),
 }
+
+
+#: how far an observed order may fall below the declared one p and still count as it:
+#: max(ORDER_TOLERANCE, ORDER_TOLERANCE_REL * p) (a slope fitted over a few halvings
+#: of h carries the next term of the error, relatively more at high orders)
+ORDER_TOLERANCE = 0.3
+ORDER_TOLERANCE_REL = 0.1
+
+
+def order_tolerance(declared: int) -> float:
+    return max(ORDER_TOLERANCE, ORDER_TOLERANCE_REL * declared)
+
+
+def judge_order(observed: float, declared: int, tolerance: float | None = None) -> str:
+    """``"as declared"`` (within ``tolerance`` of the declared order, default
+    :func:`order_tolerance`), ``"above declared"`` (more than ``tolerance``
+    above it: the error falls faster than the method promises on this
+    problem, which is no failure), or ``"below declared"`` (the failure);
+    ``"not fitted"`` for a NaN order."""
+    tol = order_tolerance(declared) if tolerance is None else tolerance
+    if not np.isfinite(observed):
+        return "not fitted"
+    if observed < declared - tol:
+        return "below declared"
+    return "above declared" if observed > declared + tol else "as declared"
 
 
 def get_method(name: str) -> Method:
