@@ -323,3 +323,18 @@ def test_method_specs_of_the_study_files_parse():
     for kind in ("coupling", "flat_spin"):
         for m in load_study(STUDIES / f"{kind}.toml")["methods"]:
             parse_method(m)
+
+
+@pytest.mark.parametrize("which", ["fs", "cp"])
+def test_flat_spin_and_coupling_close_with_the_cheapest_method(which, request):
+    """The closing table's winner at each level has an error at most that level and
+    is the least costly such method; the reference is never a candidate."""
+    out, report, _, _ = request.getfixturevalue(which)
+    text = report.read_text()
+    assert "**Cheapest here**" in text[text.rindex("### Closing"):]
+    cl = pd.read_csv(out / "closing.csv")
+    assert not cl["cheapest method"].str.startswith("reference").any()
+    won = cl[cl["cheapest method"] != "not reached"]
+    assert not won.empty and (won["error"] <= won["error ≤"]).all()
+    for eps, g in won.groupby("error ≤"):
+        assert g["cost (s)"].max() <= 1.1 * g["cost (s)"].min()

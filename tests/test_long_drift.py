@@ -1,5 +1,5 @@
 """The long_drift study in its reduced mode: files, finite drift rates, the
-equal-cost plan, the structure the variational integrators keep exactly, and
+calibration to equal measured cost, the structure the variational integrators keep exactly, and
 the drift of the VI against RK2 at zero viscosity."""
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from liethermo.cli import main
 from liethermo.methods import METHODS
 from liethermo.studies import get_study
 from liethermo.studies.common import StudyError, parse_method
-from liethermo.studies.long_drift import equal_cost_steps, options, step_cost
+from liethermo.studies.long_drift import calibrate, counted_cost_steps, options, plan_steps, step_cost
 from liethermo.studies.runner import load_study, validate_study
 
 STUDIES = Path(__file__).resolve().parents[1] / "studies"
@@ -37,7 +37,8 @@ def test_files_and_units(ld):
     for v in ds.data_vars:
         assert "units" in ds[v].attrs and "long_name" in ds[v].attrs, v
     text = report.read_text()
-    assert "node values" in text and "Equal cost" in text and "Finding" in text
+    assert "node values" in text and "Equal cost, measured" in text and "Finding" in text
+    assert text.rstrip().splitlines()[-1].startswith("**Cheapest here**")
     assert 0.0 in ds["fluid_viscosity"].values
 
 
@@ -48,19 +49,67 @@ def test_drift_rates_finite_and_no_failures(ld):
     assert np.all(ds["oscillation_amplitude"].values >= 0)
 
 
-def test_equal_cost_plan(ld):
-    """Every method simulates the same time at the same counted cost per simulated second."""
-    _, _, ds, df = ld
+def _reduced_options():
     study = load_study(STUDIES / "long_drift.toml")
-    opt = options({**study, **study["reduced"], "options": {**study["options"], **study["reduced"]["options"]}})
+    return study, options({**study, "options": {**study["options"], **study["reduced"]["options"]}})
+
+
+def test_calibration_equalises_an_injected_cost_model():
+    """With a cost per step that depends on h as the VI's does (Newton iterations
+    fall as h shrinks) and RK costs the count gets wrong, the calibrated steps
+    give equal cost per simulated second to within calibration_rtol, where the
+    counted plan is off by far more than 10 %."""
+    study, opt = _reduced_options()
     specs = [parse_method(m) for m in study["methods"]]
-    plan = equal_cost_steps(specs, opt)
-    per_second = {lab: step_cost(s, opt) / plan[lab][0] for lab, s in zip(plan, specs)}
-    assert max(per_second.values()) == pytest.approx(min(per_second.values()), rel=1e-12)
-    assert step_cost(parse_method("rk4"), opt) == METHODS["rk4"].evaluations_per_step
-    for lab, (h, steps, every) in plan.items():
-        assert steps % every == 0 and abs(steps * h - opt["t_end"]) <= h
-        np.testing.assert_allclose(ds["step"].sel(scheme=lab).values, h)
+    calls = []
+
+    def cost(spec, h):  # s per step
+        calls.append(spec["label"])
+        solves = METHODS[spec["method"]].evaluations_per_step
+        if spec["family"] == "vi":
+            return 1.5e-8 * solves * (2.0 + 0.02 / h)  # iterations per solve grow with h
+        return 2.0e-9 * solves
+
+    cal = calibrate(specs, opt, cost)
+    per_s = {lab: cost(parse_method(lab), h) / h for lab, (h, c) in cal.items()}
+    target = per_s[opt["cost_base"]]
+    assert cal[opt["cost_base"]][0] == opt["h_base"]
+    for lab, v in per_s.items():
+        assert v == pytest.approx(target, rel=1.5 * opt["calibration_rtol"]), (lab, v, target)
+        h, c = cal[lab]
+        assert c == pytest.approx(cost(parse_method(lab), h), rel=1e-12)  # the cost was measured at that h
+    counted = counted_cost_steps(specs, opt)
+    by_count = [cost(parse_method(lab), h) / h for lab, h in counted.items()]
+    off = max(by_count) / min(by_count)
+    assert off > 1.5, off  # the injected model is one the count gets wrong: the test can fail
+    assert len(calls) <= 1 + 5 * (len(specs) - 1) + 2 * len(specs)
+
+
+def test_plan_steps_cover_t_end():
+    _, opt = _reduced_options()
+    for h in (0.01, 0.0325, 0.00167):
+        hh, steps, every = plan_steps(h, opt)
+        assert hh == h and steps % every == 0 and abs(steps * h - opt["t_end"]) <= every * h
+        assert opt["outputs"] <= steps // every < 2 * opt["outputs"]
+
+
+def test_calibrated_plan_in_the_study(ld):
+    """Every run uses its calibrated step; the calibration's costs, measured at
+    those steps, are equal within 10 % at each viscosity; the counted cost is reported beside."""
+    _, report, ds, df = ld
+    _, opt = _reduced_options()
+    for mu, g in df.groupby("μ (kg m⁻¹ s⁻¹)"):
+        c = g["calibrated cost (s per simulated s)"].to_numpy()
+        assert c.max() / c.min() < 1.10, (mu, c)
+        assert np.allclose(g["h (s)"].to_numpy(), ds["step"].sel(fluid_viscosity=mu, scheme=g["method"].to_list()))
+        assert (g.loc[g["method"] == opt["cost_base"], "h (s)"] == opt["h_base"]).all()
+        counted = g["counted cost (rhs eval. per simulated s)"].to_numpy()
+        steps = g["steps"].to_numpy()
+        np.testing.assert_allclose(steps * g["h (s)"].to_numpy(), opt["t_end"], rtol=0.02)
+        assert np.all(counted > 0) and np.all(g["kernel wall per simulated s (s)"] > 0)
+    text = report.read_text()
+    assert "Cost (measured and counted)" in text and "calibrat" in text
+    assert float(ds["calibrated_cost"].max()) > 0 and ds["calibrated_cost"].attrs["units"] == "s"
 
 
 def test_structure_kept_by_the_variational_integrators(ld):

@@ -351,3 +351,85 @@ def test_study_figures_were_checked_for_legibility(which, request):
 
 if __name__ == "__main__":  # pragma: no cover
     sys.exit(pytest.main([__file__, "-q"]))
+
+
+# ----------------------------------------------------------------------------- closing tables
+
+CLOSING_POINTS = [
+    {"method": "rk2", "error": 2e-3, "cost": 0.5, "setting": "h = 0.1 s"},
+    {"method": "vi", "error": 1e-3, "cost": 1.0, "setting": "h = 0.1 s"},
+    {"method": "vi4", "error": 9e-4, "cost": 1.05, "setting": "h = 0.2 s"},
+    {"method": "vi", "error": 1e-6, "cost": 8.0, "setting": "h = 0.01 s"},
+    {"method": "rk4", "error": 5e-4, "cost": 2.0, "setting": "h = 0.1 s"},
+    {"method": "rk4", "error": 1e-7, "cost": 3.0, "setting": "h = 0.05 s"},
+    {"method": "rk4", "error": float("inf"), "cost": 0.1, "setting": "h = 0.4 s"},
+]
+
+
+def test_closing_table_names_the_cheapest_method_per_level_from_the_numbers(tmp_path):
+    levels = [1e-2, 1e-3, 1e-6, 1e-9]
+    r = common.cheapest_per_level(CLOSING_POINTS, levels)
+    assert [p["method"] for p in r[0]["winners"]] == ["rk2"]
+    assert [p["method"] for p in r[1]["winners"]] == ["vi", "vi4"]  # 1.05 is a tie within 10 %
+    assert [(p["method"], p["cost"]) for p in r[2]["winners"]] == [("rk4", 3.0)]
+    assert r[3]["winners"] == []  # the failed (infinite-error) point never wins
+    text = common.closing_section(CLOSING_POINTS, regime="test", error="e (1)", cost="c (s)", levels=levels,
+                                  outdir=tmp_path)
+    sentence = text.rstrip().splitlines()[-1]
+    assert sentence.startswith("**Cheapest here**")
+    assert "to 1e-02: rk2 (0.5 s)" in sentence and "to 1e-06: rk4 (3 s)" in sentence
+    assert "vi (1 s) and vi4 (1.05 s)" in sentence and "no method reached 1e-09" in sentence
+    df = pd.read_csv(tmp_path / "closing.csv")
+    assert df.loc[df["cheapest method"] == "vi4", "keeps"].item() == "|Γ| = 1, Kelvin–Noether"
+    # change the numbers and the winner changes with them
+    cheaper_vi = [dict(p, cost=0.01) if p["method"] == "vi" else p for p in CLOSING_POINTS]
+    assert "to 1e-06: vi (0.01 s)" in common.closing_section(cheaper_vi, regime="t", error="e", cost="c",
+                                                             levels=levels)
+
+
+def test_kept_laws_are_the_declared_ones():
+    from liethermo.methods import LAW_ENTROPY_MONOTONE, METHODS
+
+    assert common.kept_laws("vi:node:explicit") == "|Γ| = 1, Kelvin–Noether, entropy monotone"
+    assert common.kept_laws("vi6") == "|Γ| = 1, Kelvin–Noether"
+    assert LAW_ENTROPY_MONOTONE not in METHODS["vi6"].laws
+    assert common.kept_laws("rk4") == common.kept_laws("scipy DOP853") == "none of these"
+
+
+def test_error_levels_span_the_decades_reached():
+    assert common.error_levels([3e-2, 4e-5, 2e-9, float("inf"), float("nan")]) == [1e-1, 1e-4, 1e-8]
+    assert common.error_levels([0.5]) == [1.0]
+    assert common.error_levels([float("inf")]) == []
+
+
+def _last_section(report: Path) -> str:
+    text = report.read_text()
+    return text[text.rindex("### Closing"):]
+
+
+def test_energy_drift_closes_with_the_cheapest_method_from_its_runs(energy_drift):
+    """The winner at each level is the (method, h) with the least kernel time per
+    member among those whose median max |E_k − E₀|/E_mech,0 is at most the level."""
+    out, report, ds = energy_drift
+    closing = _last_section(report)
+    assert "**Cheapest here**" in closing
+    cl = pd.read_csv(out / "closing.csv")
+    members = ds.sizes["member"]
+    for eps, g in cl.groupby("error ≤"):
+        best = np.inf
+        for scheme in ds["scheme"].values:
+            for h in ds["integrator_h"].values:
+                e = float(np.quantile(ds["max_relative_energy_error"].sel(scheme=scheme, integrator_h=h).values,
+                                      0.5, method="inverted_cdf"))
+                if e <= eps:
+                    best = min(best, float(ds["kernel_time"].sel(scheme=scheme, integrator_h=h)) / members)
+        assert g["cost (s)"].min() == pytest.approx(best, rel=1e-9), eps
+
+
+def test_convergence_and_paper_close_with_their_own_numbers(convergence, paper):
+    out, report, ds = convergence
+    assert "**Cheapest here**" in _last_section(report)
+    assert "kernel_time" in ds and ds["kernel_time"].attrs["units"] == "s"
+    out, report, _ = paper
+    closing = _last_section(report)
+    assert "record no wall time" in closing and "**Most accurate at the paper's step:**" in closing

@@ -65,6 +65,53 @@ def test_work_precision_outputs(wp):
     assert len(ttr) == ds.sizes["method"]
 
 
+def test_work_precision_times_warm_block_kernels_at_every_level(wp):
+    """Every level runs on the vectorized block kernel, warm, for at least
+    timing_member_steps per timed run: no level of a method costs more than 3×
+    its median per member-step (compiling, or a slower kernel at coarse levels,
+    would cost 20–200×)."""
+    report, out = wp
+    ds = cf.open_dataset(out / "work_precision.nc")
+    assert ds.attrs["kernel"] == "fast" and ds.attrs["kernel_threads"] == 1
+    text = report.read_text()
+    assert "`fast` kernel" in text and "1 numba thread(s)" in text and "**minimum** over the repeats" in text
+    spread = pd.read_csv(out / "level_costs.csv")
+    study = load_study(STUDIES / "work_precision.toml")
+    assert set(spread["method"]) == set(study["methods"])
+    assert (spread["greatest / median"] <= 3.0).all(), spread.to_string()
+    df = pd.read_csv(out / "work_precision.csv")
+    kern = df[df["method"].isin(study["methods"])]
+    opt = study["reduced"]["options"]
+    assert (kern["timed members"] * kern["steps"] >= opt["timing_member_steps"]).all()
+    assert (kern["wall/member-step (s)"] <= kern["median repeat /member-step (s)"] * (1 + 1e-12)).all()
+
+
+def test_work_precision_closes_with_the_cheapest_method_per_epsilon(wp):
+    report, out = wp
+    text = report.read_text()
+    closing = text[text.rindex("### Closing"):]
+    assert "**Cheapest here**" in closing
+    df = pd.read_csv(out / "work_precision.csv")
+    df = df[df["failed members"] == 0]
+    cl = pd.read_csv(out / "closing.csv")
+    study = load_study(STUDIES / "work_precision.toml")
+    assert sorted(cl["error ≤"].unique()) == sorted(study["options"]["epsilons"])
+    for eps, g in cl.groupby("error ≤"):
+        ok = df[df["error at t_end (max)"] <= eps]
+        if ok.empty:
+            assert (g["cheapest method"] == "not reached").all()
+            continue
+        best = ok.loc[ok["wall/member (s)"].idxmin()]
+        assert g.iloc[0]["cheapest method"] == best["method"] and g.iloc[0]["cost (s)"] == best["wall/member (s)"]
+
+
+def test_timing_copies_cover_the_member_steps():
+    from liethermo.studies.work_precision import timing_copies
+
+    assert timing_copies(32, 50, 2**18) == 164 and 164 * 32 * 50 >= 2**18 > 163 * 32 * 50
+    assert timing_copies(32, 204800, 2**18) == 1
+
+
 def test_work_precision_slopes(wp):
     """Errors on node values fall with h at the methods' orders."""
     _, out = wp
@@ -293,3 +340,22 @@ def test_study_figures_were_checked_for_legibility(which, request):
     for png in pngs:
         assert SAVED_FIGURES.get(str(png.resolve())) in ("ConstrainedLayoutEngine", "TightLayoutEngine",
                                                          "PlaceHolderLayoutEngine"), png.name
+
+
+def test_stability_and_viscosity_sweep_close_with_what_they_measure(stab, visc):
+    """Neither study times runs against errors: each says so and closes with the
+    analogous fact it measures, from its own table."""
+    report, out = stab
+    text = report.read_text()
+    closing = text[text.rindex("### Closing"):]
+    assert "times no run" in closing and "**Largest step here:**" in closing
+    summary = pd.read_csv(out / "stability_summary.csv")
+    col = "largest h|Ω₀| bounded at every κ"
+    if summary[col].notna().any():
+        best = summary[col].max()
+        assert f"bounded at every κ is h|Ω₀| = {best:g} rad" in closing
+    most = summary["accurate"].max()
+    assert f"({most} of " in closing
+    report, out = visc
+    closing = report.read_text()[report.read_text().rindex("### Closing"):]
+    assert "no reference" in closing and "**Cost here:**" in closing

@@ -428,3 +428,124 @@ def method_overrides(spec: dict) -> dict:
     kw = method_kwargs(spec)
     return {"integrator.method": spec["method"], "integrator.start": kw["start"],
             "integrator.friction": kw["friction"], "integrator.entropy": kw["entropy"]}
+
+
+# ----------------------------------------------------------------------------- closing table
+
+#: the laws the closing tables report, in the words of the reports
+CLOSING_LAWS = (("unit_gamma", "|Γ| = 1"), ("kelvin_noether", "Kelvin–Noether"),
+                ("entropy_monotone", "entropy monotone"))
+#: costs within this factor of the least count as a tie: the figures are timings on a shared machine
+COST_TIE = 1.1
+
+
+def step_text(hs) -> str:
+    """"h = a s", or "h = a–b s" where a method ran at several steps."""
+    lo, hi = float(min(hs)), float(max(hs))
+    return f"h = {lo:.3g} s" if f"{lo:.3g}" == f"{hi:.3g}" else f"h = {lo:.3g}–{hi:.3g} s"
+
+
+def kept_laws(label: str) -> str:
+    """The laws of :data:`CLOSING_LAWS` that the method of spec ``label``
+    declares (:mod:`liethermo.methods`), e.g. "|Γ| = 1, Kelvin–Noether";
+    a method from outside liethermo (scipy's) declares none."""
+    from ..methods import METHODS
+
+    name = str(label).split(":")[0]
+    laws = METHODS[name].laws if name in METHODS else ()
+    kept = [text for law, text in CLOSING_LAWS if law in laws]
+    return ", ".join(kept) if kept else "none of these"
+
+
+def error_levels(errors, count: int = 3) -> list[float]:
+    """Up to ``count`` powers of ten, from the least accurate level the data
+    reach to the most accurate one, evenly spread over the decades."""
+    e = np.asarray([x for x in errors if np.isfinite(x) and x > 0], float)
+    if e.size == 0:
+        return []
+    hi = math.ceil(math.log10(e.max()))
+    lo = math.ceil(math.log10(e.min()))  # the finest power of ten some point reaches
+    if hi <= lo:
+        return [10.0 ** lo]
+    ks = np.unique(np.round(np.linspace(hi, lo, min(count, hi - lo + 1))).astype(int))[::-1]
+    return [10.0 ** int(k) for k in ks]
+
+
+def cheapest_per_level(points, levels) -> list[dict]:
+    """For each error level ε: the points (dicts with ``method``, ``error``,
+    ``cost`` and optionally ``setting``) whose error is ≤ ε, the cheapest
+    first, with every method whose own cheapest such point costs at most
+    :data:`COST_TIE` × the least (a tie on a shared machine).  Returns
+    ``{"level", "winners": [point, …]}`` per level (``winners`` empty: no
+    point reached it)."""
+    out = []
+    for eps in levels:
+        best: dict[str, dict] = {}
+        for p in points:
+            if np.isfinite(p["error"]) and p["error"] <= eps and np.isfinite(p["cost"]):
+                if p["method"] not in best or p["cost"] < best[p["method"]]["cost"]:
+                    best[p["method"]] = p
+        ranked = sorted(best.values(), key=lambda p: p["cost"])
+        if ranked:
+            ranked = [p for p in ranked if p["cost"] <= COST_TIE * ranked[0]["cost"]]
+        out.append({"level": float(eps), "winners": ranked})
+    return out
+
+
+def closing_section(points, *, regime: str, error: str, cost: str, levels=None, unit: str = "s",
+                    outdir=None) -> str:
+    """The closing section of a study report, from the study's own numbers:
+    for each error level, the method that reaches it at least cost and what
+    it keeps (its declared laws), then one sentence naming the winners.
+
+    ``points``: dicts ``{"method": spec label, "error": …, "cost": …,
+    "setting": text (e.g. "h = 0.1 s")}``; ``error`` and ``cost`` say what the
+    numbers are (with units); ``levels``: the error levels (default
+    :func:`error_levels` of the points' errors); ``outdir``: also write the
+    table as ``closing.csv``."""
+    import pandas as pd
+
+    points = list(points)
+    levels = error_levels([p["error"] for p in points]) if levels is None else [float(x) for x in levels]
+    rows = []
+    said = []
+    for r in cheapest_per_level(points, levels):
+        w = r["winners"]
+        if not w:
+            rows.append({"error ≤": r["level"], "cheapest method": "not reached", "at": "—",
+                         "error": float("nan"), f"cost ({unit})": float("nan"), "keeps": "—"})
+            said.append(f"no method reached {r['level']:.0e}")
+            continue
+        for p in w:
+            rows.append({"error ≤": r["level"], "cheapest method": p["method"], "at": p.get("setting", "—"),
+                         "error": float(p["error"]), f"cost ({unit})": float(p["cost"]),
+                         "keeps": kept_laws(p["method"])})
+        names = " and ".join(f"{p['method']} ({p['cost']:.3g} {unit})" for p in w)
+        said.append(f"to {r['level']:.0e}: {names}" + (" — a tie within "
+                                                       f"{round(100 * (COST_TIE - 1))} %" if len(w) > 1 else ""))
+    df = pd.DataFrame(rows, columns=["error ≤", "cheapest method", "at", "error", f"cost ({unit})", "keeps"])
+    title = f"Closing: the cheapest method per error level ({regime})"
+    footer = (f"Error: {error}. Cost: {cost}. \"keeps\": the laws the method declares "
+              f"(`liethermo.methods`) among |Γ| = 1, Kelvin–Noether and entropy monotone.")
+    if outdir is not None:
+        table = write_table(df, outdir, "closing", title)
+    else:
+        table = markdown_table(df, title, "")
+    sentence = ("**Cheapest here** " + ("; ".join(said) if said else "— no point has a finite error and cost")
+                + ".")
+    return "\n\n".join([table.rstrip("\n"), footer, sentence])
+
+
+def closing_fact(regime: str, missing: str, fact_rows=None, fact_title: str = "", sentence: str = "") -> str:
+    """The closing section of a study that measures no cost against error:
+    one sentence on what the cheapest-method table would need (``missing``),
+    and the analogous fact the study does measure (``fact_rows`` under
+    ``fact_title``, with ``sentence`` built from them)."""
+    import pandas as pd
+
+    parts = [f"### Closing: cost against error ({regime})", "", missing]
+    if fact_rows:
+        parts += ["", markdown_table(pd.DataFrame(list(fact_rows)), fact_title, "").rstrip("\n")]
+    if sentence:
+        parts += ["", sentence]
+    return "\n".join(parts)

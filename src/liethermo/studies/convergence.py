@@ -33,7 +33,8 @@ from ..physics import physics_of_scene
 from ..simulate import STATUS_MEANINGS, simulate
 from .common import (study_options, StudyError, cached_point, dim_name, expand_sweep, parse_method, point_is_cached, point_key,
                      progress_bar, stack_points, study_name, study_netcdf_path, study_scene,
-                     write_netcdf_atomic, write_report, write_table, start_study, study_history)
+                     write_netcdf_atomic, write_report, write_table, start_study, study_history,
+                     closing_section)
 from .tools import NODE_VALUES_NOTE, energy_errors, fit_order, run_spec
 
 EXTRA_KEYS = ()
@@ -109,6 +110,7 @@ def _errors(scene, spec: dict, h: float, opt: dict, ref: xr.Dataset) -> xr.Datas
     data["energy_error"] = ((), float(dE[-1]))
     data["status"] = ((), int(tr.status[0]))
     data["wall_time"] = ((), wall)
+    data["kernel_time"] = ((), tr.wall_time)
     return xr.Dataset(data, coords={"axis": ["x", "y", "z"]})
 
 
@@ -195,6 +197,8 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
                 ds[f"error_constant_{v}"] = (("scheme",), np.array(consts[v]))
                 ds[f"levels_fitted_{v}"] = (("scheme",), np.array(nused[v], dtype=np.int64))
             per_point.append(ds)
+            if len(per_point) == 1:
+                first_scales = scales
             label = ", ".join(f"{k} = {v}" for k, v in pt.items()) or "base scene"
             suffix = ("_" + point_key(pt)[:8]) if keys else ""
             tables.append(write_table(rows, outdir, f"orders{suffix}",
@@ -220,6 +224,9 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
                               flag_values=np.array(sorted(STATUS_MEANINGS), dtype=ds["status"].dtype),
                               flag_meanings=" ".join(STATUS_MEANINGS[k] for k in sorted(STATUS_MEANINGS)))
     ds["wall_time"].attrs.update(units="s", long_name="wall time of the run at this h")
+    if "kernel_time" in ds:
+        ds["kernel_time"].attrs.update(units="s", long_name="kernel wall time of the run at this h "
+                                       "(compilation excluded)")
     ds["omega"].attrs.update(units="rad s-1", long_name="body angular velocity at t_end (node value)")
     ds["gamma"].attrs.update(units="1", long_name="direction of gravity in the body frame at t_end")
     ds["entropy"].attrs.update(units="J K-1", long_name="entropy at t_end")
@@ -244,7 +251,23 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
     files = f"netCDF: `{nc.name}`; figures: " + ", ".join(f"`{f.name}`" for f in figs)
     return write_report(outdir, f"Convergence study: {study_name(study)}" + (" (reduced)" if reduced else ""),
                         tables[:1] + [_finding(per_point[0], specs), notes, NODE_VALUES_NOTE] + tables[1:]
-                        + [files])
+                        + [files, _closing(per_point[0], specs, hs, first_scales, opt, outdir)])
+
+
+def _closing(ds: xr.Dataset, specs: list, hs: list, scales: dict, opt: dict, outdir) -> str:
+    """Cheapest (method, h) per error level of the state (Ω relative to its scale, Γ), first sweep point."""
+    cost = ds["kernel_time"] if "kernel_time" in ds else ds["wall_time"]
+    pts = []
+    for i, spec in enumerate(specs):
+        for j, h in enumerate(hs):
+            e = max(float(ds["error_omega"].values[i, j]) / scales["omega"], float(ds["error_gamma"].values[i, j]))
+            pts.append({"method": spec["label"], "error": e, "cost": float(cost.values[i, j]),
+                        "setting": f"h = {h:g} s"})
+    return closing_section(pts, regime=f"one member, t_end = {opt['t_end']} s, first sweep point", unit="s",
+                           error="max over t = j h0 of max(|ΔΩ|/max|Ω_ref|, |ΔΓ|), node values (1)",
+                           cost="kernel wall time of the one-member run (s; at coarse h a call's fixed cost "
+                                "dominates — cost per member-step of large runs: the work_precision study)",
+                           outdir=outdir)
 
 
 def _finding(ds: xr.Dataset, specs: list) -> str:

@@ -57,7 +57,8 @@ from ..initial import initial_conditions
 from ..methods import METHODS
 from ..physics import inertia_scale, internal_energy_change, physics_of_scene
 from ..simulate import simulate
-from .common import (StudyError, cached_point, dim_name, expand_sweep, method_overrides, parse_method, point_key,
+from .common import (StudyError, cached_point, closing_fact, closing_section, dim_name, expand_sweep,
+                     method_overrides, parse_method, point_key,
                      progress_bar, stack_points, start_study, study_history, study_name, study_netcdf_path,
                      study_options, study_scene, write_netcdf_atomic, write_report, write_table)
 from .tools import (NODE_VALUES_NOTE, band_text, direction_angle, display_table, drift_fit, energy_errors,
@@ -551,9 +552,33 @@ def _report(s, outdir, opt, reduced, ds, oset, dset, specs, labels, scene0, nc, 
         "\n\n![final attitude difference](coupling_attitude.png)\n\n![energy error](coupling_energy.png)",
         f"netCDF: `{nc.name}`. Study wall time {wall:.1f} s (kernels of the ensemble runs "
         f"{sum(float(d['kernel_time']) for d in dss):.1f} s).",
+        _closing(ds, mdf, labels, ref_lab, dim, scene0, outdir),
     ]
     return write_report(outdir, "Coupling: the top whose inertia grows with its entropy, against the decoupled top"
                         + (" (reduced)" if reduced else ""), sections)
+
+
+def _closing(ds, mdf, labels, ref_lab, dim, scene0, outdir) -> str:
+    """Cheapest method per level of the final-attitude disagreement with the
+    reference (worst α), at the kernel wall time per member of the ensemble runs."""
+    pts = []
+    for lab in labels:
+        if lab == ref_lab:
+            continue
+        g = mdf[mdf["method"] == lab]
+        d = ds.sel(scheme=lab)
+        cost = sum(float(d.sel({dim: a})["kernel_time"]) / max(int(r), 1)
+                   for a, r in zip(g["α (K⁻¹)"], g["members"]))
+        pts.append({"method": lab, "error": float(g["max final attitude vs ref (deg)"].max())
+                    if not g["failed"].any() else float("inf"), "cost": cost,
+                    "setting": f"h = {float(scene0['integrator']['h']):g} s"})
+    if ref_lab is None:
+        return closing_fact("coupled top", "Without a reference run the study measures no error: the table would "
+                            "need the reference among the methods.")
+    return closing_section(pts, regime="coupled top, every α of the sweep", unit="s",
+                           error="max over α and the reference's members of the final attitude difference from "
+                                 "the reference (deg)",
+                           cost="kernel wall time per member of the ensemble runs, summed over α (s)", outdir=outdir)
 
 
 def _finding(kdf, mdf, odf, ddf, opt, labels, ref_lab) -> str:

@@ -34,7 +34,7 @@ from ..initial import initial_conditions
 from ..physics import physics_of_scene
 from .common import (method_overrides, study_options, StudyError, cached_point, dim_name, expand_sweep, parse_method, point_key, progress_bar,
                      stack_points, study_name, study_netcdf_path, study_scene, write_netcdf_atomic,
-                     write_report, write_table, start_study, study_history)
+                     write_report, write_table, start_study, study_history, closing_section)
 from .tools import NODE_VALUES_NOTE, energy_errors, run_spec
 
 PAPER = " (paper convention)"
@@ -225,7 +225,21 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
              f"Wall time {time.perf_counter() - t_start:.1f} s.")
     files = f"netCDF: `{nc.name}`; figures: " + ", ".join(f"`{f.name}`" for f in figs)
     return write_report(outdir, f"Energy-drift study: {study_name(study)}" + (" (reduced)" if reduced else ""),
-                        [table, _finding(rows, ds), notes, NODE_VALUES_NOTE, files])
+                        [table, _finding(rows, ds), notes, NODE_VALUES_NOTE, files,
+                         _closing(tasks, dsets, opt, members, outdir)])
+
+
+def _closing(tasks, dsets, opt, members: int, outdir) -> str:
+    """Cheapest (method, h) per level of the median max |E_k − E₀|/E_mech,0 (node values)."""
+    pts = []
+    for (pt, spec, scene, _), d in zip(tasks, dsets):
+        mx = d["max_relative_energy_error"].values
+        pts.append({"method": spec["label"], "error": float(np.quantile(mx, 0.5, method="inverted_cdf")),
+                    "cost": float(d["kernel_time"]) / mx.size, "setting": f"h = {float(scene['integrator']['h']):g} s"})
+    return closing_section(pts, regime=f"random ensemble of {members} members, t_end = {opt['t_end']} s", unit="s",
+                           error="median over members of max_k |E_k − E₀|/E_mech,0, node values (1)",
+                           cost="kernel wall time per member (s), as the study's runs measured it (default "
+                                "kernel choice and threads)", outdir=outdir)
 
 
 def _finding(rows: list, ds: xr.Dataset) -> str:

@@ -49,9 +49,9 @@ import xarray as xr
 from ..dataset import node_energies
 from ..initial import initial_conditions
 from ..physics import kinetic_energy, physics_of_scene
-from .common import (StudyError, cached_point, dim_name, expand_sweep, method_overrides, parse_method, point_key,
-                     progress_bar, stack_points, start_study, study_history, study_name, study_netcdf_path,
-                     study_options, study_scene, write_netcdf_atomic, write_report, write_table)
+from .common import (StudyError, cached_point, closing_section, dim_name, expand_sweep, method_overrides,
+                     parse_method, point_key, progress_bar, stack_points, start_study, step_text, study_history,
+                     study_name, study_netcdf_path, study_options, study_scene, write_netcdf_atomic, write_report, write_table)
 from .tools import (band_text, direction_angle, display_table, observed_orders, quantile_band, run_spec,
                     settling_time)
 
@@ -389,6 +389,16 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
         "![settling time against lambda](flat_spin_settling.png)",
         f"netCDF: `{nc.name}`; numbers of the first table: `flat_spin.csv`. Study wall time {wall:.1f} s "
         f"(kernels {sum(float(d['kernel_time']) for d in dss):.1f} s).",
+        closing_section(
+            [{"method": lab, "error": float(g["max |settling − reference| (s)"].max()),
+              "cost": float(sum(float(d["kernel_time"]) / max(int(r["members"]), 1)
+                                for (pt, d), (_, r) in zip(zip(allpts, dss), df.iterrows()) if pt["scheme"] == lab)),
+              "setting": step_text(g["h (s)"])}
+             for lab, g in df.groupby("method", sort=False)
+             if parse_method(lab)["method"] != "reference" and not g["failed"].any()],
+            regime=f"free body, double-bracket friction, λ ∈ {{{', '.join(f'{x:g}' for x in df['λ (s kg⁻¹ m⁻²)'].unique())}}}",
+            error="max over λ and the reference's members of |settling time − the reference's| (s)", unit="s",
+            cost="kernel wall time per member, summed over the λ sweep (s)", outdir=outdir),
     ]
     return write_report(outdir, "Flat spin: double-bracket friction on a free asymmetric body"
                         + (" (reduced)" if reduced else ""), sections)

@@ -4,19 +4,23 @@ At low viscosity (``fluid.viscosity`` swept from 1e-3 kg m⁻¹ s⁻¹ down to 0
 where the top is conservative) an ensemble of the paper's body with random
 initial conditions (:func:`liethermo.initial.initial_conditions`) is
 integrated over a long horizon (10⁴–10⁶ steps) by the variational
-integrators (``vi``, ``vi4``, ``vi6``) and by RK2 and RK4 **at equal cost per
-simulated second**: each method's step is
+integrators (``vi``, ``vi4``, ``vi6``) and by RK2 and RK4 **at equal measured
+cost per simulated second**.  A calibration, before the long runs, times each
+method's kernel on the study's ensemble (warm, the same kernel and threads as
+the long runs; the minimum over repeats of at least
+``options.calibration_time`` s) and sets its step so that
 
-    h_m = h_base × cost_m / cost_base,
+    kernel wall per step (h_m) / h_m = kernel wall per step (h_base) / h_base
 
-with the cost of a step counted in right-hand-side evaluations —
+for the cost reference method ``options.cost_base`` at ``h_base``: h_m is
+found by fixed-point iteration (the VI's cost per step changes with h
+through its Newton iterations) to within ``options.calibration_rtol``.  The
+report gives the cost counted in right-hand-side evaluations beside it —
 ``evaluations_per_step`` of :mod:`liethermo.methods` for RK (2 for RK2, 4 for
 RK4) and, for the variational integrators, their Newton solves per step (1, 3,
-9) × ``options.newton_cost`` rhs-evaluation equivalents per solve (a Newton
-iteration evaluates the residual and its 3×3 Jacobian, about one rhs; a
-solve takes 3–4 iterations).  The study also measures the kernels' wall time
-per simulated second of every run and reports it beside, so the reader sees
-whether the counted costs matched on the machine that ran it.
+9) × ``options.newton_cost`` evaluation equivalents per solve — and the kernel
+wall per simulated second of every long run, so the reader sees how far the
+count is from the clock and whether the calibration held.
 
 Per member, on NODE values (E_k from Ω(t_k), Γ_k, S_k; relative to
 E_mech,0 = K₀ + V₀ + mgℓ):
@@ -35,6 +39,7 @@ E_mech,0 = K₀ + V₀ + mgℓ):
 
 from __future__ import annotations
 
+import math
 import time
 from functools import partial
 from pathlib import Path
@@ -45,11 +50,11 @@ import xarray as xr
 from ..initial import initial_conditions
 from ..methods import METHODS
 from ..physics import physics_of_scene
-from .common import (StudyError, cached_point, dim_name, expand_sweep, parse_method, point_key, progress_bar,
-                     stack_points, start_study, study_history, study_name, study_netcdf_path, study_options,
+from .common import (StudyError, cached_point, closing_section, dim_name, expand_sweep, parse_method, point_key,
+                     progress_bar, stack_points, step_text, start_study, study_history, study_name, study_netcdf_path, study_options,
                      study_scene, write_netcdf_atomic, write_report, write_table)
 from .tools import (NODE_VALUES_NOTE, continuous_kelvin_noether_residual, drift_fit, energy_errors,
-                    kelvin_noether_residual, run_spec)
+                    kelvin_noether_residual, repeat_timing, run_spec)
 
 EXTRA_KEYS = ()
 SWEEP_KEY = "fluid.viscosity"
@@ -58,9 +63,14 @@ DEFAULT_OPTIONS = {
     "cost_base": "vi",      # the method whose step is h_base
     "t_end": 1000.0,        # s, simulated time (the same for every method)
     "outputs": 2000,        # stored nodes per run (about)
-    "newton_cost": 4.0,     # rhs-evaluation equivalents per Newton solve
+    "newton_cost": 4.0,     # rhs-evaluation equivalents per Newton solve (the counted cost, reported)
     "kn_steps": 2000,       # steps of the every = 1 window for the Kelvin–Noether residual
+    "calibration_steps": 2000,   # steps of a calibration run
+    "calibration_time": 0.3,     # s of timed repeats per calibration measurement, at least
+    "calibration_rtol": 0.02,    # the fixed-point iteration for h stops at this relative change
 }
+#: the calibration iterates h at most this many times per method
+CALIBRATION_ITERATIONS = 4
 
 
 def options(study: dict) -> dict:
@@ -83,10 +93,10 @@ def validate(study: dict) -> None:
     for m in methods:
         if parse_method(m)["method"] == "reference":
             raise StudyError("methods: 'reference' is the ground truth, not a compared method")
-    for k in ("h_base", "t_end", "newton_cost"):
+    for k in ("h_base", "t_end", "newton_cost", "calibration_time", "calibration_rtol"):
         if not (isinstance(opt[k], (int, float)) and opt[k] > 0):
             raise StudyError(f"options.{k}: must be a number > 0")
-    for k in ("outputs", "kn_steps"):
+    for k in ("outputs", "kn_steps", "calibration_steps"):
         if not (isinstance(opt[k], int) and opt[k] >= 10):
             raise StudyError(f"options.{k}: must be an integer ≥ 10")
 
@@ -97,32 +107,108 @@ def step_cost(spec: dict, opt: dict) -> float:
     return m.evaluations_per_step * (float(opt["newton_cost"]) if m.family == "vi" else 1.0)
 
 
-def equal_cost_steps(specs: list, opt: dict) -> dict:
-    """label → (h, steps, every): h ∝ cost per step, the same simulated time."""
+def counted_cost_steps(specs: list, opt: dict) -> dict:
+    """label → h (s) at equal COUNTED cost per simulated second: h ∝ the
+    counted cost of a step (the calibration's first guess)."""
     base = next(s for s in specs if s["label"] == opt["cost_base"])
-    out = {}
+    return {s["label"]: float(opt["h_base"]) * step_cost(s, opt) / step_cost(base, opt) for s in specs}
+
+
+def calibrate(specs: list, opt: dict, cost_per_step) -> dict:
+    """label → (h (s), measured cost per step at that h (s)): each method's
+    step at equal measured cost per simulated second, ``cost_per_step(spec, h)``
+    being the measurement.  The cost reference ``opt["cost_base"]`` keeps
+    h_base; the others start from the counted cost and iterate h ← c(h) / C
+    (C: the reference's cost per simulated second) until the next h would
+    differ by less than ``calibration_rtol`` (so c(h)/h is within that of C),
+    at most :data:`CALIBRATION_ITERATIONS` times."""
+    guess = counted_cost_steps(specs, opt)
+    base = next(s for s in specs if s["label"] == opt["cost_base"])
+    hb = float(opt["h_base"])
+    cb = float(cost_per_step(base, hb))
+    target = cb / hb  # s of kernel per simulated s
+    out = {base["label"]: (hb, cb)}
     for s in specs:
-        h = float(opt["h_base"]) * step_cost(s, opt) / step_cost(base, opt)
-        steps = int(round(float(opt["t_end"]) / h))
-        every = max(1, steps // int(opt["outputs"]))
-        steps = max(every, (steps // every) * every)
-        out[s["label"]] = (h, steps, every)
+        if s["label"] == base["label"]:
+            continue
+        h = guess[s["label"]]
+        c = float(cost_per_step(s, h))
+        for _ in range(CALIBRATION_ITERATIONS):
+            h_new = c / target
+            if abs(h_new / h - 1.0) < float(opt["calibration_rtol"]):
+                break
+            h = h_new
+            c = float(cost_per_step(s, h))
+        out[s["label"]] = (h, c)  # c was measured at this h
     return out
 
 
-def point(scene, spec: dict, h: float, steps: int, every: int, kn_steps: int) -> xr.Dataset:
+def plan_steps(h: float, opt: dict) -> tuple[float, int, int]:
+    """(h, steps, every) of a long run with step h: about t_end simulated
+    seconds, about ``outputs`` stored nodes."""
+    steps = max(1, int(round(float(opt["t_end"]) / h)))
+    every = max(1, steps // int(opt["outputs"]))
+    steps = max(every, (steps // every) * every)
+    return float(h), steps, every
+
+
+def long_run_kernel(specs: list, members: int, opt: dict) -> str:
+    """The kernel every run of the study uses (the calibration's too): the one
+    the cost reference's long run would pick (:func:`liethermo.simulate.kernel_for`)."""
+    from ..simulate import kernel_for
+
+    base = next(s for s in specs if s["label"] == opt["cost_base"])
+    return kernel_for(base["method"], members, int(round(float(opt["t_end"]) / float(opt["h_base"]))))
+
+
+def measured_cost_per_step(scene, kernel: str, opt: dict):
+    """``cost_per_step(spec, h)`` for :func:`calibrate`: the kernel wall time per
+    step (s) of the scene's ensemble, warm, minimum over repeats.  A timed run
+    takes at least ``calibration_steps`` steps, and more until it lasts a
+    quarter of ``calibration_time`` (a long run is one or a few kernel calls:
+    what a call costs besides its steps must not show here either)."""
+    N = int(scene["ensemble"]["members"])
+    phys = physics_of_scene(scene, N)
+    om, R = initial_conditions(scene)
+
+    def cost(spec: dict, h: float) -> float:
+        n = int(opt["calibration_steps"])
+        run_spec(phys, om, R, h, n, spec, every=n, kernel=kernel, compile_only=True)
+        w = run_spec(phys, om, R, h, n, spec, every=n, kernel=kernel).wall_time
+        want = 0.25 * float(opt["calibration_time"])
+        if w < want:
+            n = int(math.ceil(n * min(want / max(w, 1e-9), 1000.0)))
+        walls = repeat_timing(lambda: run_spec(phys, om, R, h, n, spec, every=n, kernel=kernel),
+                              float(opt["calibration_time"]), measure=lambda tr: tr.wall_time)
+        return float(walls.min()) / n
+
+    return cost
+
+
+def calibration_point(scene, specs: list, opt: dict, kernel: str) -> xr.Dataset:
+    """The calibration as a dataset (cached with the study's points: a resumed
+    study keeps its steps)."""
+    cal = calibrate(specs, opt, measured_cost_per_step(scene, kernel, opt))
+    labels = [s["label"] for s in specs]
+    return xr.Dataset({"h": ("scheme", [cal[lab][0] for lab in labels]),
+                       "cost_per_step": ("scheme", [cal[lab][1] for lab in labels])},
+                      coords={"scheme": labels}, attrs={"kernel": kernel})
+
+
+def point(scene, spec: dict, h: float, steps: int, every: int, kn_steps: int, kernel: str = "auto") -> xr.Dataset:
     """One (viscosity, method) point: long run (every-th node) and the every = 1 window."""
     N = int(scene["ensemble"]["members"])
     phys = physics_of_scene(scene, N)
     om, R = initial_conditions(scene)
-    tr = run_spec(phys, om, R, h, steps, spec, every=every)
+    run_spec(phys, om, R, h, steps, spec, every=every, kernel=kernel, compile_only=True)
+    tr = run_spec(phys, om, R, h, steps, spec, every=every, kernel=kernel)
     err = energy_errors(tr, om, R)
     rel = err["node"] / err["scale"][:, None]
     slope, spread = drift_fit(tr.times, rel)
     with np.errstate(invalid="ignore"):
         gdef = np.nanmax(np.abs(np.linalg.norm(tr.gamma, axis=-1) - 1.0), axis=1)
         arel = np.abs(rel)
-    win = run_spec(phys, om, R, h, min(kn_steps, steps), spec, every=1)
+    win = run_spec(phys, om, R, h, min(kn_steps, steps), spec, every=1, kernel=kernel)
     t = tr.times
     q = np.array([0.05, 0.5, 0.95])
     band = np.quantile(np.where(np.isfinite(arel), arel, np.inf), q, axis=0, method="inverted_cdf")
@@ -154,7 +240,8 @@ UNITS = {
     "status": ("1", "member status (0 ok, 1 newton_not_converged, 2 non_finite)"),
     "relative_energy_error_quantiles": ("1", "quantiles over members of |E_k - E_0| / E_mech,0, node values"),
     "kernel_time": ("s", "kernel wall time of the long run"),
-    "step": ("s", "time step h of the method (equal cost per simulated second)"),
+    "step": ("s", "time step h of the method (equal measured cost per simulated second, calibrated)"),
+    "calibrated_cost": ("s", "kernel wall time per simulated second of the calibration run at this step"),
     "steps": ("1", "steps of the long run"),
 }
 
@@ -165,17 +252,29 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
 
     s, outdir, opt = start_study(study, outdir, reduced, validate, options)
     specs = [parse_method(m) for m in s["methods"]]
-    plan = equal_cost_steps(specs, opt)
     points = expand_sweep(s["sweep"])
     t_wall = time.perf_counter()
+    scene0 = study_scene(s, points[0])
+    kernel = long_run_kernel(specs, int(scene0["ensemble"]["members"]), opt)
+    cal_opt = {k: opt[k] for k in ("h_base", "cost_base", "newton_cost", "calibration_steps", "calibration_time",
+                                   "calibration_rtol")}
+    plan: dict = {}  # (viscosity, label) → (h, steps, every)
+    calibrated: dict = {}  # (viscosity, label) → kernel wall per simulated s of the calibration (s)
     tasks = []
-    for pt in points:
+    for pt in points:  # a calibration per viscosity: the cost of a step depends on the forces present
+        mu = float(pt[SWEEP_KEY])
+        sc_pt = study_scene(s, pt)
+        cal = cached_point(outdir, point_key({"study": "long_drift", "calibration": cal_opt, "scene": sc_pt,
+                                              "specs": specs, "kernel": kernel}),
+                           partial(calibration_point, sc_pt, specs, opt, kernel))
         for spec in specs:
-            h, steps, every = plan[spec["label"]]
+            lab = spec["label"]
+            plan[mu, lab] = h, steps, every = plan_steps(float(cal["h"].sel(scheme=lab)), opt)
+            calibrated[mu, lab] = float(cal["cost_per_step"].sel(scheme=lab)) / h
             sc = study_scene(s, dict(pt, **{"integrator.h": h}))
             key = point_key({"study": "long_drift", "scene": sc, "spec": spec, "h": h, "steps": steps,
-                             "every": every, "kn": opt["kn_steps"]})
-            tasks.append((pt, spec, key, (sc, spec, h, steps, every, int(opt["kn_steps"]))))
+                             "every": every, "kn": opt["kn_steps"], "kernel": kernel})
+            tasks.append((pt, spec, key, (sc, spec, h, steps, every, int(opt["kn_steps"]), kernel)))
     if dask is not None:
         from ..distributed import map_cached_points
 
@@ -191,18 +290,18 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
     # the long runs have different time grids: keep the bands per method on a normalised index
     allpts = [dict(pt, scheme=spec["label"]) for pt, spec, _, _ in tasks]
     per = []
-    for d in dss:
+    for (pt, spec, _, _), d in zip(tasks, dss):
         per.append(d.drop_vars(["relative_energy_error_quantiles", "time"]).assign(
-            step=((), float(d.attrs["h"])), steps=((), int(d.attrs["steps"]))))
+            step=((), float(d.attrs["h"])), steps=((), int(d.attrs["steps"])),
+            calibrated_cost=((), calibrated[float(pt[SWEEP_KEY]), spec["label"]])))
     ds = stack_points(per, allpts, [SWEEP_KEY, "scheme"])
     for k, (u, ln) in UNITS.items():
         if k in ds:
             ds[k].attrs.update(units=u, long_name=ln)
     dim = dim_name(SWEEP_KEY)
     ds[dim].attrs.update(units="kg m-1 s-1", long_name="fluid viscosity mu (sweep)")
-    scene0 = study_scene(s, points[0])
     ds.attrs.update(study=study_name(s), kind="long_drift", reduced=int(reduced), t_end=float(opt["t_end"]),
-                    cost="equal rhs-evaluation equivalents per simulated second",
+                    cost="equal measured kernel wall time per simulated second (calibrated)", kernel=kernel,
                     newton_cost=float(opt["newton_cost"]), members=int(scene0["ensemble"]["members"]),
                     seed=int(scene0["ensemble"]["seed"]), values="node values")
     nc = write_netcdf_atomic(ds, study_netcdf_path(s, outdir),
@@ -210,12 +309,15 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
 
     rows = []
     for (pt, spec, _, _), d in zip(tasks, dss):
-        h, steps, every = plan[spec["label"]]
+        mu = float(pt[SWEEP_KEY])
+        h, steps, every = plan[mu, spec["label"]]
         dr = d["drift_rate"].values
         ok = d["status"].values == 0
         rows.append({
             "μ (kg m⁻¹ s⁻¹)": float(pt[SWEEP_KEY]), "method": spec["label"], "h (s)": h, "steps": steps,
-            "cost/step (rhs eval.)": step_cost(spec, opt),
+            "counted cost (rhs eval. per simulated s)": step_cost(spec, opt) / h,
+            "calibrated cost (s per simulated s)": calibrated[mu, spec["label"]],
+            "kernel wall per simulated s (s)": float(d["kernel_time"]) / (steps * h),
             "median drift rate (s⁻¹)": float(np.median(dr[ok])) if ok.any() else float("nan"),
             "median |drift rate| (s⁻¹)": float(np.median(np.abs(dr[ok]))) if ok.any() else float("nan"),
             "median oscillation amplitude (1)": float(np.median(d["oscillation_amplitude"].values[ok]))
@@ -224,7 +326,6 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
             "max ||Γ|−1| (1)": float(np.nanmax(d["gamma_defect"].values)),
             "max discrete KN residual (1)": _nanmax(d["kelvin_noether_discrete"].values),
             "max continuous KN defect (1)": _nanmax(d["kelvin_noether_continuous"].values),
-            "kernel wall per simulated s (s)": float(d["kernel_time"]) / float(opt["t_end"]),
             "failed": int((~ok).sum()),
         })
     df = pd.DataFrame(rows)
@@ -236,20 +337,26 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
         write_table(df, outdir, "long_drift", f"Energy drift at equal cost per simulated second "
                     f"({members} members, t_end = {opt['t_end']:g} s, node values)"),
         _finding(df),
+        _cost_note(df, opt["cost_base"]),
         f"Scene `{scene0['scene']['name']}` (the paper's body), {members} members with random initial "
-        f"conditions (seed {int(scene0['ensemble']['seed'])}), swept over the viscosity. **Equal cost:** each "
-        f"method's h is h_base × cost/step ÷ cost/step of `{opt['cost_base']}` (h_base = {opt['h_base']:g} s), "
-        f"the cost of a step counted in right-hand-side evaluations (RK2 2, RK4 4; a Newton solve of the "
-        f"variational integrators = {opt['newton_cost']:g} evaluations, and vi / vi4 / vi6 take 1 / 3 / 9 solves "
-        f"per step). The column *kernel wall per simulated s* is what the runs cost on the machine that "
-        f"produced this report: where it differs between methods, the counted cost did not match the measured "
-        f"one. Drift rate: per-member least-squares slope of (E_k − E₀)/E_mech,0 against t; oscillation "
+        f"conditions (seed {int(scene0['ensemble']['seed'])}), swept over the viscosity. **Equal cost, measured:** "
+        f"`{opt['cost_base']}` runs at h_base = {opt['h_base']:g} s; every other method's h comes from a "
+        f"calibration at each viscosity (the forces present change the cost of a step) that times its kernel (`{kernel}`, warm, "
+        f"the same members and threads as the long runs; {opt['calibration_steps']} steps, minimum over repeats "
+        f"of at least {float(opt['calibration_time']):g} s) and iterates h until its kernel wall time per "
+        f"simulated second equals the reference's (*calibrated cost*). *Kernel wall per simulated s* is what "
+        f"each long run then cost (one run, on a machine others share: expect a few per cent of noise, more "
+        f"where the machine was busy). *Counted cost* is the same step's cost in right-hand-side evaluations "
+        f"(RK2 2, RK4 4 per step; a Newton solve of the variational integrators counted as "
+        f"{opt['newton_cost']:g} evaluations, vi / vi4 / vi6 taking 1 / 3 / 9 solves per step): where it "
+        f"differs between methods, counting would not have given equal cost. Drift rate: per-member least-squares slope of (E_k − E₀)/E_mech,0 against t; oscillation "
         f"amplitude: RMS about that line. Kelvin–Noether residuals from a window of {opt['kn_steps']} steps "
         f"stored with every = 1 (discrete law: variational integrators; continuous law by the trapezoid rule: "
         f"every method).",
         NODE_VALUES_NOTE,
         "![energy error against time](long_drift_error.png)\n\n![drift rate against viscosity](long_drift_rate.png)",
         f"netCDF: `{nc.name}`. Study wall time {wall:.1f} s.",
+        _closing(df, opt, members),
     ]
     return write_report(outdir, "Long drift: energy error of structure-preserving and Runge–Kutta methods "
                         "at equal cost" + (" (reduced)" if reduced else ""), sections)
@@ -259,6 +366,37 @@ def _nanmax(a) -> float:
     a = np.asarray(a, float)
     a = a[np.isfinite(a)]
     return float(a.max()) if a.size else float("nan")
+
+
+def _closing(df, opt, members: int) -> str:
+    """The cheapest method per level of the energy error over the whole sweep
+    (per method: its worst viscosity), at its measured cost per simulated second."""
+    pts = []
+    for m, g in df.groupby("method", sort=False):
+        err = g["median max|dE|/Emech0 (1)"].max() if not g["failed"].any() else float("inf")
+        pts.append({"method": m, "error": float(err), "cost": float(g["kernel wall per simulated s (s)"].mean()),
+                    "setting": step_text(g["h (s)"])})
+    mus = ", ".join(f"{mu:g}" for mu in df["μ (kg m⁻¹ s⁻¹)"].unique())
+    return closing_section(pts, regime=f"μ ∈ {{{mus}}} kg m⁻¹ s⁻¹, t_end = {float(opt['t_end']):g} s, "
+                                       f"{members} members",
+                           error="median over members of max_k |E_k − E₀|/E_mech,0 (node values), at the "
+                                 "method's worst viscosity (1)",
+                           cost="kernel wall time per simulated second, mean over the viscosities (s) — equal "
+                                "by calibration, so the methods reaching a level tie on cost within the noise")
+
+
+def _cost_note(df, base: str) -> str:
+    """One sentence per viscosity: the spread of the measured kernel wall per
+    simulated second over the methods, and of the counted cost."""
+    lines = ["**Cost (measured and counted).**", ""]
+    for mu, g in df.groupby("μ (kg m⁻¹ s⁻¹)", sort=False):
+        w = g["kernel wall per simulated s (s)"]
+        c = g["counted cost (rhs eval. per simulated s)"]
+        lines.append(f"- μ = {mu:g} kg m⁻¹ s⁻¹: kernel wall per simulated second from {w.min():.3g} s "
+                     f"({g.loc[w.idxmin(), 'method']}) to {w.max():.3g} s ({g.loc[w.idxmax(), 'method']}), "
+                     f"a spread of {w.max() / w.min():.2f}×; the counted cost of the same steps spreads "
+                     f"{c.max() / c.min():.2f}× (from {c.min():.3g} to {c.max():.3g} rhs evaluations per s).")
+    return "\n".join(lines)
 
 
 def _finding(df) -> str:
@@ -324,7 +462,7 @@ def _rate_figure(df, outdir: Path) -> Path:
     for i, (m, g) in enumerate(df.groupby("method", sort=False)):
         xs = [x[mu] for mu in g["μ (kg m⁻¹ s⁻¹)"]]
         ax.semilogy(xs, np.clip(g["median |drift rate| (s⁻¹)"], 1e-20, None), "o-", color=f"C{i}",
-                    label=f"{m} (h = {g['h (s)'].iloc[0]:.3g} s)")
+                    label=f"{m} ({step_text(g['h (s)'])})")
     ax.set_xticks(range(len(mus)), [f"{mu:g}" for mu in mus])
     ax.set_xlabel("viscosity μ (kg m⁻¹ s⁻¹)")
     ax.set_ylabel("median |drift rate| (s⁻¹), node values")

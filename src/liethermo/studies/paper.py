@@ -35,7 +35,7 @@ import xarray as xr
 from ..runner import run_scene
 from .common import (StudyError, cached_point, method_overrides, parse_method, point_key, progress_bar,
                      resolve_study, study_name, study_netcdf_path, study_scene, write_netcdf_atomic,
-                     write_report, write_table, study_history)
+                     write_report, write_table, study_history, closing_fact, kept_laws)
 from .tools import NODE_VALUES_NOTE
 
 EXTRA_KEYS = ()
@@ -188,7 +188,30 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
              + ", ".join(f"`{f.name}`" for f in figs) + f"; netCDF: `{nc.name}`. "
              f"Wall time {time.perf_counter() - t_start:.1f} s.")
     return write_report(outdir, f"Paper study: {study_name(study)}" + (" (reduced)" if reduced else ""),
-                        [table, notes, NODE_VALUES_NOTE, runs_table])
+                        [table, notes, NODE_VALUES_NOTE, runs_table,
+                         _closing(runs, [sp["label"] for sp, _ in figure_runs], h)])
+
+
+def _closing(runs: dict, labels: list, h: float) -> str:
+    """The closing section: the paper's runs are not timed, so the analogous
+    fact — each figure run's error against the reference at the paper's h."""
+    ref = runs["reference_paper"]
+    rows = []
+    for lab in labels:
+        d = runs[f"paper_{lab}"]
+        if d["gamma"].shape != ref["gamma"].shape:
+            continue
+        e = float(np.nanmax(np.linalg.norm(d["gamma"].values - ref["gamma"].values, axis=-1)))
+        rows.append({"method": lab, "max_t |Γ − Γ_ref| (1)": e if int(d["status"]) == 0 else float("inf"),
+                     "keeps": kept_laws(lab)})
+    ranked = sorted(rows, key=lambda r: r["max_t |Γ − Γ_ref| (1)"])
+    sentence = ("**Most accurate at the paper's step:** " + "; then ".join(
+        f"{r['method']} ({r['max_t |Γ − Γ_ref| (1)']:.2e})" for r in ranked) + ".") if ranked else ""
+    return closing_fact("the paper's scene", f"The paper's runs record no wall time, so this study cannot name the "
+                        f"method that reaches an error level at least cost (that needs timed runs at several steps: "
+                        f"the work_precision study); what it measures is each method's error at the paper's "
+                        f"h = {h:g} s:", rows, "Error of each figure run against the reference (node values)",
+                        sentence)
 
 
 def _cay(w: np.ndarray, v: np.ndarray) -> np.ndarray:

@@ -49,7 +49,7 @@ from ..physics import Physics, kinetic_energy, physics_of_scene, potential_energ
 from ..simulate import simulate
 from .common import (fmt, parse_method, study_options, StudyError, cached_point, point_key, progress_bar, study_name,
                      study_netcdf_path, study_scene, write_netcdf_atomic, write_report, write_table, start_study,
-                     study_history)
+                     study_history, closing_fact, kept_laws)
 from .tools import NODE_VALUES_NOTE, run_spec
 
 EXTRA_KEYS = ()
@@ -145,6 +145,33 @@ def run_method(phys, om, R, h, steps, method: str, ref):
         growth = np.nanmax(np.where(np.isfinite(Em), Em, np.nan), axis=1) / Em0
         gdef = np.nanmax(np.abs(np.linalg.norm(tr.gamma, axis=-1) - 1.0), axis=1)
     return tr, dict(error_max=err_max, error_end=err_end, energy_growth=growth, gamma_defect=gdef)
+
+
+def _closing(count_rows: list) -> str:
+    """The closing section: this study times nothing, so its analogous fact —
+    how large a step angle h|Ω₀| each method keeps accurate (or bounded) at
+    every κ, and how many map cells it gets accurate — ranked."""
+    acc, bnd = "largest h|Ω₀| accurate at every κ (rad)", "largest h|Ω₀| bounded at every κ (rad)"
+    rows = [{"method": r["method"], "accurate cells": r["accurate"], acc: r["largest h|Ω₀| accurate at every κ"],
+             bnd: r["largest h|Ω₀| bounded at every κ"], "keeps": kept_laws(r["method"])} for r in count_rows]
+    cells = sum(r[c] for c in CLASSES for r in count_rows[:1])
+    said = []
+    for key, what in ((acc, "accurate"), (bnd, "bounded")):
+        ranked = sorted((r for r in rows if np.isfinite(r[key])), key=lambda r: -r[key])
+        if ranked:
+            best = [r["method"] for r in ranked if r[key] == ranked[0][key]]
+            said.append(f"the largest step {what} at every κ is h|Ω₀| = {ranked[0][key]:g} rad "
+                        f"({' and '.join(best)})")
+        else:
+            said.append(f"no method is {what} at every κ at any h|Ω₀| of the map")
+    most = max(r["accurate cells"] for r in rows)
+    said.append(f"most accurate cells: {' and '.join(r['method'] for r in rows if r['accurate cells'] == most)} "
+                f"({most} of {cells})")
+    return closing_fact("stability map", "The stability study times no run, so it cannot say which method reaches "
+                        "an error level at least cost (that needs wall times beside the errors: the work_precision "
+                        "study); what it measures instead is how large a step each method takes and stays accurate "
+                        "or bounded:", rows, "Largest step per method (map cells, every κ)",
+                        "**Largest step here:** " + "; ".join(said) + ".")
 
 
 def classify(status, error_max, growth, gdef, threshold, growth_limit):
@@ -545,6 +572,7 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
     _figure(maps, methods, outdir, opt)
     wall = time.perf_counter() - t_wall
     sections.append(f"netCDF: `{nc.name}`. Study wall time {wall:.1f} s.")
+    sections.append(_closing(count_rows))
     return write_report(outdir, "Stability: bounded and accurate regimes, hard cases, Newton limits", sections)
 
 

@@ -37,6 +37,25 @@ def run_spec(phys: Physics, omega0, R0, h: float, steps: int, spec: dict, **kw) 
     return simulate(phys, omega0, R0, h, steps, spec["method"], **method_kwargs(spec), **kw)
 
 
+def repeat_timing(fn, min_time: float, measure=None, max_repeats: int = 1000) -> np.ndarray:
+    """Wall times (s) of repeated calls of ``fn``: at least one, and until
+    ``min_time`` s have been spent (at most ``max_repeats``).  ``measure(out)``
+    takes the time from what ``fn`` returns (e.g. a Trajectory's kernel
+    ``wall_time``) instead of the wall clock around the call.  Compile before:
+    every call is timed."""
+    import time
+
+    walls = []
+    spent = 0.0
+    while not walls or (spent < min_time and len(walls) < max_repeats):
+        t0 = time.perf_counter()
+        out = fn()
+        dt = time.perf_counter() - t0
+        spent += dt
+        walls.append(float(measure(out)) if measure is not None else dt)
+    return np.asarray(walls)
+
+
 def energy_errors(traj: Trajectory, omega0: np.ndarray, R0: np.ndarray) -> dict:
     """E_k − E₀ (J) on node values (``node``) and, for the variational
     integrators, in the paper's convention (``paper``: step velocity Ω_k with

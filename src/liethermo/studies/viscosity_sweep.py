@@ -39,7 +39,7 @@ from ..initial import initial_conditions
 from ..physics import Physics, physics_of_scene
 from .common import (parse_method, study_options, StudyError, cached_point, expand_sweep, point_key, progress_bar,
                      dim_name, stack_points, study_name, study_netcdf_path, study_scene, write_netcdf_atomic,
-                     write_report, write_table, start_study, study_history)
+                     write_report, write_table, start_study, study_history, closing_fact, kept_laws)
 from .tools import NODE_VALUES_NOTE, run_spec
 
 EXTRA_KEYS = ()
@@ -276,8 +276,30 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
         f"![viscosity sweep]({fig.name})",
         NODE_VALUES_NOTE,
         f"netCDF: `{nc.name}` (dims `{dim}` × `member`). Study wall time {wall:.1f} s.",
+        _closing(ds, dim, opt),
     ]
     return write_report(outdir, "Viscosity sweep: entropy production and settling times", sections)
+
+
+def _closing(ds, dim, opt) -> str:
+    """The closing section: one method and no reference, so no cost against error;
+    the analogous fact measured here is what the one method cost per member-step."""
+    h = float(opt["h"])
+    n = int(ds.sizes["member"])
+    cost = [float(ds["wall_time"].isel({dim: i})) / (n * max(1, int(round(float(ds["t_end"].isel({dim: i})) / h))))
+            for i in range(ds.sizes[dim])]
+    m = str(opt["method"])
+    rows = [{"method": m, "h (s)": h, "wall per member-step (s), least": min(cost),
+             "wall per member-step (s), median": float(np.median(cost)), "keeps": kept_laws(m)}]
+    return closing_fact("viscosity sweep", "This study runs one method and no reference, so it measures no error "
+                        "and cannot name the method that reaches an error level at least cost (that needs several "
+                        "methods against a reference: the work_precision, energy_drift and long_drift studies); "
+                        "what it measures is the cost of its one method:", rows,
+                        "The method of this sweep and its cost (wall time of each viscosity's whole run, over "
+                        "members × steps; a run that compiled the kernels costs more)",
+                        f"**Cost here:** {m} at h = {h:g} s cost {min(cost):.3g} s per member-step at least "
+                        f"(median {float(np.median(cost)):.3g} s over the {len(cost)} viscosities) and keeps "
+                        f"{kept_laws(m)}.")
 
 
 def _figure(ds, dim, opt, tkeys, outdir: Path) -> Path:

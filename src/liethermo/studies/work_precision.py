@@ -5,14 +5,15 @@ Methods compared on the same ensemble of random initial conditions:
 
 * liethermo's kernels — the variational integrators (``vi`` with the
   legendre start, ``vi4``, ``vi6``, or any method spec), RK2 and RK4 — at a
-  ladder of fixed steps h, compared on NODE values (Ω(t_end), Γ(t_end)); they
-  run on **one thread** here, so that their cost per member compares fairly
-  with
+  ladder of fixed steps h, compared on NODE values (Ω(t_end), Γ(t_end)); every
+  level runs on the vectorized block kernel ("fast", the one a large run uses),
+  warm (compiled before timing), on ``threads`` numba threads (default one, so
+  that their cost per member compares fairly with
 * scipy's ``solve_ivp`` (RK45, DOP853) at a ladder of tolerances, which is
   what a user would otherwise reach for.  scipy integrates **one member at a
   time, serially**, calling the numba-jitted right-hand side through a small
   Python wrapper (so the cost is dominated by scipy's per-step Python
-  overhead, not by the model).
+  overhead, not by the model)).
 
 Error of a member: ``max(|Ω − Ω_ref| / |Ω(0)|, |Γ − Γ_ref|)`` (dimensionless),
 the reference being the fixed-step DOP853 with automatic substeps (error
@@ -23,7 +24,10 @@ Options (``[options]`` of the study file): ``t_end`` (s), ``members``,
 ``h`` (list, s), ``scipy_methods``, ``scipy_rtol`` (list), ``scipy_atol_factor``
 (atol = factor·rtol), ``scipy_members`` (members integrated by scipy),
 ``epsilons`` (targets of the time-to-error table), ``threads`` (numba threads
-for the liethermo kernels, default 1).
+for the liethermo kernels, default 1), ``min_timing`` (s of timed repeats per
+level, at least; the cost is their minimum) and ``timing_member_steps`` (a
+timed run integrates the members repeated until it covers at least this many
+member-steps).
 """
 
 from __future__ import annotations
@@ -40,10 +44,10 @@ from ..initial import initial_conditions
 from ..methods import METHODS
 from ..physics import physics_of_scene
 from ..simulate import simulate
-from .common import (parse_method, study_options, StudyError, cached_point, point_key, progress_bar, study_name,
+from .common import (closing_section, parse_method, study_options, StudyError, cached_point, point_key, progress_bar, study_name,
                      study_netcdf_path, study_scene, write_netcdf_atomic, write_report, write_table, start_study,
                      study_history)
-from .tools import NODE_VALUES_NOTE, continuous_rhs, run_spec
+from .tools import NODE_VALUES_NOTE, continuous_rhs, repeat_timing, run_spec
 
 EXTRA_KEYS = ()
 
@@ -58,7 +62,11 @@ DEFAULT_OPTIONS = {
     "epsilons": [1e-3, 1e-6, 1e-9],
     "threads": 1,
     "min_timing": 0.2,
+    "timing_member_steps": 2**18,
 }
+#: the ensemble loop every level is timed on: the one a large run uses
+#: (:func:`liethermo.simulate.kernel_for`), whatever the level's size
+KERNEL = "fast"
 SCIPY_METHODS = ("RK23", "RK45", "DOP853")
 
 
@@ -76,9 +84,11 @@ def validate(study: dict) -> None:
     opt = options(study)
     if not (isinstance(opt["t_end"], (int, float)) and opt["t_end"] > 0):
         raise StudyError("options.t_end: must be a number > 0 (s)")
-    for k in ("members", "scipy_members", "threads"):
+    for k in ("members", "scipy_members", "threads", "timing_member_steps"):
         if not (isinstance(opt[k], int) and opt[k] >= 1):
             raise StudyError(f"options.{k}: must be an integer ≥ 1")
+    if not (isinstance(opt["min_timing"], (int, float)) and opt["min_timing"] > 0):
+        raise StudyError("options.min_timing: must be a number > 0 (s)")
     if opt["scipy_members"] > opt["members"]:
         raise StudyError("options.scipy_members: must be ≤ options.members")
     for k in ("h", "scipy_rtol", "epsilons"):
@@ -124,58 +134,54 @@ def member_errors(omega, gamma, ref_omega, ref_gamma, omega0_norm):
     return np.where(np.isfinite(e), e, np.inf)
 
 
-def timed(fn, min_time: float):
-    """Run ``fn`` at least once and until ``min_time`` s have been spent;
-    returns (result of the first run, minimum wall time of one run)."""
-    best = math.inf
-    first = None
-    spent = 0.0
-    runs = 0
-    while runs == 0 or (spent < min_time and runs < 5):
-        t0 = time.perf_counter()
-        out = fn()
-        dt = time.perf_counter() - t0
-        if first is None:
-            first = out
-        best = min(best, dt)
-        spent += dt
-        runs += 1
-    return first, best
-
-
 def run_kernel_point(method: str, h: float, t_end: float, phys, om, R, w0, threads: int,
-                     min_time: float) -> xr.Dataset:
+                     min_time: float, ref, timing_member_steps: int) -> xr.Dataset:
     """One (method spec, h) level; the whole call runs on ``threads`` numba threads."""
     import numba
 
     old = numba.get_num_threads()
     numba.set_num_threads(threads)
     try:
-        return _kernel_point(method, h, t_end, phys, om, R, w0, threads, min_time)
+        return _kernel_point(method, h, t_end, phys, om, R, w0, threads, min_time, ref, timing_member_steps)
     finally:
         numba.set_num_threads(old)
 
 
-def _kernel_point(method, h, t_end, phys, om, R, w0, threads, min_time):
+def timing_copies(members: int, steps: int, timing_member_steps: int) -> int:
+    """How many copies of the ensemble one timed run integrates: enough that it
+    covers at least ``timing_member_steps`` member-steps, so that what a call
+    costs besides its steps (setting up, the start, dispatch) does not show."""
+    return max(1, -(-int(timing_member_steps) // max(members * steps, 1)))
+
+
+def _kernel_point(method, h, t_end, phys, om, R, w0, threads, min_time, ref, timing_member_steps):
     steps = int(round(t_end / h))
     spec = parse_method(method)
-    run_spec(phys, om, R, h, 2, spec, every=2, threads=threads)  # compile / warm up, same shapes
-    tr, wall = timed(lambda: run_spec(phys, om, R, h, steps, spec, every=steps, threads=threads), min_time)
+    kw = dict(threads=threads, kernel=KERNEL)
+    run_spec(phys, om, R, h, steps, spec, every=steps, compile_only=True, **kw)  # compile or load from cache
+    tr = run_spec(phys, om, R, h, steps, spec, every=steps, **kw)  # the errors (and a warm-up)
     N = om.shape[0]
-    (ref_O, ref_G), _ = reference_at(phys, om, R, t_end)
+    copies = timing_copies(N, steps, timing_member_steps)
+    idx = np.tile(np.arange(N), copies)
+    tp, tom, tR = phys.take(idx), om[idx], R[idx]
+    walls = repeat_timing(lambda: run_spec(tp, tom, tR, h, steps, spec, every=steps, **kw), min_time)
+    ref_O, ref_G = ref
     err = member_errors(tr.omega[:, -1], tr.gamma[:, -1], ref_O, ref_G, w0)
     m = METHODS[spec["method"]]
     if m.implicit:
         evals = tr.newton_iterations.astype(float)
     else:
         evals = np.full(N, float(m.evaluations_per_step * steps))
+    member_steps = float(copies * N * steps)
     return xr.Dataset({
         "error": ("member", err),
         "evals": ("member", evals),
         "status": ("member", tr.status.astype(np.int8)),
         "newton_max": ("member", tr.newton_max.astype(np.int64)),
         "max_h_omega": ("member", tr.max_h_omega),
-    }, attrs={"wall": wall, "steps": steps, "h": h, "members": N})
+        "wall_repeats": ("repeat", walls / member_steps),
+    }, attrs={"wall": float(np.min(walls)) / (copies * N) * N, "steps": steps, "h": h, "members": N,
+              "timed_members": copies * N, "repeats": walls.size, "kernel": KERNEL, "threads": threads})
 
 
 def run_scipy_point(sp_method: str, rtol: float, atol: float, t_end: float, phys, om, R, w0) -> xr.Dataset:
@@ -206,6 +212,18 @@ def run_scipy_point(sp_method: str, rtol: float, atol: float, t_end: float, phys
         "error": ("member", err), "evals": ("member", nfev), "status": ("member", ok),
         "wall_member": ("member", walls), "scipy_steps": ("member", nsteps),
     }, attrs={"rtol": rtol, "atol": atol, "members": M})
+
+
+def level_spread(rows, methods) -> list[dict]:
+    """Per liethermo method: the median, least and greatest cost per member-step
+    over its levels, and the greatest over the median (1)."""
+    out = []
+    for m in methods:
+        c = np.array([r["wall/member-step (s)"] for r in rows if r["method"] == m], float)
+        med = float(np.median(c))
+        out.append({"method": m, "median cost/member-step (s)": med, "least (s)": float(c.min()),
+                    "greatest (s)": float(c.max()), "greatest / median": float(c.max() / med)})
+    return out
 
 
 def time_to_error(errors, times, eps: float):
@@ -260,7 +278,7 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
     sp_methods = list(opt["scipy_methods"])
     tag = {"study": study_name(s), "scene": scene, "t_end": t_end, "members": N}
     t_wall = time.perf_counter()
-    _, ref_check = reference_at(phys, om, R, t_end, check=True)
+    ref, ref_check = reference_at(phys, om, R, t_end, check=True)
 
     total = len(methods) * len(hs) + len(sp_methods) * len(rtols)
     bar = progress_bar(total, progress, f"{study_name(s)}")
@@ -271,16 +289,21 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
             errs, times = [], []
             implicit = METHODS[parse_method(m)["method"]].implicit
             for h in hs:
-                key = point_key({**tag, "kind": "kernel", "method": m, "h": h, "threads": opt["threads"]})
+                key = point_key({**tag, "kind": "kernel", "method": m, "h": h, "threads": opt["threads"],
+                                 "kernel": KERNEL, "timing": [opt["min_timing"], opt["timing_member_steps"]]})
                 ds = cached_point(outdir, key, lambda m=m, h=h: run_kernel_point(
-                    m, h, t_end, phys, om, R, w0, int(opt["threads"]), float(opt["min_timing"])))
+                    m, h, t_end, phys, om, R, w0, int(opt["threads"]), float(opt["min_timing"]), ref,
+                    int(opt["timing_member_steps"])))
                 steps = int(ds.attrs["steps"])
                 wall_member = float(ds.attrs["wall"]) / N
+                reps = ds["wall_repeats"].values
                 e = float(np.max(ds["error"].values))
                 failed = int(np.sum(ds["status"].values != 0))
                 rows.append({
                     "method": m, "h (s)": h, "rtol": float("nan"), "steps": steps,
                     "wall/member (s)": wall_member, "wall/member-step (s)": wall_member / steps,
+                    "median repeat /member-step (s)": float(np.median(reps)), "repeats": int(reps.size),
+                    "timed members": int(ds.attrs["timed_members"]),
                     "evals/member": float(np.mean(ds["evals"].values)),
                     "eval kind": "Newton iterations" if implicit else "rhs evaluations",
                     "error at t_end (max)": e, "error (median)": float(np.median(ds["error"].values)),
@@ -305,6 +328,7 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
                 rows.append({
                     "method": f"scipy {sm}", "h (s)": float("nan"), "rtol": r, "steps": int(round(nst)),
                     "wall/member (s)": wall_member, "wall/member-step (s)": wall_member / max(nst, 1.0),
+                    "median repeat /member-step (s)": float("nan"), "repeats": 1, "timed members": M,
                     "evals/member": float(np.mean(ds["evals"].values)), "eval kind": "rhs evaluations",
                     "error at t_end (max)": e, "error (median)": float(np.median(ds["error"].values)),
                     "failed members": int(np.sum(ds["status"].values != 0)),
@@ -376,12 +400,14 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
                             "level": ("level", np.arange(L), {"long_name": "step/tolerance level (coarse to fine)", "units": "1"})},
                     attrs={"title": "liethermo work-precision study: time per member-step against error",
                            "study": study_name(s), "t_end": t_end, "members": N, "scipy_members": M,
-                           "kernel_threads": int(opt["threads"]), "values": "node values at t_end",
+                           "kernel_threads": int(opt["threads"]), "kernel": KERNEL,
+                           "timing": "warm kernels; minimum over repeats of at least min_timing s per level",
+                           "min_timing": float(opt["min_timing"]), "values": "node values at t_end",
                            "reference_self_check": ref_check})
     nc = write_netcdf_atomic(ds, study_netcdf_path(s, outdir),
                              history=study_history("work_precision", study, outdir, reduced, history))
 
-    fig = _figure(curves, methods, outdir)
+    fig = _figure(curves, methods, outdir, int(opt["threads"]))
     wall = time.perf_counter() - t_wall
 
     import pandas as pd
@@ -393,9 +419,14 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
         f"Scene `{scene['scene']['name']}`, {N} members with random initial conditions "
         f"(seed {scene['ensemble']['seed']}), t_end = {t_end:g} s. Error = max over members of "
         f"max(|Ω − Ω_ref|/|Ω(0)|, |Γ − Γ_ref|) at t_end on **node values** (dimensionless; the VI's Ω(t_end) is "
-        f"its node velocity 𝕀⁻¹μ_N). Cost per member-step: wall time of the whole `simulate` call (best of "
-        f"repeats) over members × steps; vi4 and vi6 take 3 and 9 Newton solves per step. liethermo kernels "
-        f"run on {opt['threads']} thread(s); "
+        f"its node velocity 𝕀⁻¹μ_N). **Timing.** Every level of every liethermo method runs on the "
+        f"`{KERNEL}` kernel (the vectorized block loop a large run uses) on {opt['threads']} numba thread(s), "
+        f"compiled (or loaded from numba's cache) before anything is timed. A timed run is the whole "
+        f"`simulate` call on the {N} members repeated until the run covers at least "
+        f"{int(opt['timing_member_steps'])} member-steps (so a call's fixed cost does not show at coarse "
+        f"levels), repeated until at least {float(opt['min_timing']):g} s per level were spent; the cost is the "
+        f"**minimum** over the repeats (their median is in the table of all runs), per member-step and per "
+        f"member. vi4 and vi6 take 3 and 9 Newton solves per step; "
         f"scipy `solve_ivp` integrates {M} member(s) **one at a time, serially**, calling the numba-jitted "
         f"right-hand side through a Python wrapper (atol = {opt['scipy_atol_factor']:g}·rtol). "
         f"Reference: fixed-step DOP853 with automatic substeps; |ref − ref(2× substeps)| = {ref_check:.1e}. "
@@ -403,16 +434,26 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
         f"upper bound); \"not reached\" means no level did (round-off floor or too coarse a ladder).",
         NODE_VALUES_NOTE,
         write_table(pd.DataFrame(slope_rows), outdir, "slopes", "Observed slope of log error against log h"),
+        write_table(pd.DataFrame(level_spread(rows, methods)), outdir, "level_costs",
+                    f"Cost per member-step across the ladder (kernel `{KERNEL}`, {opt['threads']} thread(s))"),
         write_table(df, outdir, "work_precision", "All runs"),
         f"![work–precision]({fig.name})",
         f"netCDF: `{nc.name}`. Study wall time {wall:.1f} s (points loaded from the resume cache are not re-timed).",
     ]
     if dask is not None:
         sections.append(f"**Note.** {DASK_NOTE}")
+    sections.append(closing_section(
+        [{"method": r["method"], "error": r["error at t_end (max)"], "cost": r["wall/member (s)"],
+          "setting": f"h = {r['h (s)']:g} s" if np.isfinite(r["h (s)"]) else f"rtol = {r['rtol']:g}"}
+         for r in rows if r["failed members"] == 0],
+        regime=f"scene `{scene['scene']['name']}`, t_end = {t_end:g} s", levels=eps_list,
+        error="max over members of the node-value error at t_end (1)",
+        cost=f"wall time per member (s): liethermo kernels `{KERNEL}` on {opt['threads']} thread(s), scipy serial",
+        outdir=outdir))
     return write_report(outdir, "Work–precision: wall time and evaluations against error at t_end", sections)
 
 
-def _figure(curves: dict, methods: list, outdir: Path) -> Path:
+def _figure(curves: dict, methods: list, outdir: Path, threads: int) -> Path:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -429,7 +470,7 @@ def _figure(curves: dict, methods: list, outdir: Path) -> Path:
     axes[0].set_xlabel("error at t_end, node values (1)")
     axes[0].set_ylabel("wall time per member (s)")
     axes[0].invert_xaxis()
-    axes[0].set_title("work–precision (kernels: 1 thread; scipy: serial)")
+    axes[0].set_title(f"work–precision (kernels: {KERNEL}, {threads} thread(s); scipy: serial)")
     axes[0].legend(fontsize=8)
     axes[0].grid(True, which="both", alpha=0.3)
     axes[1].set_xlabel("h (s)")
