@@ -140,6 +140,8 @@ def chunk_findings(ds, phys: ph.Physics) -> dict:
     if warm.any():
         T = ds["temperature"].values
         put("heating", warm, T[:, -1] - T[:, 0])
+        put("T_start", warm, T[:, 0])
+        put("T_end", warm, T[:, -1])
     grow = warm & ~no_expansion
     if grow.any():
         sigma = ds["entropy"].values - ds["entropy"].values[:, :1]
@@ -211,7 +213,8 @@ def finding_lines(found: dict) -> list[str]:
                 f"                            {_range(found['spin_axis_end'], '.3g', 'deg')} at t = "
                 f"{found['t_end'][1]:g} s (internal friction turns it to the major axis)"]
     if "heating" in found:
-        out.append(f"  heating                   T_end - T_0 = {_range(found['heating'], '.4g', 'K')}")
+        out.append(f"  heating                   T from {_range(found['T_start'], '.1f', 'K')} to "
+                   f"{_range(found['T_end'], '.1f', 'K')}: T_end - T_0 = {_range(found['heating'], '.4g', 'K')}")
     if "inertia_change" in found:
         out.append(f"  inertia (thermal expansion) I(S_end) - I(S_0) = "
                    f"{_range(found['inertia_change'], '+.3g', '%')} of I(S_0)")
