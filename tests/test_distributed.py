@@ -155,6 +155,8 @@ def test_two_workers_equal_in_process(client, tmp_path, which, ref_vi, ref_rk2):
         assert summ.status_counts == ref_summ.status_counts
         assert summ.max_abs_energy_error == ref_summ.max_abs_energy_error
         assert summ.newton_mean == ref_summ.newton_mean
+        assert summ.findings == ref_summ.findings and "exact_omega3" in summ.findings  # merged over the tasks
+        assert summ.physics_notes == ref_summ.physics_notes
     else:
         with cf.open_dataset(ref) as b:
             assert summ.status_counts["non_finite"] == int((b["status"].values != 0).sum()) > 0

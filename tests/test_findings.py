@@ -15,6 +15,7 @@ import re
 import numpy as np
 import pytest
 
+from conftest import OMEGA0, paper_numbers
 from liethermo import plotting
 from liethermo.findings import exact_spherical_top, merge_findings
 from liethermo.runner import ChunkStats, run_scene
@@ -66,16 +67,29 @@ def test_spherical_top_summary_gives_its_error_against_the_exact_solution(spheri
     assert errs[1] < 5e-4  # 2.3e-4 at h = 0.05 s
 
 
+def test_paper_top_summary_gives_its_error_against_the_exact_omega3():
+    """The paper's top is a Lagrange top: Ω₃(t) = Ω₃(0) e^{−ct/I₃} exactly
+    (conftest's numbers); the summary's error is the dataset's against it."""
+    d = paper_numbers()
+    ds, text = _run("paper", **{"integrator.steps": 100, "output.compare": []})
+    t = ds["time"].values if "time" in ds.coords else ds["t"].values
+    om = ds["omega"].values[0]
+    mine = np.abs(om[:, 2] - OMEGA0[2] * np.exp(-d["c"] * t / d["inertia"][2])).max() / np.linalg.norm(OMEGA0)
+    assert _number(text, "max over the run |Omega_3 - exact|/|Omega_0|") == pytest.approx(mine, rel=6e-3), text
+    assert 1e-3 < mine < 3e-2  # the paper's start and h: a first-order error
+
+
 def test_findings_follow_the_physics_not_the_name():
     """The same physics under another name gets the same lines; the paper's
-    top (gravity, a non-spherical inertia) gets no exact-solution line and no
-    |mu| line, and its friction line says "on every axis"."""
+    top (gravity, a non-spherical inertia) gets no spherical-top line and no
+    |mu| line but its exact Omega_3, and its friction line says "on every axis"."""
     _, a = _run("flat_spin", **{"integrator.steps": 300})
     _, b = _run("flat_spin", **{"integrator.steps": 300, "scene.name": "my_body"})
     lines = [ln for ln in a.splitlines() if "|mu|" in ln or "spin axis" in ln or "major axis" in ln]
     assert lines and all(ln in b for ln in lines)
     _, paper = _run("paper", **{"integrator.steps": 20})
     assert "exact solution" not in paper and "|mu|" not in paper and "spin axis" not in paper
+    assert "exact Omega_3" in paper and "exact Omega_3" not in a  # flat_spin: internal friction
     assert re.search(r"Stokes friction +C = 0.0003142 N m s on every axis", paper), paper
 
 

@@ -295,6 +295,11 @@ def test_energy_drift_table_and_figure(energy_drift):
     text = report.read_text()
     assert "node values" in text and "paper convention" in text
     assert ds.sizes["member"] == int(study["reduced"]["scene"]["ensemble"]["members"])
+    # counts of members, next to the members column, not fractions
+    rk2 = df[(df["method"] == "rk2") & (df["h (s)"] == 0.1)].iloc[0]
+    assert rk2["failed members"] == int((ds["status"].sel(scheme="rk2", integrator_h=0.1) != 0).sum()) > 0
+    assert rk2["failed members"] <= rk2["diverged or failed members"] <= rk2["members"]
+    assert f"{rk2['diverged or failed members']} of {rk2['members']} members diverged or failed" in text
 
 
 # ----------------------------------------------------------------------------- paper

@@ -12,6 +12,10 @@ lines:
       S(t) = S₀ + c_v log(1 + I₀|Ω₀|²(1 − e^{−2ct/I₀}) / (2 c_v T₀)),
 
   and the summary gives the run's largest error against it;
+* **Ω₃ exactly** — a Lagrange top (I₁ = I₂, gravity torque along e₃, no
+  internal friction, no thermal expansion; the paper's top): the third
+  component alone is known, Ω₃(t) = Ω₃(0) e^{−C₃t/I₃} (docs/model.md), and
+  the summary gives its largest error;
 * **|μ|** — no external torque (no gravity torque, no Stokes friction):
   |μ| is conserved by the continuous system, and the summary gives its drift;
 * **spin axis** — internal (double-bracket) friction without external
@@ -113,6 +117,16 @@ def chunk_findings(ds, phys: ph.Physics) -> dict:
             produced = e_s[:, -1]
             put("exact_entropy_rel", produced > 0, d_s / np.where(produced > 0, produced, 1.0))
 
+    # the Lagrange top's Ω₃ (I₁ = I₂, gravity torque along e₃, no internal friction)
+    lag = (ok & ~sph & (np.abs(phys.inertia[:, 0] - phys.inertia[:, 1]) <= _RTOL * phys.inertia[:, 2])
+           & ~np.any(phys.gravity_torque[:, :2] != 0.0, axis=-1) & (phys.internal_friction == 0.0) & no_expansion)
+    if lag.any():
+        om0 = ds["initial_omega"].values[lag]
+        exact3 = om0[:, 2:3] * np.exp(-(phys.friction[lag, 2] / phys.inertia[lag, 2])[:, None] * t[None, :])
+        with np.errstate(invalid="ignore", divide="ignore"):
+            put("exact_omega3", slice(None),
+                np.max(np.abs(om[lag, :, 2] - exact3), axis=1) / np.linalg.norm(om0, axis=-1))
+
     # |μ| without external torque
     free = ok & no_torque
     if free.any():
@@ -140,6 +154,8 @@ def chunk_findings(ds, phys: ph.Physics) -> dict:
     if warm.any():
         T = ds["temperature"].values
         put("heating", warm, T[:, -1] - T[:, 0])
+        put("T_start", warm, T[:, 0])
+        put("T_end", warm, T[:, -1])
     grow = warm & ~no_expansion
     if grow.any():
         sigma = ds["entropy"].values - ds["entropy"].values[:, :1]
@@ -200,6 +216,10 @@ def finding_lines(found: dict) -> list[str]:
                 f"                            max over the run: |Omega - exact|/|Omega_0| {found['exact_omega'][1]:.2e}, "
                 f"|Gamma - exact| {found['exact_gamma'][1]:.2e},",
                 f"                            |S - exact| {found['exact_entropy'][1]:.2e} J/K{s_rel}"]
+    if "exact_omega3" in found:
+        out += ["  exact Omega_3             Lagrange top (I_1 = I_2, gravity torque along z): "
+                "Omega_3(0) exp(-C_3 t/I_3);",
+                f"                            max over the run |Omega_3 - exact|/|Omega_0| {found['exact_omega3'][1]:.2e}"]
     if "mu_drift" in found:
         x = found["mu_drift"][1]
         out.append(f"  |mu| (no external torque) max ||mu_k| - |mu_0||/|mu_0| {x:.2e}: {_round_off(x)}")
@@ -211,7 +231,8 @@ def finding_lines(found: dict) -> list[str]:
                 f"                            {_range(found['spin_axis_end'], '.3g', 'deg')} at t = "
                 f"{found['t_end'][1]:g} s (internal friction turns it to the major axis)"]
     if "heating" in found:
-        out.append(f"  heating                   T_end - T_0 = {_range(found['heating'], '.4g', 'K')}")
+        out.append(f"  heating                   T from {_range(found['T_start'], '.1f', 'K')} to "
+                   f"{_range(found['T_end'], '.1f', 'K')}: T_end - T_0 = {_range(found['heating'], '.4g', 'K')}")
     if "inertia_change" in found:
         out.append(f"  inertia (thermal expansion) I(S_end) - I(S_0) = "
                    f"{_range(found['inertia_change'], '+.3g', '%')} of I(S_0)")

@@ -16,9 +16,10 @@ rows of their own, labelled "(paper convention)".
 Per method and h the study reports the median and 5–95 % band over members
 of max_k |E_k − E₀| / E_mech,0, the median final error, a fitted drift rate
 (least-squares slope of (E_k − E₀)/E_mech,0 against t, per member) and the
-fraction of members that failed (status ≠ 0) or diverged (max relative error
+number of members that failed (status ≠ 0) or diverged (max relative error
 > ``diverged_above``).  Failed members count as +inf in every quantile.
-Figures show the quantile bands of |E_k − E₀| / E_mech,0 over time.
+The figure shows the quantile bands of |E_k − E₀| / E_mech,0 over time, one
+panel per method and h; blown-up members are drawn at ``CLIP``.
 """
 
 from __future__ import annotations
@@ -142,8 +143,8 @@ def _summary_row(ds: xr.Dataset, label: str, h: float, opt: dict, sfx: str = "")
         "median final |dE|/Emech0": float(np.quantile(fin, 0.5, method="inverted_cdf")),
         "median drift rate (1/s)": float(np.median(dr_ok)) if dr_ok.size else float("nan"),
         "median |drift rate| (1/s)": float(np.median(np.abs(dr_ok))) if dr_ok.size else float("nan"),
-        "failed": float(np.mean(st != 0)),
-        "diverged or failed": float(np.mean((st != 0) | ~(mx <= opt["diverged_above"]))),
+        "failed members": int(np.sum(st != 0)),
+        "diverged or failed members": int(np.sum((st != 0) | ~(mx <= opt["diverged_above"]))),
     }
 
 
@@ -192,7 +193,6 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
                                                              long_name=f"|E_K - E_0| / E_mech,0 at t_end {what}")
         ds[f"energy_drift_rate{sfx}"].attrs.update(
             units="s-1", long_name=f"least-squares slope of (E_k - E_0)/E_mech,0 in t {what}")
-    ds["newton_iterations_mean"].attrs.update(units="1", long_name="mean Newton iterations per step (vi family)")
     ds["kernel_time"].attrs.update(units="s", long_name="kernel wall time of the point")
     ds["quantile"].attrs.update(units="1", long_name="quantile over members")
     ds["member"].attrs.update(units="1", long_name="ensemble member")
@@ -200,8 +200,8 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
                                                  "resting state K_0 + V_0 + m g l")
     ds["status"].attrs.update(units="1", long_name="member status", flag_values=np.array([0, 1, 2], np.int8),
                               flag_meanings="ok newton_not_converged non_finite")
-    ds["newton_iterations_mean"].attrs.update(units="1", long_name="mean Newton iterations per step "
-                                              "(NaN: explicit method)")
+    ds["newton_iterations_mean"].attrs.update(units="1", long_name="mean Newton iterations per step, summed "
+                                              "over its solves (3 for vi4, 9 for vi6; NaN: explicit method)")
     ds["kernel_time"].attrs.update(units="s", long_name="kernel wall time of the point's ensemble")
     ds["time"].attrs.update(units="s", long_name="time t_k = k h (band grid)")
     ds["quantile"].attrs.update(units="1", long_name="quantile over members")
@@ -220,8 +220,9 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
              "(dimensionless). Rows marked *node values* use Ω(t_k), Γ_k, S_k for every method (`vi` = legendre "
              "start, symmetric entropy update; `vi:node:explicit` = the paper's start and entropy update); rows "
              "marked *paper convention* evaluate the same run's energy with the step velocity Ω_k instead "
-             f"(`energy_error_paper`). 'diverged or failed': status ≠ 0 or max relative error > "
-             f"{opt['diverged_above']:g}. Drift rate: per-member least-squares slope in t (s⁻¹). "
+             f"(`energy_error_paper`). 'failed members': members with status ≠ 0 (they blew up: the state "
+             f"became non-finite, or Newton did not converge), out of 'members'; 'diverged or failed members': "
+             f"those and the members whose max relative error passed {opt['diverged_above']:g}. Drift rate: per-member least-squares slope in t (s⁻¹). "
              f"Wall time {time.perf_counter() - t_start:.1f} s.")
     files = f"netCDF: `{nc.name}`; figures: " + ", ".join(f"`{f.name}`" for f in figs)
     return write_report(outdir, f"Energy-drift study: {study_name(study)}" + (" (reduced)" if reduced else ""),
@@ -254,16 +255,24 @@ def _finding(rows: list, ds: xr.Dataset) -> str:
         rs = sorted(rs, key=lambda r: (not np.isfinite(r["median max|dE|/Emech0"]), r["median max|dE|/Emech0"]))
         out.append(f"- h = {h:g} s: " + "; ".join(
             f"{r['method']} {r['median max|dE|/Emech0']:.3g}"
-            + (f" ({r['diverged or failed']:.0%} diverged or failed)" if r["diverged or failed"] > 0 else "")
+            + (f" ({r['diverged or failed members']} of {r['members']} members diverged or failed)"
+               if r["diverged or failed members"] > 0 else "")
             for r in rs))
     return "\n".join(out)
 
 
 def _figures(ds: xr.Dataset, outdir: Path, keys) -> list[Path]:
+    """One panel per method (rows) and h (columns), so that no band hides
+    another: the 5–95 % band and the median over the members of
+    |E_k − E₀|/E_mech,0 (node values; dashed: the median in the paper's
+    convention).  A member that failed or whose error passed CLIP has blown
+    up: it is drawn at CLIP (dotted line), and the panel's title counts them."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
 
     hdim = dim_name("integrator.h")
     other = {dim_name(k): 0 for k in keys if k != "integrator.h"}
@@ -271,31 +280,53 @@ def _figures(ds: xr.Dataset, outdir: Path, keys) -> list[Path]:
         ds = ds.isel(other)
     hs = ds[hdim].values
     methods = [str(m) for m in ds["scheme"].values]
-    fig, axes = plt.subplots(1, len(hs), figsize=(5.2 * len(hs), 4.8), sharey=True, squeeze=False,
-                             layout="constrained")
+    N = int(ds.sizes["member"])
     t = ds["time"].values
-    for ax, h in zip(axes[0], hs):
-        for i, m in enumerate(methods):
-            for sfx, style in (("", "-"), ("_paper", "--")):
-                q = ds[f"relative_energy_error_quantiles{sfx}"].sel({hdim: h}).values[i]
-                if np.all(np.isnan(q)):
-                    continue
-                # blown-up members (inf, or finite but astronomically large) are drawn at the top, CLIP
-                lo, med, hi = (np.clip(np.where(np.isnan(x), CLIP, x), 1e-17, CLIP) for x in q)
-                c = f"C{i}"
-                if not sfx:
-                    ax.fill_between(t, lo, hi, color=c, alpha=0.18, lw=0)
-                ax.plot(t, med, style, color=c, lw=1.4,
-                        label=f"{m}" + (" — paper convention" if sfx else " — node values"))
-        ax.set_yscale("log")
-        ax.set_ylim(1e-8, 3 * CLIP)
+    later = t > 0  # E_k − E₀ is 0 at t = 0: not on a log axis
+    fig, axes = plt.subplots(len(methods), len(hs), figsize=(1.2 + 3.3 * len(hs), 1.0 + 1.75 * len(methods)),
+                             sharex=True, sharey=True, squeeze=False, layout="constrained")
+    positive, blown = [], False
+    for r, m in enumerate(methods):
+        for c, h in enumerate(hs):
+            ax = axes[r, c]
+            sel = {hdim: h, "scheme": m}
+            q = ds["relative_energy_error_quantiles"].sel(sel).values
+            lo, med, hi = (np.where(np.isnan(x), CLIP, np.minimum(x, CLIP)) for x in q)  # inf, NaN: blown up
+            positive += [x[later & (x > 0)] for x in (lo, med)]
+            ax.fill_between(t[later], lo[later], hi[later], color=f"C{r}", alpha=0.3, lw=0)
+            ax.plot(t[later], med[later], "-", color=f"C{r}", lw=1.4)
+            qp = ds["relative_energy_error_quantiles_paper"].sel(sel).values
+            if not np.all(np.isnan(qp)):
+                medp = np.minimum(np.where(np.isnan(qp[1]), CLIP, qp[1]), CLIP)
+                ax.plot(t[later], medp[later], "--", color="k", lw=1.0)
+            status = ds["status"].sel(sel).values
+            mx = ds["max_relative_energy_error"].sel(sel).values
+            n_blown = int(np.sum((status != 0) | ~(mx < CLIP)))
+            blown |= bool(n_blown) or bool(np.any(hi >= CLIP))
+            title = f"{m}, h = {h:g} s"
+            if n_blown:
+                title += f": {n_blown} of {N} blown up"
+            ax.set_title(title, fontsize=9)
+            ax.set_yscale("log")
+            ax.grid(True, which="major", alpha=0.3)
+    low = min((float(x.min()) for x in positive if x.size), default=1e-8)
+    bottom = 10.0 ** np.floor(np.log10(max(low, 1e-16)))
+    top = 3 * CLIP if blown else 10.0 ** np.ceil(np.log10(max(float(x.max()) for x in positive if x.size)))
+    for ax in axes.ravel():
+        ax.set_ylim(bottom, top)
+        if blown:
+            ax.axhline(CLIP, color="0.4", lw=0.8, ls=":")
+    for ax in axes[-1]:
         ax.set_xlabel("t (s)")
-        ax.set_title(f"h = {h:g} s")
-        ax.grid(True, which="both", alpha=0.3)
-    axes[0, 0].set_ylabel("|E_k − E_0| / E_mech,0 (1)")
-    fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="outside right center", fontsize=8)
-    fig.suptitle(f"energy error over {ds.sizes['member']} members: median (line) and 5–95 % band "
-                 "(node values); dashed: paper convention (median)")
+    fig.supylabel("|E_k − E_0| / E_mech,0 (1), node values")
+    handles = [Patch(color="0.5", alpha=0.3, label="5–95 % of the members"),
+               Line2D([], [], color="0.3", lw=1.4, label="median"),
+               Line2D([], [], color="k", ls="--", lw=1.0, label="median, paper's convention (step velocity)")]
+    if blown:
+        handles.append(Line2D([], [], color="0.4", ls=":", lw=0.8,
+                              label=f"blown up: failed (non-finite), or the error above {CLIP:g}; drawn at {CLIP:g}"))
+    fig.legend(handles=handles, loc="outside lower center", ncol=2, fontsize=8)
+    fig.suptitle(f"energy error over {N} members per method and h")
     path = Path(outdir) / "energy_drift_bands.png"
     fig.savefig(path, dpi=110)
     plt.close(fig)
