@@ -386,6 +386,10 @@ def test_closing_table_names_the_cheapest_method_per_level_from_the_numbers(tmp_
     assert "vi (1 s) and vi4 (1.05 s)" in sentence and "no method reached 1e-09" in sentence
     df = pd.read_csv(tmp_path / "closing.csv")
     assert df.loc[df["cheapest method"] == "vi4", "keeps"].item() == "|Γ| = 1, Kelvin–Noether"
+    # rk2 wins 1e-2 at 0.5 s; the cheapest structure-preserving method there is vi at 1 s: 2×
+    alt = df.set_index("cheapest method")["cheapest keeping |Γ| = 1 and Kelvin–Noether"]
+    assert alt["rk2"] == "vi (2× the cost)" and alt["rk4"] == "vi (2.67× the cost)" and alt["vi"] == "the same"
+    assert "(keeping |Γ| = 1 and Kelvin–Noether: vi (2× the cost))" in sentence
     # change the numbers and the winner changes with them
     cheaper_vi = [dict(p, cost=0.01) if p["method"] == "vi" else p for p in CLOSING_POINTS]
     assert "to 1e-06: vi (0.01 s)" in common.closing_section(cheaper_vi, regime="t", error="e", cost="c",

@@ -457,6 +457,15 @@ def kept_laws(label: str) -> str:
     return ", ".join(kept) if kept else "none of these"
 
 
+def keeps_geometry(label: str) -> bool:
+    """Whether the method of spec ``label`` declares both |Γ| = 1 and the
+    discrete Kelvin–Noether law (the variational family)."""
+    from ..methods import LAW_KELVIN_NOETHER, LAW_UNIT_GAMMA, METHODS
+
+    name = str(label).split(":")[0]
+    return name in METHODS and {LAW_UNIT_GAMMA, LAW_KELVIN_NOETHER} <= set(METHODS[name].laws)
+
+
 def error_levels(errors, count: int = 3) -> list[float]:
     """Up to ``count`` powers of ten, from the least accurate level the data
     reach to the most accurate one, evenly spread over the decades."""
@@ -496,7 +505,9 @@ def closing_section(points, *, regime: str, error: str, cost: str, levels=None, 
                     outdir=None) -> str:
     """The closing section of a study report, from the study's own numbers:
     for each error level, the method that reaches it at least cost and what
-    it keeps (its declared laws), then one sentence naming the winners.
+    it keeps (its declared laws) — and, where it keeps neither |Γ| = 1 nor
+    the Kelvin–Noether law, the cheapest method that keeps both and its cost
+    relative to the winner — then one sentence naming the winners.
 
     ``points``: dicts ``{"method": spec label, "error": …, "cost": …,
     "setting": text (e.g. "h = 0.1 s")}``; ``error`` and ``cost`` say what the
@@ -513,17 +524,27 @@ def closing_section(points, *, regime: str, error: str, cost: str, levels=None, 
         w = r["winners"]
         if not w:
             rows.append({"error ≤": r["level"], "cheapest method": "not reached", "at": "—",
-                         "error": float("nan"), f"cost ({unit})": float("nan"), "keeps": "—"})
+                         "error": float("nan"), f"cost ({unit})": float("nan"), "keeps": "—",
+                         "cheapest keeping |Γ| = 1 and Kelvin–Noether": "—"})
             said.append(f"no method reached {r['level']:.0e}")
             continue
+        geo = None  # the cheapest point reaching the level with a method that keeps |Γ| and Kelvin–Noether
+        if not any(keeps_geometry(p["method"]) for p in w):
+            ok = [p for p in points if keeps_geometry(p["method"]) and np.isfinite(p["error"])
+                  and p["error"] <= r["level"] and np.isfinite(p["cost"])]
+            geo = min(ok, key=lambda p: p["cost"]) if ok else None
+        alt = (f"{geo['method']} ({geo['cost'] / w[0]['cost']:.3g}× the cost)" if geo is not None
+               else "the same" if any(keeps_geometry(p["method"]) for p in w) else "none reached it")
         for p in w:
             rows.append({"error ≤": r["level"], "cheapest method": p["method"], "at": p.get("setting", "—"),
                          "error": float(p["error"]), f"cost ({unit})": float(p["cost"]),
-                         "keeps": kept_laws(p["method"])})
+                         "keeps": kept_laws(p["method"]), "cheapest keeping |Γ| = 1 and Kelvin–Noether": alt})
         names = " and ".join(f"{p['method']} ({p['cost']:.3g} {unit})" for p in w)
         said.append(f"to {r['level']:.0e}: {names}" + (" — a tie within "
-                                                       f"{round(100 * (COST_TIE - 1))} %" if len(w) > 1 else ""))
-    df = pd.DataFrame(rows, columns=["error ≤", "cheapest method", "at", "error", f"cost ({unit})", "keeps"])
+                                                       f"{round(100 * (COST_TIE - 1))} %" if len(w) > 1 else "")
+                    + (f" (keeping |Γ| = 1 and Kelvin–Noether: {alt})" if geo is not None else ""))
+    df = pd.DataFrame(rows, columns=["error ≤", "cheapest method", "at", "error", f"cost ({unit})", "keeps",
+                                     "cheapest keeping |Γ| = 1 and Kelvin–Noether"])
     title = f"Closing: the cheapest method per error level ({regime})"
     footer = (f"Error: {error}. Cost: {cost}. \"keeps\": the laws the method declares "
               f"(`liethermo.methods`) among |Γ| = 1, Kelvin–Noether and entropy monotone.")
