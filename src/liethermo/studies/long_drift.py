@@ -399,13 +399,16 @@ def _closing(df, opt, members: int) -> str:
 
 
 def _cost_note(df, base: str) -> str:
-    """One sentence per viscosity: the spread of the measured kernel wall per
-    simulated second over the methods, and of the counted cost."""
+    """One sentence per viscosity: the spread over the methods of the
+    calibration's costs, of the long runs' kernel wall per simulated second
+    (one run each: the machine's noise shows there), and of the counted cost."""
     lines = ["**Cost (measured and counted).**", ""]
     for mu, g in df.groupby("μ (kg m⁻¹ s⁻¹)", sort=False):
         w = g["kernel wall per simulated s (s)"]
         c = g["counted cost (rhs eval. per simulated s)"]
-        lines.append(f"- μ = {mu:g} kg m⁻¹ s⁻¹: kernel wall per simulated second from {w.min():.3g} s "
+        k = g["calibrated cost (s per simulated s)"]
+        lines.append(f"- μ = {mu:g} kg m⁻¹ s⁻¹: the calibration's costs spread {k.max() / k.min():.2f}×; the long "
+                     f"runs' kernel wall per simulated second goes from {w.min():.3g} s "
                      f"({g.loc[w.idxmin(), 'method']}) to {w.max():.3g} s ({g.loc[w.idxmax(), 'method']}), "
                      f"a spread of {w.max() / w.min():.2f}×; the counted cost of the same steps spreads "
                      f"{c.max() / c.min():.2f}× (from {c.min():.3g} to {c.max():.3g} rhs evaluations per s).")
