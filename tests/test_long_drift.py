@@ -145,9 +145,13 @@ def test_resume_recomputes_nothing(ld, monkeypatch, capsys):
     assert "| 0 | vi |" in capsys.readouterr().out
 
 
-def test_invalid_long_drift_rejected(tmp_path):
-    src = (STUDIES / "long_drift.toml").read_text().replace('cost_base = "vi"', 'cost_base = "vi9"')
+@pytest.mark.parametrize("old, new, needle", [('cost_base = "vi"', 'cost_base = "vi9"', "cost_base"),
+                                              ("kn_steps = 4000", "kn_steps = 4000\nthreads = 0", "threads"),
+                                              ("calibration_time = 0.3", "calibration_time = 0", "calibration_time")])
+def test_invalid_long_drift_rejected(tmp_path, old, new, needle):
+    text = (STUDIES / "long_drift.toml").read_text()
+    assert old in text
     p = tmp_path / "bad.toml"
-    p.write_text(src)
-    with pytest.raises(StudyError, match="cost_base"):
+    p.write_text(text.replace(old, new))
+    with pytest.raises(StudyError, match=needle):
         validate_study(load_study(p))

@@ -7,8 +7,9 @@ integrated over a long horizon (10⁴–10⁶ steps) by the variational
 integrators (``vi``, ``vi4``, ``vi6``) and by RK2 and RK4 **at equal measured
 cost per simulated second**.  A calibration, before the long runs, times each
 method's kernel on the study's ensemble (warm, the same kernel and threads as
-the long runs; the minimum over repeats of at least
-``options.calibration_time`` s) and sets its step so that
+the long runs, every run on ``options.threads`` numba threads, default one:
+timings on one thread vary least on a shared machine; the minimum over
+repeats of at least ``options.calibration_time`` s) and sets its step so that
 
     kernel wall per step (h_m) / h_m = kernel wall per step (h_base) / h_base
 
@@ -68,6 +69,7 @@ DEFAULT_OPTIONS = {
     "calibration_steps": 2000,   # steps of a calibration run
     "calibration_time": 0.3,     # s of timed repeats per calibration measurement, at least
     "calibration_rtol": 0.03,    # the calibration stops when the cost per simulated s is this close
+    "threads": 1,                # numba threads of every run (timings on one thread vary least)
 }
 #: the calibration measures at most this many steps h per method
 CALIBRATION_ITERATIONS = 6
@@ -96,6 +98,8 @@ def validate(study: dict) -> None:
     for k in ("h_base", "t_end", "newton_cost", "calibration_time", "calibration_rtol"):
         if not (isinstance(opt[k], (int, float)) and opt[k] > 0):
             raise StudyError(f"options.{k}: must be a number > 0")
+    if not (isinstance(opt["threads"], int) and opt["threads"] >= 1):
+        raise StudyError("options.threads: must be an integer ≥ 1")
     for k in ("outputs", "kn_steps", "calibration_steps"):
         if not (isinstance(opt[k], int) and opt[k] >= 10):
             raise StudyError(f"options.{k}: must be an integer ≥ 10")
@@ -186,12 +190,14 @@ def measured_cost_per_step(scene, kernel: str, opt: dict):
 
     def cost(spec: dict, h: float) -> float:
         n = int(opt["calibration_steps"])
-        run_spec(phys, om, R, h, n, spec, every=n, kernel=kernel, compile_only=True)
-        w = run_spec(phys, om, R, h, n, spec, every=n, kernel=kernel).wall_time
+        kw = dict(every=n, kernel=kernel, threads=opt["threads"])
+        run_spec(phys, om, R, h, n, spec, compile_only=True, **kw)
+        w = run_spec(phys, om, R, h, n, spec, **kw).wall_time
         want = 0.25 * float(opt["calibration_time"])
         if w < want:
             n = int(math.ceil(n * min(want / max(w, 1e-9), 1000.0)))
-        walls = repeat_timing(lambda: run_spec(phys, om, R, h, n, spec, every=n, kernel=kernel),
+        kw["every"] = n
+        walls = repeat_timing(lambda: run_spec(phys, om, R, h, n, spec, **kw),
                               float(opt["calibration_time"]), measure=lambda tr: tr.wall_time)
         return float(walls.min()) / n
 
@@ -208,20 +214,21 @@ def calibration_point(scene, specs: list, opt: dict, kernel: str) -> xr.Dataset:
                       coords={"scheme": labels}, attrs={"kernel": kernel})
 
 
-def point(scene, spec: dict, h: float, steps: int, every: int, kn_steps: int, kernel: str = "auto") -> xr.Dataset:
+def point(scene, spec: dict, h: float, steps: int, every: int, kn_steps: int, kernel: str = "auto",
+          threads: int | None = None) -> xr.Dataset:
     """One (viscosity, method) point: long run (every-th node) and the every = 1 window."""
     N = int(scene["ensemble"]["members"])
     phys = physics_of_scene(scene, N)
     om, R = initial_conditions(scene)
-    run_spec(phys, om, R, h, steps, spec, every=every, kernel=kernel, compile_only=True)
-    tr = run_spec(phys, om, R, h, steps, spec, every=every, kernel=kernel)
+    run_spec(phys, om, R, h, steps, spec, every=every, kernel=kernel, threads=threads, compile_only=True)
+    tr = run_spec(phys, om, R, h, steps, spec, every=every, kernel=kernel, threads=threads)
     err = energy_errors(tr, om, R)
     rel = err["node"] / err["scale"][:, None]
     slope, spread = drift_fit(tr.times, rel)
     with np.errstate(invalid="ignore"):
         gdef = np.nanmax(np.abs(np.linalg.norm(tr.gamma, axis=-1) - 1.0), axis=1)
         arel = np.abs(rel)
-    win = run_spec(phys, om, R, h, min(kn_steps, steps), spec, every=1, kernel=kernel)
+    win = run_spec(phys, om, R, h, min(kn_steps, steps), spec, every=1, kernel=kernel, threads=threads)
     t = tr.times
     q = np.array([0.05, 0.5, 0.95])
     band = np.quantile(np.where(np.isfinite(arel), arel, np.inf), q, axis=0, method="inverted_cdf")
@@ -278,7 +285,7 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
         mu = float(pt[SWEEP_KEY])
         sc_pt = study_scene(s, pt)
         cal = cached_point(outdir, point_key({"study": "long_drift", "calibration": cal_opt, "scene": sc_pt,
-                                              "specs": specs, "kernel": kernel}),
+                                              "specs": specs, "kernel": kernel, "threads": opt["threads"]}),
                            partial(calibration_point, sc_pt, specs, opt, kernel))
         for spec in specs:
             lab = spec["label"]
@@ -286,8 +293,8 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
             calibrated[mu, lab] = float(cal["cost_per_step"].sel(scheme=lab)) / h
             sc = study_scene(s, dict(pt, **{"integrator.h": h}))
             key = point_key({"study": "long_drift", "scene": sc, "spec": spec, "h": h, "steps": steps,
-                             "every": every, "kn": opt["kn_steps"], "kernel": kernel})
-            tasks.append((pt, spec, key, (sc, spec, h, steps, every, int(opt["kn_steps"]), kernel)))
+                             "every": every, "kn": opt["kn_steps"], "kernel": kernel, "threads": opt["threads"]})
+            tasks.append((pt, spec, key, (sc, spec, h, steps, every, int(opt["kn_steps"]), kernel, opt["threads"])))
     if dask is not None:
         from ..distributed import map_cached_points
 
@@ -315,6 +322,7 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
     ds[dim].attrs.update(units="kg m-1 s-1", long_name="fluid viscosity mu (sweep)")
     ds.attrs.update(study=study_name(s), kind="long_drift", reduced=int(reduced), t_end=float(opt["t_end"]),
                     cost="equal measured kernel wall time per simulated second (calibrated)", kernel=kernel,
+                    kernel_threads=int(opt["threads"]),
                     newton_cost=float(opt["newton_cost"]), members=int(scene0["ensemble"]["members"]),
                     seed=int(scene0["ensemble"]["seed"]), values="node values")
     nc = write_netcdf_atomic(ds, study_netcdf_path(s, outdir),
@@ -355,7 +363,7 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
         f"conditions (seed {int(scene0['ensemble']['seed'])}), swept over the viscosity. **Equal cost, measured:** "
         f"`{opt['cost_base']}` runs at h_base = {opt['h_base']:g} s; every other method's h comes from a "
         f"calibration at each viscosity (the forces present change the cost of a step) that times its kernel (`{kernel}`, warm, "
-        f"the same members and threads as the long runs; {opt['calibration_steps']} steps, minimum over repeats "
+        f"the same members as the long runs, every run on {opt['threads']} numba thread(s); {opt['calibration_steps']} steps, minimum over repeats "
         f"of at least {float(opt['calibration_time']):g} s) and iterates h until its kernel wall time per "
         f"simulated second equals the reference's (*calibrated cost*). *Kernel wall per simulated s* is what "
         f"each long run then cost (one run, on a machine others share: expect a few per cent of noise, more "
