@@ -4,8 +4,7 @@
 file declares in ``Conventions``, the way ``compliance-checker --test=cf:X.Y``
 does, and returns its errors (high priority), warnings (medium), information
 (low) and the checks that raised.  :func:`assert_cf_clean` fails on any error,
-any check that raised, and any warning not in :data:`JUSTIFIED` (the ones
-docs/netcdf.md explains).
+any check that raised, and any warning not in :data:`JUSTIFIED` (empty: no warning is accepted).
 """
 
 from __future__ import annotations
@@ -17,14 +16,9 @@ from pathlib import Path
 
 import netCDF4
 
-#: Warnings the file format accepts on purpose, with the reason in docs/netcdf.md:
-#: vector and matrix components (axis, row, col) to the right of time, so that
-#: each member's record is contiguous and needs no transposition.
-JUSTIFIED = {
-    "§2.4 Dimensions": re.compile(r"^\w+'s spatio-temporal dimensions are not in the recommended order "
-                                  r"T, Z, Y, X .* are (member|variant) \(U\), time \(T\), "
-                                  r"(axis \(U\)|row \(U\), col \(U\))"),
-}
+#: Warnings the file format accepts on purpose (section -> pattern), each with
+#: its reason in docs/netcdf.md.  None today: every file must be warning-free.
+JUSTIFIED: dict = {}
 
 
 @dataclass

@@ -275,7 +275,7 @@ def test_coupling_vi_family_orders_and_bounded_energy(cp):
         g = o[o["method"] == m].sort_values("h (s)", ascending=False)
         p = g["observed order"].dropna().values
         assert p.size and abs(p[-1] - METHODS[m].order_base) < 0.5, (m, p)
-    t_end = float(ds["time"].values[-1])
+    t_end = float(ds["t"].values[-1])
     for m in VI:
         d = ds.sel(scheme=m)
         mx = d["max_relative_energy_error"].values

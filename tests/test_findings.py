@@ -55,7 +55,7 @@ def test_spherical_top_summary_gives_its_error_against_the_exact_solution(spheri
     errs = []
     for h in (0.1, 0.05):
         ds, text = _run("spherical_top", **{"integrator.h": h, "integrator.steps": int(round(10.0 / h))})
-        t = ds["time"].values if "time" in ds.coords else ds["t"].values
+        t = ds["t"].values
         om = ds["omega"].values[0]
         mine = np.abs(np.linalg.norm(om - spherical_top.omega(t), axis=-1)).max() / np.linalg.norm(spherical_top.omega0)
         gam = np.linalg.norm(ds["gamma"].values[0] - spherical_top.gamma(t), axis=-1).max()
@@ -72,7 +72,7 @@ def test_paper_top_summary_gives_its_error_against_the_exact_omega3():
     (conftest's numbers); the summary's error is the dataset's against it."""
     d = paper_numbers()
     ds, text = _run("paper", **{"integrator.steps": 100, "output.compare": []})
-    t = ds["time"].values if "time" in ds.coords else ds["t"].values
+    t = ds["t"].values
     om = ds["omega"].values[0]
     mine = np.abs(om[:, 2] - OMEGA0[2] * np.exp(-d["c"] * t / d["inertia"][2])).max() / np.linalg.norm(OMEGA0)
     assert _number(text, "max over the run |Omega_3 - exact|/|Omega_0|") == pytest.approx(mine, rel=6e-3), text

@@ -6,15 +6,18 @@ studies and their resume cache) passes its dataset through :func:`encode`,
 which derives everything from names, dtypes, dims and units — never from a
 list of variables — so variables added later are encoded the same way:
 
-* **time coordinates** (named ``time``, or with ``standard_name = "time"`` or
-  ``axis = "T"``) in plain seconds get ``units = "seconds since 0001-01-01
-  00:00:00"``, ``calendar = "proleptic_gregorian"``: the stored numbers stay
-  t in seconds (the epoch is a placeholder for the start of the run, not a
-  date); open with ``decode_times=False`` (or :func:`open_dataset`) to get
-  them as plain floats;
+* the run's time is a plain coordinate ``t`` in seconds (``units = "s"``,
+  long_name "time since the start of the run"): it is not a calendar time, so
+  it carries no ``standard_name = "time"`` and plain ``xarray.open_dataset``
+  reads it as float64.  A coordinate that does claim to be a calendar time
+  (named ``time``, or with ``standard_name = "time"`` or ``axis = "T"``) in
+  plain seconds gets ``units = "seconds since 0001-01-01 00:00:00"``,
+  ``calendar = "proleptic_gregorian"`` as CF requires; liethermo writes none;
 * **string coordinate variables** (CF requires coordinate variables to be
   numeric) are stored as CF label variables ``<dim>_label(<dim>)`` listed in
-  the ``coordinates`` attribute of the variables that use the dimension;
+  the ``coordinates`` attribute of the variables that use the dimension, with
+  a ``comment`` giving the one line that selects by label in plain xarray
+  (``ds.set_xindex("axis_label").sel(axis_label="z")``);
   :func:`open_dataset` makes them the dimension's index again;
 * every data variable's ``coordinates`` attribute lists the auxiliary
   coordinates that exist (stale names are dropped); coordinate variables get
@@ -118,7 +121,10 @@ def encode_variables(ds: xr.Dataset) -> xr.Dataset:
                              f"a variable {label!r} exists already")
         var = ds.variables[name]
         values = np.asarray(var.values).astype(str)
-        ds = ds.drop_vars(name).assign_coords({label: xr.Variable((name,), values, dict(var.attrs))})
+        attrs = dict(var.attrs)
+        attrs.setdefault("comment", f"labels of {name}; to select by label in plain xarray: "
+                                    f"ds.set_xindex('{label}').sel({label}={str(values[0])!r})")
+        ds = ds.drop_vars(name).assign_coords({label: xr.Variable((name,), values, attrs)})
     # booleans -> int8 flags (netCDF has no boolean type)
     for name in [n for n, v in ds.variables.items() if v.dtype.kind == "b"]:
         var = ds.variables[name]
@@ -188,16 +194,18 @@ def encode(ds: xr.Dataset, history: str | None = None, conventions: bool = True)
 def decode(ds: xr.Dataset) -> xr.Dataset:
     """Undo what :func:`encode` did for convenience: label variables
     ``<dim>_label(<dim>)`` become the index of ``<dim>`` again (so that
-    ``ds.sel(axis="x")`` works).  Time values are already seconds when the
-    file was opened with ``decode_times=False``.  ``ds`` itself is not modified."""
+    ``ds.sel(axis="x")`` works) and the label variables' selection hint is
+    dropped.  ``ds`` itself is not modified."""
     ds = ds.copy(deep=False)
     for label in [n for n in ds.variables if n.endswith(LABEL_SUFFIX)]:
         var = ds.variables[label]
         dim = label[: -len(LABEL_SUFFIX)]
         if var.dims != (dim,) or dim in ds.variables or not _is_string(var):
             continue
+        attrs = {k: v for k, v in var.attrs.items()
+                 if not (k == "comment" and str(v).startswith(f"labels of {dim}; "))}
         ds = ds.drop_vars(label).assign_coords({dim: xr.Variable((dim,), np.asarray(var.values).astype(str),
-                                                                 dict(var.attrs))})
+                                                                 attrs)})
         for v in ds.variables.values():
             for d in (v.encoding, v.attrs):
                 if "coordinates" in d:

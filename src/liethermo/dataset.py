@@ -83,8 +83,8 @@ def _trajectory_dataset(traj, omega0, R0, member_offset):
     dE = (e["K"] - K0[:, None]) + (e["V"] - V0[:, None]) + e["dU"]
     U = phys.heat_capacity[:, None] * ph.theta(phys, traj.sigma)
     emech0 = ph.mechanical_energy_scale(phys, omega0, R0[:, 2, :])
-    dims_t = ("member", "time")
-    dims_v = ("member", "time", "axis")
+    dims_t = ("member", "t")
+    dims_v = ("member", "t", "axis")
     vi = traj.family == "vi"
     mom = _momentum(traj, e["omega"])
     node_note = ("node velocity I(S_k)^-1 mu_k from the node momentum (discrete Legendre transform)"
@@ -157,14 +157,14 @@ def _trajectory_dataset(traj, omega0, R0, member_offset):
                                              "max Newton iterations in one solve")
     R = traj.attitude
     if R is not None:
-        data["attitude"] = _var(R, ("member", "time", "row", "col"), "1", "attitude R (body to space)")
+        data["attitude"] = _var(R, ("member", "t", "row", "col"), "1", "attitude R (body to space)")
         data["center_of_mass"] = _var(np.einsum("mtij,mj->mti", R, phys.center_of_mass), dims_v, "m",
                                       "centre of mass R G in space, relative to the fixed point")
     coords = {
         "member": _var(np.arange(member_offset, member_offset + N, dtype=np.int64), ("member",), "1",
                        "ensemble member"),
-        "time": _var(traj.times, ("time",), "s", "time t_k = k h", standard_name="time", axis="T"),
-        "step": _var(traj.step_index.astype(np.int64), ("time",), "1", "step index k"),
+        "t": _var(traj.times, ("t",), "s", "time since the start of the run, t_k = k h"),
+        "step": _var(traj.step_index.astype(np.int64), ("t",), "1", "step index k"),
         "axis": xr.Variable(("axis",), np.array(AXIS), attrs={"units": "1", "long_name": "body-frame axis"}),
     }
     return xr.Dataset(data, coords=coords)

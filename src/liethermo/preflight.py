@@ -206,7 +206,7 @@ def estimate(scene: dict) -> Estimate:
             continue
         n = var.dtype.itemsize if var.dtype.kind != "O" else 16
         for d in var.dims[1:]:
-            n *= n_t if d == "time" else ds.sizes[d]
+            n *= n_t if d == "t" else ds.sizes[d]
         layout.append((n, disk_chunk_members(members, n) if var.ndim > 1 else 0))
     per = sum(n for n, _ in layout)
     memory = int(MEMORY_FACTOR * per) + n_t * width * 8

@@ -74,10 +74,10 @@ def _reference(scene, opt: dict) -> xr.Dataset:
     phys = physics_of_scene(scene)
     tr = simulate(phys, om0, R0, h_f, n, "reference")
     dE = energy_errors(tr, om0, R0)["node"]
-    return xr.Dataset({"omega": (("time", "axis"), tr.omega[0]), "gamma": (("time", "axis"), tr.gamma[0]),
-                       "sigma": (("time",), tr.sigma[0]), "energy_error": (("time",), dE[0]),
+    return xr.Dataset({"omega": (("t", "axis"), tr.omega[0]), "gamma": (("t", "axis"), tr.gamma[0]),
+                       "sigma": (("t",), tr.sigma[0]), "energy_error": (("t",), dE[0]),
                        "status": ((), int(tr.status[0]))},
-                      coords={"time": tr.times}, attrs={"h_fine": h_f, "substeps": tr.reference_substeps})
+                      coords={"t": tr.times}, attrs={"h_fine": h_f, "substeps": tr.reference_substeps})
 
 
 def _errors(scene, spec: dict, h: float, opt: dict, ref: xr.Dataset) -> xr.Dataset:

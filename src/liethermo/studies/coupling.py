@@ -203,13 +203,13 @@ def point(scene, spec: dict, opt: dict) -> xr.Dataset:
         "late_energy_drift_rate": ("member", _pad(late, N)),
         "gamma_defect": ("member", _pad(gdef, N)),
         "status": ("member", _pad(tr.status.astype(np.int8), N, np.int8(-1)).astype(np.int8)),
-        "temperature_trace": (("trace", "time"), e["T"][:nt]),
-        "inertia_factor_trace": (("trace", "time"), s[:nt]),
-        "mechanical_energy_ratio_trace": (("trace", "time"), ratio[:nt]),
-        "relative_energy_error_quantiles": (("quantile", "time"), np.quantile(arel, QUANTILES, axis=0)),
+        "temperature_trace": (("trace", "t"), e["T"][:nt]),
+        "inertia_factor_trace": (("trace", "t"), s[:nt]),
+        "mechanical_energy_ratio_trace": (("trace", "t"), ratio[:nt]),
+        "relative_energy_error_quantiles": (("quantile", "t"), np.quantile(arel, QUANTILES, axis=0)),
         "kernel_time": ((), tr.wall_time),
     }
-    return xr.Dataset(data, coords={"member": np.arange(N), "trace": np.arange(nt), "time": tr.times,
+    return xr.Dataset(data, coords={"member": np.arange(N), "trace": np.arange(nt), "t": tr.times,
                                     "quantile": QUANTILES, "axis": ["x", "y", "z"]})
 
 
@@ -375,8 +375,8 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
     for k, (u, ln) in {**UNITS, **COORDS}.items():
         if k in full.variables:
             full[k].attrs.update(units=u, long_name=ln)
-    full["time"].attrs.update(units="s", long_name="time t_k = k h of the ensemble runs", standard_name="time",
-                              axis="T")
+    full["t"].attrs.update(units="s", long_name="time since the start of the run, t_k = k h, of the "
+                                             "ensemble runs")
     full[dim].attrs.update(units="K-1", long_name="linear thermal expansion alpha (sweep): I(S) = I0 (1 + alpha "
                                                   "(theta - T0))^2")
     full["final_temperature"].attrs["units_metadata"] = "temperature: on_scale"
@@ -698,7 +698,7 @@ def _trace_figure(ds, opt, mm, outdir: Path) -> Path:
     a_chk = min(alphas, key=lambda v: abs(v - float(opt["check_alpha"])) if v > 0 else math.inf)
     d = ds.sel({dim: a_chk, "scheme": mm})
     d0 = ds.sel({dim: 0.0, "scheme": mm})
-    t = ds["time"].values
+    t = ds["t"].values
     fig, (a, b) = plt.subplots(1, 2, figsize=(11.0, 4.4), layout="constrained")
     for i in range(ds.sizes["trace"]):
         a.plot(t, d["temperature_trace"].values[i], color=f"C{i}", lw=1.3)
@@ -755,7 +755,7 @@ def _energy_figure(ds, dset, labels, opt, outdir: Path) -> Path:
     dim = dim_name(SWEEP_KEY)
     alphas = [float(a) for a in ds[dim].values]
     a_chk = min(alphas, key=lambda v: abs(v - float(opt["check_alpha"])) if v > 0 else math.inf)
-    t = ds["time"].values
+    t = ds["t"].values
     ok = t > 0
     fig, (a, b) = plt.subplots(1, 2, figsize=(11.0, 4.4), layout="constrained")
     for i, lab in enumerate(labels):

@@ -115,7 +115,7 @@ def _point(scene, spec: dict, opt: dict) -> xr.Dataset:
         nanN = np.full(N, np.nan)
         sfx = "" if c == "node" else "_paper"
         data[f"relative_energy_error_quantiles{sfx}"] = (
-            ("quantile", "time"), np.quantile(o["band"], q, axis=0, method="inverted_cdf") if o
+            ("quantile", "t"), np.quantile(o["band"], q, axis=0, method="inverted_cdf") if o
             else np.full((q.size, tb.size), np.nan))
         data[f"max_relative_energy_error{sfx}"] = (("member",), o["max"] if o else nanN)
         data[f"final_relative_energy_error{sfx}"] = (("member",), o["final"] if o else nanN)
@@ -126,7 +126,7 @@ def _point(scene, spec: dict, opt: dict) -> xr.Dataset:
         "newton_iterations_mean": (("member",), newton),
         "kernel_time": ((), wall),
     })
-    return xr.Dataset(data, coords={"quantile": q, "time": tb, "member": np.arange(N)})
+    return xr.Dataset(data, coords={"quantile": q, "t": tb, "member": np.arange(N)})
 
 
 def _summary_row(ds: xr.Dataset, label: str, h: float, opt: dict, sfx: str = "") -> dict:
@@ -203,7 +203,7 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
     ds["newton_iterations_mean"].attrs.update(units="1", long_name="mean Newton iterations per step, summed "
                                               "over its solves (3 for vi4, 9 for vi6; NaN: explicit method)")
     ds["kernel_time"].attrs.update(units="s", long_name="kernel wall time of the point's ensemble")
-    ds["time"].attrs.update(units="s", long_name="time t_k = k h (band grid)")
+    ds["t"].attrs.update(units="s", long_name="time since the start of the run, t_k = k h (band grid)")
     ds["quantile"].attrs.update(units="1", long_name="quantile over members")
     ds["member"].attrs.update(units="1", long_name="ensemble member")
     ds.attrs.update({"title": "liethermo energy-drift study: energy error over a random ensemble",
@@ -281,7 +281,7 @@ def _figures(ds: xr.Dataset, outdir: Path, keys) -> list[Path]:
     hs = ds[hdim].values
     methods = [str(m) for m in ds["scheme"].values]
     N = int(ds.sizes["member"])
-    t = ds["time"].values
+    t = ds["t"].values
     later = t > 0  # E_k − E₀ is 0 at t = 0: not on a log axis
     fig, axes = plt.subplots(len(methods), len(hs), figsize=(1.2 + 3.3 * len(hs), 1.0 + 1.75 * len(methods)),
                              sharex=True, sharey=True, squeeze=False, layout="constrained")

@@ -247,9 +247,9 @@ def point(scene, spec: dict, h: float, steps: int, every: int, kn_steps: int, ke
         "kelvin_noether_discrete": ("member", kelvin_noether_residual(win)),
         "kelvin_noether_continuous": ("member", continuous_kelvin_noether_residual(win)),
         "status": ("member", tr.status.astype(np.int8)),
-        "relative_energy_error_quantiles": (("quantile", "time"), band),
+        "relative_energy_error_quantiles": (("quantile", "t"), band),
         "kernel_time": ((), tr.wall_time),
-    }, coords={"member": np.arange(N), "quantile": q, "time": t},
+    }, coords={"member": np.arange(N), "quantile": q, "t": t},
         attrs={"h": h, "steps": steps, "every": every})
 
 
@@ -318,7 +318,7 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
     allpts = [dict(pt, scheme=spec["label"]) for pt, spec, _, _ in tasks]
     per = []
     for (pt, spec, _, _), d in zip(tasks, dss):
-        per.append(d.drop_vars(["relative_energy_error_quantiles", "time"]).assign(
+        per.append(d.drop_vars(["relative_energy_error_quantiles", "t"]).assign(
             step=((), float(d.attrs["h"])), steps=((), int(d.attrs["steps"])),
             calibrated_cost=((), calibrated[float(pt[SWEEP_KEY]), spec["label"]])))
     ds = stack_points(per, allpts, [SWEEP_KEY, "scheme"])
@@ -465,7 +465,7 @@ def _error_figure(dss, tasks, outdir: Path, opt) -> Path:
                              layout="constrained")
     for (pt, spec, _, _), d in zip(tasks, dss):
         ax = axes[0, mus.index(float(pt[SWEEP_KEY]))]
-        t = d["time"].values
+        t = d["t"].values
         med = d["relative_energy_error_quantiles"].sel(quantile=0.5).values
         i = labels.index(spec["label"])
         ok = t > 0

@@ -164,7 +164,7 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
     names = list(runs)
     keep = ["omega", "gamma", "entropy", "temperature", "kinetic_energy", "potential_energy", "internal_energy",
             "total_energy", "energy_error", "status", "mechanical_energy_initial"]
-    parts = [runs[k][keep].drop_vars([c for c in runs[k][keep].coords if c not in ("time", "axis")])
+    parts = [runs[k][keep].drop_vars([c for c in runs[k][keep].coords if c not in ("t", "axis")])
              for k in names]
     ds = xr.concat(parts, dim="variant", data_vars="all", coords="minimal", compat="override", join="override")
     ds = ds.assign_coords(variant=names)
