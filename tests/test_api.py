@@ -34,7 +34,7 @@ def test_run_in_memory_writes_nothing(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     ds = liethermo.run("spherical_top", {"integrator.steps": 10})
     assert list(tmp_path.iterdir()) == []
-    assert ds.sizes == {"member": 1, "time": 11, "axis": 3, "row": 3, "col": 3} or ds.sizes["time"] == 11
+    assert ds.sizes == {"member": 1, "t": 11, "axis": 3, "row": 3, "col": 3} or ds.sizes["t"] == 11
     assert "liethermo.run" in ds.attrs["history"] and "scene 'spherical_top'" in ds.attrs["summary"]
 
 
@@ -43,18 +43,18 @@ def test_run_validates_before_any_work(tmp_path, monkeypatch):
     with pytest.raises(SceneError, match="integrator.h"):
         liethermo.run("paper", {"integrator.h": 0.0}, output="x.nc")
     with pytest.raises(liethermo.PreflightError, match="x.txt: the output file must end in .nc"):
-        liethermo.run("paper", output="x.txt")
+        liethermo.run("paper", output="x.txt", compare=False)
     (tmp_path / "d.nc").mkdir()
     with pytest.raises(liethermo.PreflightError, match="cannot write d.nc: it is a folder"):
-        liethermo.run("paper", output="d.nc")
+        liethermo.run("paper", output="d.nc", compare=False)
     (tmp_path / "notes.nc").write_text("mine")
     with pytest.raises(liethermo.PreflightError, match="notes.nc exists and is not a liethermo output"):
-        liethermo.run("paper", output="notes.nc")
+        liethermo.run("paper", output="notes.nc", compare=False)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["d.nc", "notes.nc"]
     assert (tmp_path / "notes.nc").read_text() == "mine"
     # the remedy is named in Python's words, not the command line's
     with pytest.raises(liethermo.PreflightError) as err:
-        liethermo.run("paper", output="notes.nc")
+        liethermo.run("paper", output="notes.nc", compare=False)
     assert str(err.value).endswith("pass force=True to replace it, or another output= to write elsewhere")
     assert "--" not in str(err.value)
 
@@ -85,3 +85,30 @@ def test_accessor_definitions():
 def test_package_exposes_the_interface():
     assert {"run", "study", "load_scene", "open_dataset"} <= set(liethermo.__all__)
     assert liethermo.load_scene("paper").integrator.start == "node"
+
+
+def test_run_never_drops_the_scenes_compared_methods(tmp_path, monkeypatch):
+    """The paper scene compares its VI with RK2: left unsaid, run() refuses and
+    names both choices; compare=True returns both methods, files named as the
+    command line names them, with the scene's figures beside them."""
+    monkeypatch.chdir(tmp_path)
+    small = {"ensemble.members": 2, "integrator.steps": 20}
+    with pytest.raises(SceneError, match=r"compare=True .* compare=False") as err:
+        liethermo.run("paper", small)
+    assert "rk2" in str(err.value)
+    assert list(tmp_path.iterdir()) == []
+    with pytest.raises(SceneError, match="output.figures"):
+        liethermo.run("paper", small, compare=False, figures=True)
+    ds = liethermo.run("paper", small, compare=False)
+    assert ds.attrs["method"] == "vi" and "none drawn (an in-memory run" in ds.attrs["summary"]
+    runs = liethermo.run("paper", small, output="p.nc", compare=True)
+    assert list(runs) == ["vi", "rk2"] and runs["rk2"].attrs["method"] == "rk2"
+    names = sorted(p.name for p in tmp_path.iterdir())
+    assert names == ["p.nc", "p_center_of_mass.png", "p_energies.png", "p_entropy.png", "p_rk2.nc",
+                     "p_total_energy.png"]
+    assert "p_energies.png" in runs["vi"].attrs["summary"]
+    for d in runs.values():
+        d.close()
+    one = liethermo.run("paper", small, output="q.nc", compare=False, figures=False)
+    assert not list(tmp_path.glob("q_*")) and one.attrs["method"] == "vi"
+    one.close()

@@ -85,7 +85,7 @@ def test_console_run_leaves_complete_files(tmp_path):
     assert p.stdout.rstrip().endswith(f"{tmp_path / 'p_entropy.png'}")
     for path in (out, tmp_path / "p_rk2.nc"):
         with cf.open_dataset(path) as ds:
-            assert ds.sizes["time"] == 41
+            assert ds.sizes["t"] == 41
             assert np.isfinite(ds["omega"].values[0, :20]).all()
     pngs = sorted(f.name for f in tmp_path.glob("*.png"))
     assert len(pngs) == 4
@@ -189,7 +189,7 @@ def test_energy_error_without_cancellation():
     """E_k − E_0 computed from differences agrees with the naive difference of totals
     to the naive difference's own round-off, and is far more precise."""
     ds, _ = run_scene(_small(integrator__start="legendre"), progress=False)  # node 0 is Ω(0)
-    naive = ds["total_energy"] - ds["total_energy"].isel(time=0)
+    naive = ds["total_energy"] - ds["total_energy"].isel(t=0)
     E = float(ds["total_energy"].values[0, 0])
     assert E == pytest.approx(3.9e5, rel=0.02)  # c_v T0 dominates (docs/model.md, "The paper scene")
     assert np.abs(ds["energy_error"] - naive).max() < 8 * np.finfo(float).eps * E
@@ -210,7 +210,7 @@ def test_paper_command_writes_files_and_figures(tmp_path):
     assert np.all(np.isnan(rk2["omega"].values[0, k:]))            # stops advancing: NaN after
     assert np.all(np.isfinite(rk2["omega"].values[0, :k]))
     assert np.isfinite(vi["omega"].values).all()
-    assert vi.sizes["time"] == 301 and float(vi["time"][-1]) == pytest.approx(30.0)
+    assert vi.sizes["t"] == 301 and float(vi["t"][-1]) == pytest.approx(30.0)
     for name in ("center_of_mass", "energies", "total_energy", "entropy"):
         png = tmp_path / f"paper_{name}.png"
         assert png.stat().st_size > 10_000
@@ -218,17 +218,33 @@ def test_paper_command_writes_files_and_figures(tmp_path):
     rk2.close()
 
 
+def test_figures_are_named_as_the_primary_file(tmp_path, monkeypatch):
+    """Without -o, a run of another method writes its own figures beside its
+    own file and leaves the first run's figures alone."""
+    monkeypatch.chdir(tmp_path)
+    small = ["--no-progress", "--set", "ensemble.members=2", "--set", "integrator.steps=20"]
+    assert main(["run", "paper", *small]) == 0
+    runs = tmp_path / "data" / "runs"
+    first = {p.name: p.read_bytes() for p in runs.glob("*.png")}
+    assert "paper_vi_energies.png" in first and not any(n.startswith("paper_rk4") for n in first)
+    assert main(["run", "paper", *small, "--set", "integrator.method=rk4", "--set", "output.compare=[]"]) == 0
+    assert (runs / "paper_rk4.nc").exists() and (runs / "paper_rk4_energies.png").exists()
+    assert {n: (runs / n).read_bytes() for n in first} == first
+
+
 def test_dataset_contract_plain_xarray(tmp_path):
     """Opened by plain xarray without importing liethermo, as docs/netcdf.md shows:
-    time in seconds (CF units 'seconds since' a placeholder epoch, not decoded),
-    the axis labels as a CF label variable that one line makes the index again;
+    t as float seconds since the start of the run (no calendar, nothing to
+    decode, no warning), the axis labels as a CF label variable that one line
+    makes the index again;
     units and long_name on every variable; CF flags on status; provenance
     attributes, with the API call that made the file in 'history'."""
     out = tmp_path / "r.nc"
     _, summ = run_scene(_small(members=3, integrator__method="rk4"), out, progress=False)
     code = f"""
-import sys, numpy as np, xarray as xr
-ds = xr.open_dataset({str(out)!r}, decode_times=False)
+import sys, warnings, numpy as np, xarray as xr
+warnings.simplefilter("error")
+ds = xr.open_dataset({str(out)!r})
 ds = ds.assign_coords({{v[:-6]: ds[v].values for v in ds.coords if v.endswith("_label")}})
 assert 'liethermo' not in sys.modules
 missing = [v for v in ds.variables if v not in ds.dims
@@ -237,13 +253,12 @@ assert not missing, missing
 for v in ['omega','gamma','entropy','temperature','kinetic_energy','potential_energy','internal_energy',
           'total_energy','energy_error','status']:
     assert v in ds, v
-assert ds['omega'].dims == ('member','time','axis') and list(ds['axis'].values) == ['x','y','z']
+assert ds['omega'].dims == ('member','t','axis') and list(ds['axis'].values) == ['x','y','z']
 assert list(ds['axis_label'].values) == ['x','y','z'] and 'step' in ds.coords
-assert float(ds['omega'].sel(axis='z').isel(member=0, time=0)) == float(ds['omega'][0, 0, 2])
-assert ds['energy_error'].dims == ('member','time')
-assert ds['time'].dtype == np.float64 and np.allclose(ds['time'].values, 0.1 * np.arange(ds.sizes['time']))
-assert ds['time'].attrs['units'] == 'seconds since 0001-01-01 00:00:00'
-assert ds['time'].attrs['calendar'] == 'proleptic_gregorian'
+assert float(ds['omega'].sel(axis='z').isel(member=0, t=0)) == float(ds['omega'][0, 0, 2])
+assert ds['energy_error'].dims == ('member','t')
+assert ds['t'].dtype == np.float64 and np.allclose(ds['t'].values, 0.1 * np.arange(ds.sizes['t']))
+assert ds['t'].attrs['units'] == 's' and 'calendar' not in ds['t'].attrs and 'time' not in ds.variables
 assert ds['omega'].attrs['units'] == 'rad s-1'
 assert list(ds['status'].attrs['flag_values']) == [0, 1, 2]
 assert ds['status'].attrs['flag_meanings'] == 'ok newton_not_converged non_finite'
@@ -338,3 +353,57 @@ def test_console_script_process_runs_at_O2(tmp_path):
     env = {k: v for k, v in os.environ.items() if k != "NUMBA_OPT"}
     p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
     assert "OPT 2" in p.stdout, p.stderr
+
+
+def test_set_lists_take_bare_words_as_strings(tmp_path):
+    """``--set output.compare=[rk4, rk2]`` needs no TOML quotes, like a bare word."""
+    from liethermo.scene import load_scene, parse_override
+
+    assert parse_override("output.compare=[rk4, rk2]") == ("output", "compare", ["rk4", "rk2"])
+    assert parse_override('output.compare=[rk4, "rk2"]') == ("output", "compare", ["rk4", "rk2"])
+    assert parse_override("initial.omega=[2, -1, 0.5]") == ("initial", "omega", [2, -1, 0.5])
+    assert list(load_scene("paper", ["output.compare=[rk4, rk2]"])["output"]["compare"]) == ["rk4", "rk2"]
+    out = tmp_path / "p.nc"
+    assert main(["run", "paper", "-o", str(out), "--no-progress", "--set", "ensemble.members=2",
+                 "--set", "integrator.steps=10", "--set", "output.figures=false",
+                 "--set", "output.compare=[rk4]"]) == 0
+    assert (tmp_path / "p_rk4.nc").exists() and not (tmp_path / "p_rk2.nc").exists()
+
+
+def test_set_list_of_a_bad_bare_word_names_the_key(capsys):
+    assert main(["run", "paper", "--check", "--set", "output.compare=[rk5]"]) == 2
+    err = capsys.readouterr().err
+    assert "output.compare" in err and "rk5" in err
+
+
+def test_check_estimates_the_kernel_time_of_each_method(tmp_path, capsys):
+    """--check times a probe of the scene's own members on the run's kernel and
+    scales it: ten times the steps, about ten times the time."""
+    import re
+
+    base = ["run", "paper", "-o", str(tmp_path / "p.nc"), "--check", "--set", "ensemble.members=20000",
+            "--set", "output.every=100"]
+    est = {}
+    for steps in (1000, 10000):
+        assert main([*base, "--set", f"integrator.steps={steps}"]) == 0
+        out = capsys.readouterr().out
+        found = dict(re.findall(r"^  (\w+): about (\S+) s of kernel time on this machine", out, re.M))
+        assert set(found) == {"vi", "rk2"}, out
+        est[steps] = {m: float(v) for m, v in found.items()}
+    for m in ("vi", "rk2"):
+        assert 3 < est[10000][m] / est[1000][m] < 30, est
+    assert not list(tmp_path.iterdir())  # a check writes nothing
+
+
+def test_a_long_run_says_how_long_before_it_starts(tmp_path, monkeypatch, capsys):
+    from liethermo import cli
+
+    monkeypatch.setattr(cli, "LONG_RUN_MEMBER_STEPS", 100)
+    monkeypatch.setattr(cli, "LONG_RUN_SECONDS", 0.0)
+    out = tmp_path / "p.nc"
+    assert main(["run", "paper", "-o", str(out), "--no-progress", "--set", "ensemble.members=4",
+                 "--set", "integrator.steps=50", "--set", "output.figures=false",
+                 "--set", "output.compare=[]"]) == 0
+    err = capsys.readouterr().err
+    assert f"liethermo: {out}:   vi: about" not in err and f"liethermo: {out}: vi: about" in err, err
+    assert "of kernel time on this machine" in err

@@ -3,8 +3,8 @@
 The Python interface (docs/api.md)::
 
     import liethermo
-    ds = liethermo.run("paper", {"integrator.h": 0.05})     # an xarray Dataset
-    ds.liethermo.relative_energy_error().plot.line(x="time")
+    ds = liethermo.run("paper", {"integrator.h": 0.05}, compare=False)  # the VI: an xarray Dataset
+    ds.liethermo.relative_energy_error().plot.line(x="t")
 
 ``run``, ``study``, ``load_scene``, ``open_dataset``, the ``ds.liethermo``
 accessor and the errors they raise on bad input (``SceneError``,

@@ -5,8 +5,9 @@
     import liethermo
 
     scene = liethermo.load_scene("paper", {"integrator.h": 0.05})
-    ds = liethermo.run(scene)                           # in memory, writes nothing
-    ds = liethermo.run("paper", {"ensemble.members": 64}, output="paper64.nc")
+    ds = liethermo.run(scene, compare=False)            # the VI only, in memory, writes nothing
+    runs = liethermo.run("paper", {"ensemble.members": 64}, output="paper64.nc", compare=True)
+    runs["vi"], runs["rk2"]                             # the scene's method and the one it compares with
     res = liethermo.study("studies/convergence.toml", reduced=True, output="conv")
     ds = liethermo.open_dataset("paper64.nc")           # time in seconds, labels as indexes
     ds.liethermo.relative_energy_error()                # (E_k − E₀)/E_mech,0 on node values
@@ -42,8 +43,9 @@ def load_scene(scene: str | Path | dict | Scene = "paper", overrides: dict | lis
 
 
 def run(scene: str | Path | dict | Scene = "paper", overrides: dict | list | None = None, *,
-        output: str | Path | None = None, progress: bool = False, force: bool = False,
-        resume: Any = False, preflight: bool = True, history: str | None = None) -> xr.Dataset:
+        output: str | Path | None = None, compare: bool | None = None, figures: bool | None = None,
+        progress: bool = False, force: bool = False, resume: Any = False, preflight: bool = True,
+        history: str | None = None) -> xr.Dataset | dict[str, xr.Dataset]:
     """Run a scene with its own method and return its dataset.
 
     Runs in memory and writes nothing unless ``output`` (a ``.nc`` path) is
@@ -55,28 +57,74 @@ def run(scene: str | Path | dict | Scene = "paper", overrides: dict | list | Non
     unless ``force``, disk and memory suffice), raising
     :class:`liethermo.preflight.PreflightError`; ``resume=True`` goes on from
     what an interrupted or killed run of the same scene left.
-    ``progress``: a progress bar over member-steps.  The returned dataset
+
+    ``compare``: what to do with the scene's ``output.compare`` methods (the
+    paper scene compares its VI with RK2).  ``True`` runs them too and returns
+    ``{method: Dataset}``, the scene's own method first (with ``output``, the
+    other methods' files are named as on the command line,
+    ``<stem>_<method>.nc``); ``False`` runs the scene's method only.  Left
+    out, a scene that compares with other methods raises
+    :class:`SceneError` saying so, rather than dropping them unnoticed.
+
+    ``figures``: draw the scene's figures beside ``output`` (named
+    ``<stem>_*.png`` as on the command line); left out, as the scene's
+    ``output.figures`` says.  An in-memory run draws none (its summary says
+    so); ``figures=True`` without ``output`` raises :class:`SceneError`.
+
+    ``progress``: a progress bar over member-steps.  Each returned dataset
     carries the run's summary as ``ds.attrs["summary"]`` (one line per fact,
     as the command line prints it).  A write that fails raises
     :class:`liethermo.io.WriteError` and leaves no file; Ctrl-C keeps the
     complete member chunks in ``<output>.partial`` for ``resume=True``."""
-    from .runner import run_scene
+    from .preflight import method_scene, output_paths
 
     sc = load_scene(scene, overrides)
+    method = sc["integrator"]["method"]
+    others = [m for m in dict.fromkeys(sc["output"]["compare"]) if m != method]
+    if others and compare is None:
+        raise SceneError("output.compare", f"scene {sc.name!r} compares its method {method} with "
+                         f"{', '.join(others)}: pass compare=True to run those too (a dict "
+                         f"{{method: Dataset}} is returned) or compare=False to run {method} only",
+                         show_value=False)
+    if figures and output is None:
+        raise SceneError("output.figures", "figures are drawn beside the output file: pass output= "
+                         "(a .nc path) or figures=False", show_value=False)
+    draw = bool(sc["output"]["figures"] if figures is None else figures) and output is not None
     if history is None:
         history = cf.api_call("liethermo.run", scene if not isinstance(scene, Scene) else sc.name,
                               overrides=overrides, output=output)
-    if output is None:
+    methods = [method] + (others if compare else [])
+    sc = sc.with_overrides({"output.compare": []})
+    paths = output_paths(sc.with_overrides({"output.compare": methods[1:]}), output) if output else {}
+    results = {}
+    for m in methods:
+        msc = sc if m == method else method_scene(sc, m)
+        results[m] = _run_one(msc, paths.get(m), progress=progress, force=force, resume=resume,
+                              preflight=preflight, history=history)
+    if output is not None:
+        drawn = _draw_figures(paths, Path(output).stem) if draw else []
+        line = (f"  figures: {', '.join(str(f) for f in drawn)}" if drawn
+                else "  figures: none drawn (figures=False or output.figures = false)")
+    else:
+        line = "  figures: none drawn (an in-memory run; pass output= to draw them beside the file)"
+    for ds in results.values():
+        ds.attrs["summary"] += "\n" + line
+    return results if compare else results[method]
+
+
+def _run_one(sc: Scene, out: Path | None, *, progress, force, resume, preflight, history) -> xr.Dataset:
+    """One method of a run: in memory (``out`` None) or into ``out``."""
+    from .runner import run_scene
+
+    if out is None:
         ds, summ = run_scene(sc, None, progress=progress, history=history)
         ds.attrs["summary"] = "\n".join(summ.lines())
         return ds
-    out = Path(output)
+    out = Path(out)
     plan = None
     if preflight:
         from .preflight import prepare_run
 
-        # this output only: the command line runs output.compare's methods
-        sc = sc.with_overrides({"output.compare": []})
         try:
             plan = prepare_run(sc, out, force=force, resume=bool(resume))
         except PreflightError as exc:
@@ -93,6 +141,41 @@ def run(scene: str | Path | dict | Scene = "paper", overrides: dict | list | Non
     ds = open_dataset(out)
     ds.attrs["summary"] = "\n".join(summ.lines()) if summ is not None else f"{out}: complete, kept"
     return ds
+
+
+def _draw_figures(outputs: dict, stem: str) -> list[Path]:
+    """Draw a run's figures next to its first output file, each complete or
+    not at all: drawn in a temporary folder there, then renamed into place.
+    Unfinished figure folders of killed runs are removed (one line on stderr)."""
+    import os
+    import shutil
+    import sys
+    import tempfile
+
+    from .faults import figure_drafts, one_line
+    from .io import WriteError, io_cause
+    from .plotting import scene_figures
+
+    folder = Path(next(iter(outputs.values()))).parent
+    drafts = figure_drafts(folder, stem)  # of runs killed while drawing
+    for d in drafts:
+        shutil.rmtree(d, ignore_errors=True)
+    if drafts:
+        print(one_line(f"liethermo: removed {len(drafts)} unfinished figure folder{'s' if len(drafts) > 1 else ''} "
+                       f"left by killed runs in {folder}"), file=sys.stderr)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{stem}_figures.{os.getpid()}.", dir=folder))
+    try:
+        try:
+            drawn = scene_figures(dict(outputs), tmp, stem=stem)
+            final = []
+            for f in drawn:
+                os.replace(f, folder / f.name)
+                final.append(folder / f.name)
+            return final
+        except OSError as exc:
+            raise WriteError(folder / f"{stem}_*.png", io_cause(exc)) from None
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
 
 
 #: the command line's words in the checks' messages, and this module's

@@ -17,6 +17,10 @@ from . import __version__
 EXIT_INVALID = 2  # invalid input, refused run, failed write: one line on stderr
 #: flags that do not change what a command writes, left out of the files' history
 NOT_IN_HISTORY = {"--resume", "--force", "--no-progress"}
+#: runs of more member-steps than this are timed by a probe before they start,
+#: and the estimate printed when it exceeds LONG_RUN_SECONDS
+LONG_RUN_MEMBER_STEPS = 2**26
+LONG_RUN_SECONDS = 60.0
 
 
 def _error(msg) -> int:
@@ -45,7 +49,12 @@ def cmd_run(args) -> int:
         for line in plan.notes:
             print(one_line(line), file=sys.stderr)
         if args.check:
+            from .runner import estimate_time
+
             print(f"scene {scene['scene']['name']!r} is valid: {plan.check_line()}")
+            for o in plan.outputs:
+                if not o.skip and not args.dask:
+                    print(estimate_time(o.scene).line())
             plan.release()
             plan.remove_created()
             return 0
@@ -67,6 +76,7 @@ def _run_outputs(args, scene, plan) -> int:
     # variational integrators' start) into the cache while this one compiles the first
     warming = None if (args.dask or not todo) else start_warming(scene, [o.method for o in todo])
     try:
+        _announce_long_runs(todo, args)
         for i, o in enumerate(todo):
             if i == 1 and warming is not None:
                 warming.join()  # its kernels are in the cache now
@@ -81,15 +91,17 @@ def _run_outputs(args, scene, plan) -> int:
                     f"overhead {summ.task_overhead:.3f} s per task; combine {summ.combine_time:.2f} s"]
             else:
                 ds = api.run(o.scene, output=o.path, progress=progress, history=args.command_line,
-                             resume=plan.resume_sources.get(o.path, False), preflight=False)
-                lines = ds.attrs["summary"].splitlines()
+                             resume=plan.resume_sources.get(o.path, False), preflight=False,
+                             compare=False, figures=False)
+                lines = ds.attrs["summary"].splitlines()[:-1]  # the figures are drawn below
                 ds.close()
             written.append(str(o.path))
             print("\n".join(lines))
         if warming is not None and warming.is_alive():
             warming.terminate()  # what it still compiles, this run no longer needs
         if scene["output"]["figures"] and not (args.dask and args.no_combine):
-            stem = Path(args.output).stem if args.output else scene["scene"]["name"]
+            # named as the primary file: a run of another method cannot replace them
+            stem = plan.outputs[0].path.stem
             for f in _figures(plan, stem):
                 print(f"  figure {f}")
     except WriteError as exc:
@@ -107,40 +119,33 @@ def _run_outputs(args, scene, plan) -> int:
     return 0
 
 
+def _announce_long_runs(todo, args) -> None:
+    """A run that will take minutes or hours says so before it starts."""
+    from .faults import one_line
+    from .runner import estimate_time
+
+    if args.dask:
+        return
+    for o in todo:
+        sc = o.scene
+        if int(sc["ensemble"]["members"]) * int(sc["integrator"]["steps"]) <= LONG_RUN_MEMBER_STEPS:
+            continue
+        est = estimate_time(sc)
+        if est.seconds > LONG_RUN_SECONDS:
+            print(one_line(f"liethermo: {o.path}: {est.line().strip()}"), file=sys.stderr)
+
+
 def _figures(plan, stem: str) -> list[Path]:
-    """Draw the run's figures next to its first output, each complete or not
-    at all: drawn in a temporary folder there, then renamed into place."""
-    import shutil
-    import tempfile
+    """The run's figures, next to its first output (see :func:`liethermo.api._draw_figures`)."""
+    from .api import _draw_figures
 
-    from .io import WriteError, io_cause
-    from .plotting import scene_figures
-
-    from .faults import figure_drafts, one_line
-
-    folder = plan.outputs[0].path.parent
-    drafts = figure_drafts(folder, stem)  # of runs killed while drawing
-    for d in drafts:
-        shutil.rmtree(d, ignore_errors=True)
-    if drafts:
-        print(one_line(f"liethermo: removed {len(drafts)} unfinished figure folder{'s' if len(drafts) > 1 else ''} "
-                       f"left by killed runs in {folder}"), file=sys.stderr)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{stem}_figures.{os.getpid()}.", dir=folder))
-    try:
-        try:
-            drawn = scene_figures({o.method: o.path for o in plan.outputs}, tmp, stem=stem)
-            final = []
-            for f in drawn:
-                os.replace(f, folder / f.name)
-                final.append(folder / f.name)
-            return final
-        except OSError as exc:
-            raise WriteError(folder / f"{stem}_*.png", io_cause(exc)) from None
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
+    return _draw_figures({o.method: o.path for o in plan.outputs}, stem)
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from .scene import builtin_scenes
+
+    builtins = ", ".join(sorted(builtin_scenes()))
     ap = argparse.ArgumentParser(
         prog="liethermo",
         description="Structure-preserving simulation of the heavy top in Stokes flow "
@@ -149,22 +154,23 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--version", action="version", version=f"liethermo {__version__}")
     sub = ap.add_subparsers(dest="command", required=True)
     r = sub.add_parser("run", help="run a scene and write a netCDF dataset",
-                       description="Run SCENE (a TOML file or the built-in 'paper') and write a netCDF "
+                       description="Run SCENE (a TOML file or a built-in scene) and write a netCDF "
                        "dataset per method: data/runs/<scene name>_<method>.nc, or with -o OUT.nc that "
                        "file for the scene's method and <OUT>_<method>.nc next to it for the methods "
-                       "in output.compare. An existing output is replaced only by a run of the same "
+                       "in output.compare; figures are named after the first file (<OUT>_*.png). "
+                       "An existing output is replaced only by a run of the same "
                        "scene (or with --force). Ctrl-C, SIGTERM and SIGHUP stop the run cleanly; "
                        "--resume continues it.")
-    r.add_argument("scene", metavar="SCENE", help="TOML scene file, or 'paper'")
-    r.add_argument("-o", "--output", metavar="OUT.nc", help="output netCDF path")
+    r.add_argument("scene", metavar="SCENE", help=f"TOML scene file, or a built-in scene: {builtins}")
+    r.add_argument("-o", "--output", metavar="OUT.nc", help="output netCDF path (folders that do not exist are created)")
     r.add_argument("--resume", action="store_true",
                    help="continue an interrupted or killed run of the same scene from its last complete "
                    "member chunk (outputs already complete are kept)")
     r.add_argument("--force", action="store_true",
                    help="replace existing outputs even if they hold runs of another scene")
     r.add_argument("--check", action="store_true",
-                   help="only check: validate the scene and the outputs, estimate disk and memory, "
-                   "and exit")
+                   help="only check: validate the scene and the outputs, estimate disk, memory and "
+                   "kernel time (from a short timed probe), and exit")
     r.add_argument("--set", metavar="SECTION.KEY=VALUE", action="append", default=[],
                    help="override a scene key with a TOML value, e.g. --set integrator.h=0.05 "
                    "--set 'initial.omega=[2,-1,0.5]' (repeatable)")

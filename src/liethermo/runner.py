@@ -180,6 +180,65 @@ def scene_setup(scene, overrides=None, history: str | None = None) -> tuple[Scen
     return scene, attrs, summ
 
 
+#: Size of the timed probe behind :func:`estimate_time`: large enough that the
+#: vectorized kernel runs full blocks, small enough to take well under a second.
+PROBE_MEMBERS = 8192
+PROBE_STEPS = 200
+
+
+@dataclass
+class TimeEstimate:
+    """Kernel time a run will take on this machine, from a timed probe."""
+
+    method: str
+    seconds: float          # whole run, extrapolated from the probe's member-steps
+    probe_members: int
+    probe_steps: int
+    probe_seconds: float    # the faster of two probe runs (warm kernel)
+    compile_seconds: float  # compiling or loading the kernels from the cache, once
+
+    def line(self) -> str:
+        return (f"  {self.method}: about {human_seconds(self.seconds)} of kernel time on this machine "
+                f"(from a timed probe of {self.probe_members} members x {self.probe_steps} steps; "
+                f"compiling or loading kernels took {human_seconds(self.compile_seconds)})")
+
+
+def human_seconds(s: float) -> str:
+    """``0.42 s``, ``3.1 min``, ``2.5 h``, ``1.3 days``."""
+    if not np.isfinite(s):
+        return "unknown"
+    if s < 60:
+        return f"{s:.2g} s" if s < 10 else f"{s:.0f} s"
+    if s < 3600:
+        return f"{s / 60:.1f} min"
+    if s < 86400:
+        return f"{s / 3600:.1f} h"
+    return f"{s / 86400:.1f} days"
+
+
+def estimate_time(scene: Scene) -> TimeEstimate:
+    """Time a short probe of the scene's own first members on the kernel the
+    full run will use (compiled first, then the faster of two runs) and scale
+    it to the run's member-steps.  Members that fail stop early in the probe as
+    in the run, so the figure is the run's, not a healthy ensemble's."""
+    integ = scene["integrator"]
+    method, h, steps = integ["method"], float(integ["h"]), int(integ["steps"])
+    members = int(scene["ensemble"]["members"])
+    kernel = kernel_for(method, min(members, int(scene["output"]["member_chunk"])), steps)
+    pm, ps = min(members, PROBE_MEMBERS), min(steps, PROBE_STEPS)
+    phys = physics_of_scene(scene, pm)
+    om0, R0 = initial_conditions(scene, 0, pm)
+    best, compile_s = np.inf, 0.0
+    for _ in range(2):
+        traj = simulate(phys, om0, R0, h, ps, method, friction=integ["friction"], start=integ["start"],
+                        entropy=integ["entropy"], attitude=bool(scene["output"]["attitude"]), every=ps,
+                        newton_tol=float(integ["newton_tol"]), newton_maxiter=int(integ["newton_maxiter"]),
+                        kernel=kernel)
+        best = min(best, traj.wall_time)
+        compile_s += traj.compile_time
+    return TimeEstimate(method, best * (members * steps) / (pm * ps), pm, ps, best, compile_s)
+
+
 def run_chunk(scene: dict, lo: int, hi: int, *, progress_cb=None, kernel: str | None = None,
               threads: int | None = None) -> tuple[xr.Dataset, ChunkStats]:
     """Simulate members ``lo:hi`` of a resolved scene: the labelled chunk and its stats.

@@ -19,6 +19,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import math
+import re
 import sys
 from dataclasses import dataclass
 from importlib import resources
@@ -460,11 +461,35 @@ def parse_override(text: str) -> tuple[str, str, Any]:
     if lhs.count(".") != 1:
         raise SceneError(lhs, "an override key must read SECTION.KEY", show_value=False)
     section, key = lhs.split(".")
+    rhs = rhs.strip()
     try:
-        value = tomllib.loads(f"v = {rhs.strip()}")["v"]
+        value = tomllib.loads(f"v = {rhs}")["v"]
     except tomllib.TOMLDecodeError:
-        value = rhs.strip()
+        value = _bare_list(rhs)
     return section, key, value
+
+
+_BARE_WORD = re.compile(r"[A-Za-z_][A-Za-z0-9_:+-]*")
+
+
+def _bare_list(text: str):
+    """``[rk4, vi]`` → ``["rk4", "vi"]``: a one-level list whose items are TOML
+    values or bare words (a bare word is a string); anything else stays the
+    text itself, which the key's rule then rejects by name."""
+    if not (text.startswith("[") and text.endswith("]")):
+        return text
+    items = []
+    for item in (i.strip() for i in text[1:-1].split(",")):
+        if not item:
+            continue
+        if _BARE_WORD.fullmatch(item) and item not in ("true", "false", "inf", "nan"):
+            items.append(item)
+            continue
+        try:
+            items.append(tomllib.loads(f"v = {item}")["v"])
+        except tomllib.TOMLDecodeError:
+            return text
+    return items
 
 
 def _overrides_as_tables(overrides) -> list[tuple[dict, str]]:
