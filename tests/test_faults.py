@@ -570,3 +570,23 @@ def test_study_folder_that_takes_no_files(tmp_path, capsys, read_only_dir):
     assert main(["study", str(study), "-o", str(tmp_path / "file")]) == 2
     assert one_line(capsys.readouterr().err) == (f"liethermo: error: cannot write the study to {tmp_path / 'file'}: "
                                                  "it is not a folder")
+
+
+def test_a_stop_swallowed_by_a_library_is_raised_again_between_units_of_work():
+    """The handler raises where the signal lands; code that swallows the
+    exception (compiled library code can) does not make the stop forgotten:
+    check_stop, called between member chunks and sweep points, raises it again."""
+    from liethermo.faults import Interrupted, check_stop, stop_on_signals
+
+    check_stop()  # outside a run: nothing to do
+    with stop_on_signals():
+        check_stop()  # no signal yet
+        try:
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(0.1)
+        except BaseException:  # noqa: BLE001  what a careless library does
+            pass
+        with pytest.raises(Interrupted) as err:
+            check_stop()
+        assert err.value.exit_code == 143
+    check_stop()  # the handlers are restored: the next run starts clean

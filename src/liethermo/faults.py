@@ -74,6 +74,7 @@ class _State:
     depth = 0  # nesting of critical sections
     pending: int | None = None  # signal held by a critical section
     raised = False
+    signum: int | None = None  # the signal raised
     count = 0
 
 
@@ -90,7 +91,7 @@ def _handler(signum, frame):
     if st.depth > 0:
         st.pending = signum
         return
-    st.raised = True
+    st.raised, st.signum = True, signum
     raise Interrupted(signum)
 
 
@@ -106,6 +107,7 @@ def stop_on_signals():
         return
     old = {s: signal.getsignal(s) for s in SIGNALS}
     _state.active, _state.depth, _state.pending, _state.raised, _state.count = True, 0, None, False, 0
+    _state.signum = None
     for s in SIGNALS:
         signal.signal(s, _handler)
     try:
@@ -127,7 +129,7 @@ class critical:
         _state.depth -= 1
         if _state.depth == 0 and _state.pending is not None and not _state.raised and exc_type is None:
             signum, _state.pending = _state.pending, None
-            _state.raised = True
+            _state.raised, _state.signum = True, signum
             raise Interrupted(signum)
         return False
 
@@ -135,6 +137,17 @@ class critical:
 def stopping() -> bool:
     """True once a stop signal was raised (clean-up in progress)."""
     return _state.raised
+
+
+def check_stop() -> None:
+    """Raise :class:`Interrupted` again if a stop signal was raised and the
+    work goes on regardless.  The handler raises at whatever Python
+    instruction runs when the signal lands; when that is inside a library's
+    compiled code (netCDF4 reading a file) the exception can be lost there,
+    so loops call this between units of work (member chunks, sweep points):
+    a stop is never forgotten."""
+    if _state.active and _state.raised and _state.signum is not None and _state.depth == 0:
+        raise Interrupted(_state.signum)
 
 
 # ---------------------------------------------------------------- temporaries

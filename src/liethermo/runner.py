@@ -17,6 +17,7 @@ import xarray as xr
 
 from . import cf
 from .dataset import global_attrs, trajectory_dataset
+from .faults import check_stop
 from .findings import chunk_findings, finding_lines, merge_findings, physics_lines
 from .initial import initial_conditions
 from .methods import get_method
@@ -247,6 +248,7 @@ def run_chunk(scene: dict, lo: int, hi: int, *, progress_cb=None, kernel: str | 
     :mod:`liethermo.distributed`; member i's result depends only on (scene, i).
     ``progress_cb(n)`` gets the number of member-steps just done.
     """
+    check_stop()  # a stop signal whose exception a library swallowed still stops the run
     integ = scene["integrator"]
     method, h, steps = integ["method"], float(integ["h"]), int(integ["steps"])
     every = int(scene["output"]["every"])

@@ -261,6 +261,9 @@ def cached_point(outdir: str | os.PathLike, key: str, compute: Callable[[], xr.D
     comes back as read from the file (:func:`liethermo.cf.load_dataset`).
     The cache files are an internal format: same encoding as the study's
     netCDF, but no ``Conventions`` attribute (docs/netcdf.md)."""
+    from ..faults import check_stop
+
+    check_stop()
     path = Path(outdir) / "points" / f"{key}.nc"
     if path.is_file():
         try:
@@ -269,7 +272,9 @@ def cached_point(outdir: str | os.PathLike, key: str, compute: Callable[[], xr.D
             path.unlink()
     ds = compute()
     write_netcdf_atomic(ds, path, conventions=False)
-    return cf.load_dataset(path)
+    out = cf.load_dataset(path)
+    check_stop()
+    return out
 
 
 def point_is_cached(outdir: str | os.PathLike, key: str) -> bool:
