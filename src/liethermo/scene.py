@@ -453,7 +453,8 @@ def _merge(base: dict, new: dict, origin: str) -> None:
 
 def parse_override(text: str) -> tuple[str, str, Any]:
     """``SECTION.KEY=VALUE`` → (section, key, value); VALUE is a TOML value,
-    and a bare word that is not valid TOML is taken as a string."""
+    and a bare word that is not valid TOML is taken as a string, also as an
+    item of a one-level list (``[rk4, vi]``)."""
     if "=" not in text:
         raise SceneError(text, "an override must read SECTION.KEY=VALUE", show_value=False)
     lhs, rhs = text.split("=", 1)
@@ -656,7 +657,7 @@ h = 0.05
 body and fluid, with the integrator choices recommended for new scenes). A built-in
 scene name or a TOML file overrides some of them, and overrides given last win:
 `--set SECTION.KEY=VALUE` on the command line (`VALUE` is a TOML value; a bare word
-is taken as a string), or `{"section.key": value}` in Python
+is taken as a string, also inside a list: `[rk4, vi]`), or `{"section.key": value}` in Python
 (`liethermo.scene.load_scene(source, overrides)`):
 
     defaults  ←  built-in scene or TOML file  ←  --set SECTION.KEY=VALUE
