@@ -21,7 +21,8 @@ import pytest
 
 from conftest import OMEGA0, R0, paper_physics
 from liethermo.dataset import initial_energy, node_energies
-from liethermo.physics import build_model, jeffery_resistance, physics_of_scene
+from liethermo.physics import (build_model, jeffery_resistance, oberbeck_resistance, physics_of_scene,
+                               pivot_drag)
 from liethermo.scene import SceneError, builtin_scenes, load_scene
 from liethermo.simulate import STATUS_OK, simulate
 
@@ -93,6 +94,85 @@ def test_jeffery_resistance_of_a_prolate_spheroid_matches_the_closed_form():
     e = math.sqrt(1 - b * b / (a * a))
     closed = (32 * math.pi / 3) * mu * a * b * b * e**3 / (2 * e - (1 - e * e) * math.log((1 + e) / (1 - e)))
     assert jeffery_resistance([a, b, b], mu)[0, 0] == pytest.approx(closed, rel=1e-12)
+
+
+def test_oberbeck_resistance_of_a_sphere_and_a_prolate_spheroid():
+    """Translation: a sphere gives Stokes' 6πμa; a prolate spheroid (a > b = c,
+    e² = 1 − b²/a², L = ln((1 + e)/(1 − e))) gives 16πμa e³/((1 + e²)L − 2e)
+    along its axis and 32πμa e³/(2e + (3e² − 1)L) across it (Oberbeck;
+    Chwang & Wu 1975), to 1e-12."""
+    a, mu = 0.05, 0.3
+    np.testing.assert_allclose(oberbeck_resistance([a, a, a], mu)[0], 6 * math.pi * mu * a, rtol=1e-14)
+    a, b = 0.08, 0.03
+    e = math.sqrt(1 - b * b / (a * a))
+    L = math.log((1 + e) / (1 - e))
+    K = oberbeck_resistance([a, b, b], mu)[0]
+    assert K[0] == pytest.approx(16 * math.pi * mu * a * e**3 / ((1 + e * e) * L - 2 * e), rel=1e-12)
+    assert K[1] == pytest.approx(32 * math.pi * mu * a * e**3 / (2 * e + (3 * e * e - 1) * L), rel=1e-12)
+    assert K[2] == pytest.approx(K[1], rel=1e-14)
+    assert K[0] < K[1]  # a needle moves more easily along its axis
+
+
+@pytest.mark.parametrize("axis", [0, 1, 2])
+def test_pivot_drag_is_the_torque_of_the_centres_drag_and_diagonal_on_an_axis(axis):
+    """The torque about the pivot of the force −K(Ω×d) on the centre is
+    −DᵀKD Ω; for d on axis i it is diag with K_k d² at j, K_j d² at k, 0 at i."""
+    K = np.array([1.0, 2.0, 3.0])
+    rng = np.random.default_rng(axis)
+    d = np.zeros(3)
+    d[axis] = 0.7
+    P = pivot_drag(K, d)
+    for _ in range(3):
+        w = rng.normal(size=3)
+        np.testing.assert_allclose(-P @ w, np.cross(d, -K * np.cross(w, d)), rtol=1e-14, atol=1e-15)
+    j, k = (axis + 1) % 3, (axis + 2) % 3
+    expected = np.zeros(3)
+    expected[j], expected[k] = K[k] * 0.49, K[j] * 0.49
+    np.testing.assert_allclose(P, np.diag(expected), rtol=1e-14, atol=0)
+    off = pivot_drag(K, [0.3, 0.0, 0.4])  # off an axis: symmetric, not diagonal
+    np.testing.assert_allclose(off, off.T, atol=1e-16)
+    assert abs(off[0, 2]) > 0.1
+
+
+def test_the_ellipsoids_friction_about_its_pivot_and_the_papers_unchanged():
+    """The ellipsoid scene (pivot 1 cm below the centre on axis 3): C = Jeffery's
+    + diag(K₂d², K₁d², 0); the paper's sphere pivots at its centre: 8πηa³."""
+    s = load_scene("ellipsoid")
+    mu, ax, d = s.fluid.viscosity, np.array(s.body.semi_axes), np.array(s.body.center_of_mass)
+    K = oberbeck_resistance(ax, mu)[0]
+    C = physics_of_scene(s).friction[0]
+    np.testing.assert_allclose(C, jeffery_resistance(ax, mu)[0] + d[2] ** 2 * np.array([K[1], K[0], 0.0]),
+                               rtol=1e-14)
+    assert np.all(C[:2] > jeffery_resistance(ax, mu)[0, :2])
+    free = physics_of_scene(load_scene("free_ellipsoid")).friction[0]
+    np.testing.assert_array_equal(free, jeffery_resistance(ax, mu)[0])  # about its centre: no drag
+    paper = load_scene("paper")
+    np.testing.assert_allclose(physics_of_scene(paper).friction[0],
+                               8 * math.pi * paper.fluid.viscosity * paper.body.radius**3, rtol=1e-15)
+    with pytest.raises(SceneError) as exc:  # off an axis in a fluid: the drag would not be diagonal
+        load_scene("free_ellipsoid", {"body.center_of_mass": [0.01, 0.0, 0.01], "body.inertia": [1e-3, 1e-3, 1e-3]})
+    assert exc.value.key == "body.center_of_mass" and "diagonal" in str(exc.value)
+    load_scene("free_ellipsoid", {"body.center_of_mass": [0.01, 0.0, 0.01], "body.inertia": [1e-3, 1e-3, 1e-3],
+                                  "fluid.viscosity": 0.0})  # no fluid: no drag, any pivot
+
+
+def test_the_pivoted_ellipsoid_balances_energy_against_the_reference():
+    """With the pivot's drag the ellipsoid's run still conserves E = K + V + U:
+    entropy production Ω·C_pivot Ω is the heat of the same torque.  The VI at
+    h = 0.02 s follows the DOP853 reference over the first half second."""
+    from liethermo.runner import run_scene
+
+    over = {"integrator.steps": 250, "output.every": 25, "output.compare": []}
+    vi, _ = run_scene(load_scene("ellipsoid", over), None, progress=False)
+    ref, _ = run_scene(load_scene("ellipsoid", {**over, "integrator.method": "reference"}), None, progress=False)
+    Emech = float(ref.mechanical_energy_initial[0])
+    assert float(abs(ref.energy_error).max()) < 1e-9 * Emech
+    assert float(abs(vi.energy_error).max()) < 2e-2 * Emech
+    dS = float(ref.entropy[0, -1] - ref.entropy[0, 0])
+    assert dS > 0
+    # the first half second, before the heavy top's chaos separates the two
+    np.testing.assert_allclose(vi.omega.values[:, :2], ref.omega.values[:, :2],
+                               atol=2e-2 * float(abs(ref.omega[:, :2]).max()))
 
 
 def test_ellipsoid_inertia_and_pivot():

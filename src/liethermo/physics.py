@@ -18,9 +18,14 @@ Bodies (``body.shape``):
   sphere c = 8πμa³;
 * ``"ellipsoid"`` — a triaxial ellipsoid with semi-axes a₁, a₂, a₃ along
   its principal axes, of uniform density (or given mass, inertia and centre
-  of mass) turning about its centre; rotational Stokes resistance of Jeffery
-  (1922), C_i = (16πμ/3)(a_j² + a_k²)/(a_j²α_j + a_k²α_k),
-  α_i = (2/3) R_D(a_j², a_k², a_i²) (Carlson's integral).
+  of mass) turning about a pivot at −G from its centre (G on a principal
+  axis); rotational Stokes resistance of Jeffery (1922),
+  C_i = (16πμ/3)(a_j² + a_k²)/(a_j²α_j + a_k²α_k),
+  α_i = (2/3) R_D(a_j², a_k², a_i²) (Carlson's integral), plus the drag of
+  its centre moving at v = Ω×G through the fluid: Oberbeck's (1876)
+  translational resistance K_i = 16πμ/(χ₀ + a_i²α_i), χ₀ = 2 R_F(a₁², a₂², a₃²),
+  seen about the pivot as DᵀKD with D = [G]×, so that the torque is
+  −(C_rot + DᵀKD)Ω (diagonal for G on a principal axis).
 """
 
 from __future__ import annotations
@@ -107,6 +112,35 @@ def jeffery_resistance(semi_axes, viscosity) -> np.ndarray:
     return C
 
 
+def oberbeck_resistance(semi_axes, viscosity) -> np.ndarray:
+    """Translational Stokes resistance (N s m-1) of an ellipsoid along its
+    principal axes (Oberbeck 1876): force −K_i v_i on its centre moving at v;
+    K_i = 16πμ/(χ₀ + a_i²α_i) with χ₀ = 2 R_F(a₁², a₂², a₃²) and α_i as in
+    :func:`jeffery_resistance`.  A sphere of radius a gives 6πμa."""
+    from scipy.special import elliprd, elliprf
+
+    a = np.asarray(semi_axes, dtype=np.float64).reshape(-1, 3)
+    a2 = a * a
+    chi0 = 2.0 * elliprf(a2[:, 0], a2[:, 1], a2[:, 2])
+    K = np.empty_like(a)
+    mu = np.asarray(viscosity, dtype=np.float64).reshape(-1)
+    for i in range(3):
+        j, k = (i + 1) % 3, (i + 2) % 3
+        alpha_i = (2.0 / 3.0) * elliprd(a2[:, j], a2[:, k], a2[:, i])
+        K[:, i] = 16.0 * math.pi * mu / (chi0 + a2[:, i] * alpha_i)
+    return K
+
+
+def pivot_drag(K, d) -> np.ndarray:
+    """DᵀKD with D = [d]× (d × v = D v): the resistance about a pivot at −d
+    from the centre of a body whose centre, moving at v = Ω×d, feels the
+    force −Kv (K diagonal in the body frame).  A 3×3 symmetric positive
+    semi-definite matrix, diagonal when d lies on a principal axis."""
+    d = np.asarray(d, dtype=np.float64)
+    D = np.array([[0.0, -d[2], d[1]], [d[2], 0.0, -d[0]], [-d[1], d[0], 0.0]])
+    return D.T @ np.diag(np.asarray(K, dtype=np.float64)) @ D
+
+
 def _hemispheres(body: dict, viscosity: float) -> tuple:
     a = float(body["radius"])
     m = (4.0 / 3.0 * math.pi * a**3 * float(body["density"])
@@ -144,6 +178,8 @@ def _ellipsoid(body: dict, viscosity: float) -> tuple:
     else:
         inertia = np.asarray(body["inertia"], dtype=np.float64)
     C = jeffery_resistance(ax, viscosity)[0]
+    if np.any(G != 0.0):  # the centre, at G from the pivot, is dragged through the fluid
+        C = C + np.diag(pivot_drag(oberbeck_resistance(ax, viscosity)[0], G))
     return m, inertia, G, C, False
 
 

@@ -243,7 +243,8 @@ KEYS: tuple[Key, ...] = (
         word_or("shape", _inertia_check, aliases=("paper",))),
     Key("body", "center_of_mass", "shape", "m", '"shape" | [x, y, z]',
         'centre of mass G in the body frame, from the fixed point; "shape": hemispheres '
-        "(0, 0, 3m1a/(8m) − m2a/(2m)); ellipsoid: the centre (no gravity torque)",
+        "(0, 0, 3m1a/(8m) − m2a/(2m)); ellipsoid: the centre (no gravity torque). An "
+        "ellipsoid's centre is at G, so a G ≠ 0 also drags its centre through the fluid",
         word_or("shape", _com_check, aliases=("hemispheres",))),
     Key("body", "thermal_expansion", 0.0, "K-1", "≥ 0",
         "linear thermal expansion α: 𝕀(S) = 𝕀₀ (1 + α(θ − T0))², the fully coupled top",
@@ -578,12 +579,17 @@ def _cross_rules(s: dict) -> None:
     if steps % every:
         raise SceneError("output.every", f"must divide integrator.steps = {steps}", every)
     body = s["body"]
-    if body["shape"] == "ellipsoid" and body["inertia"] == "shape" and body["center_of_mass"] != "shape":
+    if body["shape"] == "ellipsoid" and body["center_of_mass"] != "shape":
         G = np.asarray(body["center_of_mass"])
-        if np.count_nonzero(G) > 1:
+        if np.count_nonzero(G) > 1 and body["inertia"] == "shape":
             raise SceneError("body.center_of_mass", "an ellipsoid with its own inertia pivots "
                              "about a point on one of its axes: give G along a body axis, or "
                              "body.inertia explicitly", body["center_of_mass"])
+        if np.count_nonzero(G) > 1 and s["fluid"]["viscosity"] > 0:
+            raise SceneError("body.center_of_mass", "an ellipsoid in a viscous fluid pivots about a "
+                             "point on one of its axes (the drag of its centre about the pivot is "
+                             "then diagonal, as the kernels need): give G along a body axis",
+                             body["center_of_mass"])
     method = s["integrator"]["method"]
     alpha = s["body"]["thermal_expansion"]
     lam = s["body"]["internal_friction"]
@@ -681,7 +687,9 @@ nothing else (docs/model.md, "Model terms"):
   the Stokes friction of a sphere, 8πηa³ (η = `fluid.viscosity`). `body.shape = "ellipsoid"` is a triaxial
   ellipsoid with `body.semi_axes`, uniform density about its centre unless
   `body.mass`, `body.inertia` or `body.center_of_mass` say otherwise, with Jeffery's
-  diagonal rotational resistance. Either shape takes explicit principal moments
+  diagonal rotational resistance; pivoting at −G from its centre
+  (`body.center_of_mass = G` on a body axis), its centre is also dragged through the
+  fluid (Oberbeck's resistance, seen about the pivot). Either shape takes explicit principal moments
   `body.inertia = [I1, I2, I3]`.
 * *Thermal expansion* — `body.thermal_expansion = α > 0` makes the inertia depend
   on the entropy, 𝕀(S) = 𝕀₀(1 + α(θ − T₀))²: the fully coupled top. Give it a small
