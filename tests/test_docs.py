@@ -409,3 +409,42 @@ def test_model_md_links_and_citations_resolve(model_md):
                 assert title in headings, (f, title)
             cited += 1
     assert cited >= 5
+
+
+# ------------------------------------------------------------------ README.md
+README = ROOT / "README.md"
+
+
+def test_readme_is_short_and_its_commands_are_the_ones_that_run():
+    """Under 150 lines; exactly two set-up commands (install + paper run, install +
+    tests), the second the very line .ci/run executes; every local link and the
+    figure exist; the first 60 lines hold both commands, the figure, the Python
+    lines and the table of which method for what."""
+    text = README.read_text(encoding="utf-8")
+    lines = text.splitlines()
+    assert len(lines) < 150, len(lines)
+    setup = [ln for ln in lines if ln.startswith("python -m pip install")]
+    assert setup == ["python -m pip install -e . && liethermo run paper",
+                     "python -m pip install -e '.[test]' && python -m pytest -q"], setup
+    assert setup[1] in (ROOT / ".ci" / "run").read_text().splitlines()
+    first = "\n".join(lines[:60])
+    for must in (setup[0], setup[1], "![", "liethermo.run(", "## Which method for what", "| a reference solution"):
+        assert must in first, must
+    for target in re.findall(r"\]\(([^)#:]+)(?:#[^)]*)?\)", text):
+        assert (ROOT / target).exists(), target
+
+
+def test_readme_python_lines_run(tmp_path, monkeypatch):
+    """The README's Python block, run as it stands in a fresh folder."""
+    monkeypatch.chdir(tmp_path)
+    code = re.search(r"```python\n(.*?)```", README.read_text(encoding="utf-8"), re.S).group(1)
+    ns: dict = {}
+    exec(compile(code, "README.md", "exec"), ns)
+    assert ns["ds"].attrs["method"] == "vi" and float(ns["err"].max()) < 1.0
+    assert set(ns["runs"]) == {"vi", "rk2"}
+    assert sorted(p.name for p in tmp_path.glob("paper*")) == [
+        "paper.nc", "paper_center_of_mass.png", "paper_energies.png", "paper_entropy.png", "paper_rk2.nc",
+        "paper_total_energy.png"]
+    for d in ns["runs"].values():
+        d.close()
+    ns["ds"].close()

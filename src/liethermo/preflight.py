@@ -165,7 +165,7 @@ class Estimate:
 
 #: Memory of a chunk per byte of its labelled output, beyond the kernel state
 #: (Ω, Γ and R are views of the state; the energies are new arrays): 1.0
-#: matched the measured peak to within 6 % (README, "Failures").
+#: matched the measured peak to within 6 % (docs/operations.md, "Disk and memory estimates").
 MEMORY_FACTOR = 1.0
 #: Bytes of a file besides the values (measured: 74 kB for the paper scene).
 FILE_OVERHEAD = 96 * 1024
