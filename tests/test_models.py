@@ -363,3 +363,24 @@ def test_paper_keys_are_the_papers():
     assert load_scene(None).integrator.start == "legendre"
     np.testing.assert_array_equal(np.array(s.initial.R), R0)
     np.testing.assert_array_equal(np.array(s.initial.omega), OMEGA0)
+
+
+def test_a_coupled_top_that_would_start_below_zero_kelvin_is_refused(tmp_path, capsys):
+    """T = T0 (1 − α Ω·𝕀₀Ω/c_v) at the start: a spin that makes it ≤ 0 is refused
+    before any work, naming the key, in Python and on the command line; the
+    ensemble's bound uses its fastest possible member."""
+    import liethermo
+    from liethermo.cli import main
+    from liethermo.preflight import PreflightError, check_parameters
+
+    fast = {"initial.omega": [30.0, 30.0, 30.0], "integrator.steps": 2}
+    with pytest.raises(PreflightError, match=r"body.thermal_expansion.*T = T0 \(1 − α Ω·𝕀₀Ω/c_v\) ≤ 0"):
+        liethermo.run("coupled_egg", fast, compare=False)
+    assert main(["run", "coupled_egg", "-o", str(tmp_path / "x.nc"), "--set", "initial.omega=[30,30,30]"]) == 2
+    assert "body.thermal_expansion" in capsys.readouterr().err and not list(tmp_path.iterdir())
+    check_parameters(load_scene("coupled_egg"))  # the built-in scene starts warm
+    check_parameters(load_scene("coupled_egg", {"initial.omega": [30.0, 30.0, 30.0], "thermo.heat_capacity": 1.0}))
+    # members up to spin_range[1] |Ω(0)|: 1.5 × |(0, 16, 16)| is too fast, one member at (0, 16, 16) is not
+    check_parameters(load_scene("coupled_egg", {"initial.omega": [0.0, 16.0, 16.0]}))
+    with pytest.raises(PreflightError, match="spin_range"):
+        check_parameters(load_scene("coupled_egg", {"initial.omega": [0.0, 16.0, 16.0], "ensemble.members": 8}))

@@ -79,6 +79,13 @@ def run(scene: str | Path | dict | Scene = "paper", overrides: dict | list | Non
     from .preflight import method_scene, output_paths
 
     sc = load_scene(scene, overrides)
+    if output is None:  # an output's checks (prepare_run) include these
+        from .preflight import check_parameters
+
+        try:
+            check_parameters(sc)
+        except PreflightError as exc:
+            raise PreflightError(_in_python_words(str(exc))) from None
     method = sc["integrator"]["method"]
     others = [m for m in dict.fromkeys(sc["output"]["compare"]) if m != method]
     if others and compare is None:

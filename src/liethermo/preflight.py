@@ -318,6 +318,28 @@ def check_parameters(scene: dict) -> None:
     if bad:
         raise PreflightError(f"the kernel parameters derived from the scene (mass, moments of inertia, friction, "
                              f"heat capacity, gravity torque) are {why}; check {', '.join(PARAMETER_KEYS)}")
+    _check_coupled_temperature(scene, phys)
+
+
+def _check_coupled_temperature(scene: dict, phys) -> None:
+    """The coupled top's temperature T = θ − φφ′ Ω·𝕀₀Ω must start positive for
+    every member: at S₀ (θ = T₀, φ = 1, φ′ = αT₀/c_v) that is α Ω·𝕀₀Ω < c_v.
+    The members' spins reach spin_range[1] × |Ω(0)| in any direction, so the
+    bound uses the largest moment."""
+    alpha = float(phys.thermal_expansion[0])
+    if alpha <= 0.0:
+        return
+    omega = np.asarray(scene["initial"]["omega"], dtype=np.float64)
+    cv = float(phys.heat_capacity[0])
+    if int(scene["ensemble"]["members"]) == 1:
+        kin2, what = float(omega @ (phys.inertia[0] * omega)), "Ω·𝕀₀Ω"
+    else:
+        hi = float(scene["ensemble"]["spin_range"][1]) * float(np.linalg.norm(omega))
+        kin2, what = float(phys.inertia[0].max()) * hi * hi, "I_max (spin_range[1] |Ω(0)|)²"
+    if alpha * kin2 >= cv:
+        raise PreflightError(f"scene key 'body.thermal_expansion': the coupled top would start at a "
+                             f"temperature T = T0 (1 − α {what}/c_v) ≤ 0 (α {what} = {alpha * kin2:.3g} J/K "
+                             f"against c_v = {cv:.3g} J/K); lower α or the spin, or raise thermo.heat_capacity")
 
 
 def _first_existing(p: Path) -> Path:
