@@ -590,3 +590,27 @@ def test_a_stop_swallowed_by_a_library_is_raised_again_between_units_of_work():
             check_stop()
         assert err.value.exit_code == 143
     check_stop()  # the handlers are restored: the next run starts clean
+
+
+def test_a_forked_child_does_not_keep_a_killed_runs_output_locked(tmp_path):
+    """The run forks a kernel-warming process; killed outright, the run must not
+    leave that child holding its output lock (an flock is shared across fork):
+    the rerun takes the output over at once."""
+    target = tmp_path / "x.nc"
+    code = f"""
+import multiprocessing, os, signal, sys, time
+from liethermo.faults import OutputLock
+lock = OutputLock({str(target)!r}).acquire()
+child = multiprocessing.get_context("fork").Process(target=time.sleep, args=(30,), daemon=True)
+child.start()
+print(child.pid, flush=True)
+os.kill(os.getpid(), signal.SIGKILL)
+"""
+    with subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True) as p:
+        child = int(p.stdout.readline())
+        p.wait()
+    try:
+        os.kill(child, 0)  # the child outlives its parent
+        OutputLock(target).acquire().release()  # and yet the output is free
+    finally:
+        os.kill(child, signal.SIGKILL)

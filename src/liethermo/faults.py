@@ -324,10 +324,33 @@ class Busy(Exception):
                          "wait for it to finish or write elsewhere")
 
 
+#: file descriptors of the output locks this process holds
+_HELD_LOCKS: set = set()
+
+
+def _close_inherited_locks() -> None:
+    """In a forked child: close its copies of the parent's lock descriptors.
+    An flock belongs to the open file, which a fork shares; a child that
+    kept its copy (the kernel-warming process, a worker) would hold the
+    output locked after its parent was killed, and the rerun that should
+    take over would be refused as if the dead run were still writing."""
+    for fd in list(_HELD_LOCKS):
+        try:
+            os.close(fd)
+        except OSError:
+            pass
+    _HELD_LOCKS.clear()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_close_inherited_locks)
+
+
 class OutputLock:
     """Exclusive lock of one output (a file, or a study folder), held by this
     process until :meth:`release`: ``.<name>.lock`` next to it (inside it for a
-    folder), with the holder's pid and host as its content.
+    folder), with the holder's pid and host as its content.  Forked children
+    do not inherit it.
 
     Where the filesystem has no locks, acquiring always succeeds (and the
     temporaries' liveness falls back to pids).
@@ -370,6 +393,7 @@ class OutputLock:
             except OSError:
                 pass  # a full disk: the lock holds all the same
             self.fd = fd
+            _HELD_LOCKS.add(fd)
             return self
         raise Busy(self.target, "lock file keeps changing")  # pragma: no cover
 
@@ -380,6 +404,7 @@ class OutputLock:
             self.path.unlink()
         except OSError:
             pass
+        _HELD_LOCKS.discard(self.fd)
         os.close(self.fd)
         self.fd = None
 
