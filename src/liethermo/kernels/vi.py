@@ -40,12 +40,13 @@ Jacobian
 
 solved in closed form (Cramer), started from an explicit Euler predictor
 X + ½(h + h') Ω̇(X, Γ', σ') of the continuous equations, stopped when the
-step is below ``tol · max(|X'|∞, |X|∞)``.  A step whose iteration does not
+step, or the next step that quadratic convergence predicts from the last
+two (|d|³/|d_prev|²), is below ``tol · max(|X'|∞, |X|∞)``.  A step whose iteration does not
 converge within ``maxiter`` iterations, or meets a singular or non-finite
 Jacobian, fails and is never accepted.  With D₁ = ½(I₃ − I₂) (and
 cyclically), component 1 of F reads
 
-    F₁ = M₁X₁ + hD₁X₂X₃ + (h²/4)(X·𝕀X)X₁ − r₁,   M₁ = I₁ + w_L h C₁,
+    F₁ = I₁X₁ + K₁X₁ + hD₁X₂X₃ + (h²/4)(X·𝕀X)X₁ − r₁,   K₁ = w_L h C₁,
 
 and the lane functions below evaluate it with explicit fused multiply-adds,
 shared by the straightforward and the vectorized kernels.
@@ -92,9 +93,17 @@ _folded_friction = overload_by_class(
 
 
 class VICoefficients(namedtuple("VICoefficients",
-                                "M1 M2 M3 L1 L2 L3 hD1 hD2 hD3 h4 h2 hh wlh wrh h")):
-    """Per-step-size coefficients: M = I + w_L h C, L = I − w_R h C, hD,
-    h²/4, h²/2, h/2, w_L h, w_R h and h."""
+                                "M1 M2 M3 K1 K2 K3 R1 R2 R3 hD1 hD2 hD3 h4 h2 hh wlh wrh h")):
+    """Per-step-size coefficients: M = I + w_L h C (the Jacobian's diagonal),
+    the linear friction of the Newton side K = w_L h C and of the update side
+    R = −w_R h C (None without a folded linear friction), hD, h²/4, h²/2, h/2,
+    w_L h, w_R h and h.
+
+    The residual and the momentum update take 𝕀X and KX (RX) as separate
+    terms, not MX with M = I + w_L h C rounded once: the friction of one step
+    is about 10⁻⁵ 𝕀 at h = 10⁻⁴ s, and folded into 𝕀 it would keep only
+    ~10⁻¹¹ of its own precision, a fixed error of the friction coefficient
+    that grows as 1/h (an error floor of 10⁻¹¹ at t = 10 s; docs/model.md)."""
 
     __slots__ = ()
 
@@ -109,7 +118,8 @@ def vi_coefficients(model, h, wl, wr):
     cl = wl * h
     cr = -(wr * h)
     return VICoefficients(axpy_opt(cl, c0, I.I1), axpy_opt(cl, c1, I.I2), axpy_opt(cl, c2, I.I3),
-                          axpy_opt(cr, c0, I.I1), axpy_opt(cr, c1, I.I2), axpy_opt(cr, c2, I.I3),
+                          scale_opt(cl, c0), scale_opt(cl, c1), scale_opt(cl, c2),
+                          scale_opt(cr, c0), scale_opt(cr, c1), scale_opt(cr, c2),
                           h * I.D1, h * I.D2, h * I.D3, 0.25 * (h * h), 0.5 * (h * h), 0.5 * h,
                           cl, wr * h, h)
 
@@ -123,9 +133,9 @@ def residual_jacobian(model, v, x0, x1, x2, b0, b1, b2):
     Q1 = I.I2 * x1
     Q2 = I.I3 * x2
     h4xQ = v.h4 * fma(Q0, x0, fma(Q1, x1, Q2 * x2))
-    F0 = fma(v.M1, x0, fma(v.hD1 * x1, x2, fma(h4xQ, x0, b0)))
-    F1 = fma(v.M2, x1, fma(v.hD2 * x2, x0, fma(h4xQ, x1, b1)))
-    F2 = fma(v.M3, x2, fma(v.hD3 * x0, x1, fma(h4xQ, x2, b2)))
+    F0 = fma(I.I1, x0, axpy_opt(x0, v.K1, fma(v.hD1 * x1, x2, fma(h4xQ, x0, b0))))
+    F1 = fma(I.I2, x1, axpy_opt(x1, v.K2, fma(v.hD2 * x2, x0, fma(h4xQ, x1, b1))))
+    F2 = fma(I.I3, x2, axpy_opt(x2, v.K3, fma(v.hD3 * x0, x1, fma(h4xQ, x2, b2))))
     hx0 = v.h2 * x0
     hx1 = v.h2 * x1
     hx2 = v.h2 * x2
@@ -247,19 +257,31 @@ def newton_correction(model, v, x0, x1, x2, xs, b0, b1, b2, s1):
     return d0, d1, d2, ds, det
 
 
-def _stop3(x0, x1, x2, xs, d0, d1, d2, ds, scale0, scales, tol):
+def _stop3(x0, x1, x2, xs, d0, d1, d2, ds, scale0, scales, tol, prev):
+    """(step, converged) for the new iterate X (= old − d) of a constant
+    inertia: converged when the step |d|∞ or the next step that quadratic
+    convergence predicts from the last two, |d|³/|d_prev|², is at most
+    tol·max(|X|∞, |X_k|∞).  The error of X is about the next step, so the
+    prediction saves the iteration that would only verify it.  ``prev`` = 0
+    (the first iteration) predicts nothing (|d|³/0 is inf, or NaN for d = 0,
+    which the step itself accepts); a step that grows predicts a larger one."""
     step = max(abs(d0), abs(d1), abs(d2))
     scale = max(abs(x0), abs(x1), abs(x2), scale0)
-    return step, step <= tol * scale
+    bound = tol * scale
+    return step, (step <= bound) | ((step * step) * step <= bound * (prev * prev))
 
 
-def newton_stop(x0, x1, x2, xs, d0, d1, d2, ds, scale0, scales, tol):
+def newton_stop(x0, x1, x2, xs, d0, d1, d2, ds, scale0, scales, tol, prev):
     """(step, converged) for the new iterate (= old − d): the step
     |d|∞ ≤ tol·max(|X|∞, |X_k|∞), and for the coupled top also
-    |d_s| ≤ tol·max(|Δ|, |σ'|).  ``step`` is NaN if any correction is."""
+    |d_s| ≤ tol·max(|Δ|, |σ'|); X may also stop on the predicted step
+    (see _stop3: ``prev`` is the last |d|∞), Δ only on its verifying step.
+    ``step`` is NaN if any correction is."""
     step = max(abs(d0), abs(d1), abs(d2))
     scale = max(abs(x0), abs(x1), abs(x2), scale0)
-    ok = (step <= tol * scale) & (abs(ds) <= tol * max(abs(xs), scales))
+    bound = tol * scale
+    okx = (step <= bound) | ((step * step) * step <= bound * (prev * prev))
+    ok = okx & (abs(ds) <= tol * max(abs(xs), scales))
     return step + 0.0 * ds, ok
 
 
@@ -325,12 +347,12 @@ def _advance_constant(inertia, model, v, vn, y, hn, mode, exact, t0):
         model.forces, I, h, x0, x1, x2, None, None, None, None, None, None, None, None, None,
         None, None, None)
     h4xQ = v.h4 * fma(I.I1 * x0, x0, fma(I.I2 * x1, x1, (I.I3 * x2) * x2))
-    m0 = axpy_opt(-v.wrh, f0, madd(v.L1, x0, madd(-v.hD1 * x1, x2, madd(h4xQ, x0,
-                                                                       scale_opt(v.hh, t0)))))
-    m1 = axpy_opt(-v.wrh, f1, madd(v.L2, x1, madd(-v.hD2 * x2, x0, madd(h4xQ, x1,
-                                                                       scale_opt(v.hh, t1)))))
-    m2 = axpy_opt(-v.wrh, f2, madd(v.L3, x2, madd(-v.hD3 * x0, x1, madd(h4xQ, x2,
-                                                                       scale_opt(v.hh, t2)))))
+    m0 = axpy_opt(-v.wrh, f0, fma(I.I1, x0, axpy_opt(x0, v.R1, madd(-v.hD1 * x1, x2, madd(
+        h4xQ, x0, scale_opt(v.hh, t0))))))
+    m1 = axpy_opt(-v.wrh, f1, fma(I.I2, x1, axpy_opt(x1, v.R2, madd(-v.hD2 * x2, x0, madd(
+        h4xQ, x1, scale_opt(v.hh, t1))))))
+    m2 = axpy_opt(-v.wrh, f2, fma(I.I3, x2, axpy_opt(x2, v.R3, madd(-v.hD3 * x0, x1, madd(
+        h4xQ, x2, scale_opt(v.hh, t2))))))
     b0 = -axpy_opt(vn.hh, t0, m0)
     b1 = -axpy_opt(vn.hh, t1, m1)
     b2 = -axpy_opt(vn.hh, t2, m2)
@@ -400,15 +422,16 @@ def newton_solve(model, vn, b, xp, xs, s1, scale0, scales, tol, maxiter):
     constant inertia.  On a singular or non-finite Jacobian the iterate is
     the last one before it."""
     return newton_iterate(model, vn, b, xp, xs, newton_data(model.inertia, model, s1), scale0,
-                          scales, tol, 0, maxiter)
+                          scales, tol, 0, maxiter, 0.0)
 
 
 @lane
-def newton_iterate(model, vn, b, xp, xs, tn, scale0, scales, tol, its, maxiter):
+def newton_iterate(model, vn, b, xp, xs, tn, scale0, scales, tol, its, maxiter, prev):
     """Newton iterations its+1 … maxiter from the iterate (X, Δ) = (xp, xs)
-    with the exact operations (``tn`` = :func:`newton_data`): the rest of a
-    solve (the block kernel finishes here a lane whose vectorized iteration
-    was out of the small-argument range)."""
+    with the exact operations (``tn`` = :func:`newton_data`; ``prev`` the
+    last step |d|∞, 0 before the first): the rest of a solve (the block
+    kernel finishes here a lane whose vectorized iteration was out of the
+    small-argument range)."""
     x0, x1, x2 = xp
     b0, b1, b2 = b
     code = NEWTON_MAXITER
@@ -423,13 +446,14 @@ def newton_iterate(model, vn, b, xp, xs, tn, scale0, scales, tol, its, maxiter):
         x1 -= d1
         x2 -= d2
         xs = sub_select(xs, True, ds)
-        step, conv = newton_stop(x0, x1, x2, xs, d0, d1, d2, ds, scale0, scales, tol)
+        step, conv = newton_stop(x0, x1, x2, xs, d0, d1, d2, ds, scale0, scales, tol, prev)
         if not (step == step):
             code = NEWTON_SINGULAR
             break
         if conv:
             code = NEWTON_OK
             break
+        prev = step
     return (x0, x1, x2), xs, code, its
 
 
