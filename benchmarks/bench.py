@@ -99,8 +99,12 @@ def run(kernel, method, phys, om0, R0, h, steps, every, attitude, threads):
     kw = {"start": "node", "entropy": "explicit"} if method == "vi" else {}
     if phys.n and np.any(phys.thermal_expansion) and method == "vi":
         kw = {}  # the coupled top starts from its node momentum
+    # the heat bound a run passes (its scene's): here the largest of this ensemble
+    from liethermo.physics import mechanical_energy_scale
+
+    heat = float(np.max(mechanical_energy_scale(phys, om0, R0[:, 2, :]), initial=0.0)) if phys.n else None
     return simulate(phys, om0, R0, h, steps, method, every=every, attitude=attitude,
-                    threads=threads, kernel=kernel, **kw)
+                    threads=threads, kernel=kernel, heat_bound=heat, **kw)
 
 
 def _bits_equal(a: np.ndarray, b: np.ndarray) -> bool:

@@ -385,3 +385,59 @@ def test_a_coupled_top_that_would_start_below_zero_kelvin_is_refused(tmp_path, c
     check_parameters(load_scene("coupled_egg", {"initial.omega": [0.0, 16.0, 16.0]}))
     with pytest.raises(PreflightError, match="spin_range"):
         check_parameters(load_scene("coupled_egg", {"initial.omega": [0.0, 16.0, 16.0], "ensemble.members": 8}))
+
+
+def test_a_small_heat_capacity_keeps_the_vectorized_temperature():
+    """1/T(σ) is a cubic valid to |σ/c_v| ≤ 2⁻¹⁶; an ensemble whose heat can
+    take σ/c_v further (c_v = 1e-3 J/K: up to 1/8 here) gets the degree-8
+    polynomial about the middle of that range, which agrees with
+    exp to 2 ulp over all of it and never asks for the scalar path; the
+    paper's top (c_v = 1300 J/K) keeps the cubic."""
+    import math
+
+    from liethermo.kernels._jit import jit
+    from liethermo.kernels.terms import thermo
+    from liethermo.initial import heat_bound, initial_conditions
+    from liethermo.physics import mechanical_energy_scale
+
+    scene = load_scene("coupled_egg", {"body.thermal_expansion": 0.0, "ensemble.members": 64,
+                                       "initial.omega": [0.0, 1.3, 1.3]})
+    phys = physics_of_scene(scene, 64)
+    om0, R = initial_conditions(scene)
+    heat = mechanical_energy_scale(phys, om0, R[:, 2, :])
+    assert heat.max() <= heat_bound(scene, phys)
+    th = build_model(phys, heat=heat.max()).model.thermo
+    assert isinstance(th, thermo.IdealSolidWide)
+    reach = math.log1p(heat.max() / (phys.heat_capacity[0] * phys.T0[0]))
+    assert 0.05 < reach <= 0.125
+    paper = physics_of_scene(load_scene("paper"), 1)
+    assert isinstance(build_model(paper, heat=1.0).model.thermo, thermo.IdealSolid)
+    assert isinstance(build_model(phys).model.thermo, thermo.IdealSolid)  # no bound given: the cubic
+
+    @jit
+    def inv(th, s):
+        return thermo.inverse_temperature(th, s, False)
+
+    for x in np.linspace(-1e-4, reach, 2001):
+        s = x * th.cv
+        f, ok = inv(th, s)
+        exact = th.e0 * math.exp(s * th.m)
+        assert ok and abs(f - exact) <= 2 * np.spacing(exact), x
+    assert not inv(th, 0.2 * th.cv)[1]  # beyond its range the lane is redone exactly
+
+
+def test_a_small_heat_capacity_gives_the_same_bits_however_the_ensemble_is_split():
+    """The wide polynomial's centre comes from the scene (its largest possible
+    heat), not from the members at hand: member chunks of 64 give the bits of
+    one chunk of 200, and the first chunk alone gives its members' bits."""
+    from liethermo.runner import run_scene
+
+    over = {"body.thermal_expansion": 0.0, "ensemble.members": 200, "integrator.steps": 200,
+            "output.every": 20, "output.compare": [], "integrator.method": "rk4"}
+    whole, _ = run_scene(load_scene("coupled_egg", {**over, "output.member_chunk": 200}), None, progress=False)
+    parts, _ = run_scene(load_scene("coupled_egg", {**over, "output.member_chunk": 64}), None, progress=False)
+    first, _ = run_scene(load_scene("coupled_egg", {**over, "output.member_chunk": 64, "ensemble.members": 64}),
+                         None, progress=False)
+    for name in ("omega", "gamma", "entropy"):
+        np.testing.assert_array_equal(whole[name].values, parts[name].values)
+    np.testing.assert_array_equal(whole["omega"].values[:64], first["omega"].values)

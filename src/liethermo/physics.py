@@ -230,15 +230,19 @@ class KernelModel:
         """Names of the terms present, for labels and reports."""
         out = [type(self.model.inertia).__name__]
         if self.model.thermo is not None:
-            out.append(type(self.model.thermo).__name__)
+            out.append("IdealSolid")  # IdealSolidWide: the same physics, a wider polynomial
         out += [type(t).__name__ for t in self.model.forces]
         if self.model.attitude is not None:
             out.append("Attitude")
         return out
 
 
-def build_model(phys: Physics, attitude: bool = False) -> KernelModel:
-    """The kernels' model of an ensemble: only the terms some member needs."""
+def build_model(phys: Physics, attitude: bool = False, heat=None) -> KernelModel:
+    """The kernels' model of an ensemble: only the terms some member needs.
+    ``heat``: an upper bound of the heat any member can produce (J; its
+    initial mechanical energy above rest): where it could take σ/c_v beyond
+    the cubic's range of 1/T, the ideal solid is evaluated with its wider
+    polynomial (same physics, and still vectorized)."""
     N = phys.n
     I0 = phys.inertia
     dissipative = phys.dissipative
@@ -250,7 +254,16 @@ def build_model(phys: Physics, attitude: bool = False) -> KernelModel:
         parts.append((_inertia.ConstantInertia, _inertia.constant_coefficients(I0)))
     thermo = None
     if dissipative:
-        thermo = (_thermo.IdealSolid, _thermo.coefficients(phys.heat_capacity, phys.T0))
+        # a heat q ≥ 0 takes σ/c_v to at most ln(1 + q/(c_v T₀)); one bound for the
+        # ensemble (its largest heat), so that members of one body share their model
+        qmax = 0.0 if heat is None else float(heat)
+        with np.errstate(all="ignore"):
+            reach = np.log1p(qmax / (phys.heat_capacity * phys.T0))
+        if np.any(reach > _thermo.EXP_SMALL):
+            reach = np.where(np.isfinite(reach), reach, 0.0)
+            thermo = (_thermo.IdealSolidWide, _thermo.coefficients_wide(phys.heat_capacity, phys.T0, reach))
+        else:
+            thermo = (_thermo.IdealSolid, _thermo.coefficients(phys.heat_capacity, phys.T0))
     forces: list[tuple[type, np.ndarray]] = []
     if np.any(phys.friction != 0.0):
         if phys.isotropic_friction:

@@ -19,7 +19,7 @@ from . import cf
 from .dataset import global_attrs, trajectory_dataset
 from .faults import check_stop
 from .findings import chunk_findings, finding_lines, merge_findings, physics_lines
-from .initial import initial_conditions
+from .initial import heat_bound, initial_conditions
 from .methods import get_method
 from .physics import build_model, physics_of_scene
 from .scene import Scene, load_scene, scene_to_toml
@@ -234,7 +234,7 @@ def estimate_time(scene: Scene) -> TimeEstimate:
         traj = simulate(phys, om0, R0, h, ps, method, friction=integ["friction"], start=integ["start"],
                         entropy=integ["entropy"], attitude=bool(scene["output"]["attitude"]), every=ps,
                         newton_tol=float(integ["newton_tol"]), newton_maxiter=int(integ["newton_maxiter"]),
-                        kernel=kernel)
+                        kernel=kernel, heat_bound=heat_bound(scene, phys))
         best = min(best, traj.wall_time)
         compile_s += traj.compile_time
     return TimeEstimate(method, best * (members * steps) / (pm * ps), pm, ps, best, compile_s)
@@ -263,7 +263,7 @@ def run_chunk(scene: dict, lo: int, hi: int, *, progress_cb=None, kernel: str | 
                     every=every, newton_tol=float(integ["newton_tol"]),
                     newton_maxiter=int(integ["newton_maxiter"]),
                     progress=(lambda n, k=hi - lo: progress_cb(n * k)) if progress_cb else None,
-                    threads=threads, kernel=kernel)
+                    threads=threads, kernel=kernel, heat_bound=heat_bound(scene, phys))
     ds = trajectory_dataset(traj, omega0=om0, R0=R0, member_offset=lo)
     st = ChunkStats(members=hi - lo, kernel_time=traj.wall_time, compile_time=traj.compile_time)
     ncounts = len(STATUS_MEANINGS)

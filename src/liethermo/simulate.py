@@ -202,6 +202,7 @@ def simulate(
     newton_tol: float = DEFAULT_NEWTON_TOL,
     newton_maxiter: int = DEFAULT_NEWTON_MAXITER,
     ref_substeps: int | None = None,
+    heat_bound: float | None = None,
     chunk_steps: int | None = None,
     progress: Callable[[int], None] | None = None,
     threads: int | None = None,
@@ -228,7 +229,12 @@ def simulate(
     "simple"): :func:`kernel_for`.  Both give bitwise the same results.  ``compile_only``: compile the kernels this
     run needs (or load them from numba's cache) and return None — what a
     process warming the cache for another one does; ``"start"``: only the
-    variational integrators' start kernel.
+    variational integrators' start kernel.  ``heat_bound``: an upper bound
+    (J) of the heat any member can produce; given, an ensemble whose heat can
+    take σ/c_v beyond 2⁻¹⁶ (a small heat capacity) evaluates 1/T with a wider
+    polynomial and keeps the vectorized path (runs pass their scene's,
+    :func:`liethermo.initial.heat_bound`, the same for every member chunk);
+    left out, the cubic, with the exact fallback beyond its range.
     """
     m: Method = get_method(method)
     kernel_for(m.name, 0, 0, kernel)  # rejects an unknown kernel before any work
@@ -246,7 +252,7 @@ def simulate(
     if omega0.shape != (N, 3) or R0.shape != (N, 3, 3):
         raise ValueError(f"omega0 must be ({N}, 3) and R0 ({N}, 3, 3) for {N} members, got "
                          f"{omega0.shape} and {R0.shape}")
-    km: KernelModel = build_model(physics, attitude)
+    km: KernelModel = build_model(physics, attitude, heat=heat_bound)
     layout = km.layout(m.family)
     if m.family == "vi" and layout.has("sigma_next") and m.effective_start(start) != "legendre":
         raise ValueError("the coupled top (thermal expansion) starts from its node momentum: "

@@ -36,7 +36,7 @@ def _warm(scene_toml: str, jobs: list[tuple[str, str]]) -> None:
     else:  # pragma: no cover
         import tomli as tomllib
 
-    from .initial import initial_conditions
+    from .initial import heat_bound, initial_conditions
     from .physics import physics_of_scene
     from .scene import load_scene
     from .simulate import kernel_for, simulate
@@ -49,7 +49,8 @@ def _warm(scene_toml: str, jobs: list[tuple[str, str]]) -> None:
         every = int(sc.output.every)
         # the loop the run's member chunks use, compiled on one member
         chunk = min(int(sc.ensemble.members), int(sc.output.member_chunk))
-        simulate(physics_of_scene(sc, 1), om0, R0, float(integ.h), every, method,
+        phys = physics_of_scene(sc, 1)
+        simulate(phys, om0, R0, float(integ.h), every, method, heat_bound=heat_bound(sc, phys),
                  friction=integ.friction, start=integ.start, entropy=integ.entropy,
                  attitude=bool(sc.output.attitude), every=every,
                  newton_tol=float(integ.newton_tol), newton_maxiter=int(integ.newton_maxiter),

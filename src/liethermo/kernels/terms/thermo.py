@@ -9,7 +9,10 @@ e₀ = 1/T₀ and the Taylor coefficients e₁ = e₀m, e₂ = e₁m/2, e₃ = e
 1/T(σ) is evaluated as the cubic ((e₃σ + e₂)σ + e₁)σ + e₀ when
 |σ/c_v| ≤ ``EXP_SMALL`` = 2⁻¹⁶ (the dropped quartic term is below 2⁻⁶⁸
 relative, far under round-off), which LLVM vectorizes; otherwise (or when σ
-is not finite) with ``math.exp``.  Every function that can use the cubic
+is not finite) with ``math.exp``.  An ensemble whose heat can take σ/c_v
+beyond 2⁻¹⁶ (a small heat capacity) gets :class:`IdealSolidWide` instead,
+whose degree-8 polynomial about the middle of the reachable entropy holds
+for σ/c_v from 0 to 1/8.  Every function that can use the cubic
 takes ``exact``: with ``exact=False`` (the vectorized sweeps) it always uses
 the cubic and returns whether that was valid; with ``exact=True`` it uses the
 cubic where valid and ``math.exp`` elsewhere.  The straightforward kernel
@@ -42,16 +45,31 @@ import numpy as np
 from numba.extending import overload
 
 from .._jit import LANE_OPTIONS, fma, lane
-from ..gen import is_none
+from ..gen import is_none, overload_by_class
 from ..lanemath import exp_lane
 
 #: |σ/c_v| up to which 1/T(σ) is its cubic Taylor polynomial
 EXP_SMALL = 2.0**-16
+#: |σ − σ_c|/c_v up to which 1/T(σ) is its degree-8 Taylor polynomial about σ_c
+#: (IdealSolidWide): the dropped term is below (1/16)⁹/9! < 2⁻⁵⁴ relative
+EXP_WIDE = 2.0**-4
 #: |x| up to which log1p(x) is its quartic Taylor polynomial
 LOG_SMALL = 2.0**-13
 
 
 class IdealSolid(namedtuple("IdealSolid", "cv T0 m e0 e1 e2 e3 smax icv")):
+    __slots__ = ()
+
+
+class IdealSolidWide(namedtuple("IdealSolidWide", "cv T0 m e0 e1 e2 e3 smax icv sc f0 f1 f2 f3 f4 f5 f6 f7 f8")):
+    """The same ideal solid for ensembles that heat: 1/T(σ) is the degree-8
+    Taylor polynomial about σ_c = ``sc`` (f_k = 1/T(σ_c)·m^k/k!), valid for
+    |σ − σ_c| ≤ c_v/16.  σ_c is the middle of the entropy the ensemble's heat
+    can reach, so that σ/c_v from 0 to 1/8 (a heating by 13 %) keeps the
+    vectorized path; the cubic of :class:`IdealSolid` holds only to 2⁻¹⁶,
+    beyond which a lane is redone with ``math.exp`` (as it is here beyond
+    the polynomial's range)."""
+
     __slots__ = ()
 
 
@@ -83,12 +101,47 @@ def coefficients(heat_capacity: np.ndarray, T0: np.ndarray) -> np.ndarray:
     return np.stack([cv, T0, m, e0, e1, e2, e3, EXP_SMALL * cv, 1.0 / cv], axis=1)
 
 
+def coefficients_wide(heat_capacity: np.ndarray, T0: np.ndarray, reach: np.ndarray) -> np.ndarray:
+    """(N, 19) coefficients of IdealSolidWide: those of :func:`coefficients`
+    (σ_max = EXP_WIDE·c_v, the half-width about σ_c), σ_c = c_v·reach/2 and
+    the Taylor coefficients f₀ … f₈ of 1/T about σ_c (``reach``: the σ/c_v
+    the heat can reach, (N,))."""
+    base = coefficients(heat_capacity, T0)
+    base[:, 7] = EXP_WIDE * base[:, 0]
+    cv, m, e0 = base[:, 0], base[:, 2], base[:, 3]
+    sc = 0.5 * cv * np.broadcast_to(np.asarray(reach, dtype=np.float64).reshape(-1), cv.shape)
+    f = [e0 * np.exp(m * sc)]
+    for n in range(1, 9):
+        f.append(f[-1] * m * (1.0 / n))
+    return np.column_stack([base, sc] + f)
+
+
+def _inverse_temperature_poly(th, s):
+    """(1/T(σ), valid): the cubic about 0."""
+    return fma(s, fma(s, fma(s, th.e3, th.e2), th.e1), th.e0), abs(s) <= th.smax
+
+
+def _inverse_temperature_wide(th, s):
+    """(1/T(σ), valid): the degree-8 polynomial about σ_c, by Estrin's scheme
+    (a dependency chain of 5 operations instead of Horner's 8)."""
+    x = s - th.sc
+    x2 = x * x
+    x4 = x2 * x2
+    b0 = fma(x2, fma(x, th.f3, th.f2), fma(x, th.f1, th.f0))
+    b1 = fma(x2, fma(x, th.f7, th.f6), fma(x, th.f5, th.f4))
+    return fma(x4, fma(x4, th.f8, b1), b0), abs(x) <= th.smax
+
+
+inverse_temperature_poly = overload_by_class(_inverse_temperature_poly, IdealSolidWide,
+                                             _inverse_temperature_wide)
+
+
 @lane
 def inverse_temperature(th, s, exact):
-    """(1/T(σ), ok) in 1/K: the cubic, valid if ``small``; with ``exact`` the
-    cubic where it is valid and math.exp elsewhere (ok then always True)."""
-    f = fma(s, fma(s, fma(s, th.e3, th.e2), th.e1), th.e0)
-    small = abs(s) <= th.smax
+    """(1/T(σ), ok) in 1/K: the Taylor polynomial (the cubic; for
+    IdealSolidWide degree 8 about σ_c), valid if ``small``; with ``exact`` the polynomial where
+    it is valid and math.exp elsewhere (ok then always True)."""
+    f, small = inverse_temperature_poly(th, s)
     if exact:
         if not small:
             f = th.e0 * math.exp(s * th.m)
