@@ -86,7 +86,6 @@ ROW_PARTS = (
     # T(σ) of the next step (σ' is its σ)
     ("SC0", 1), ("SCS", 1),  # VI: |X_k|∞ (and, coupled, |σ'|): scales of the stopping rule
     ("RUN", 1), ("CODE", 1), ("ITS", 1),  # VI: Newton mask, outcome, iterations
-    ("DP", 1),  # VI: the last Newton step |d|∞ (0 before the first), for the stopping rule
     ("HW", 1), ("NTOT", 1), ("NMAX", 1), ("STEPS", 1), ("MEMBER", 1),  # statistics at entry
     ("FLAG", 1),  # per-step outcome (FLAG_*)
     ("W2", 1),  # max |Ω|² (times the squared substep factor) over this call
@@ -103,8 +102,8 @@ def _row_map(parts):
 
 ROWS, NROWS_FIXED = _row_map(ROW_PARTS)
 O_Y, O_YB, O_GN, O_SN, O_MUN, O_RN, O_X, O_XS, O_B, O_TN, O_SC0, O_SCS, O_RUN, O_CODE, O_ITS, \
-    O_DP, O_HW, O_NTOT, O_NMAX, O_STEPS, O_MEMBER, O_FLAG, O_W2 = (ROWS[name][0] * ROW
-                                                                    for name, _ in ROW_PARTS)
+    O_HW, O_NTOT, O_NMAX, O_STEPS, O_MEMBER, O_FLAG, O_W2 = (ROWS[name][0] * ROW
+                                                              for name, _ in ROW_PARTS)
 #: the first parameter row (rows mode)
 O_P = NROWS_FIXED * ROW
 
@@ -332,10 +331,9 @@ def _vi_prepare(model, shared, S, nb, vv, vvn, h, hn, g2, wl, wr, mode, tol, fir
         n1 = x1 - d1
         n2 = x2 - d2
         ns = sub_select(ps, True, ds)
-        step, conv = newton_stop(n0, n1, n2, ns, d0, d1, d2, ds, sc0, scs, tol, 0.0)
+        step, conv = newton_stop(n0, n1, n2, ns, d0, d1, d2, ds, sc0, scs, tol)
         bad = sing | (not (step == step))
         stay = sing | (not first) | redo
-        st(S, O_DP + i, select(stay, 0.0, step))
         st(S, O_X + i, select(stay, x0, n0))
         st(S, O_X + ROW + i, select(stay, x1, n1))
         st(S, O_X + 2 * ROW + i, select(stay, x2, n2))
@@ -395,9 +393,8 @@ def _newton_sweep(model, shared, S, nb, vvn, hn, wl, wr, tol, it):
         n0 = x0 - d0
         n1 = x1 - d1
         n2 = x2 - d2
-        prev = ld(S, O_DP + i)
         step, conv = newton_stop(n0, n1, n2, sub_select(xs, True, ds), d0, d1, d2, ds,
-                                 ld(S, O_SC0 + i), load1_if(xs, S, O_SCS + i), tol, prev)
+                                 ld(S, O_SC0 + i), load1_if(xs, S, O_SCS + i), tol)
         nanstep = not (step == step)
         move = run & okn & (not sing)
         # A lane that stays keeps its row values.  Written as x − (d or +0), not as
@@ -406,7 +403,6 @@ def _newton_sweep(model, shared, S, nb, vvn, hn, wl, wr, tol, it):
         st(S, O_X + ROW + i, x1 - select(move, d1, 0.0))
         st(S, O_X + 2 * ROW + i, x2 - select(move, d2, 0.0))
         store1(sub_select(xs, move, ds), S, O_XS + i)
-        st(S, O_DP + i, select(move, step, prev))
         bad = sing | nanstep
         code_old = ld(S, O_CODE + i)
         code = select(okn, select(bad, NEWTON_SINGULAR, select(conv, NEWTON_OK, code_old)),
@@ -421,11 +417,11 @@ def _newton_sweep(model, shared, S, nb, vvn, hn, wl, wr, tol, it):
     return nrun
 
 
-#: the rows a compacted Newton lane needs: X, XS, B, TN, SC0, SCS, RUN, CODE, ITS, DP
+#: the rows a compacted Newton lane needs: X, XS, B, TN, SC0, SCS, RUN, CODE, ITS
 _COMPACT_ROWS = tuple(ROWS[name][0] + k for name in ("X", "XS", "B", "TN", "SC0", "SCS", "RUN",
-                                                     "CODE", "ITS", "DP")
+                                                     "CODE", "ITS")
                       for k in range(ROWS[name][1]))
-_BACK_ROWS = tuple(ROWS[name][0] + k for name in ("X", "XS", "RUN", "CODE", "ITS", "DP")
+_BACK_ROWS = tuple(ROWS[name][0] + k for name in ("X", "XS", "RUN", "CODE", "ITS")
                    for k in range(ROWS[name][1]))
 
 
@@ -469,8 +465,7 @@ def _newton_redo(marker, model, shared, S, nb, vvn, hn, wl, wr, tol, maxiter):
             md, vn, (ld(S, O_B + i), ld(S, O_B + ROW + i), ld(S, O_B + 2 * ROW + i)),
             (ld(S, O_X + i), ld(S, O_X + ROW + i), ld(S, O_X + 2 * ROW + i)),
             load1_if(marker, S, O_XS + i), load1_if(marker, S, O_TN + i), ld(S, O_SC0 + i),
-            load1_if(marker, S, O_SCS + i), tol, np.int64(ld(S, O_ITS + i)), maxiter,
-            ld(S, O_DP + i))
+            load1_if(marker, S, O_SCS + i), tol, np.int64(ld(S, O_ITS + i)), maxiter)
         st(S, O_X + i, X[0])
         st(S, O_X + ROW + i, X[1])
         st(S, O_X + 2 * ROW + i, X[2])
