@@ -27,6 +27,15 @@ entropy), ``coupled`` (the coupled top of the ``coupled_egg`` scene, with
 entropy-dependent inertia) and ``coupled_alpha0`` (the same scene with
 α = 0: the decoupled kernel on the same motion).
 
+``--scenes`` times what users run: a built-in scene's own ensemble
+(``ensemble.members`` drawn from its seed, default 65 536 members × 2 000
+steps) through the same driver as ``liethermo run`` (``runner.run_scene``,
+in memory: member chunks, labelling and summary included), for each method
+of ``--scene-methods``, over ``--rounds`` rounds that alternate the methods:
+the whole run's wall time and its kernel time alone, each as min / median /
+max in ns per member-step.  Shared machines move these figures by ±20 % from
+one run to the next; the spread over rounds says how much.
+
 Start-up (``liethermo run paper`` from a cold and a warm numba cache, in a
 fresh process) is timed unless ``--no-startup``; ``--asm`` counts the
 instructions of the hot loop of each of the fast kernel's sweeps (packed
@@ -105,6 +114,41 @@ def run(kernel, method, phys, om0, R0, h, steps, every, attitude, threads):
     heat = float(np.max(mechanical_energy_scale(phys, om0, R0[:, 2, :]), initial=0.0)) if phys.n else None
     return simulate(phys, om0, R0, h, steps, method, every=every, attitude=attitude,
                     threads=threads, kernel=kernel, heat_bound=heat, **kw)
+
+
+def scene_report(scenes, methods, members: int, steps: int, rounds: int) -> list[dict]:
+    """Wall and kernel time of each (scene, method) run through runner.run_scene
+    (in memory), over ``rounds`` rounds alternating the methods; the first run
+    of each, which compiles or loads its kernels, is not counted."""
+    from liethermo.runner import run_scene
+    from liethermo.scene import load_scene
+
+    out = []
+    for name in scenes:
+        cases = [load_scene(name, {"ensemble.members": members, "integrator.steps": steps,
+                                   "integrator.method": m, "output.compare": [], "output.every": steps // 10,
+                                   "output.figures": False}) for m in methods]
+        for sc in cases:  # compile (or load) first
+            run_scene(sc.with_overrides({"ensemble.members": 64, "integrator.steps": steps // 100 or 1,
+                                          "output.every": 1}), None, progress=False)
+        times = {m: ([], []) for m in methods}
+        newton = {}
+        for _ in range(max(1, rounds)):
+            for m, sc in zip(methods, cases):
+                t0 = time.perf_counter()
+                ds, summ = run_scene(sc, None, progress=False)
+                wall = time.perf_counter() - t0
+                del ds
+                times[m][0].append(wall / (members * steps) * 1e9)
+                times[m][1].append(summ.kernel_time / (members * steps) * 1e9)
+                newton[m] = summ.newton_mean
+        for m in methods:
+            w, k = np.array(times[m][0]), np.array(times[m][1])
+            out.append(dict(scene=name, method=m, members=members, steps=steps, rounds=len(w),
+                            run_ns=[float(w.min()), float(np.median(w)), float(w.max())],
+                            kernel_ns=[float(k.min()), float(np.median(k)), float(k.max())],
+                            newton_per_solve=float(newton[m])))
+    return out
 
 
 def _bits_equal(a: np.ndarray, b: np.ndarray) -> bool:
@@ -276,6 +320,13 @@ def main(argv=None) -> int:
                     help="skip timing `liethermo run paper` from a cold and a warm numba cache")
     ap.add_argument("--asm", action="store_true",
                     help="count packed SIMD instructions in the fast kernel's lane loops")
+    ap.add_argument("--scenes", nargs="*", default=None, metavar="SCENE",
+                    help="also time these built-in scenes' own ensembles through the run driver "
+                    "(no name: paper)")
+    ap.add_argument("--scene-methods", nargs="+", default=["vi", "rk4"], choices=METHODS)
+    ap.add_argument("--scene-members", type=int, default=65536)
+    ap.add_argument("--scene-steps", type=int, default=2000)
+    ap.add_argument("--rounds", type=int, default=5, help="rounds of the --scenes timing")
     args = ap.parse_args(argv)
     if args.steps % args.every:
         ap.error("--steps must be a multiple of --every")
@@ -342,6 +393,16 @@ def main(argv=None) -> int:
     if startup:
         print(f"{startup['command']}: cold start {startup['cold_s']:.1f} s (empty numba cache), "
               f"warm start {startup['warm_s']:.2f} s (best of {len(startup['warm_runs_s'])})")
+    scenes = None
+    if args.scenes is not None:
+        scenes = scene_report(args.scenes or ["paper"], args.scene_methods, args.scene_members,
+                              args.scene_steps, args.rounds)
+        print(f"scene runs through the run driver ({args.scene_members} members x {args.scene_steps} steps, "
+              f"{args.rounds} rounds alternating the methods), ns per member-step min / median / max:")
+        for r in scenes:
+            print(f"  {r['scene']:<14}{r['method']:<5} whole run {r['run_ns'][0]:6.2f} / {r['run_ns'][1]:6.2f} / "
+                  f"{r['run_ns'][2]:6.2f}   kernels {r['kernel_ns'][0]:6.2f} / {r['kernel_ns'][1]:6.2f} / "
+                  f"{r['kernel_ns'][2]:6.2f}   Newton per solve {r['newton_per_solve']:.2f}")
     asm = asm_report() if args.asm else None
     if asm:
         print("hot loop of each sweep (paper model, shared parameters), per iteration:")
@@ -359,7 +420,7 @@ def main(argv=None) -> int:
                          threads=threads, numba=numba.__version__, numpy=np.__version__,
                          python=sys.version.split()[0]),
             liethermo=__version__, created=time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-            import_s=import_s, asm=asm, startup=startup, results=rows)
+            import_s=import_s, asm=asm, startup=startup, results=rows, scenes=scenes)
         tmp = args.json + ".tmp"
         with open(tmp, "w") as f:
             json.dump(doc, f, indent=1)
