@@ -37,7 +37,6 @@ import tomli_w
 
 from .methods import ENTROPY_UPDATES, FRICTION, METHODS, STARTS
 
-R_GAS = 8.314462618  # J mol⁻¹ K⁻¹
 
 
 class SceneError(ValueError):

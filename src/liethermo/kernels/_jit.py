@@ -98,10 +98,6 @@ lane = functools.partial(numba.njit, cache=False, fastmath=False, error_model="n
                          forceinline=True, nogil=True)
 #: jit options of the ``@overload`` implementations that are lane functions
 LANE_OPTIONS = {"forceinline": True, "fastmath": False, "error_model": "numpy", "nogil": True}
-pjit = functools.partial(
-    numba.njit, cache=CACHE, fastmath=False, error_model="numpy", parallel=True
-)
-prange = numba.prange
 
 
 @intrinsic

@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import itertools
 
-import numpy as np
 from numba import types
 from numba.extending import overload
 
@@ -372,6 +371,3 @@ def finite(x):
     """x − x == 0: true for finite x, false for ±inf and NaN."""
     return x - x == 0.0
 
-
-def as_rows(values: list[list[float]]) -> np.ndarray:
-    return np.ascontiguousarray(np.asarray(values, dtype=np.float64))

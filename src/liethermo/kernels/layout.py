@@ -43,9 +43,6 @@ NFSTAT = 1
 # Newton outcome codes
 NEWTON_OK, NEWTON_MAXITER, NEWTON_SINGULAR = 0, 1, 2
 
-FAMILIES = ("rk", "vi")
-
-
 @dataclass(frozen=True)
 class Traits:
     """What of the state a model needs."""
@@ -177,20 +174,3 @@ def state_size(model, family: str) -> int:
 def state_size_of_type(model_type, family: str) -> int:
     return sum(size for _, size in state_parts(traits(model_type), family))
 
-
-def state_size_fn(family: str):
-    """A generic function ``n(model)`` → the state size (a compile-time constant)."""
-
-    def n(model):
-        return state_size(model, family)
-
-    @overload(n, jit_options=LANE_OPTIONS)
-    def _n(model):
-        size = state_size_of_type(model, family)
-        return compile_source(f"def impl(model):\n    return {size}\n", {})
-
-    return n
-
-
-rk_state_size = state_size_fn("rk")
-vi_state_size = state_size_fn("vi")

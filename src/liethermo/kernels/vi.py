@@ -55,8 +55,6 @@ from __future__ import annotations
 
 from collections import namedtuple
 
-import numpy as np
-
 from ._jit import fma, lane, select
 from .equations import entropy_and_omega_rates, omega_rate
 from .gen import axpy_opt, finite, madd, none_dispatch, or_zero, overload_by_class, scale_opt
@@ -489,14 +487,3 @@ def _entropy_predictor_coupled(inertia, model, v, X, s):
 
 entropy_predictor = overload_by_class(entropy_predictor, ThermalInertia, _entropy_predictor_coupled)
 
-
-def substep_factors(method: str) -> tuple:
-    try:
-        return COMPOSITIONS[method]
-    except KeyError:
-        raise ValueError(f"unknown variational method {method!r}: expected one of "
-                         f"{sorted(COMPOSITIONS)}") from None
-
-
-def as_array(t) -> np.ndarray:
-    return np.asarray(t, dtype=np.float64)

@@ -21,7 +21,7 @@ of the numba type: the solvers call the protocol functions below, and numba
 picks each term's implementation at compile time; a term that has nothing to
 say to a protocol passes the accumulators through, an absent term is not
 there at all.  A new friction law is one module with its namedtuple and its
-implementations of the protocol, registered in :data:`FORCE_TERMS`.
+implementations of the protocol, added to :func:`liethermo.physics.build_model`.
 
 Protocol (all lane functions on floats; ``a``, ``p``, ``c``, ``t`` are
 accumulators that start as None, see :func:`liethermo.kernels.gen.madd`):
@@ -140,17 +140,6 @@ sum_linear_friction = make_fold(linear_friction, 0, 3, "sum_linear_friction")
 sum_torque = make_fold(torque, 3, 3, "sum_torque")
 sum_nonlinear_friction = make_fold(nonlinear_friction, 5, 12, "sum_nonlinear_friction")
 
-
-def has_attitude(model_type) -> bool:
-    return not is_none(model_type.types[model_type.fields.index("attitude")])
-
-
-def field_type(model_type, name):
-    return model_type.types[model_type.fields.index(name)]
-
-
-def is_type(ty, cls) -> bool:
-    return getattr(ty, "instance_class", None) is cls
 
 
 __all__ = ["Model", "ATTITUDE", "Attitude", "angular_acceleration", "dissipated_power",
