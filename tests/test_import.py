@@ -64,3 +64,34 @@ def test_cache_guard_targets_numbas_own_folder(tmp_path, monkeypatch):
     expected = [tmp_path / _CacheLocator.get_suitable_cache_subpath(str(here / "simple.py")),
                 tmp_path / _CacheLocator.get_suitable_cache_subpath(str(here / "terms" / "gravity.py"))]
     assert _cache_dirs(here) == expected
+
+
+def test_generated_code_is_named_readable_and_dumpable(tmp_path):
+    """Generated source has a file name that says what it is, tracebacks show
+    its lines, and LIETHERMO_DUMP_SOURCE writes every piece a run compiles."""
+    import linecache
+    import os
+    import subprocess
+    import sys
+    import traceback
+
+    from liethermo.kernels.gen import compile_source
+
+    f = compile_source("def impl(x):\n    return 1.0 / x\n", {}, label="demo reciprocal")
+    try:
+        f(0.0)
+    except ZeroDivisionError as exc:
+        frame = traceback.extract_tb(exc.__traceback__)[-1]
+    assert frame.filename.startswith("<liethermo-generated demo reciprocal #")
+    assert frame.line == "return 1.0 / x"
+    assert linecache.getline(frame.filename, 2).strip() == "return 1.0 / x"
+
+    code = ("from liethermo import run\n"
+            "run('paper', {'integrator.steps': 5, 'integrator.method': 'rk4'}, compare=False)\n")
+    env = dict(os.environ, LIETHERMO_DUMP_SOURCE=str(tmp_path / "src"), LIETHERMO_NUMBA_CACHE="0")
+    subprocess.run([sys.executable, "-c", code], check=True, env=env, capture_output=True)
+    names = sorted(p.name for p in (tmp_path / "src").glob("*.py"))
+    assert any(n.startswith("explicit_step_ClassicalRK4") for n in names), names
+    assert any(n.startswith("fold_sum_angular_acceleration_over_StokesSphere_Gravity") for n in names), names
+    text = next((tmp_path / "src").glob("explicit_step_ClassicalRK4*.py")).read_text()
+    assert text.startswith("# <liethermo-generated explicit_step ClassicalRK4 #") and "rk_rhs(model" in text

@@ -23,12 +23,21 @@ tuple of forces are all trees.
 * :func:`make_fold` — a generic function that threads accumulators through a
   protocol function over every term of a tuple;
 * :func:`flatten` (plain Python) — the floats of a tree in the order
-  :func:`unflatten` reads them.
+  :func:`unflatten` reads them;
+* :func:`compile_source` — the one place generated source becomes code: each
+  piece gets a file name that says what it is (``<liethermo-generated
+  fold sum_torque #12>``), its lines are registered with :mod:`linecache` so
+  that a traceback shows them, and with ``LIETHERMO_DUMP_SOURCE=<folder>``
+  every piece is also written there as a ``.py`` file to read.
 """
 
 from __future__ import annotations
 
 import itertools
+import linecache
+import os
+import re
+from pathlib import Path
 
 from numba import types
 from numba.extending import overload
@@ -83,10 +92,27 @@ def build(ty, items, ns: dict) -> str:
     return next(items)
 
 
-def compile_source(src: str, ns: dict, name: str = "impl"):
-    """exec ``src`` in ``ns`` (with :func:`fma` available) and return ``ns[name]``."""
+_GENERATED = itertools.count()
+
+
+def compile_source(src: str, ns: dict, name: str = "impl", label: str | None = None):
+    """Execute the generated source ``src`` in ``ns`` (with :func:`fma`
+    available) and return ``ns[name]``.  ``label`` says what the code is (by
+    default ``name``): it goes into the file name that tracebacks show,
+    ``<liethermo-generated LABEL #N>``, whose lines :mod:`linecache` then
+    knows; with ``LIETHERMO_DUMP_SOURCE`` set to a folder the source is also
+    written there as ``LABEL-N.py``."""
     ns.setdefault("fma", fma)
-    exec(src, ns)
+    label = label or name
+    n = next(_GENERATED)
+    filename = f"<liethermo-generated {label} #{n}>"
+    linecache.cache[filename] = (len(src), None, src.splitlines(True), filename)
+    folder = os.environ.get("LIETHERMO_DUMP_SOURCE")
+    if folder:
+        path = Path(folder) / f"{re.sub(r'[^A-Za-z0-9_.-]+', '_', label)}-{n}.py"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(f"# {filename}\n{src}")
+    exec(compile(src, filename, "exec"), ns)
     return ns[name]
 
 
@@ -141,14 +167,16 @@ def none_dispatch(present, absent, arg: int = 0):
     args = ", ".join(inspect.signature(present).parameters)
     ns: dict = {}
     ns.update(present=present, absent=absent)
-    exec(f"def {present.__name__}({args}):\n"
-         f"    return (absent if ({args},)[{arg}] is None else present)({args})\n", ns)
-    fn = ns[present.__name__]
+    label = f"none_dispatch {present.__name__}"
+    fn = compile_source(f"def {present.__name__}({args}):\n"
+                        f"    return (absent if ({args},)[{arg}] is None else present)({args})\n", ns,
+                        present.__name__, label)
     fn.__doc__ = present.__doc__
     tns = {"is_none": is_none, "present": present, "absent": absent}
-    exec(f"def _typer({args}):\n"
-         f"    return absent if is_none(({args},)[{arg}]) else present\n", tns)
-    overload(fn, jit_options=LANE_OPTIONS)(tns["_typer"])
+    typer = compile_source(f"def _typer({args}):\n"
+                           f"    return absent if is_none(({args},)[{arg}]) else present\n", tns,
+                           "_typer", label + " typer")
+    overload(fn, jit_options=LANE_OPTIONS)(typer)
     return fn
 
 
@@ -161,15 +189,17 @@ def overload_by_class(default, cls, special, arg: int = 0):
     args = ", ".join(inspect.signature(default).parameters)
     ns: dict = {}
     ns.update(default=default, special=special, cls=cls)
-    exec(f"def {default.__name__}({args}):\n"
-         f"    return (special if isinstance(({args},)[{arg}], cls) else default)({args})\n", ns)
-    fn = ns[default.__name__]
+    label = f"overload_by_class {default.__name__} {cls.__name__}"
+    fn = compile_source(f"def {default.__name__}({args}):\n"
+                        f"    return (special if isinstance(({args},)[{arg}], cls) else default)({args})\n",
+                        ns, default.__name__, label)
     fn.__doc__ = default.__doc__
     tns = {"default": default, "special": special, "cls": cls}
-    exec(f"def _typer({args}):\n"
-         f"    t = ({args},)[{arg}]\n"
-         f"    return special if getattr(t, 'instance_class', None) is cls else default\n", tns)
-    overload(fn, jit_options=LANE_OPTIONS)(tns["_typer"])
+    typer = compile_source(f"def _typer({args}):\n"
+                           f"    t = ({args},)[{arg}]\n"
+                           f"    return special if getattr(t, 'instance_class', None) is cls else default\n",
+                           tns, "_typer", label + " typer")
+    overload(fn, jit_options=LANE_OPTIONS)(typer)
     return fn
 
 
@@ -224,7 +254,8 @@ def _unflatten(template, p, base, stride):
     ns: dict = {}
     ns["ld"] = ld
     expr = build(template, iter([f"ld(p, base + {k} * stride)" for k in range(n)]), ns)
-    return compile_source(f"def impl(template, p, base, stride):\n    return {expr}\n", ns)
+    return compile_source(f"def impl(template, p, base, stride):\n    return {expr}\n", ns,
+                          label=f"unflatten {n} floats")
 
 
 def _tree_map(f, *trees):
@@ -264,7 +295,7 @@ def _tree_fma(a, x, y):
         return None
     ns: dict = {}
     expr = build(y, iter([f"fma(a, {u}, {v})" for u, v in zip(lx, ly)]), ns)
-    return compile_source(f"def impl(a, x, y):\n    return {expr}\n", ns)
+    return compile_source(f"def impl(a, x, y):\n    return {expr}\n", ns, label=f"tree_fma {len(lx)} leaves")
 
 
 def tree_finite(x):
@@ -283,7 +314,7 @@ def _tree_finite(x):
     while len(terms) > 1:  # pairwise: a shallow tree of adds
         terms = [f"({terms[k]} + {terms[k + 1]})" if k + 1 < len(terms) else terms[k]
                  for k in range(0, len(terms), 2)]
-    return compile_source(f"def impl(x):\n    return {terms[0]} == 0.0\n", {})
+    return compile_source(f"def impl(x):\n    return {terms[0]} == 0.0\n", {}, label=f"tree_finite {len(lx)} leaves")
 
 
 def tree_sum_finite(x):
@@ -306,7 +337,8 @@ def _tree_sum_finite(x):
     while len(terms) > 1:
         terms = [f"({terms[k]} + {terms[k + 1]})" if k + 1 < len(terms) else terms[k]
                  for k in range(0, len(terms), 2)]
-    return compile_source(f"def impl(x):\n    s = {terms[0]}\n    return s - s == 0.0\n", {})
+    return compile_source(f"def impl(x):\n    s = {terms[0]}\n    return s - s == 0.0\n", {},
+                          label=f"finite sum {len(lx)} leaves")
 
 
 def tree_select(c, x, y):
@@ -323,7 +355,7 @@ def _tree_select(c, x, y):
         return None
     ns: dict = {"select": select}
     expr = build(y, iter([f"select(c, {u}, {v})" for u, v in zip(lx, ly)]), ns)
-    return compile_source(f"def impl(c, x, y):\n    return {expr}\n", ns)
+    return compile_source(f"def impl(c, x, y):\n    return {expr}\n", ns, label=f"tree_select {len(lx)} leaves")
 
 
 # ----------------------------------------------------------------------------- folds
@@ -344,8 +376,7 @@ def make_fold(protocol, n_args: int, n_acc: int, name: str):
           "        acc = (acc,)" if n_acc == 1 else "        pass",
           "    return acc[0]" if n_acc == 1 else "    return acc"]
     ns["protocol"] = protocol
-    exec("\n".join(py) + "\n", ns)
-    fold = ns[name]
+    fold = compile_source("\n".join(py) + "\n", ns, name, f"fold {name}")
 
     def typer(terms, *rest):
         if not isinstance(terms, types.BaseTuple):
@@ -358,11 +389,13 @@ def make_fold(protocol, n_args: int, n_acc: int, name: str):
             lines.append(f"    {lhs} = protocol(terms[{t}], {', '.join(args + acc)})")
             acc = new
         lines.append(f"    return {acc[0] if n_acc == 1 else '(' + ', '.join(acc) + ')'}")
-        return compile_source("\n".join(lines) + "\n", {"protocol": protocol})
+        kinds = " ".join(getattr(getattr(t, "instance_class", None), "__name__", str(t)) for t in terms.types)
+        return compile_source("\n".join(lines) + "\n", {"protocol": protocol},
+                              label=f"fold {name} over {kinds or 'no terms'}")
 
     tns: dict = {"typer": typer}
-    exec(f"def _typer({sig}):\n    return typer({sig})\n", tns)
-    overload(fold, jit_options=LANE_OPTIONS)(tns["_typer"])
+    overload(fold, jit_options=LANE_OPTIONS)(
+        compile_source(f"def _typer({sig}):\n    return typer({sig})\n", tns, "_typer", f"fold {name} typer"))
     return fold
 
 

@@ -145,7 +145,7 @@ def _make_io(family: str):
                                              for k in range(size)) + ")")
             col += size
         return compile_source(f"def impl(model, buf, base, stride):\n"
-                              f"    return ({', '.join(exprs)})\n", {"ld": ld})
+                              f"    return ({', '.join(exprs)})\n", {"ld": ld}, label=f"load_{family}_state")
 
     @overload(store, jit_options=LANE_OPTIONS)
     def _store(model, buf, base, stride, y):
@@ -158,7 +158,7 @@ def _make_io(family: str):
                     lines.append(f"    st(buf, base + {col + k} * stride, y[{p}][{k}])")
             col += size
         lines.append("    return None")
-        return compile_source("\n".join(lines) + "\n", {"st": st})
+        return compile_source("\n".join(lines) + "\n", {"st": st}, label=f"store_{family}_state")
 
     return load, store
 

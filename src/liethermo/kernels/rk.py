@@ -125,4 +125,5 @@ def _explicit_step(tab, model, y, h, exact):
             lines.append(f"    yn{j} = tree_fma(h * {bj!r}, k{j}, {z})")
             z = f"yn{j}"
     lines.append(f"    return {z}, {' & '.join(small)}")
-    return compile_source("\n".join(lines) + "\n", {"tree_fma": tree_fma, "rk_rhs": rk_rhs})
+    return compile_source("\n".join(lines) + "\n", {"tree_fma": tree_fma, "rk_rhs": rk_rhs},
+                          label=f"explicit_step {cls.__name__}")

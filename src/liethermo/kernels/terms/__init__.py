@@ -77,23 +77,24 @@ def _protocol(name: str, args: str, passthrough: str):
     """Declare a protocol function with the given argument list; terms that
     do not implement it return ``passthrough`` (their accumulators)."""
     ns: dict = {"_IMPLEMENTATIONS": _IMPLEMENTATIONS}
-    exec(f"def {name}({args}):\n"
-         f"    impl = _IMPLEMENTATIONS.get(({name!r}, type(term)))\n"
-         f"    if impl is None:\n"
-         f"        return {passthrough}\n"
-         f"    return impl({args})\n", ns)
-    fn = ns[name]
+    fn = compile_source(f"def {name}({args}):\n"
+                        f"    impl = _IMPLEMENTATIONS.get(({name!r}, type(term)))\n"
+                        f"    if impl is None:\n"
+                        f"        return {passthrough}\n"
+                        f"    return impl({args})\n", ns, name, f"protocol {name}")
     _PROTOCOLS[name] = (fn, args)
 
     def typer(term, *rest):
         cls = getattr(term, "instance_class", None)
         if is_none(term) or name not in getattr(cls, "ROLES", frozenset()):
-            return compile_source(f"def impl({args}):\n    return {passthrough}\n", {})
+            return compile_source(f"def impl({args}):\n    return {passthrough}\n", {},
+                                  label=f"protocol {name} passthrough for {getattr(cls, '__name__', 'None')}")
         return None
 
     tns = {"typer": typer}
-    exec(f"def _typer({args}):\n    return typer({args})\n", tns)
-    overload(fn, jit_options=LANE_OPTIONS)(tns["_typer"])
+    overload(fn, jit_options=LANE_OPTIONS)(
+        compile_source(f"def _typer({args}):\n    return typer({args})\n", tns, "_typer",
+                       f"protocol {name} typer"))
     return fn
 
 
@@ -125,8 +126,9 @@ def implements(protocol, cls):
             return None
 
         tns = {"typer": typer}
-        exec(f"def _typer({args}):\n    return typer({args})\n", tns)
-        overload(fn, jit_options=LANE_OPTIONS)(tns["_typer"])
+        overload(fn, jit_options=LANE_OPTIONS)(
+            compile_source(f"def _typer({args}):\n    return typer({args})\n", tns, "_typer",
+                           f"protocol {protocol.__name__} typer for {cls.__name__}"))
         return impl
 
     return deco
