@@ -1,7 +1,7 @@
 """CF encoding of every netCDF file liethermo writes, and the reader that undoes it.
 
 Every writer (:class:`liethermo.io.ChunkedWriter` for runs, Dask chunk files
-and combined files; :func:`liethermo.studies.common.write_netcdf_atomic` for
+and combined files; :func:`liethermo.io.write_netcdf_atomic` for
 studies and their resume cache) passes its dataset through :func:`encode`,
 which derives everything from names, dtypes, dims and units — never from a
 list of variables — so variables added later are encoded the same way:

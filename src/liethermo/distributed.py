@@ -178,7 +178,7 @@ def map_tasks(func: Callable, items: Iterable, address: Any = "local", *, retrie
 
 
 def _cached_point_task(item) -> str:
-    from .studies.common import cached_point
+    from .io import cached_point
 
     outdir, key, func, args = item
     cached_point(outdir, key, lambda: func(*args))  # writes outdir/points/<key>.nc atomically
@@ -191,12 +191,12 @@ def map_cached_points(outdir: str | os.PathLike, points: Iterable[tuple[str, Cal
 
     ``points``: ``(key, func, args)`` with ``func(*args) -> xr.Dataset``.  Each
     point not yet in ``outdir/points/<key>.nc`` becomes a task that runs
-    :func:`liethermo.studies.common.cached_point` on a worker (``outdir`` must
+    :func:`liethermo.io.cached_point` on a worker (``outdir`` must
     be on the shared filesystem); only keys travel back.  Afterwards the
     study's usual ``cached_point`` loop loads every point without recomputing.
     Returns the keys that were computed.
     """
-    from .studies.common import point_is_cached
+    from .io import point_is_cached
 
     outdir = str(Path(outdir).resolve())
     todo = [(outdir, k, f, tuple(a)) for k, f, a in points if not point_is_cached(outdir, k)]

@@ -36,6 +36,7 @@ import os
 import zlib
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 import netCDF4
 import numpy as np
@@ -379,3 +380,87 @@ def resume_sources(out: Path) -> list[ResumeSource]:
             found.append(ResumeSource(data, jp, j))
     found.sort(key=lambda s: (-s.journal.members_done, -s.journal_file.stat().st_mtime))
     return found
+
+
+# ----------------------------------------------------------------------------- atomic files, resume cache
+
+def _clean_attrs(attrs: dict) -> dict:
+    out = {}
+    for k, v in attrs.items():
+        if isinstance(v, (bool, np.bool_)):
+            v = int(v)
+        elif v is None:
+            v = ""
+        elif isinstance(v, (dict, list, tuple)) and not (isinstance(v, (list, tuple)) and v
+                                                         and all(isinstance(x, (int, float)) for x in v)):
+            v = json.dumps(v, default=str)
+        out[k] = v
+    return out
+
+
+def write_atomic(path: str | os.PathLike, write: Callable[[Path], None]) -> Path:
+    """``write(tmp)`` into a locked temporary next to ``path``, then rename it
+    onto ``path``: a killed process leaves no file or a complete one, and the
+    temporary is removed on any error (raised as a WriteError naming ``path``)."""
+    path = Path(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp, fd = create_temp(path)
+    except OSError as exc:
+        raise WriteError(path, io_cause(exc)) from None
+    try:
+        try:
+            write(tmp)
+            os.replace(tmp, path)
+        except (OSError, RuntimeError) as exc:
+            raise WriteError(path, io_cause(exc, tmp)) from None
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+        release_temp(fd)
+    return path
+
+
+def write_netcdf_atomic(ds: xr.Dataset, path: str | os.PathLike, history: str | None = None,
+                        conventions: bool = True) -> Path:
+    """Write ``ds`` to a temporary file next to ``path``, then rename it onto
+    ``path``: a killed process leaves no file or a complete one.  The file is
+    CF-encoded (:func:`liethermo.cf.encode`); ``history``, the command line or
+    API call that makes it, replaces the dataset's own ``history``;
+    ``conventions=False`` leaves out the ``Conventions`` attribute (the resume
+    cache, whose variables are not all labelled, claims no CF conformance)."""
+    ds = cf.encode(ds, history, conventions)
+    ds.attrs = _clean_attrs(ds.attrs)
+    for name in list(ds.variables):
+        ds[name].attrs = _clean_attrs(ds[name].attrs)
+    return write_atomic(path, lambda tmp: ds.to_netcdf(tmp, engine="netcdf4", format="NETCDF4"))
+
+
+def write_text_atomic(text: str, path: str | os.PathLike) -> Path:
+    return write_atomic(path, lambda tmp: tmp.write_text(text))
+
+
+def cached_point(outdir: str | os.PathLike, key: str, compute: Callable[[], xr.Dataset]) -> xr.Dataset:
+    """Resume cache: load ``outdir/points/<key>.nc`` if present, else compute
+    the point's dataset and write it there atomically.  Either way the point
+    comes back as read from the file (:func:`liethermo.cf.load_dataset`).
+    The cache files are an internal format: same encoding as the study's
+    netCDF, but no ``Conventions`` attribute (docs/netcdf.md)."""
+    from .faults import check_stop
+
+    check_stop()
+    path = Path(outdir) / "points" / f"{key}.nc"
+    if path.is_file():
+        try:
+            return cf.load_dataset(path)
+        except (OSError, ValueError):  # unreadable leftover: recompute
+            path.unlink()
+    ds = compute()
+    write_netcdf_atomic(ds, path, conventions=False)
+    out = cf.load_dataset(path)
+    check_stop()
+    return out
+
+
+def point_is_cached(outdir: str | os.PathLike, key: str) -> bool:
+    return (Path(outdir) / "points" / f"{key}.nc").is_file()
