@@ -112,3 +112,16 @@ def test_run_never_drops_the_scenes_compared_methods(tmp_path, monkeypatch):
     one = liethermo.run("paper", small, output="q.nc", compare=False, figures=False)
     assert not list(tmp_path.glob("q_*")) and one.attrs["method"] == "vi"
     one.close()
+
+
+def test_refusals_name_their_remedies_in_the_callers_words():
+    """A refusal's remedies are spelled for the command line by default and for
+    Python by the API, from one template (a path with braces stays literal)."""
+    from liethermo.preflight import PYTHON_WORDS, PreflightError
+
+    e = PreflightError.remedy("runs/{a}.nc exists and holds a run of another scene", "force", "elsewhere")
+    assert str(e) == ("runs/{a}.nc exists and holds a run of another scene: pass --force to replace it, "
+                      "or -o to write elsewhere")
+    assert e.in_words(PYTHON_WORDS) == ("runs/{a}.nc exists and holds a run of another scene: pass force=True "
+                                        "to replace it, or another output= to write elsewhere")
+    assert PreflightError("plain").in_words(PYTHON_WORDS) == "plain"

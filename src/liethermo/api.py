@@ -85,7 +85,7 @@ def run(scene: str | Path | dict | Scene = "paper", overrides: dict | list | Non
         try:
             check_parameters(sc)
         except PreflightError as exc:
-            raise PreflightError(_in_python_words(str(exc))) from None
+            raise PreflightError(_in_python_words(exc)) from None
     method = sc["integrator"]["method"]
     others = [m for m in dict.fromkeys(sc["output"]["compare"]) if m != method]
     if others and compare is None:
@@ -135,7 +135,7 @@ def _run_one(sc: Scene, out: Path | None, *, progress, force, resume, preflight,
         try:
             plan = prepare_run(sc, out, force=force, resume=bool(resume))
         except PreflightError as exc:
-            raise PreflightError(_in_python_words(str(exc))) from None
+            raise PreflightError(_in_python_words(exc)) from None
         resume = plan.resume_sources.get(out, False) if resume is True else resume
     try:
         if plan is not None and plan.outputs[0].skip:  # complete already: resume has nothing to do
@@ -185,16 +185,11 @@ def _draw_figures(outputs: dict, stem: str) -> list[Path]:
         shutil.rmtree(tmp, ignore_errors=True)
 
 
-#: the command line's words in the checks' messages, and this module's
-_CLI_TO_PYTHON = (("pass --force to replace it", "pass force=True to replace it"),
-                  ("or -o to write elsewhere", "or another output= to write elsewhere"),
-                  ("rerun without --resume to start over", "run with resume=False to start over"))
+def _in_python_words(exc: PreflightError) -> str:
+    """A refusal's message with its remedies spelled for Python callers."""
+    from .preflight import PYTHON_WORDS
 
-
-def _in_python_words(message: str) -> str:
-    for cli, python in _CLI_TO_PYTHON:
-        message = message.replace(cli, python)
-    return message
+    return exc.in_words(PYTHON_WORDS)
 
 
 @dataclass(frozen=True)

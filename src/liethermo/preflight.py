@@ -40,8 +40,31 @@ else:  # pragma: no cover
 DEFAULT_DIR = Path("data") / "runs"
 
 
+#: how the remedies a refusal names are spelled on the command line and in Python
+CLI_WORDS = {"force": "pass --force to replace it", "elsewhere": "or -o to write elsewhere",
+             "fresh": "rerun without --resume to start over"}
+PYTHON_WORDS = {"force": "pass force=True to replace it", "elsewhere": "or another output= to write elsewhere",
+                "fresh": "run with resume=False to start over"}
+
+
 class PreflightError(Exception):
-    """A run refused before any work: the message is one line."""
+    """A run refused before any work: the message is one line.  A message
+    that names a remedy is a template with ``{force}``, ``{elsewhere}`` or
+    ``{fresh}``: ``str()`` spells them as on the command line,
+    :meth:`in_words` with another spelling (``PYTHON_WORDS`` for the API)."""
+
+    def __init__(self, message: str, *, template: str | None = None):
+        self.template = template
+        super().__init__(template.format(**CLI_WORDS) if template is not None else message)
+
+    @classmethod
+    def remedy(cls, text: str, *remedies: str, sep: str = ": ") -> "PreflightError":
+        """``text`` (taken literally), then ``sep`` and the named remedies."""
+        literal = text.replace("{", "{{").replace("}", "}}")
+        return cls("", template=literal + sep + ", ".join("{%s}" % r for r in remedies))
+
+    def in_words(self, words: dict) -> str:
+        return self.template.format(**words) if self.template is not None else str(self)
 
 
 # ---------------------------------------------------------------- names
@@ -416,8 +439,7 @@ def prepare_run(scene: dict, output=None, *, force: bool = False, resume: bool =
                 continue
             what = ("is not a liethermo output" if old is None
                     else f"holds a run of another scene, differing in {scene_difference(old, toml)}")
-            raise PreflightError(f"{o.path} exists and {what}: pass --force to replace it, "
-                                 f"or -o to write elsewhere")
+            raise PreflightError.remedy(f"{o.path} exists and {what}", "force", "elsewhere")
         chosen = {}
         if resume and not dask:
             for o in outs:
@@ -430,12 +452,12 @@ def prepare_run(scene: dict, output=None, *, force: bool = False, resume: bool =
                 from . import __version__
 
                 if j.version != __version__:
-                    raise PreflightError(f"cannot resume {o.path}: its partial run was made by liethermo "
-                                         f"{j.version}, this is {__version__}; rerun without --resume to start over")
+                    raise PreflightError.remedy(f"cannot resume {o.path}: its partial run was made by "
+                                                f"liethermo {j.version}, this is {__version__}", "fresh", sep="; ")
                 diff = scene_difference(j.scene_toml, scene_to_toml(o.scene))
                 if diff is not None:
-                    raise PreflightError(f"cannot resume {o.path}: the scene differs from the interrupted "
-                                         f"run's in {diff}; rerun without --resume to start over")
+                    raise PreflightError.remedy(f"cannot resume {o.path}: the scene differs from the "
+                                                f"interrupted run's in {diff}", "fresh", sep="; ")
                 chosen[o.path] = src[0]
         _check_sizes(plan, scene, dask=dask, combine=combine, check_memory=check_memory and not dask)
     except BaseException:
