@@ -442,3 +442,28 @@ def test_convergence_and_paper_close_with_their_own_numbers(convergence, paper):
     out, report, _ = paper
     closing = _last_section(report)
     assert "record no wall time" in closing and "**Most accurate at the paper's step:**" in closing
+
+
+def test_the_scipy_baseline_refuses_a_model_it_does_not_write_out():
+    """continuous_rhs integrates the paper's terms and agrees with the kernels'
+    reference; any other term (the double bracket, thermal expansion, or one
+    added later) is refused by name instead of being left out silently."""
+    from dataclasses import replace
+
+    from scipy.integrate import solve_ivp
+
+    from liethermo.physics import physics_of_scene
+    from liethermo.scene import load_scene
+    from liethermo.simulate import simulate
+    from liethermo.studies.tools import continuous_rhs
+
+    sc = load_scene("paper")
+    phys = physics_of_scene(sc, 1)
+    w0, R0 = np.array(sc.initial.omega, float), np.array(sc.initial.R, float)
+    y0 = np.concatenate([w0, R0[2], [0.0]])
+    sol = solve_ivp(continuous_rhs(phys), (0.0, 2.0), y0, method="DOP853", rtol=1e-12, atol=1e-14)
+    ref = simulate(phys, w0[None], R0[None], 0.1, 20, "reference", every=20)
+    np.testing.assert_allclose(sol.y[:3, -1], ref.omega[0, -1], atol=1e-9)
+    for field, value in (("internal_friction", 1.0), ("thermal_expansion", 1e-3)):
+        with pytest.raises(ValueError, match="DoubleBracket|ThermalInertia"):
+            continuous_rhs(replace(phys, **{field: np.array([value])}))
