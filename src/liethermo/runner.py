@@ -181,6 +181,23 @@ def scene_setup(scene, overrides=None, history: str | None = None) -> tuple[Scen
     return scene, attrs, summ
 
 
+def simulate_options(scene, phys, kernel: str = "auto") -> dict:
+    """The keywords of :func:`liethermo.simulate.simulate` that a resolved scene
+    fixes for every part of its run (each member chunk, a Dask task, the
+    time probe, the process that warms the kernel cache): the integrator's
+    variants and Newton settings, the attitude, the ensemble loop (chosen on
+    the full chunk size, so every chunk uses the same one) and the scene's
+    heat bound (the same kernel model for every chunk).  ``phys``: the
+    scene's physics, any number of members."""
+    integ, outp = scene["integrator"], scene["output"]
+    chunk = min(int(scene["ensemble"]["members"]), int(outp["member_chunk"]))
+    return dict(friction=integ["friction"], start=integ["start"], entropy=integ["entropy"],
+                attitude=bool(outp["attitude"]), newton_tol=float(integ["newton_tol"]),
+                newton_maxiter=int(integ["newton_maxiter"]),
+                kernel=kernel_for(integ["method"], chunk, int(integ["steps"]), kernel),
+                heat_bound=heat_bound(scene, phys))
+
+
 #: Size of the timed probe behind :func:`estimate_time`: large enough that the
 #: vectorized kernel runs full blocks, small enough to take well under a second.
 PROBE_MEMBERS = 8192
@@ -225,16 +242,13 @@ def estimate_time(scene: Scene) -> TimeEstimate:
     integ = scene["integrator"]
     method, h, steps = integ["method"], float(integ["h"]), int(integ["steps"])
     members = int(scene["ensemble"]["members"])
-    kernel = kernel_for(method, min(members, int(scene["output"]["member_chunk"])), steps)
     pm, ps = min(members, PROBE_MEMBERS), min(steps, PROBE_STEPS)
     phys = physics_of_scene(scene, pm)
     om0, R0 = initial_conditions(scene, 0, pm)
+    options = simulate_options(scene, phys)
     best, compile_s = np.inf, 0.0
     for _ in range(2):
-        traj = simulate(phys, om0, R0, h, ps, method, friction=integ["friction"], start=integ["start"],
-                        entropy=integ["entropy"], attitude=bool(scene["output"]["attitude"]), every=ps,
-                        newton_tol=float(integ["newton_tol"]), newton_maxiter=int(integ["newton_maxiter"]),
-                        kernel=kernel, heat_bound=heat_bound(scene, phys))
+        traj = simulate(phys, om0, R0, h, ps, method, every=ps, **options)
         best = min(best, traj.wall_time)
         compile_s += traj.compile_time
     return TimeEstimate(method, best * (members * steps) / (pm * ps), pm, ps, best, compile_s)
@@ -252,18 +266,11 @@ def run_chunk(scene: dict, lo: int, hi: int, *, progress_cb=None, kernel: str | 
     integ = scene["integrator"]
     method, h, steps = integ["method"], float(integ["h"]), int(integ["steps"])
     every = int(scene["output"]["every"])
-    attitude = bool(scene["output"]["attitude"])
-    # one loop for every chunk of a run (and every Dask task): chosen on the full chunk size
-    kernel = kernel_for(method, min(int(scene["ensemble"]["members"]), int(scene["output"]["member_chunk"])),
-                        steps, kernel or "auto")
     phys = physics_of_scene(scene, hi - lo)
     om0, R0 = initial_conditions(scene, lo, hi)
-    traj = simulate(phys, om0, R0, h, steps, method, friction=integ["friction"],
-                    start=integ["start"], entropy=integ["entropy"], attitude=attitude,
-                    every=every, newton_tol=float(integ["newton_tol"]),
-                    newton_maxiter=int(integ["newton_maxiter"]),
+    traj = simulate(phys, om0, R0, h, steps, method, every=every,
                     progress=(lambda n, k=hi - lo: progress_cb(n * k)) if progress_cb else None,
-                    threads=threads, kernel=kernel, heat_bound=heat_bound(scene, phys))
+                    threads=threads, **simulate_options(scene, phys, kernel or "auto"))
     ds = trajectory_dataset(traj, omega0=om0, R0=R0, member_offset=lo)
     st = ChunkStats(members=hi - lo, kernel_time=traj.wall_time, compile_time=traj.compile_time)
     ncounts = len(STATUS_MEANINGS)

@@ -36,26 +36,21 @@ def _warm(scene_toml: str, jobs: list[tuple[str, str]]) -> None:
     else:  # pragma: no cover
         import tomli as tomllib
 
-    from .initial import heat_bound, initial_conditions
+    from .initial import initial_conditions
     from .physics import physics_of_scene
+    from .runner import simulate_options
     from .scene import load_scene
-    from .simulate import kernel_for, simulate
+    from .simulate import simulate
 
     scene = load_scene(tomllib.loads(scene_toml))
     for method, part in jobs:
         sc = scene.with_overrides({"integrator.method": method})
-        integ = sc.integrator
         om0, R0 = initial_conditions(sc, 0, 1)
         every = int(sc.output.every)
-        # the loop the run's member chunks use, compiled on one member
-        chunk = min(int(sc.ensemble.members), int(sc.output.member_chunk))
         phys = physics_of_scene(sc, 1)
-        simulate(phys, om0, R0, float(integ.h), every, method, heat_bound=heat_bound(sc, phys),
-                 friction=integ.friction, start=integ.start, entropy=integ.entropy,
-                 attitude=bool(sc.output.attitude), every=every,
-                 newton_tol=float(integ.newton_tol), newton_maxiter=int(integ.newton_maxiter),
-                 kernel=kernel_for(method, chunk, int(integ.steps)),
-                 compile_only="start" if part == "start" else True)
+        # the kernels the run's member chunks use, compiled on one member
+        simulate(phys, om0, R0, float(sc.integrator.h), every, method, every=every,
+                 compile_only="start" if part == "start" else True, **simulate_options(sc, phys))
 
 
 def start_warming(scene, methods: list[str]):
