@@ -43,6 +43,16 @@ def _draw_block(seed: int, block: int, omega_norm: float, spin_range) -> tuple[n
     return d * mag[:, None], quat_to_matrix(q)
 
 
+def max_spin(scene: dict) -> float:
+    """The largest |Ω(0)| (rad s⁻¹) any member of the scene's ensemble can
+    start with: |initial.omega|, times ``ensemble.spin_range``[1] when the
+    members are drawn (more than one)."""
+    w = float(np.linalg.norm(np.asarray(scene["initial"]["omega"], dtype=np.float64)))
+    if int(scene["ensemble"]["members"]) > 1:
+        w *= float(scene["ensemble"]["spin_range"][1])
+    return w
+
+
 def heat_bound(scene: dict, phys) -> float:
     """An upper bound (J) of the heat any member of the scene's ensemble can
     produce: its initial mechanical energy above rest, K₀ + V₀ + |g⃗|, at most
@@ -51,9 +61,7 @@ def heat_bound(scene: dict, phys) -> float:
     the kernels' model (see :func:`liethermo.physics.build_model`) and with
     it every member's bits do not depend on how the ensemble is split.
     ``phys``: the scene's physics (any number of members)."""
-    w = float(np.linalg.norm(np.asarray(scene["initial"]["omega"], dtype=np.float64)))
-    if int(scene["ensemble"]["members"]) > 1:
-        w *= float(scene["ensemble"]["spin_range"][1])
+    w = max_spin(scene)
     g = float(np.max(np.linalg.norm(phys.gravity_torque, axis=-1), initial=0.0))
     return 0.5 * float(np.max(phys.inertia, initial=0.0)) * w * w + 2.0 * g
 

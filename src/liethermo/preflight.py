@@ -357,8 +357,9 @@ def _check_coupled_temperature(scene: dict, phys) -> None:
     if int(scene["ensemble"]["members"]) == 1:
         kin2, what = float(omega @ (phys.inertia[0] * omega)), "Ω·𝕀₀Ω"
     else:
-        hi = float(scene["ensemble"]["spin_range"][1]) * float(np.linalg.norm(omega))
-        kin2, what = float(phys.inertia[0].max()) * hi * hi, "I_max (spin_range[1] |Ω(0)|)²"
+        from .initial import max_spin
+
+        kin2, what = float(phys.inertia[0].max()) * max_spin(scene) ** 2, "I_max (spin_range[1] |Ω(0)|)²"
     if alpha * kin2 >= cv:
         raise PreflightError(f"scene key 'body.thermal_expansion': the coupled top would start at a "
                              f"temperature T = T0 (1 − α {what}/c_v) ≤ 0 (α {what} = {alpha * kin2:.3g} J/K "
