@@ -43,7 +43,7 @@ import numpy as np
 import xarray as xr
 
 from . import __version__, cf
-from .faults import create_temp, leftovers, release_temp
+from .faults import check_stop, create_temp, leftovers, release_temp
 
 CHUNK_BYTES = 4 * 2**20  # target on-disk chunk size
 RESUME_FORMAT = "liethermo-resume-1"
@@ -446,8 +446,6 @@ def cached_point(outdir: str | os.PathLike, key: str, compute: Callable[[], xr.D
     comes back as read from the file (:func:`liethermo.cf.load_dataset`).
     The cache files are an internal format: same encoding as the study's
     netCDF, but no ``Conventions`` attribute (docs/netcdf.md)."""
-    from .faults import check_stop
-
     check_stop()
     path = Path(outdir) / "points" / f"{key}.nc"
     if path.is_file():

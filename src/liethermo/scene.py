@@ -38,7 +38,6 @@ import tomli_w
 from .methods import ENTROPY_UPDATES, FRICTION, METHODS, STARTS
 
 
-
 class SceneError(ValueError):
     """An invalid scene: the message names the key and the rule it breaks."""
 
