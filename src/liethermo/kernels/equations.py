@@ -24,44 +24,33 @@ from __future__ import annotations
 from numba.extending import overload
 
 from ._jit import LANE_OPTIONS, fma, lane
-from .gen import madd, or_zero
+from .gen import has_capability, madd, or_zero
 from .so3 import attitude_rate_lane, cross_lane
 from .terms import sum_angular_acceleration, sum_dissipated_power
-from .terms.inertia import ConstantInertia, ThermalInertia
 from .terms.thermo import entropy_rate, temperature
 
 
-def _inertia_cls(model):
-    return getattr(model.types[model.fields.index("inertia")], "instance_class", None)
-
-
-def omega_rate(model, w0, w1, w2, G0, G1, G2, s, exact):
-    """Ω̇ (rad s⁻²) at (Ω, Γ, σ)."""
-    if isinstance(model.inertia, ThermalInertia):
-        return _thermal_rates(model, w0, w1, w2, G0, G1, G2, s)[0]
+def _omega_rate_constant(model, w0, w1, w2, G0, G1, G2, s, exact):
     I = model.inertia
     a0, a1, a2 = sum_angular_acceleration(model.forces, I, None, w0, w1, w2, G0, G1, G2,
                                           None, None, None)
     return madd(I.A1 * w1, w2, a0), madd(I.A2 * w2, w0, a1), madd(I.A3 * w0, w1, a2)
 
 
-@overload(omega_rate, jit_options=LANE_OPTIONS)
-def _omega_rate(model, w0, w1, w2, G0, G1, G2, s, exact):
-    if _inertia_cls(model) is ConstantInertia:
-        def impl(model, w0, w1, w2, G0, G1, G2, s, exact):
-            I = model.inertia
-            a0, a1, a2 = sum_angular_acceleration(model.forces, I, None, w0, w1, w2, G0, G1, G2,
-                                                  None, None, None)
-            return madd(I.A1 * w1, w2, a0), madd(I.A2 * w2, w0, a1), madd(I.A3 * w0, w1, a2)
+def _omega_rate_coupled(model, w0, w1, w2, G0, G1, G2, s, exact):
+    wd, _ = _thermal_rates(model, w0, w1, w2, G0, G1, G2, s)
+    return wd
 
-        return impl
-    if _inertia_cls(model) is ThermalInertia:
-        def impl(model, w0, w1, w2, G0, G1, G2, s, exact):
-            wd, _ = _thermal_rates(model, w0, w1, w2, G0, G1, G2, s)
-            return wd
 
-        return impl
-    return None
+def omega_rate(model, w0, w1, w2, G0, G1, G2, s, exact):
+    """Ω̇ (rad s⁻²) at (Ω, Γ, σ)."""
+    impl = (_omega_rate_coupled if has_capability(model.inertia, _COUPLED)
+            else _omega_rate_constant)
+    return impl(model, w0, w1, w2, G0, G1, G2, s, exact)
+
+
+#: the inertia's capability that brings the entropy into the motion
+_COUPLED = "entropy_dependent_inertia"
 
 
 @lane
@@ -89,32 +78,36 @@ def _thermal_rates(model, w0, w1, w2, G0, G1, G2, s):
     return wd, sd
 
 
-def entropy_and_omega_rates(model, w0, w1, w2, G0, G1, G2, s, exact):
-    """((Ω̇), σ̇ or None, small)."""
-    if isinstance(model.inertia, ThermalInertia):
-        wd, sd = _thermal_rates(model, w0, w1, w2, G0, G1, G2, s)
-        return wd, sd, True
+def _rates_constant(model, w0, w1, w2, G0, G1, G2, s, exact):
     P = sum_dissipated_power(model.forces, model.inertia, None, w0, w1, w2, None)
     sd, small = entropy_rate(model.thermo, P, s, exact)
     return omega_rate(model, w0, w1, w2, G0, G1, G2, s, exact), sd, small
 
 
-@overload(entropy_and_omega_rates, jit_options=LANE_OPTIONS)
-def _rates(model, w0, w1, w2, G0, G1, G2, s, exact):
-    if _inertia_cls(model) is ConstantInertia:
-        def impl(model, w0, w1, w2, G0, G1, G2, s, exact):
-            P = sum_dissipated_power(model.forces, model.inertia, None, w0, w1, w2, None)
-            sd, small = entropy_rate(model.thermo, P, s, exact)
-            return omega_rate(model, w0, w1, w2, G0, G1, G2, s, exact), sd, small
+def _rates_coupled(model, w0, w1, w2, G0, G1, G2, s, exact):
+    wd, sd = _thermal_rates(model, w0, w1, w2, G0, G1, G2, s)
+    return wd, sd, True
 
-        return impl
-    if _inertia_cls(model) is ThermalInertia:
-        def impl(model, w0, w1, w2, G0, G1, G2, s, exact):
-            wd, sd = _thermal_rates(model, w0, w1, w2, G0, G1, G2, s)
-            return wd, sd, True
 
-        return impl
-    return None
+def entropy_and_omega_rates(model, w0, w1, w2, G0, G1, G2, s, exact):
+    """((Ω̇), σ̇ or None, small)."""
+    impl = _rates_coupled if has_capability(model.inertia, _COUPLED) else _rates_constant
+    return impl(model, w0, w1, w2, G0, G1, G2, s, exact)
+
+
+def _dispatch_on_inertia(fn, constant, coupled):
+    """Overload ``fn`` (whose first argument is the model) by its inertia's capability."""
+
+    @overload(fn, jit_options=LANE_OPTIONS)
+    def _typer(model, w0, w1, w2, G0, G1, G2, s, exact):
+        inertia = model.types[model.fields.index("inertia")]
+        return coupled if has_capability(inertia, _COUPLED) else constant
+
+    return fn
+
+
+_dispatch_on_inertia(omega_rate, _omega_rate_constant, _omega_rate_coupled)
+_dispatch_on_inertia(entropy_and_omega_rates, _rates_constant, _rates_coupled)
 
 
 def attitude_rate(R, w0, w1, w2):

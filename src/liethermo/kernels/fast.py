@@ -52,14 +52,13 @@ from __future__ import annotations
 import numpy as np
 
 from ._jit import jit, lane, ld, select, st
-from .gen import finite, none_dispatch, overload_by_class, tree_finite, tree_sum_finite, unflatten
+from .gen import finite, none_dispatch, overload_by_capability, tree_finite, tree_sum_finite, unflatten
 from .layout import (FS_MAX_H_OMEGA, IS_FAIL_STEP, IS_NEWTON_MAX, IS_NEWTON_TOTAL, IS_STATUS,
                      IS_STEPS, NEWTON_MAXITER, NEWTON_OK, NEWTON_SINGULAR, STATUS_NEWTON,
                      STATUS_NONFINITE, STATUS_OK, load_rk_state, load_vi_state, store_rk_state,
                      store_vi_state)
 from .rk import explicit_step
 from .so3 import norm2_lane
-from .terms.inertia import ThermalInertia
 from .vi import (add_opt, newton_data, newton_iterate, newton_step, newton_stop, sub_select,
                  vi_advance, vi_coefficients, vi_entropy)
 
@@ -157,7 +156,7 @@ def _coupled_marker(inertia):
 
 
 #: None for a constant inertia, 1.0 for the coupled top (its Newton solve has Δ)
-coupled_marker = overload_by_class(_coupled_marker, ThermalInertia, lambda inertia: 1.0)
+coupled_marker = overload_by_capability(_coupled_marker, "entropy_dependent_inertia", lambda inertia: 1.0)
 
 
 def _store1(x, S, off):

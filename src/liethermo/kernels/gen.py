@@ -180,24 +180,34 @@ def none_dispatch(present, absent, arg: int = 0):
     return fn
 
 
-def overload_by_class(default, cls, special, arg: int = 0):
+def has_capability(term, capability: str) -> bool:
+    """Whether a term (an instance, its class, or its numba type) declares
+    ``capability`` in its ``CAPABILITIES``: what it asks of a solver (e.g.
+    ``"entropy_dependent_inertia"``: the entropy joins the motion)."""
+    cls = getattr(term, "instance_class", None)
+    if cls is None:
+        cls = term if isinstance(term, type) else type(term)
+    return capability in getattr(cls, "CAPABILITIES", ())
+
+
+def overload_by_capability(default, capability: str, special, arg: int = 0):
     """A generic lane function that is ``special`` when its ``arg``-th
-    argument is an instance of the namedtuple class ``cls`` and ``default``
-    otherwise (chosen when numba types the call)."""
+    argument is a term declaring ``capability`` (see :func:`has_capability`)
+    and ``default`` otherwise (chosen when numba types the call): solvers
+    ask terms for what they need, never for their class."""
     import inspect
 
     args = ", ".join(inspect.signature(default).parameters)
     ns: dict = {}
-    ns.update(default=default, special=special, cls=cls)
-    label = f"overload_by_class {default.__name__} {cls.__name__}"
+    ns.update(default=default, special=special, has=has_capability, cap=capability)
+    label = f"overload_by_capability {default.__name__} {capability}"
     fn = compile_source(f"def {default.__name__}({args}):\n"
-                        f"    return (special if isinstance(({args},)[{arg}], cls) else default)({args})\n",
+                        f"    return (special if has(({args},)[{arg}], cap) else default)({args})\n",
                         ns, default.__name__, label)
     fn.__doc__ = default.__doc__
-    tns = {"default": default, "special": special, "cls": cls}
+    tns = {"default": default, "special": special, "has": has_capability, "cap": capability}
     typer = compile_source(f"def _typer({args}):\n"
-                           f"    t = ({args},)[{arg}]\n"
-                           f"    return special if getattr(t, 'instance_class', None) is cls else default\n",
+                           f"    return special if has(({args},)[{arg}], cap) else default\n",
                            tns, "_typer", label + " typer")
     overload(fn, jit_options=LANE_OPTIONS)(typer)
     return fn

@@ -54,17 +54,17 @@ class Traits:
 
 def traits(model) -> Traits:
     """Traits of a model instance or of its numba type."""
-    from .terms.inertia import ThermalInertia
+    from .gen import has_capability
 
     if hasattr(model, "fields") and hasattr(model, "types"):  # numba NamedTuple type
         get = dict(zip(model.fields, model.types)).__getitem__
         present = lambda name: not is_none(get(name))  # noqa: E731
-        inertia_cls = getattr(get("inertia"), "instance_class", None)
+        inertia = get("inertia")
     else:
         present = lambda name: getattr(model, name) is not None  # noqa: E731
-        inertia_cls = type(model.inertia)
+        inertia = model.inertia
     return Traits(thermo=present("thermo"), attitude=present("attitude"),
-                  coupled=inertia_cls is ThermalInertia)
+                  coupled=has_capability(inertia, "entropy_dependent_inertia"))
 
 
 def state_parts(tr: Traits, family: str) -> list[tuple[str, int]]:

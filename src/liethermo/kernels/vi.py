@@ -57,12 +57,11 @@ from collections import namedtuple
 
 from ._jit import fma, lane, select
 from .equations import entropy_and_omega_rates, omega_rate
-from .gen import axpy_opt, finite, madd, none_dispatch, or_zero, overload_by_class, scale_opt
+from .gen import axpy_opt, finite, madd, none_dispatch, or_zero, overload_by_capability, scale_opt
 from .lanemath import expm1_sel
 from .layout import NEWTON_MAXITER, NEWTON_OK, NEWTON_SINGULAR
 from .so3 import attitude_lane, cayley_lane, cross_lane
 from .terms import sum_discrete_power, sum_linear_friction, sum_nonlinear_friction, sum_torque
-from .terms.inertia import ThermalInertia
 from .terms.thermo import entropy_step, temperature
 
 _G1 = 1.0 / (2.0 - 2.0 ** (1.0 / 3.0))
@@ -85,8 +84,8 @@ def _folded_friction(inertia, forces):
     return sum_linear_friction(forces, None, None, None)
 
 
-_folded_friction = overload_by_class(
-    _folded_friction, ThermalInertia, lambda inertia, forces: (None, None, None))
+_folded_friction = overload_by_capability(
+    _folded_friction, "entropy_dependent_inertia", lambda inertia, forces: (None, None, None))
 
 
 class VICoefficients(namedtuple("VICoefficients",
@@ -176,7 +175,7 @@ def newton_data(inertia, model, s1):
     return None
 
 
-newton_data = overload_by_class(newton_data, ThermalInertia,
+newton_data = overload_by_capability(newton_data, "entropy_dependent_inertia",
                                 lambda inertia, model, s1: temperature(model.thermo, s1))
 
 
@@ -397,7 +396,7 @@ def _advance_coupled(inertia, model, v, vn, y, hn, mode, exact, t0):
             max(abs(x0), abs(x1), abs(x2)), abs(s1), True)
 
 
-_advance = overload_by_class(_advance_constant, ThermalInertia, _advance_coupled)
+_advance = overload_by_capability(_advance_constant, "entropy_dependent_inertia", _advance_coupled)
 
 
 def _known(t, th, s):
@@ -485,5 +484,5 @@ def _entropy_predictor_coupled(inertia, model, v, X, s):
     return v.h * P / (th0 - phi * ((I.alpha * th0) * th.icv) * K2)
 
 
-entropy_predictor = overload_by_class(entropy_predictor, ThermalInertia, _entropy_predictor_coupled)
+entropy_predictor = overload_by_capability(entropy_predictor, "entropy_dependent_inertia", _entropy_predictor_coupled)
 

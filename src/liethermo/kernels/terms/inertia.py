@@ -31,6 +31,10 @@ class ConstantInertia(namedtuple("ConstantInertia",
 class ThermalInertia(namedtuple("ThermalInertia",
                                 "I1 I2 I3 iI1 iI2 iI3 A1 A2 A3 D1 D2 D3 alpha")):
     __slots__ = ()
+    #: the entropy feeds back into the motion: the continuous equations carry
+    #: the temperature correction and the variational integrator solves for
+    #: σ_{k+1} together with the step velocity
+    CAPABILITIES = frozenset({"entropy_dependent_inertia"})
 
 
 def _base(I: np.ndarray) -> np.ndarray:
@@ -50,3 +54,4 @@ def constant_coefficients(inertia: np.ndarray) -> np.ndarray:
 def thermal_coefficients(inertia0: np.ndarray, alpha: np.ndarray) -> np.ndarray:
     """(N, 13) coefficients of ThermalInertia from 𝕀₀ (N, 3) and α (N,)."""
     return np.hstack([_base(inertia0), np.asarray(alpha, dtype=np.float64).reshape(-1, 1)])
+

@@ -45,7 +45,7 @@ import numpy as np
 from numba.extending import overload
 
 from .._jit import LANE_OPTIONS, fma, lane
-from ..gen import is_none, overload_by_class
+from ..gen import is_none, overload_by_capability
 from ..lanemath import exp_lane
 
 #: |σ/c_v| up to which 1/T(σ) is its cubic Taylor polynomial
@@ -71,6 +71,8 @@ class IdealSolidWide(namedtuple("IdealSolidWide", "cv T0 m e0 e1 e2 e3 smax icv 
     the polynomial's range)."""
 
     __slots__ = ()
+    #: the solvers evaluate 1/T(σ) with the polynomial about σ_c
+    CAPABILITIES = frozenset({"wide_inverse_temperature"})
 
 
 class Explicit(namedtuple("Explicit", "unused")):
@@ -132,8 +134,8 @@ def _inverse_temperature_wide(th, s):
     return fma(x4, fma(x4, th.f8, b1), b0), abs(x) <= th.smax
 
 
-inverse_temperature_poly = overload_by_class(_inverse_temperature_poly, IdealSolidWide,
-                                             _inverse_temperature_wide)
+inverse_temperature_poly = overload_by_capability(_inverse_temperature_poly, "wide_inverse_temperature",
+                                                  _inverse_temperature_wide)
 
 
 @lane
