@@ -21,8 +21,8 @@ import pytest
 
 from conftest import OMEGA0, R0, paper_physics
 from liethermo.dataset import initial_energy, node_energies
-from liethermo.physics import (build_model, jeffery_resistance, oberbeck_resistance, physics_of_scene,
-                               pivot_drag)
+from liethermo.kernels.terms.stokes import jeffery_resistance, oberbeck_resistance, pivot_drag
+from liethermo.physics import build_model, physics_of_scene
 from liethermo.scene import SceneError, builtin_scenes, load_scene
 from liethermo.simulate import STATUS_OK, simulate
 

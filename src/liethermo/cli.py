@@ -254,9 +254,13 @@ def entry() -> None:
     # LLVM -O2 instead of numba's default -O3 for the kernels this command
     # compiles: a shorter cold start, kernels as fast (benchmarks/README.md) and
     # bitwise the same results (no fast-math: every optimization level keeps IEEE
-    # semantics).  Set here, before numba is imported, so only this process is
-    # affected; a NUMBA_OPT of the user's own wins.
+    # semantics).  Set here, before anything is compiled, so only this process
+    # is affected; a NUMBA_OPT of the user's own wins.  (The model terms are
+    # declared with numba, so numba is imported already: its configuration is
+    # read again from the environment.)
     os.environ.setdefault("NUMBA_OPT", "2")
+    if "numba" in sys.modules:
+        sys.modules["numba"].core.config.reload_config()
     argv = sys.argv[1:]
     rc = main(argv)
     if argv[:1] == ["run"] and "--dask" not in argv:

@@ -113,8 +113,7 @@ def _trajectory_dataset(traj, omega0, R0, member_offset):
         "mechanical_energy_initial": _var(emech0, ("member",), "J",
                                           "initial mechanical energy above the resting state K_0 + V_0 + |m g l|"),
         "status": _var(traj.status.astype(np.int8), ("member",), "1", "member status",
-                       flag_values=np.array(sorted(STATUS_MEANINGS), dtype=np.int8),
-                       flag_meanings=" ".join(STATUS_MEANINGS[k] for k in sorted(STATUS_MEANINGS))),
+                       **status_flags(np.int8)),
         "failed_at_step": _var(np.where(traj.status != 0, traj.fail_step, -1).astype(np.int64),
                                ("member",), "1",
                                "step k+1 whose computation failed (-1: none); values from that step on are NaN"),
@@ -125,17 +124,9 @@ def _trajectory_dataset(traj, omega0, R0, member_offset):
         "initial_attitude": _var(R0, ("member", "row", "col"), "1", "initial attitude R(0)"),
         "inertia": _var(phys.inertia, ("member", "axis"), "kg m2",
                         "principal moments of inertia I0 about the fixed point"),
-        "friction_coefficients": _var(phys.friction, ("member", "axis"), "N m s",
-                                      "rotational Stokes resistance C (friction torque -C Omega)"),
-        "gravity_torque": _var(phys.gravity_torque, ("member", "axis"), "N m", "m g l chi"),
         "heat_capacity": _var(phys.heat_capacity, ("member",), "J K-1", "heat capacity c_v"),
     }
-    if np.any(phys.thermal_expansion != 0.0):
-        data["thermal_expansion"] = _var(phys.thermal_expansion, ("member",), "K-1",
-                                         "linear thermal expansion alpha: I(S) = I0 (1 + alpha (theta - T0))^2")
-    if np.any(phys.internal_friction != 0.0):
-        data["internal_friction"] = _var(phys.internal_friction, ("member",), "s kg-1 m-2",
-                                         "double-bracket friction lambda: f = lambda mu x (mu x Omega)")
+    data.update(term_variables(phys))
     if vi:
         step = traj.omega_step
         s = traj.sigma if traj.layout.has("sigma") else None
@@ -168,6 +159,29 @@ def _trajectory_dataset(traj, omega0, R0, member_offset):
         "axis": xr.Variable(("axis",), np.array(AXIS), attrs={"units": "1", "long_name": "body-frame axis"}),
     }
     return xr.Dataset(data, coords=coords)
+
+
+def status_flags(dtype) -> dict:
+    """CF ``flag_values``/``flag_meanings`` of a member status variable of ``dtype``."""
+    return {"flag_values": np.array(sorted(STATUS_MEANINGS), dtype=dtype),
+            "flag_meanings": " ".join(STATUS_MEANINGS[k] for k in sorted(STATUS_MEANINGS))}
+
+
+def term_variables(phys) -> dict:
+    """Every model term's parameters as dataset variables: those a term writes
+    always, and the others where some member has them."""
+    from .kernels.terms import registry
+
+    out = {}
+    for t in registry():
+        for prm in t.parameters:
+            if prm.shape is None or prm.variable_name == "":
+                continue
+            v = getattr(phys, prm.name)
+            if prm.always or np.any(v != 0.0):
+                dims = ("member",) + (("axis",) if prm.shape == (3,) else ())
+                out[prm.variable_name] = _var(v, dims, prm.unit, prm.long_name)
+    return out
 
 
 def global_attrs(scene_toml: str, *, method: str, h: float, friction: str | None,

@@ -88,8 +88,12 @@ def chunk_findings(ds, phys: ph.Physics) -> dict:
     tdim = ds["omega"].dims[1]  # the time dimension, whatever its name
     t = np.asarray(ds[tdim].values, dtype=float)
     om = ds["omega"].values
-    no_torque = ~np.any(phys.gravity_torque != 0.0, axis=-1) & ~np.any(phys.friction != 0.0, axis=-1)
-    no_expansion = phys.thermal_expansion == 0.0
+    from .kernels.terms import registry
+
+    # the exact solutions below hold for members on which no other term acts
+    acting = phys.acting()
+    no_torque = phys.only("inertia", "double_bracket")  # forces ⟂ μ only: |μ| is kept
+    no_expansion = ~acting["inertia"]
     out: dict = {}
 
     def put(name, sel, values):
@@ -98,8 +102,7 @@ def chunk_findings(ds, phys: ph.Physics) -> dict:
             out[name] = s
 
     # the spherical top's exact solution
-    sph = (ok & _equal(phys.inertia) & ~np.any(phys.gravity_torque != 0.0, axis=-1) & no_expansion
-           & _equal(phys.friction))
+    sph = ok & _equal(phys.inertia) & phys.only("stokes", "double_bracket") & _equal(phys.friction)
     if sph.any():
         gamma, S = ds["gamma"].values[sph], ds["entropy"].values[sph]
         om0 = ds["initial_omega"].values[sph]  # Ω(0), Γ(0) = R(0)ᵀe₃ of the initial data
@@ -119,7 +122,7 @@ def chunk_findings(ds, phys: ph.Physics) -> dict:
 
     # the Lagrange top's Ω₃ (I₁ = I₂, gravity torque along e₃, no internal friction)
     lag = (ok & ~sph & (np.abs(phys.inertia[:, 0] - phys.inertia[:, 1]) <= _RTOL * phys.inertia[:, 2])
-           & ~np.any(phys.gravity_torque[:, :2] != 0.0, axis=-1) & (phys.internal_friction == 0.0) & no_expansion)
+           & ~np.any(phys.gravity_torque[:, :2] != 0.0, axis=-1) & phys.only("stokes", "gravity"))
     if lag.any():
         om0 = ds["initial_omega"].values[lag]
         exact3 = om0[:, 2:3] * np.exp(-(phys.friction[lag, 2] / phys.inertia[lag, 2])[:, None] * t[None, :])
@@ -137,7 +140,7 @@ def chunk_findings(ds, phys: ph.Physics) -> dict:
     # the flat spin: internal friction, no external torque, a unique major axis
     srt = np.sort(phys.inertia, axis=-1)
     unique = srt[:, 2] > srt[:, 1] * (1.0 + 1e-9)
-    flat = free & (phys.internal_friction != 0.0) & unique
+    flat = free & acting["double_bracket"] & unique
     if flat.any():
         major = np.argmax(phys.inertia, axis=-1)
         rows = np.arange(om.shape[0])
@@ -150,7 +153,7 @@ def chunk_findings(ds, phys: ph.Physics) -> dict:
         put("t_end", flat, np.full(om.shape[0], t[-1]))
 
     # heating and the inertia's change
-    warm = ok & (np.any(phys.friction != 0.0, axis=-1) | (phys.internal_friction != 0.0))
+    warm = ok & np.any([acting[t.name] for t in registry() if t.friction], axis=0)
     if warm.any():
         T = ds["temperature"].values
         put("heating", warm, T[:, -1] - T[:, 0])

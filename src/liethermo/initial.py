@@ -55,15 +55,17 @@ def max_spin(scene: dict) -> float:
 
 def heat_bound(scene: dict, phys) -> float:
     """An upper bound (J) of the heat any member of the scene's ensemble can
-    produce: its initial mechanical energy above rest, K₀ + V₀ + |g⃗|, at most
-    ½ I_max (s_hi |Ω(0)|)² + 2|g⃗| with s_hi = ``ensemble.spin_range``[1]
+    produce: its initial mechanical energy above rest, at most
+    ½ I_max (s_hi |Ω(0)|)² + (max V − min V) with s_hi = ``ensemble.spin_range``[1]
     (1 for a single member).  The same for every member chunk of a run, so
     the kernels' model (see :func:`liethermo.physics.build_model`) and with
     it every member's bits do not depend on how the ensemble is split.
     ``phys``: the scene's physics (any number of members)."""
+    from .physics import potential_span
+
     w = max_spin(scene)
-    g = float(np.max(np.linalg.norm(phys.gravity_torque, axis=-1), initial=0.0))
-    return 0.5 * float(np.max(phys.inertia, initial=0.0)) * w * w + 2.0 * g
+    span = float(np.max(potential_span(phys), initial=0.0))
+    return 0.5 * float(np.max(phys.inertia, initial=0.0)) * w * w + span
 
 
 def initial_conditions(scene: dict, start: int = 0, stop: int | None = None):

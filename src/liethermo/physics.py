@@ -2,30 +2,28 @@
 and the energies of a state.
 
 :class:`Physics` holds the physical parameters of N members (SI units, a
-leading member axis), computed from a scene (:func:`physics_of_scene`) and
-varied per member where a study needs it (``dataclasses.replace``).
-:func:`build_model` turns it into the kernels' model — which terms a run
-needs (an absent term is not compiled), their coefficients per member, and
-whether all members share them.  The energy functions here are numpy (no
-numba), for datasets and studies; docs/model.md has the formulas.
+leading member axis): the body's own, and those the model terms declare
+(:mod:`liethermo.kernels.terms`), computed from a scene
+(:func:`physics_of_scene`) and varied per member where a study needs it
+(``dataclasses.replace``).  :func:`build_model` turns it into the kernels'
+model — which terms a run needs (an absent term is not compiled), their
+coefficients per member, and whether all members share them.  The energy
+functions here are numpy (no numba), for datasets and studies; each sums
+what the terms contribute; docs/model.md has the formulas.
 
-Bodies (``body.shape``):
+Bodies (``body.shape``), as :class:`Body`, from which the terms take what
+they need (the Stokes friction its size and shape, gravity its mass and
+centre of mass):
 
 * ``"hemispheres"`` — the paper's top: a solid upper hemisphere (mass
   fraction f) and a thin hollow lower hemisphere of radius a, density ρ,
   spinning about its centre C; inertia as printed in the paper (or given),
-  centre of mass G = (0, 0, 3m₁a/(8m) − m₂a/(2m)), Stokes friction of a
-  sphere c = 8πμa³;
+  centre of mass G = (0, 0, 3m₁a/(8m) − m₂a/(2m)); it meets the fluid as a
+  sphere of radius a;
 * ``"ellipsoid"`` — a triaxial ellipsoid with semi-axes a₁, a₂, a₃ along
   its principal axes, of uniform density (or given mass, inertia and centre
   of mass) turning about a pivot at −G from its centre (G on a principal
-  axis); rotational Stokes resistance of Jeffery (1922),
-  C_i = (16πμ/3)(a_j² + a_k²)/(a_j²α_j + a_k²α_k),
-  α_i = (2/3) R_D(a_j², a_k², a_i²) (Carlson's integral), plus the drag of
-  its centre moving at v = Ω×G through the fluid: Oberbeck's (1876)
-  translational resistance K_i = 16πμ/(χ₀ + a_i²α_i), χ₀ = 2 R_F(a₁², a₂², a₃²),
-  seen about the pivot as DᵀKD with D = [G]×, so that the torque is
-  −(C_rot + DᵀKD)Ω (diagonal for G on a principal axis).
+  axis).
 """
 
 from __future__ import annotations
@@ -38,32 +36,25 @@ import numpy as np
 
 from .kernels import gen
 from .kernels.layout import StateLayout, state_layout
-from .kernels.terms import ATTITUDE, Model
-from .kernels.terms import double_bracket as _db
-from .kernels.terms import gravity as _gravity
-from .kernels.terms import inertia as _inertia
-from .kernels.terms import stokes as _stokes
+from .kernels.terms import ATTITUDE, Model, constant_inertia_part, registry
 from .kernels.terms import thermo as _thermo
 
 R_GAS = 8.314462618  # J mol⁻¹ K⁻¹
 
 
-@dataclass(frozen=True)
-class Physics:
-    """Physical parameters of N members; every array has N rows."""
+# ----------------------------------------------------------------------------- per-member parameters
 
-    inertia: np.ndarray  # (N, 3) principal moments 𝕀₀ about the fixed point, kg m²
-    center_of_mass: np.ndarray  # (N, 3) G in the body frame, from the fixed point, m
-    mass: np.ndarray  # (N,) kg
-    friction: np.ndarray  # (N, 3) diagonal Stokes friction C, N m s
-    gravity_torque: np.ndarray  # (N, 3) g⃗ = m g G, N m
-    heat_capacity: np.ndarray  # (N,) c_v, J K⁻¹
-    T0: np.ndarray  # (N,) K
-    S0: np.ndarray  # (N,) J K⁻¹
-    thermal_expansion: np.ndarray  # (N,) α, K⁻¹
-    internal_friction: np.ndarray  # (N,) λ, s kg⁻¹ m⁻²
-    #: True if C is isotropic (a sphere), so the kernels use the scalar term
-    isotropic_friction: bool = True
+
+class _PhysicsBase:
+    """Methods of :class:`Physics` (whose fields come from the term registry)."""
+
+    def __post_init__(self):
+        n = int(np.asarray(self.inertia).shape[0])
+        for t in registry():
+            for prm in t.parameters:
+                if getattr(self, prm.name) is None:
+                    value = prm.default if prm.shape is None else np.zeros((n,) + prm.shape)
+                    object.__setattr__(self, prm.name, value)
 
     @property
     def n(self) -> int:
@@ -80,68 +71,70 @@ class Physics:
         return self.take(np.zeros(int(n), dtype=np.int64))
 
     @property
-    def stokes_coefficient(self) -> np.ndarray:
-        """c of an isotropic friction (N,); the mean of C otherwise."""
-        return self.friction.mean(axis=1)
-
-    @property
     def dissipative(self) -> bool:
-        return bool(np.any(self.friction != 0.0) or np.any(self.internal_friction != 0.0))
+        """Some term turns mechanical energy into heat for some member."""
+        return any(t.dissipates(self) for t in registry())
+
+    def acting(self) -> dict[str, np.ndarray]:
+        """{term name: (N,) bool}: the terms acting on each member."""
+        return {t.name: np.asarray(t.active(self), dtype=bool) for t in registry()}
+
+    def only(self, *names: str) -> np.ndarray:
+        """(N,) bool: the members on which no term other than ``names`` acts."""
+        out = np.ones(self.n, dtype=bool)
+        for name, on in self.acting().items():
+            if name not in names:
+                out &= ~on
+        return out
+
+
+#: the body's own parameters; every term adds its own (:class:`~liethermo.kernels.terms.Parameter`)
+_CORE_FIELDS = (
+    ("inertia", "(N, 3) principal moments 𝕀₀ about the fixed point, kg m²"),
+    ("center_of_mass", "(N, 3) G in the body frame, from the fixed point, m"),
+    ("mass", "(N,) kg"),
+    ("heat_capacity", "(N,) c_v, J K⁻¹"),
+    ("T0", "(N,) K"),
+    ("S0", "(N,) J K⁻¹"),
+)
+
+
+def _make_physics_class():
+    fields = [(name, np.ndarray) for name, _ in _CORE_FIELDS]
+    lines = [f"* ``{name}`` — {doc}" for name, doc in _CORE_FIELDS]
+    for t in registry():
+        for prm in t.parameters:
+            fields.append((prm.name, object, dataclasses.field(default=None)))
+            shape = ("one value" if prm.shape is None
+                     else "(" + ", ".join(["N", *map(str, prm.shape)]) + ("," if not prm.shape else "") + ")")
+            lines.append(f"* ``{prm.name}`` — {shape} {prm.unit} ({t.name}): {prm.long_name}")
+    cls = dataclasses.make_dataclass("Physics", fields, bases=(_PhysicsBase,), frozen=True)
+    cls.__module__ = __name__
+    cls.__doc__ = ("Physical parameters of N members (SI units, a leading member axis).  "
+                   "The body's fields and those its terms declare (zero when not given):\n\n"
+                   + "\n".join(lines))
+    return cls
+
+
+Physics = _make_physics_class()
 
 
 # ----------------------------------------------------------------------------- bodies
 
 
-def jeffery_resistance(semi_axes, viscosity) -> np.ndarray:
-    """Rotational Stokes resistance (N m s) of an ellipsoid about its principal
-    axes (Jeffery 1922): torque −C_iΩ_i; a sphere of radius a gives 8πμa³."""
-    from scipy.special import elliprd
+@dataclass(frozen=True)
+class Body:
+    """One body, as a scene gives it: what the terms derive their parameters from."""
 
-    a = np.asarray(semi_axes, dtype=np.float64).reshape(-1, 3)
-    a2 = a * a
-    alpha = np.empty_like(a)
-    for i in range(3):
-        j, k = (i + 1) % 3, (i + 2) % 3
-        alpha[:, i] = (2.0 / 3.0) * elliprd(a2[:, j], a2[:, k], a2[:, i])
-    C = np.empty_like(a)
-    mu = np.asarray(viscosity, dtype=np.float64).reshape(-1)
-    for i in range(3):
-        j, k = (i + 1) % 3, (i + 2) % 3
-        C[:, i] = (16.0 * math.pi * mu / 3.0) * (a2[:, j] + a2[:, k]) / (
-            a2[:, j] * alpha[:, j] + a2[:, k] * alpha[:, k])
-    return C
+    shape: str
+    mass: float
+    inertia: np.ndarray  # (3,) principal moments about the fixed point, kg m²
+    center_of_mass: np.ndarray  # (3,) G from the fixed point, m
+    semi_axes: np.ndarray  # (3,) m (a sphere: three equal radii)
+    sphere_radius: float | None  # the radius of a body that meets the fluid as a sphere
 
 
-def oberbeck_resistance(semi_axes, viscosity) -> np.ndarray:
-    """Translational Stokes resistance (N s m-1) of an ellipsoid along its
-    principal axes (Oberbeck 1876): force −K_i v_i on its centre moving at v;
-    K_i = 16πμ/(χ₀ + a_i²α_i) with χ₀ = 2 R_F(a₁², a₂², a₃²) and α_i as in
-    :func:`jeffery_resistance`.  A sphere of radius a gives 6πμa."""
-    from scipy.special import elliprd, elliprf
-
-    a = np.asarray(semi_axes, dtype=np.float64).reshape(-1, 3)
-    a2 = a * a
-    chi0 = 2.0 * elliprf(a2[:, 0], a2[:, 1], a2[:, 2])
-    K = np.empty_like(a)
-    mu = np.asarray(viscosity, dtype=np.float64).reshape(-1)
-    for i in range(3):
-        j, k = (i + 1) % 3, (i + 2) % 3
-        alpha_i = (2.0 / 3.0) * elliprd(a2[:, j], a2[:, k], a2[:, i])
-        K[:, i] = 16.0 * math.pi * mu / (chi0 + a2[:, i] * alpha_i)
-    return K
-
-
-def pivot_drag(K, d) -> np.ndarray:
-    """DᵀKD with D = [d]× (d × v = D v): the resistance about a pivot at −d
-    from the centre of a body whose centre, moving at v = Ω×d, feels the
-    force −Kv (K diagonal in the body frame).  A 3×3 symmetric positive
-    semi-definite matrix, diagonal when d lies on a principal axis."""
-    d = np.asarray(d, dtype=np.float64)
-    D = np.array([[0.0, -d[2], d[1]], [d[2], 0.0, -d[0]], [-d[1], d[0], 0.0]])
-    return D.T @ np.diag(np.asarray(K, dtype=np.float64)) @ D
-
-
-def _hemispheres(body: dict, viscosity: float) -> tuple:
+def _hemispheres(body: dict) -> Body:
     a = float(body["radius"])
     m = (4.0 / 3.0 * math.pi * a**3 * float(body["density"])
          if isinstance(body["mass"], str) else float(body["mass"]))
@@ -157,11 +150,10 @@ def _hemispheres(body: dict, viscosity: float) -> tuple:
         G = np.array([0.0, 0.0, 3.0 * m1 * a / (8.0 * m) - m2 * a / (2.0 * m)])
     else:
         G = np.asarray(body["center_of_mass"], dtype=np.float64)
-    c = 8.0 * math.pi * viscosity * a**3
-    return m, inertia, G, np.array([c, c, c]), True
+    return Body("hemispheres", m, inertia, G, np.array([a, a, a]), a)
 
 
-def _ellipsoid(body: dict, viscosity: float) -> tuple:
+def _ellipsoid(body: dict) -> Body:
     ax = np.asarray(body["semi_axes"], dtype=np.float64)
     m = (4.0 / 3.0 * math.pi * ax.prod() * float(body["density"])
          if isinstance(body["mass"], str) else float(body["mass"]))
@@ -177,31 +169,31 @@ def _ellipsoid(body: dict, viscosity: float) -> tuple:
         inertia = inertia + m * (G @ G - G * G)
     else:
         inertia = np.asarray(body["inertia"], dtype=np.float64)
-    C = jeffery_resistance(ax, viscosity)[0]
-    if np.any(G != 0.0):  # the centre, at G from the pivot, is dragged through the fluid
-        C = C + np.diag(pivot_drag(oberbeck_resistance(ax, viscosity)[0], G))
-    return m, inertia, G, C, False
+    return Body("ellipsoid", m, inertia, G, ax, None)
 
 
 SHAPES = {"hemispheres": _hemispheres, "ellipsoid": _ellipsoid}
 
 
+def body_of_scene(scene) -> Body:
+    """The body a resolved scene describes."""
+    return SHAPES[scene["body"]["shape"]](scene["body"])
+
+
 def physics_of_scene(scene, members: int = 1) -> Physics:
     """The physics of a resolved scene, repeated for ``members`` members."""
-    body = scene["body"]
-    mu = float(scene["fluid"]["viscosity"])
-    m, inertia, G, C, iso = SHAPES[body["shape"]](body, mu)
+    body = body_of_scene(scene)
     hc = scene["thermo"]["heat_capacity"]
-    cv = 3.0 * (m / float(body["molar_mass"])) * R_GAS if isinstance(hc, str) else float(hc)
-    one = Physics(
-        inertia=inertia[None].astype(np.float64), center_of_mass=G[None].astype(np.float64),
-        mass=np.array([m]), friction=C[None].astype(np.float64),
-        gravity_torque=(m * float(scene["gravity"]["g"]) * G)[None],
-        heat_capacity=np.array([cv]), T0=np.array([float(scene["thermo"]["T0"])]),
-        S0=np.array([float(scene["thermo"]["S0"])]),
-        thermal_expansion=np.array([float(body["thermal_expansion"])]),
-        internal_friction=np.array([float(body["internal_friction"])]),
-        isotropic_friction=iso)
+    cv = 3.0 * (body.mass / float(scene["body"]["molar_mass"])) * R_GAS if isinstance(hc, str) else float(hc)
+    kw = dict(inertia=body.inertia[None].astype(np.float64),
+              center_of_mass=body.center_of_mass[None].astype(np.float64),
+              mass=np.array([body.mass]), heat_capacity=np.array([cv]),
+              T0=np.array([float(scene["thermo"]["T0"])]), S0=np.array([float(scene["thermo"]["S0"])]))
+    for t in registry():
+        shapes = {prm.name: prm.shape for prm in t.parameters}
+        for name, value in t.parameters_of_scene(scene, body).items():
+            kw[name] = value if shapes[name] is None else np.asarray(value, dtype=np.float64)[None]
+    one = Physics(**kw)
     return one.repeat(members) if members != 1 else one
 
 
@@ -227,7 +219,7 @@ class KernelModel:
         return state_layout(self.model, family)
 
     def terms(self) -> list[str]:
-        """Names of the terms present, for labels and reports."""
+        """Names of the kernel parts present, for labels and reports."""
         out = [type(self.model.inertia).__name__]
         if self.model.thermo is not None:
             out.append("IdealSolid")  # IdealSolidWide: the same physics, a wider polynomial
@@ -238,22 +230,22 @@ class KernelModel:
 
 
 def build_model(phys: Physics, attitude: bool = False, heat=None) -> KernelModel:
-    """The kernels' model of an ensemble: only the terms some member needs.
-    ``heat``: an upper bound of the heat any member can produce (J; its
-    initial mechanical energy above rest): where it could take σ/c_v beyond
-    the cubic's range of 1/T, the ideal solid is evaluated with its wider
-    polynomial (same physics, and still vectorized)."""
+    """The kernels' model of an ensemble: only the terms some member needs,
+    in registry order.  ``heat``: an upper bound of the heat any member can
+    produce (J; its initial mechanical energy above rest): where it could
+    take σ/c_v beyond the cubic's range of 1/T, the ideal solid is evaluated
+    with its wider polynomial (same physics, and still vectorized)."""
     N = phys.n
-    I0 = phys.inertia
-    dissipative = phys.dissipative
-    coupled = dissipative and bool(np.any(phys.thermal_expansion != 0.0))
-    parts: list[tuple[type, np.ndarray]] = []
-    if coupled:
-        parts.append((_inertia.ThermalInertia, _inertia.thermal_coefficients(I0, phys.thermal_expansion)))
-    else:
-        parts.append((_inertia.ConstantInertia, _inertia.constant_coefficients(I0)))
+    inertia = constant_inertia_part(phys)
+    forces: list[tuple[type, np.ndarray]] = []
+    for t in registry():
+        for slot, cls, coef in t.kernel_parts(phys):
+            if slot == "inertia":
+                inertia = (cls, coef)
+            else:
+                forces.append((cls, coef))
     thermo = None
-    if dissipative:
+    if phys.dissipative:
         # a heat q ≥ 0 takes σ/c_v to at most ln(1 + q/(c_v T₀)); one bound for the
         # ensemble (its largest heat), so that members of one body share their model
         qmax = 0.0 if heat is None else float(heat)
@@ -264,17 +256,7 @@ def build_model(phys: Physics, attitude: bool = False, heat=None) -> KernelModel
             thermo = (_thermo.IdealSolidWide, _thermo.coefficients_wide(phys.heat_capacity, phys.T0, reach))
         else:
             thermo = (_thermo.IdealSolid, _thermo.coefficients(phys.heat_capacity, phys.T0))
-    forces: list[tuple[type, np.ndarray]] = []
-    if np.any(phys.friction != 0.0):
-        if phys.isotropic_friction:
-            forces.append((_stokes.StokesSphere, _stokes.sphere_coefficients(phys.friction[:, 0], I0)))
-        else:
-            forces.append((_stokes.StokesDiagonal, _stokes.diagonal_coefficients(phys.friction, I0)))
-    if np.any(phys.internal_friction != 0.0):
-        forces.append((_db.DoubleBracket, _db.coefficients(phys.internal_friction, I0)))
-    if np.any(phys.gravity_torque != 0.0):
-        forces.append((_gravity.Gravity, _gravity.coefficients(phys.gravity_torque, I0)))
-    blocks = [parts[0][1]] + ([thermo[1]] if thermo else []) + [f[1] for f in forces]
+    blocks = [inertia[1]] + ([thermo[1]] if thermo else []) + [f[1] for f in forces]
     if attitude:
         blocks.append(np.ones((N, 1)))
     P = np.ascontiguousarray(np.hstack(blocks), dtype=np.float64)
@@ -289,11 +271,11 @@ def build_model(phys: Physics, attitude: bool = False, heat=None) -> KernelModel
             k += n
             return cls(*vals)
 
-        inertia = take(parts[0][0])
+        ine = take(inertia[0])
         th = take(thermo[0]) if thermo else None
         fs = tuple(take(cls) for cls, _ in forces)
         att = take(type(ATTITUDE)) if attitude else None
-        return Model(inertia, th, fs, att)
+        return Model(ine, th, fs, att)
 
     template = assemble(P[0] if N else np.zeros(P.shape[1]))
     assert len(gen.flatten(template)) == P.shape[1]
@@ -315,12 +297,22 @@ def theta(phys: Physics, sigma: np.ndarray) -> np.ndarray:
     return _bcast(phys.T0, sigma) * np.exp(sigma / _bcast(phys.heat_capacity, sigma))
 
 
+def _expansion(phys: Physics, th: np.ndarray):
+    """(φ, φ′) with 𝕀(S) = φ²𝕀₀ from the term that makes the inertia depend on S, or None."""
+    for t in registry():
+        f = getattr(t, "expansion", None)
+        out = None if f is None else f(phys, th)
+        if out is not None:
+            return out
+    return None
+
+
 def inertia_scale(phys: Physics, sigma: np.ndarray | None) -> np.ndarray | float:
-    """s(S) with 𝕀(S) = s 𝕀₀: (1 + α(θ − T₀))² (1 without thermal expansion)."""
-    if sigma is None or not np.any(phys.thermal_expansion != 0.0):
+    """s(S) = φ² with 𝕀(S) = s 𝕀₀ (1 for a constant inertia)."""
+    if sigma is None:
         return 1.0
-    alpha = _bcast(phys.thermal_expansion, sigma)
-    return (1.0 + alpha * (theta(phys, sigma) - _bcast(phys.T0, sigma))) ** 2
+    e = _expansion(phys, theta(phys, sigma))
+    return 1.0 if e is None else e[0] ** 2
 
 
 def node_velocity(phys: Physics, momentum: np.ndarray, sigma: np.ndarray | None) -> np.ndarray:
@@ -337,8 +329,13 @@ def kinetic_energy(phys: Physics, omega: np.ndarray, sigma: np.ndarray | None) -
 
 
 def potential_energy(phys: Physics, gamma: np.ndarray) -> np.ndarray:
-    """V = g⃗·Γ in J."""
-    return _gravity.potential_energy(phys.gravity_torque, gamma)
+    """V(Γ) in J: the sum of the conservative terms' potentials."""
+    V = np.zeros(gamma.shape[:-1])
+    for t in registry():
+        v = t.potential_energy(phys, gamma)
+        if v is not None:
+            V = V + v
+    return V
 
 
 def internal_energy_change(phys: Physics, sigma: np.ndarray) -> np.ndarray:
@@ -350,17 +347,62 @@ def internal_energy_change(phys: Physics, sigma: np.ndarray) -> np.ndarray:
 def temperature(phys: Physics, omega: np.ndarray, sigma: np.ndarray) -> np.ndarray:
     """T = −∂L/∂S in K: θ(S), less ½Ω·𝕀′(S)Ω = φφ′ Ω·𝕀₀Ω for an entropy-dependent inertia."""
     th = theta(phys, sigma)
-    if not np.any(phys.thermal_expansion != 0.0):
+    e = _expansion(phys, th)
+    if e is None:
         return th
-    alpha = _bcast(phys.thermal_expansion, sigma)
-    phi = 1.0 + alpha * (th - _bcast(phys.T0, sigma))
-    dphi = alpha * th / _bcast(phys.heat_capacity, sigma)
+    phi, dphi = e
     return th - phi * dphi * np.sum(_bcast(phys.inertia, omega) * omega * omega, axis=-1)
 
 
+def torque(phys: Physics, omega: np.ndarray, gamma: np.ndarray, sigma: np.ndarray | None = None) -> np.ndarray:
+    """Σ f(Ω, Γ) (N m): every term's torque, (N, ..., 3)."""
+    s = inertia_scale(phys, sigma)
+    f = np.zeros(np.broadcast_shapes(omega.shape, gamma.shape))
+    for t in registry():
+        ft = t.torque(phys, omega, gamma, s)
+        if ft is not None:
+            f = f + ft
+    return f
+
+
+def dissipated_power(phys: Physics, omega: np.ndarray, sigma: np.ndarray | None = None) -> np.ndarray:
+    """−Σ⟨f_friction, Ω⟩ ≥ 0 (W), (N, ...)."""
+    s = inertia_scale(phys, sigma)
+    P = np.zeros(omega.shape[:-1])
+    for t in registry():
+        pt = t.dissipated_power(phys, omega, s)
+        if pt is not None:
+            P = P + pt
+    return P
+
+
+def potential_span(phys: Physics) -> np.ndarray:
+    """max V − min V over all attitudes (J), per member."""
+    out = np.zeros(phys.n)
+    for t in registry():
+        out = out + t.potential_span(phys)
+    return out
+
+
 def mechanical_energy_scale(phys: Physics, omega0: np.ndarray, gamma0: np.ndarray) -> np.ndarray:
-    """K₀ + V₀ + |g⃗| (N,): the initial mechanical energy above the resting state,
+    """K₀ + V₀ − min V (N,): the initial mechanical energy above the resting state,
     the energy friction can turn into heat (the natural scale of E_k − E₀)."""
     K0 = kinetic_energy(phys, omega0, None)
-    V0 = np.sum(phys.gravity_torque * gamma0, axis=-1)
-    return K0 + V0 + np.linalg.norm(phys.gravity_torque, axis=-1)
+    V0 = potential_energy(phys, gamma0)
+    return K0 + V0 + 0.5 * potential_span(phys)
+
+
+def continuous_rhs_numpy(phys: Physics, omega: np.ndarray, gamma: np.ndarray, sigma: np.ndarray):
+    """(Ω̇, Γ̇, σ̇) of the continuous equations in plain numpy, every term
+    included (shapes (N, ..., 3), (N, ..., 3), (N, ...)): with 𝕀(S) = φ²𝕀₀
+    (φ = 1: Euler's equations), 𝕀₀Ω̇ = (𝕀₀Ω×Ω + Σf)/φ² − 2(φ′/φ)σ̇ 𝕀₀Ω,
+    Γ̇ = Γ×Ω, σ̇ = P/T."""
+    I = _bcast(phys.inertia, omega)
+    sd = dissipated_power(phys, omega, sigma) / temperature(phys, omega, sigma)
+    wd = np.cross(I * omega, omega) / I + torque(phys, omega, gamma, sigma) / I
+    e = _expansion(phys, theta(phys, sigma))
+    if e is not None:
+        phi, dphi = e
+        wd = (np.cross(I * omega, omega) + torque(phys, omega, gamma, sigma) / (phi * phi)[..., None]) / I
+        wd = wd - (2.0 * dphi / phi * sd)[..., None] * omega
+    return wd, np.cross(gamma, omega), sd

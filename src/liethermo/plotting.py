@@ -109,10 +109,16 @@ def scene_figures(outputs: dict, folder, stem: str = "run", member: int = 0) -> 
     def moves(name):
         return any(name in ds and np.any(ds[name].values != 0.0) for ds in data.values())
 
+    def changes(name):
+        def changed(v):
+            return np.any((v != v[..., :1]) & np.isfinite(v))
+
+        return any(name in ds and changed(ds[name].values) for ds in data.values())
+
     panels = [("kinetic_energy", "kinetic K (mJ)")]
-    if moves("gravity_torque"):
+    if moves("potential_energy"):
         panels.append(("potential_energy", "potential V (mJ)"))
-    if moves("friction_coefficients") or moves("internal_friction"):
+    if changes("internal_energy"):
         panels.append(("internal_energy", "internal U - U0 (mJ)"))
     n = len(panels)
     fig, axes = plt.subplots(n, 1, figsize=(7, 1.1 + 0.3 * (n - 1) + 1.95 * n), sharex=True, squeeze=False)

@@ -303,10 +303,16 @@ class RunPlan:
                 f"at most about {mem} of memory (member chunks of {e.chunk_members}){avail}")
 
 
-#: Scene keys the kernel parameters are derived from.
-PARAMETER_KEYS = ("body.radius", "body.semi_axes", "body.density", "body.mass", "body.molar_mass",
-                  "body.upper_mass_fraction", "body.inertia", "thermo.heat_capacity",
-                  "body.center_of_mass", "fluid.viscosity", "gravity.g", "thermo.T0")
+def _parameter_keys() -> tuple[str, ...]:
+    from .kernels.terms import registry
+
+    return (("body.radius", "body.semi_axes", "body.density", "body.mass", "body.molar_mass",
+             "body.upper_mass_fraction", "body.inertia", "thermo.heat_capacity", "body.center_of_mass")
+            + tuple(st.path for t in registry() for st in t.settings) + ("thermo.T0",))
+
+
+#: Scene keys the kernel parameters are derived from: the body's and every term's.
+PARAMETER_KEYS = _parameter_keys()
 
 
 #: Integer keys the kernels and arrays take as 64-bit integers.
@@ -332,8 +338,7 @@ def check_parameters(scene: dict) -> None:
         with np.errstate(all="ignore"):
             phys = physics_of_scene(scene, 1)
             p = build_model(phys, bool(scene["output"]["attitude"])).P
-        bad = not all(np.all(np.isfinite(getattr(phys, f))) for f in
-                      ("inertia", "center_of_mass", "mass", "friction", "gravity_torque", "heat_capacity"))
+        bad = not all(np.all(np.isfinite(v)) for v in vars(phys).values() if isinstance(v, np.ndarray))
         bad = bad or not np.all(np.isfinite(p))
         why = "not finite numbers"
     except ArithmeticError as exc:
@@ -341,29 +346,29 @@ def check_parameters(scene: dict) -> None:
     if bad:
         raise PreflightError(f"the kernel parameters derived from the scene (mass, moments of inertia, friction, "
                              f"heat capacity, gravity torque) are {why}; check {', '.join(PARAMETER_KEYS)}")
-    _check_coupled_temperature(scene, phys)
+    _check_start(scene, phys)
 
 
-def _check_coupled_temperature(scene: dict, phys) -> None:
-    """The coupled top's temperature T = θ − φφ′ Ω·𝕀₀Ω must start positive for
-    every member: at S₀ (θ = T₀, φ = 1, φ′ = αT₀/c_v) that is α Ω·𝕀₀Ω < c_v.
-    The members' spins reach spin_range[1] × |Ω(0)| in any direction, so the
-    bound uses the largest moment."""
-    alpha = float(phys.thermal_expansion[0])
-    if alpha <= 0.0:
-        return
+def _check_start(scene: dict, phys) -> None:
+    """Every term's condition on the start (e.g. the coupled top's temperature
+    must start positive), with Ω·𝕀₀Ω bounded over the members: the members'
+    spins reach spin_range[1] × |Ω(0)| in any direction, so the bound uses
+    the largest moment."""
+    from .kernels.terms import registry
+
     omega = np.asarray(scene["initial"]["omega"], dtype=np.float64)
-    cv = float(phys.heat_capacity[0])
     if int(scene["ensemble"]["members"]) == 1:
         kin2, what = float(omega @ (phys.inertia[0] * omega)), "Ω·𝕀₀Ω"
     else:
         from .initial import max_spin
 
         kin2, what = float(phys.inertia[0].max()) * max_spin(scene) ** 2, "I_max (spin_range[1] |Ω(0)|)²"
-    if alpha * kin2 >= cv:
-        raise PreflightError(f"scene key 'body.thermal_expansion': the coupled top would start at a "
-                             f"temperature T = T0 (1 − α {what}/c_v) ≤ 0 (α {what} = {alpha * kin2:.3g} J/K "
-                             f"against c_v = {cv:.3g} J/K); lower α or the spin, or raise thermo.heat_capacity")
+    for t in registry():
+        check = getattr(t, "start_problem", None)
+        problem = None if check is None else check(scene, phys, kin2, what)
+        if problem is not None:
+            key, why = problem
+            raise PreflightError(f"scene key '{key}': {why}")
 
 
 def _first_existing(p: Path) -> Path:

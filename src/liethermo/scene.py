@@ -214,9 +214,11 @@ def _tol_check(name, v, scene):
 
 E1_ROTATION = [[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]]
 
-#: Every scene key.  Defaults are the paper's body and fluid with the
+#: The scene keys of the body, the thermodynamics, the initial data, the
+#: integrator, the ensemble and the output; the model terms add theirs
+#: (:data:`KEYS`).  Defaults are the paper's body and fluid with the
 #: integrator choices recommended for new scenes.
-KEYS: tuple[Key, ...] = (
+CORE_KEYS: tuple[Key, ...] = (
     Key("scene", "name", "custom", "", "a string", "name of the scene (files are named after it)", string),
     Key("scene", "description", "", "", "a string", "one line on what the scene is", string),
     Key("body", "shape", "hemispheres", "", '"hemispheres" | "ellipsoid"',
@@ -244,15 +246,6 @@ KEYS: tuple[Key, ...] = (
         "(0, 0, 3m1a/(8m) − m2a/(2m)); ellipsoid: the centre (no gravity torque). An "
         "ellipsoid's centre is at G, so a G ≠ 0 also drags its centre through the fluid",
         word_or("shape", _com_check, aliases=("hemispheres",))),
-    Key("body", "thermal_expansion", 0.0, "K-1", "≥ 0",
-        "linear thermal expansion α: 𝕀(S) = 𝕀₀ (1 + α(θ − T0))², the fully coupled top",
-        number(0.0)),
-    Key("body", "internal_friction", 0.0, "s kg-1 m-2", "≥ 0",
-        "λ of the double-bracket friction λ μ×(μ×Ω), which keeps |μ| (the flat spin)",
-        number(0.0)),
-    Key("fluid", "viscosity", 0.1, "kg m-1 s-1", "≥ 0",
-        "dynamic viscosity μ of the Stokes fluid (friction torque −CΩ)", number(0.0)),
-    Key("gravity", "g", 9.81, "m s-2", "≥ 0", "gravitational acceleration", number(0.0)),
     Key("thermo", "T0", 300.0, "K", "> 0", "initial temperature", number(0.0, lo_open=True)),
     Key("thermo", "S0", 0.0, "J K-1", "finite", "initial entropy", number()),
     Key("thermo", "heat_capacity", "material", "J K-1", '"material" | > 0',
@@ -302,6 +295,37 @@ KEYS: tuple[Key, ...] = (
         "members simulated and written at a time (bounds memory)", integer()),
 )
 
+
+
+def _term_key(setting) -> Key:
+    """The scene key of a term's :class:`~liethermo.kernels.terms.Setting`."""
+    check = number(setting.minimum, lo_open=setting.open)
+    if setting.word:
+        check.__doc__ = f"a number {setting.rule.split('| ')[-1]}"
+        check = word_or(setting.word, check)
+    return Key(setting.section, setting.name, setting.default, setting.unit, setting.rule,
+               setting.doc, check)
+
+
+def _all_keys() -> tuple[Key, ...]:
+    """The core keys with every term's keys after the core keys of their
+    section (a section of its own goes before [thermo])."""
+    from .kernels.terms import registry
+
+    term_keys = [_term_key(st) for t in registry() for st in t.settings]
+    sections = list(dict.fromkeys(k.section for k in CORE_KEYS))
+    for k in term_keys:
+        if k.section not in sections:
+            sections.insert(sections.index("thermo"), k.section)
+    out: list[Key] = []
+    for sec in sections:
+        out += [k for k in CORE_KEYS if k.section == sec]
+        out += [k for k in term_keys if k.section == sec]
+    return tuple(out)
+
+
+#: Every scene key: :data:`CORE_KEYS` and the keys the model terms own.
+KEYS: tuple[Key, ...] = _all_keys()
 SECTIONS: tuple[str, ...] = tuple(dict.fromkeys(k.section for k in KEYS))
 KEY_INDEX: dict[str, Key] = {k.path: k for k in KEYS}
 
@@ -341,8 +365,16 @@ class _Section:
         return iter(self.keys())
 
 
+def _annotation(k: Key):
+    """The type of a key's values in the typed scene (lists are tuples)."""
+    if isinstance(k.default, str) and k.rule.startswith('"') and " | " in k.rule and not all(
+            part.strip().startswith('"') for part in k.rule.split("|")):
+        return "str | float | tuple"  # a word or a value
+    return {bool: bool, int: int, float: float, str: str, list: tuple}.get(type(k.default), Any)
+
+
 def _section_class(section: str):
-    fields = [(k.name, Any) for k in KEYS if k.section == section]
+    fields = [(k.name, _annotation(k)) for k in KEYS if k.section == section]
     cls = dataclasses.make_dataclass(section.capitalize() + "Section", fields, bases=(_Section,),
                                      frozen=True)
     cls.__module__ = __name__
@@ -351,19 +383,7 @@ def _section_class(section: str):
     return cls
 
 
-SceneSection = _section_class("scene")
-BodySection = _section_class("body")
-FluidSection = _section_class("fluid")
-GravitySection = _section_class("gravity")
-ThermoSection = _section_class("thermo")
-InitialSection = _section_class("initial")
-IntegratorSection = _section_class("integrator")
-EnsembleSection = _section_class("ensemble")
-OutputSection = _section_class("output")
-_SECTION_CLASSES = {"scene": SceneSection, "body": BodySection, "fluid": FluidSection,
-                    "gravity": GravitySection, "thermo": ThermoSection,
-                    "initial": InitialSection, "integrator": IntegratorSection,
-                    "ensemble": EnsembleSection, "output": OutputSection}
+_SECTION_CLASSES = {sec: _section_class(sec) for sec in SECTIONS}
 
 
 def _freeze(v):
@@ -374,21 +394,10 @@ def _thaw(v):
     return [_thaw(x) for x in v] if isinstance(v, tuple) else v
 
 
-@dataclass(frozen=True)
-class Scene(_Section):
+class _SceneMethods(_Section):
     """A resolved, validated scene (immutable).  Sections are attributes
     (``scene.body.shape``) and items (``scene["body"]["shape"]``); list values
     are tuples.  :meth:`with_overrides` makes a changed copy."""
-
-    scene: Any
-    body: Any
-    fluid: Any
-    gravity: Any
-    thermo: Any
-    initial: Any
-    integrator: Any
-    ensemble: Any
-    output: Any
 
     @property
     def name(self) -> str:
@@ -407,6 +416,14 @@ class Scene(_Section):
 
     def __deepcopy__(self, memo):
         return self
+
+
+#: The typed scene: one frozen section per TOML table (:data:`SECTIONS`),
+#: each with a field per key.
+Scene = dataclasses.make_dataclass("Scene", [(sec, _SECTION_CLASSES[sec]) for sec in SECTIONS],
+                                   bases=(_SceneMethods,), frozen=True)
+Scene.__module__ = __name__
+Scene.__doc__ = _SceneMethods.__doc__
 
 
 def _scene_from_dict(d: dict) -> Scene:
@@ -583,26 +600,20 @@ def _cross_rules(s: dict) -> None:
             raise SceneError("body.center_of_mass", "an ellipsoid with its own inertia pivots "
                              "about a point on one of its axes: give G along a body axis, or "
                              "body.inertia explicitly", body["center_of_mass"])
-        if np.count_nonzero(G) > 1 and s["fluid"]["viscosity"] > 0:
-            raise SceneError("body.center_of_mass", "an ellipsoid in a viscous fluid pivots about a "
-                             "point on one of its axes (the drag of its centre about the pivot is "
-                             "then diagonal, as the kernels need): give G along a body axis",
-                             body["center_of_mass"])
-    method = s["integrator"]["method"]
-    alpha = s["body"]["thermal_expansion"]
-    lam = s["body"]["internal_friction"]
-    if alpha > 0 and lam > 0:
-        raise SceneError("body.internal_friction", "is not available together with "
-                         "body.thermal_expansion > 0", lam)
-    vi_plain = method == "vi" or "vi" in s["output"]["compare"]
-    if alpha > 0 and vi_plain and s["integrator"]["start"] != "legendre" and (
-            s["fluid"]["viscosity"] > 0):
-        raise SceneError("integrator.start", 'the coupled top (body.thermal_expansion > 0) starts '
-                         'from its node momentum: use "legendre"', s["integrator"]["start"])
-    if alpha > 0 and vi_plain and s["integrator"]["friction"] == "endpoint" and (
-            s["fluid"]["viscosity"] > 0):
-        raise SceneError("integrator.friction", 'the coupled top has the trapezoid friction only',
-                         "endpoint")
+    from .kernels.terms import registry
+
+    for t in registry():
+        for key, rule, value in t.violations(s):
+            raise SceneError(key, rule, value)
+    on = [t for t in registry() if t.in_scene(s)]
+    for key, methods in (("integrator.method", [s["integrator"]["method"]]),
+                         ("output.compare", s["output"]["compare"])):
+        for m in methods:
+            for t in on:
+                why = t.refuses(m)
+                if why:
+                    raise SceneError(key, f"method {m!r} cannot run the {t.name} term "
+                                     f"({t.settings[0].path}): {why}", m)
 
 
 # ----------------------------------------------------------------------------- key documentation
@@ -681,27 +692,14 @@ nothing else (docs/model.md, "Model terms"):
 
 * *The body* — `body.shape = "hemispheres"` is the paper's top: a ball of radius
   `body.radius` made of a solid upper and a thin hollow lower hemisphere, spinning
-  about its centre, with the paper's printed inertia (docs/model.md, erratum E5) and
-  the Stokes friction of a sphere, 8πηa³ (η = `fluid.viscosity`). `body.shape = "ellipsoid"` is a triaxial
-  ellipsoid with `body.semi_axes`, uniform density about its centre unless
-  `body.mass`, `body.inertia` or `body.center_of_mass` say otherwise, with Jeffery's
-  diagonal rotational resistance; pivoting at −G from its centre
-  (`body.center_of_mass = G` on a body axis), its centre is also dragged through the
-  fluid (Oberbeck's resistance, seen about the pivot). Either shape takes explicit principal moments
-  `body.inertia = [I1, I2, I3]`.
-* *Thermal expansion* — `body.thermal_expansion = α > 0` makes the inertia depend
-  on the entropy, 𝕀(S) = 𝕀₀(1 + α(θ − T₀))²: the fully coupled top. Give it a small
-  `thermo.heat_capacity` to see the heating (the built-in `coupled_egg`). With `vi`
-  in a viscous fluid it needs `integrator.start = "legendre"` and
-  `integrator.friction = "trapezoid"`.
-* *Internal friction* — `body.internal_friction = λ > 0` adds the double-bracket
-  friction λ μ×(μ×Ω), which keeps |μ|; with `fluid.viscosity = 0` and `gravity.g = 0`
-  the body ends in a flat spin (the built-in `flat_spin`). Not together with
-  thermal expansion.
-* *No gravity, no friction* — `gravity.g = 0` (or a centre of mass at the fixed
-  point, as for a uniform ellipsoid) removes the gravity torque; `fluid.viscosity = 0`
-  with `body.internal_friction = 0` removes all dissipation, and with it the
-  entropy (S stays S₀, T stays T₀).
+  about its centre, with the paper's printed inertia (docs/model.md, erratum E5).
+  `body.shape = "ellipsoid"` is a triaxial ellipsoid with `body.semi_axes`, uniform
+  density about its centre unless `body.mass`, `body.inertia` or `body.center_of_mass`
+  say otherwise, pivoting at −G from its centre. Either shape takes explicit principal
+  moments `body.inertia = [I1, I2, I3]`.
+{terms}
+* *No friction* — with every friction switched off nothing dissipates, and the
+  entropy is not integrated (S stays S₀, T stays T₀).
 * *The integrator* — `integrator.method`, and for `vi` the `start`, `friction` and
   `entropy` variants: their orders and the paper's choices are in docs/model.md
   ("The variational integrator", "Orders of convergence"). The paper scene uses the
@@ -709,13 +707,23 @@ nothing else (docs/model.md, "Model terms"):
 """
 
 
+def _terms_markdown() -> str:
+    """One bullet per model term (its ``scene_doc``), wrapped like the rest."""
+    import textwrap
+
+    from .kernels.terms import registry
+
+    return "\n".join(textwrap.fill(t.scene_doc, 88, initial_indent="* ", subsequent_indent="  ")
+                     for t in registry() if t.scene_doc)
+
+
 def scenes_markdown() -> str:
     """The text of docs/scenes.md: a short introduction, the built-in scenes and
     every key of :data:`KEYS` with its unit, default and rule."""
     lines = ["# Scenes and their keys", "",
              f"<!-- Generated from liethermo.scene.KEYS by `{SCENES_MARKDOWN_COMMAND}`; "
-             "edit the keys or liethermo.scene.SCENES_INTRO, not this file. -->", "",
-             SCENES_INTRO.rstrip("\n"), "",
+             "edit the keys, a model term's scene_doc or liethermo.scene.SCENES_INTRO, not this file. -->", "",
+             SCENES_INTRO.rstrip("\n").replace("{terms}", _terms_markdown()), "",
              "## Built-in scenes", "",
              "`liethermo run NAME` runs one; the files are in `src/liethermo/scenes/`.", "",
              "| scene | description |", "|---|---|"]

@@ -22,26 +22,26 @@ from .kernels import simple as _simple
 from .kernels.layout import STATUS_MEANINGS, STATUS_NEWTON, STATUS_NONFINITE, STATUS_OK  # noqa: F401
 from .kernels.layout import StateLayout
 from .methods import ENTROPY_UPDATES, FRICTION, STARTS, Method, get_method
-from .physics import KernelModel, Physics, build_model, node_velocity
+from .physics import KernelModel, Physics, build_model, node_velocity, potential_span
 
-#: Reference substep: h_ref · ω_bound ≤ this (measured: ≤ 1e-15 on the paper scene).
+#: Reference substep: h_ref · ω_bound ≤ this, small enough that the reference's
+#: own error stays at round-off on the built-in scenes (tests/test_convergence.py)
 REFERENCE_STEP_ANGLE = 0.05
 DEFAULT_NEWTON_TOL = 1e-14
 DEFAULT_NEWTON_MAXITER = 30
-#: the first kernel call of a run covers this many member-steps (≈ 25 ms for
-#: the paper scene's VI on 2 Zen 3 cores) ...
+#: the first kernel call of a run covers this many member-steps (a few tens of
+#: milliseconds of the paper scene's VI; benchmarks/README.md has the figures) ...
 CHUNK_MEMBER_STEPS = 2_000_000
 #: ... and the later ones grow (at most 4× per call) towards this wall time:
 #: frequent enough for a progress bar and for a stop signal to be acted on
 #: promptly, rare enough that what each call costs besides its steps (loading
-#: every block's state into its buffer and back, waking the threads: ≈ 8 % of
-#: RK2 at 100 steps per call) does not show
+#: every block's state into its buffer and back, waking the threads) does not show
 CALL_SECONDS = 0.1
 #: below this many members one thread is faster than waking others
 SMALL_ENSEMBLE = 64
 #: below this many member-steps "auto" runs the one-member-per-iteration
-#: kernel: it compiles in about half the time of the vectorized one (5.7 s
-#: against 12.4 s for the VI on a Zen 3) and costs at most ~40 ms more to run
+#: kernel: it compiles in about half the time of the vectorized one and costs
+#: a few tens of milliseconds more to run (benchmarks/README.md)
 SMALL_RUN_MEMBER_STEPS = 2**20
 
 
@@ -142,14 +142,18 @@ class Trajectory:
 
 def omega_bound(physics: Physics, omega0: np.ndarray) -> np.ndarray:
     """Per-member upper bound (rad s⁻¹) on |Ω(t)| of the continuous flow: the
-    mechanical energy can only decrease, so K(t) ≤ K₀ + 2|g⃗|; plus the
-    friction and pendulum rates."""
+    mechanical energy can only decrease, so K(t) ≤ K₀ + (max V − min V);
+    plus the rate each term adds at that spin (friction, pendulum)."""
+    from .kernels.terms import registry
+
     I = physics.inertia
     Imin = I.min(axis=1)
     K0 = 0.5 * np.sum(I * omega0 ** 2, axis=1)
-    g = np.linalg.norm(physics.gravity_torque, axis=1)
-    c = physics.friction.max(axis=1)
-    return np.sqrt(2.0 * (K0 + 2.0 * g) / Imin) + c / Imin + np.sqrt(g / Imin)
+    w = np.sqrt(2.0 * (K0 + potential_span(physics)) / Imin)
+    bound = w
+    for t in registry():
+        bound = bound + t.rate_bound(physics, w)
+    return bound
 
 
 def reference_substeps(h: float, physics: Physics, omega0: np.ndarray) -> np.ndarray:

@@ -132,3 +132,36 @@ def rk_rhs(model, y, exact):
     wd, sd, small = entropy_and_omega_rates(model, w[0], w[1], w[2], G[0], G[1], G[2], s, exact)
     Gd = cross_lane(G[0], G[1], G[2], w[0], w[1], w[2])
     return (wd, Gd, sd, attitude_rate(R, w[0], w[1], w[2])), small
+
+
+_RHS7: dict = {}
+
+
+def rhs7_function(template):
+    """A jitted ``f(p, y, out)``: the continuous equations of one member of a
+    model of ``template``'s type, with its parameters ``p`` (the flat row of
+    :func:`liethermo.physics.build_model`), on y = (Ω, Γ, σ) (7,), written to
+    ``out``: Ω̇, Γ̇ = Γ×Ω and σ̇ (0 when nothing dissipates).  For callers
+    that step one member from Python (scipy's ``solve_ivp``); compiled once
+    per model type."""
+    import numba
+
+    from .gen import compile_source, unflatten
+
+    key = str(numba.typeof(template))
+    fn = _RHS7.get(key)
+    if fn is None:
+        ns = {"TEMPLATE": template, "unflatten": unflatten, "rates": entropy_and_omega_rates,
+              "or_zero": or_zero}
+        src = ("def rhs7(p, y, out):\n"
+               "    model = unflatten(TEMPLATE, p, 0, 1)\n"
+               "    wd, sd, small = rates(model, y[0], y[1], y[2], y[3], y[4], y[5], y[6], True)\n"
+               "    out[0], out[1], out[2] = wd\n"
+               "    out[3] = y[4] * y[2] - y[5] * y[1]\n"
+               "    out[4] = y[5] * y[0] - y[3] * y[2]\n"
+               "    out[5] = y[3] * y[1] - y[4] * y[0]\n"
+               "    out[6] = or_zero(sd)\n")
+        fn = numba.njit(cache=False, error_model="numpy")(
+            compile_source(src, ns, "rhs7", f"rhs7 {key}"))
+        _RHS7[key] = fn
+    return fn

@@ -160,32 +160,20 @@ def fit_order(hs, errors, scale: float, floor_rel: float):
 
 # ----------------------------------------------------------------------------- continuous rhs (scipy)
 
-#: the model terms rhs7 writes out (studies/_rhs.py)
-RHS7_TERMS = frozenset({"ConstantInertia", "IdealSolid", "StokesSphere", "StokesDiagonal", "Gravity"})
-
-
 def continuous_rhs(phys: Physics, member: int = 0):
     """f(t, y) of the continuous equations of one member, y = (Ω, Γ, σ) (7,),
-    for scipy's ``solve_ivp``: d(𝕀Ω)/dt = 𝕀Ω×Ω − CΩ + Γ×g⃗, Γ̇ = Γ×Ω,
-    σ̇ = Ω·CΩ / (T₀ e^{σ/c_v}).  Only the terms it writes out: a model with
-    any other (thermal expansion, internal friction, a term added later) is
-    refused by name rather than integrated as a different model."""
+    for scipy's ``solve_ivp``: the kernels' own equations of every term the
+    member's model has (compiled once per model type)."""
+    from ..kernels.equations import rhs7_function
     from ..physics import build_model
 
-    extra = [t for t in build_model(phys.take(slice(member, member + 1))).terms() if t not in RHS7_TERMS]
-    if extra:
-        raise ValueError(f"continuous_rhs (the scipy baseline) writes out only {', '.join(sorted(RHS7_TERMS))}; "
-                         f"this model also has {', '.join(extra)}")
-    I = np.ascontiguousarray(phys.inertia[member])
-    C = np.ascontiguousarray(phys.friction[member])
-    g = np.ascontiguousarray(phys.gravity_torque[member])
-    T0 = float(phys.T0[member])
-    cv = float(phys.heat_capacity[member])
-    from ._rhs import rhs7
+    km = build_model(phys.take(slice(member, member + 1)))
+    fn = rhs7_function(km.model)
+    p = np.ascontiguousarray(km.P[0])
 
     def f(t, y):
         out = np.empty(7)
-        rhs7(y, I, C, g, T0, cv, out)
+        fn(p, y, out)
         return out
 
     return f

@@ -1,27 +1,37 @@
-"""Model terms: the physics a scene chooses, as numba-compiled lane functions.
+"""Model terms: the physics a scene chooses, each term one module that owns all of it.
 
-A model is a :class:`Model` namedtuple::
+A term module (``stokes``, ``double_bracket``, …; the list is
+:func:`_term_modules`) holds
+
+* its kernel namedtuple(s): floats (its coefficients, computed once per
+  member in Python) whose *class* is part of the numba type, with their
+  implementations of the protocol functions below — numba picks each
+  term's implementation at compile time; a term that has nothing to say to
+  a protocol passes the accumulators through, and an absent term is not
+  there at all;
+* ``TERM``, an instance of a :class:`Term` subclass that declares the rest:
+  its scene keys (:class:`Setting`), its per-member parameters and their
+  dataset variables (:class:`Parameter`), how a scene gives them, which
+  kernel parts it adds, the rules it sets on a scene, the methods it
+  cannot run with, and its field, power and potential energy in plain numpy.
+
+The layers above loop over :func:`registry` — the physics, the scene keys,
+the dataset, ``liethermo keys`` and docs/scenes.md, the diagnostics and the
+scipy baseline — and never name a term; solvers ask a term for a capability
+(``CAPABILITIES`` on its kernel class, e.g. ``"entropy_dependent_inertia"``:
+the entropy joins the variational integrator's Newton unknowns), not for its
+class.  docs/model.md ("Adding a term") walks through one.
+
+The kernels' model is a :class:`Model` namedtuple::
 
     Model(inertia, thermo, forces, attitude)
 
-* ``inertia`` — exactly one inertia term: :class:`~.inertia.ConstantInertia`
-  (𝕀 fixed) or :class:`~.inertia.ThermalInertia` (𝕀(S), the entropy feeds
-  back into the motion);
-* ``thermo`` — the internal energy U(S) of body and fluid
-  (:class:`~.thermo.IdealSolid`), or None when nothing dissipates (the
-  entropy then stays S₀ and is not integrated);
-* ``forces`` — a tuple of force terms, frictions first, then conservative
-  torques: :class:`~.stokes.StokesSphere`, :class:`~.stokes.StokesDiagonal`,
-  :class:`~.double_bracket.DoubleBracket`, :class:`~.gravity.Gravity`;
+* ``inertia`` — exactly one inertia part: the constant 𝕀, or the part a
+  term puts in its place (the coupled top's 𝕀(S));
+* ``thermo`` — the internal energy U(S) of body and fluid, or None when
+  nothing dissipates (the entropy then stays S₀ and is not integrated);
+* ``forces`` — the force parts of the terms present, in registry order;
 * ``attitude`` — :data:`ATTITUDE` when R is integrated, else None.
-
-Each term is a namedtuple of floats (its coefficients, computed once per
-member in Python by the term module's ``coefficients``) whose *class* is part
-of the numba type: the solvers call the protocol functions below, and numba
-picks each term's implementation at compile time; a term that has nothing to
-say to a protocol passes the accumulators through, an absent term is not
-there at all.  A new friction law is one module with its namedtuple and its
-implementations of the protocol, added to :func:`liethermo.physics.build_model`.
 
 Protocol (all lane functions on floats; ``a``, ``p``, ``c``, ``t`` are
 accumulators that start as None, see :func:`liethermo.kernels.gen.madd`):
@@ -48,6 +58,10 @@ accumulators that start as None, see :func:`liethermo.kernels.gen.madd`):
 from __future__ import annotations
 
 from collections import namedtuple
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
 
 from numba import types
 from numba.extending import overload
@@ -144,5 +158,175 @@ sum_nonlinear_friction = make_fold(nonlinear_friction, 5, 12, "sum_nonlinear_fri
 
 
 
+# ----------------------------------------------------------------------------- what a term declares
+
+@dataclass(frozen=True)
+class Setting:
+    """A scene key a term owns: a number ≥ ``minimum`` (> with ``open``), or
+    the string ``word`` standing for a value the term works out itself."""
+
+    section: str
+    name: str
+    default: Any
+    unit: str
+    doc: str
+    minimum: float = 0.0
+    open: bool = False
+    word: str | None = None
+
+    @property
+    def path(self) -> str:
+        return f"{self.section}.{self.name}"
+
+    @property
+    def rule(self) -> str:
+        bound = f"{'>' if self.open else '≥'} {self.minimum:g}"
+        return f'"{self.word}" | {bound}' if self.word else bound
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """A per-member physical parameter a term adds to the physics: an array
+    of ``shape`` per member (a :class:`~liethermo.physics.Physics` field of
+    that name, zero by default), or, with ``shape=None``, one value for the
+    whole ensemble (``default``).  ``variable``: the name of its dataset
+    variable ("" for none); ``always``: written even when every member has
+    zero (else only when some member has it)."""
+
+    name: str
+    shape: tuple | None
+    unit: str
+    long_name: str
+    variable: str | None = None
+    always: bool = False
+    default: Any = None
+
+    @property
+    def variable_name(self) -> str:
+        return self.name if self.variable is None else self.variable
+
+
+class Term:
+    """A physical term of the model and everything it owns.
+
+    A term module defines its kernel namedtuple(s) with their protocol
+    implementations (above) and one instance of a :class:`Term` subclass
+    named ``TERM``, listed in :data:`REGISTRY`.  The layers above loop over
+    the registry and never name a term: the scene keys (``settings``), the
+    per-member parameters and dataset variables (``parameters``), the
+    parameters of a scene (:meth:`parameters_of_scene`), the kernel parts
+    (:meth:`kernel_parts`), the rules a scene must keep
+    (:meth:`violations`), which methods it cannot run with
+    (:meth:`refuses`), and its continuous field and energies in plain numpy
+    (:meth:`torque`, :meth:`dissipated_power`, :meth:`potential_energy`),
+    used by the diagnostics and the scipy baseline."""
+
+    #: registry name (its module's name)
+    name: str = ""
+    settings: tuple[Setting, ...] = ()
+    parameters: tuple[Parameter, ...] = ()
+    #: one paragraph of docs/scenes.md ("Choosing a model")
+    scene_doc: str = ""
+    #: a friction (it dissipates); ``nonlinear_friction``: its discrete form
+    #: is not linear in the step velocity (the variational integrator adds it
+    #: to its Newton residual and Jacobian through ``nonlinear_friction``)
+    friction: bool = False
+    nonlinear_friction: bool = False
+
+    def in_scene(self, s: dict) -> bool:
+        """Whether the scene tables ``s`` switch the term on."""
+        return False
+
+    def parameters_of_scene(self, scene, body) -> dict:
+        """This term's parameters of one member, from a resolved ``scene``
+        and its ``body`` (:class:`~liethermo.physics.Body`)."""
+        return {}
+
+    def active(self, phys) -> np.ndarray:
+        """(N,) bool: the members on which the term acts."""
+        return np.zeros(phys.n, dtype=bool)
+
+    def dissipates(self, phys) -> bool:
+        """Whether the term turns mechanical energy into heat for some member."""
+        return False
+
+    def kernel_parts(self, phys) -> list:
+        """[(slot, class, coefficients (N, k))]: what the kernels' model gets,
+        none when no member needs the term.  ``slot`` is "inertia" (the term
+        replaces the constant inertia) or "forces"."""
+        return []
+
+    def violations(self, s: dict):
+        """Yield (key, rule, value) for every rule the scene tables ``s``
+        break because of this term."""
+        return ()
+
+    def refuses(self, method: str) -> str | None:
+        """Why ``method`` cannot run a model with this term (None: it can)."""
+        return None
+
+    # ---- plain numpy, (N, ..., 3) arrays with a leading member axis
+    def torque(self, phys, omega, gamma, scale) -> np.ndarray | None:
+        """The term's torque f(Ω, Γ) (N m); ``scale``: s of 𝕀(S) = s𝕀₀ (or 1)."""
+        return None
+
+    def dissipated_power(self, phys, omega, scale) -> np.ndarray | None:
+        """−⟨f, Ω⟩ ≥ 0 (W) of a friction."""
+        return None
+
+    def potential_energy(self, phys, gamma) -> np.ndarray | None:
+        """V(Γ) (J) of a conservative torque."""
+        return None
+
+    def potential_span(self, phys) -> np.ndarray | float:
+        """max V − min V over all attitudes (J), per member."""
+        return 0.0
+
+    def rate_bound(self, phys, omega_max) -> np.ndarray | float:
+        """A bound (rad s⁻¹) on the rate the term adds to the motion at |Ω| ≤ ``omega_max``."""
+        return 0.0
+
+
+def bcast(a: np.ndarray, like: np.ndarray) -> np.ndarray:
+    """Per-member values a (N, ...) broadcast against arrays (N, T, ..., 3) or (N, T, ...)."""
+    extra = like.ndim - a.ndim
+    return a.reshape(a.shape[:1] + (1,) * extra + a.shape[1:])
+
+
+def _term_modules():
+    """The term modules, frictions before conservative torques: the one place
+    that names them (adding a term is adding its module here)."""
+    from . import double_bracket, gravity, inertia, stokes
+
+    return (inertia, stokes, double_bracket, gravity)
+
+
+class Registry(tuple):
+    """The terms, in the order the kernels add them."""
+
+    def by_name(self, name: str) -> Term:
+        for t in self:
+            if t.name == name:
+                return t
+        raise KeyError(f"no model term {name!r}; the terms are {', '.join(t.name for t in self)}")
+
+
+def constant_inertia_part(phys) -> tuple:
+    """(class, coefficients) of the inertia slot when no term takes it: 𝕀 = 𝕀₀."""
+    from .inertia import ConstantInertia, constant_coefficients
+
+    return ConstantInertia, constant_coefficients(phys.inertia)
+
+
+_REGISTRY: list = []
+
+
+def registry() -> Registry:
+    """Every model term (the ``TERM`` of each module :func:`_term_modules` lists)."""
+    if not _REGISTRY:
+        _REGISTRY.append(Registry(m.TERM for m in _term_modules()))
+    return _REGISTRY[0]
+
+
 __all__ = ["Model", "ATTITUDE", "Attitude", "angular_acceleration", "dissipated_power",
-           "discrete_power", "linear_friction", "torque", "nonlinear_friction", "implements", "types"]
+           "discrete_power", "linear_friction", "torque", "nonlinear_friction", "implements", "types", "Term", "Setting", "Parameter", "Registry", "registry", "bcast"]

@@ -35,8 +35,8 @@ import numpy as np
 from .._jit import fma
 from ..gen import cadd, madd
 from ..so3 import cross_lane, norm2_lane
-from . import (angular_acceleration, discrete_power, dissipated_power, implements,
-               nonlinear_friction)
+from . import (Parameter, Setting, Term, angular_acceleration, bcast, discrete_power,
+               dissipated_power, implements, nonlinear_friction)
 
 
 class DoubleBracket(namedtuple("DoubleBracket", "lam")):
@@ -112,3 +112,48 @@ def _discrete(term, inertia, h, x0, x1, x2, f0, f1, f2, j00, j01, j02, j10, j11,
             cadd(J00, j00), cadd(J01, j01), cadd(J02, j02),
             cadd(J10, j10), cadd(J11, j11), cadd(J12, j12),
             cadd(J20, j20), cadd(J21, j21), cadd(J22, j22))
+
+
+class _DoubleBracket(Term):
+    name = "double_bracket"
+    settings = (Setting("body", "internal_friction", 0.0, "s kg-1 m-2",
+                        "λ of the double-bracket friction λ μ×(μ×Ω), which keeps |μ| (the flat spin)"),)
+    parameters = (Parameter("internal_friction", (), "s kg-1 m-2",
+                            "double-bracket friction lambda: f = lambda mu x (mu x Omega)"),)
+    friction = True
+    nonlinear_friction = True
+    scene_doc = (
+        "*Internal friction* — `body.internal_friction = λ > 0` adds the double-bracket "
+        "friction λ μ×(μ×Ω), which keeps |μ|; with no other torque or friction the body "
+        "ends in a flat spin (the built-in `flat_spin`).")
+
+    def parameters_of_scene(self, scene, body) -> dict:
+        return {"internal_friction": np.float64(scene["body"]["internal_friction"])}
+
+    def active(self, phys):
+        return phys.internal_friction != 0.0
+
+    def dissipates(self, phys) -> bool:
+        return bool(np.any(phys.internal_friction != 0.0))
+
+    def kernel_parts(self, phys) -> list:
+        if not np.any(phys.internal_friction != 0.0):
+            return []
+        return [("forces", DoubleBracket, coefficients(phys.internal_friction, phys.inertia))]
+
+    def in_scene(self, s: dict) -> bool:
+        return s["body"]["internal_friction"] > 0
+
+    def torque(self, phys, omega, gamma, scale):
+        mu = scale[..., None] * bcast(phys.inertia, omega) * omega if np.ndim(scale) else (
+            scale * bcast(phys.inertia, omega) * omega)
+        lam = bcast(phys.internal_friction, omega[..., 0])[..., None]
+        return lam * np.cross(mu, np.cross(mu, omega))
+
+    def dissipated_power(self, phys, omega, scale):
+        mu = scale[..., None] * bcast(phys.inertia, omega) * omega if np.ndim(scale) else (
+            scale * bcast(phys.inertia, omega) * omega)
+        return bcast(phys.internal_friction, omega[..., 0]) * np.sum(np.cross(mu, omega) ** 2, axis=-1)
+
+
+TERM = _DoubleBracket()

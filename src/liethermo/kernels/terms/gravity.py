@@ -14,7 +14,7 @@ from collections import namedtuple
 import numpy as np
 
 from ..gen import madd
-from . import angular_acceleration, implements, torque
+from . import Parameter, Setting, Term, angular_acceleration, bcast, implements, torque
 
 
 class Gravity(namedtuple("Gravity", "gx gy gz gz1 gy1 gx2 gz2 gy3 gx3")):
@@ -49,3 +49,42 @@ def _torque(term, G0, G1, G2, t0, t1, t2):
     return (madd(G1, term.gz, madd(-G2, term.gy, t0)),
             madd(G2, term.gx, madd(-G0, term.gz, t1)),
             madd(G0, term.gy, madd(-G1, term.gx, t2)))
+
+
+class _Gravity(Term):
+    name = "gravity"
+    settings = (Setting("gravity", "g", 9.81, "m s-2", "gravitational acceleration"),)
+    parameters = (Parameter("gravity_torque", (3,), "N m", "m g l chi", always=True),)
+    scene_doc = (
+        "*Gravity* — `gravity.g` pulls on the centre of mass G, torque Γ×g⃗ with g⃗ = m g G "
+        "and potential energy g⃗·Γ. `gravity.g = 0` (or a centre of mass at the fixed "
+        "point, as for a uniform ellipsoid) removes it.")
+
+    def parameters_of_scene(self, scene, body) -> dict:
+        return {"gravity_torque": body.mass * float(scene["gravity"]["g"]) * body.center_of_mass}
+
+    def active(self, phys):
+        return np.any(phys.gravity_torque != 0.0, axis=-1)
+
+    def kernel_parts(self, phys) -> list:
+        if not np.any(phys.gravity_torque != 0.0):
+            return []
+        return [("forces", Gravity, coefficients(phys.gravity_torque, phys.inertia))]
+
+    def in_scene(self, s: dict) -> bool:
+        return s["gravity"]["g"] > 0
+
+    def torque(self, phys, omega, gamma, scale):
+        return np.cross(gamma, bcast(phys.gravity_torque, gamma))
+
+    def potential_energy(self, phys, gamma):
+        return potential_energy(phys.gravity_torque, gamma)
+
+    def potential_span(self, phys):
+        return 2.0 * np.linalg.norm(phys.gravity_torque, axis=1)
+
+    def rate_bound(self, phys, omega_max):
+        return np.sqrt(np.linalg.norm(phys.gravity_torque, axis=1) / phys.inertia.min(axis=1))
+
+
+TERM = _Gravity()

@@ -22,6 +22,8 @@ from collections import namedtuple
 
 import numpy as np
 
+from . import Parameter, Setting, Term, bcast
+
 
 class ConstantInertia(namedtuple("ConstantInertia",
                                  "I1 I2 I3 iI1 iI2 iI3 A1 A2 A3 D1 D2 D3")):
@@ -55,3 +57,81 @@ def thermal_coefficients(inertia0: np.ndarray, alpha: np.ndarray) -> np.ndarray:
     """(N, 13) coefficients of ThermalInertia from 𝕀₀ (N, 3) and α (N,)."""
     return np.hstack([_base(inertia0), np.asarray(alpha, dtype=np.float64).reshape(-1, 1)])
 
+
+class _ThermalExpansion(Term):
+    """The coupled top: thermal expansion makes the inertia depend on S."""
+
+    name = "inertia"
+    settings = (Setting("body", "thermal_expansion", 0.0, "K-1",
+                        "linear thermal expansion α: 𝕀(S) = 𝕀₀ (1 + α(θ − T0))², the fully coupled top"),)
+    parameters = (Parameter("thermal_expansion", (), "K-1",
+                            "linear thermal expansion alpha: I(S) = I0 (1 + alpha (theta - T0))^2"),)
+    scene_doc = (
+        "*Thermal expansion* — `body.thermal_expansion = α > 0` makes the inertia depend "
+        "on the entropy, 𝕀(S) = 𝕀₀(1 + α(θ − T₀))²: the fully coupled top. Give it a small "
+        "`thermo.heat_capacity` to see the heating (the built-in `coupled_egg`). With `vi` "
+        "and a friction it needs `integrator.start = \"legendre\"` and "
+        "`integrator.friction = \"trapezoid\"`; frictions whose discrete form is nonlinear "
+        "(the internal friction) are not available with it.")
+
+    def parameters_of_scene(self, scene, body) -> dict:
+        return {"thermal_expansion": np.float64(scene["body"]["thermal_expansion"])}
+
+    def active(self, phys):
+        return phys.thermal_expansion != 0.0
+
+    def coupled(self, phys) -> bool:
+        """The inertia follows the entropy: something expands and something heats."""
+        return phys.dissipative and bool(np.any(phys.thermal_expansion != 0.0))
+
+    def kernel_parts(self, phys) -> list:
+        if not self.coupled(phys):
+            return []
+        return [("inertia", ThermalInertia, thermal_coefficients(phys.inertia, phys.thermal_expansion))]
+
+    def in_scene(self, s: dict) -> bool:
+        return s["body"]["thermal_expansion"] > 0
+
+    def violations(self, s: dict):
+        from . import registry
+
+        if not self.in_scene(s):
+            return
+        for t in registry():
+            if t.nonlinear_friction and t.in_scene(s):
+                key = t.settings[0]
+                yield (key.path, "is not available together with body.thermal_expansion > 0",
+                       s[key.section][key.name])
+        integ = s["integrator"]
+        vi_plain = integ["method"] == "vi" or "vi" in s["output"]["compare"]
+        rubs = any(t.friction and t.in_scene(s) for t in registry())
+        if vi_plain and rubs and integ["start"] != "legendre":
+            yield ("integrator.start", 'the coupled top (body.thermal_expansion > 0) starts '
+                   'from its node momentum: use "legendre"', integ["start"])
+        if vi_plain and rubs and integ["friction"] == "endpoint":
+            yield ("integrator.friction", "the coupled top has the trapezoid friction only", "endpoint")
+
+    def start_problem(self, scene, phys, kin2: float, what: str) -> tuple[str, str] | None:
+        """The coupled top's temperature T = θ − φφ′ Ω·𝕀₀Ω must start positive
+        for every member: at S₀ (θ = T₀, φ = 1, φ′ = αT₀/c_v) that is
+        α Ω·𝕀₀Ω < c_v; ``kin2`` bounds Ω·𝕀₀Ω over the members (``what`` says how)."""
+        alpha = float(phys.thermal_expansion[0])
+        cv = float(phys.heat_capacity[0])
+        if alpha <= 0.0 or alpha * kin2 < cv:
+            return None
+        return ("body.thermal_expansion",
+                f"the coupled top would start at a temperature T = T0 (1 − α {what}/c_v) ≤ 0 "
+                f"(α {what} = {alpha * kin2:.3g} J/K against c_v = {cv:.3g} J/K); lower α or the "
+                f"spin, or raise thermo.heat_capacity")
+
+    def expansion(self, phys, theta):
+        """(φ, φ′) of 𝕀(S) = φ²𝕀₀ at θ(S) (N, ...): φ = 1 + α(θ − T₀),
+        φ′ = dφ/dS = αθ/c_v; None without thermal expansion."""
+        if not np.any(phys.thermal_expansion != 0.0):
+            return None
+        alpha = bcast(phys.thermal_expansion, theta)
+        phi = 1.0 + alpha * (theta - bcast(phys.T0, theta))
+        return phi, alpha * theta / bcast(phys.heat_capacity, theta)
+
+
+TERM = _ThermalExpansion()

@@ -2,7 +2,10 @@
 
 * :class:`StokesSphere` — a sphere of radius a, C = c·Id, c = 8πμa³ (N m s);
 * :class:`StokesDiagonal` — a triaxial ellipsoid (Jeffery 1922), C =
-  diag(C₁, C₂, C₃) in the body's principal frame (docs/model.md).
+  diag(C₁, C₂, C₃) in the body's principal frame (docs/model.md), plus the
+  drag of its centre when it pivots about another point (Oberbeck 1876):
+  about a pivot at −G from the centre the centre moves at v = Ω×G and the
+  translational resistance K adds DᵀKD with D = [G]×.
 
 Coefficients: the friction coefficients and K_i = C_i/I_i (over the reference
 principal moments).  Dissipated power −⟨f, Ω⟩ = Ω·CΩ (W).  Both are linear in
@@ -13,11 +16,14 @@ from __future__ import annotations
 
 from collections import namedtuple
 
+import math
+
 import numpy as np
 
 from ..gen import cadd, madd
 from ..so3 import norm2_lane
-from . import angular_acceleration, discrete_power, dissipated_power, implements, linear_friction
+from . import (Parameter, Setting, Term, bcast, angular_acceleration, discrete_power, dissipated_power,
+               implements, linear_friction)
 
 
 class StokesSphere(namedtuple("StokesSphere", "c K1 K2 K3")):
@@ -78,3 +84,126 @@ def _diag_discrete_power(term, inertia, h, x0, x1, x2, p):
 @implements(linear_friction, StokesDiagonal)
 def _diag_linear(term, c0, c1, c2):
     return cadd(term.C1, c0), cadd(term.C2, c1), cadd(term.C3, c2)
+
+
+# ----------------------------------------------------------------------------- resistance of a body
+
+
+def jeffery_resistance(semi_axes, viscosity) -> np.ndarray:
+    """Rotational Stokes resistance (N m s) of an ellipsoid about its principal
+    axes (Jeffery 1922): torque −C_iΩ_i; a sphere of radius a gives 8πμa³."""
+    from scipy.special import elliprd
+
+    a = np.asarray(semi_axes, dtype=np.float64).reshape(-1, 3)
+    a2 = a * a
+    alpha = np.empty_like(a)
+    for i in range(3):
+        j, k = (i + 1) % 3, (i + 2) % 3
+        alpha[:, i] = (2.0 / 3.0) * elliprd(a2[:, j], a2[:, k], a2[:, i])
+    C = np.empty_like(a)
+    mu = np.asarray(viscosity, dtype=np.float64).reshape(-1)
+    for i in range(3):
+        j, k = (i + 1) % 3, (i + 2) % 3
+        C[:, i] = (16.0 * math.pi * mu / 3.0) * (a2[:, j] + a2[:, k]) / (
+            a2[:, j] * alpha[:, j] + a2[:, k] * alpha[:, k])
+    return C
+
+
+def oberbeck_resistance(semi_axes, viscosity) -> np.ndarray:
+    """Translational Stokes resistance (N s m-1) of an ellipsoid along its
+    principal axes (Oberbeck 1876): force −K_i v_i on its centre moving at v;
+    K_i = 16πμ/(χ₀ + a_i²α_i) with χ₀ = 2 R_F(a₁², a₂², a₃²) and α_i as in
+    :func:`jeffery_resistance`.  A sphere of radius a gives 6πμa."""
+    from scipy.special import elliprd, elliprf
+
+    a = np.asarray(semi_axes, dtype=np.float64).reshape(-1, 3)
+    a2 = a * a
+    chi0 = 2.0 * elliprf(a2[:, 0], a2[:, 1], a2[:, 2])
+    K = np.empty_like(a)
+    mu = np.asarray(viscosity, dtype=np.float64).reshape(-1)
+    for i in range(3):
+        j, k = (i + 1) % 3, (i + 2) % 3
+        alpha_i = (2.0 / 3.0) * elliprd(a2[:, j], a2[:, k], a2[:, i])
+        K[:, i] = 16.0 * math.pi * mu / (chi0 + a2[:, i] * alpha_i)
+    return K
+
+
+def pivot_drag(K, d) -> np.ndarray:
+    """DᵀKD with D = [d]× (d × v = D v): the resistance about a pivot at −d
+    from the centre of a body whose centre, moving at v = Ω×d, feels the
+    force −Kv (K diagonal in the body frame).  A 3×3 symmetric positive
+    semi-definite matrix, diagonal when d lies on a principal axis."""
+    d = np.asarray(d, dtype=np.float64)
+    D = np.array([[0.0, -d[2], d[1]], [d[2], 0.0, -d[0]], [-d[1], d[0], 0.0]])
+    return D.T @ np.diag(np.asarray(K, dtype=np.float64)) @ D
+
+
+# ----------------------------------------------------------------------------- the term
+
+
+class _Stokes(Term):
+    name = "stokes"
+    settings = (Setting("fluid", "viscosity", 0.1, "kg m-1 s-1",
+                        "dynamic viscosity μ of the Stokes fluid (friction torque −CΩ)"),)
+    parameters = (
+        Parameter("friction", (3,), "N m s", "rotational Stokes resistance C (friction torque -C Omega)",
+                  variable="friction_coefficients", always=True),
+        Parameter("isotropic_friction", None, "",
+                  "C = c Id for every member (a sphere): the kernels use the scalar form",
+                  variable="", default=True),
+    )
+    friction = True
+    scene_doc = (
+        "*Stokes friction* — `fluid.viscosity = η > 0` turns the body in a viscous fluid, "
+        "torque −CΩ: a sphere of radius a (the paper's top) has C = 8πηa³; an ellipsoid "
+        "has Jeffery's diagonal rotational resistance and, pivoting at −G from its centre "
+        "(`body.center_of_mass = G` on a body axis), the drag of its centre seen about the "
+        "pivot (Oberbeck's resistance). `fluid.viscosity = 0` removes it.")
+
+    def parameters_of_scene(self, scene, body) -> dict:
+        mu = float(scene["fluid"]["viscosity"])
+        if body.sphere_radius is not None:
+            c = 8.0 * math.pi * mu * body.sphere_radius ** 3
+            return {"friction": np.array([c, c, c]), "isotropic_friction": True}
+        C = jeffery_resistance(body.semi_axes, mu)[0]
+        G = body.center_of_mass
+        if np.any(G != 0.0):  # the centre, at G from the pivot, is dragged through the fluid
+            C = C + np.diag(pivot_drag(oberbeck_resistance(body.semi_axes, mu)[0], G))
+        return {"friction": C, "isotropic_friction": False}
+
+    def active(self, phys) -> np.ndarray:
+        return np.any(phys.friction != 0.0, axis=-1)
+
+    def dissipates(self, phys) -> bool:
+        return bool(np.any(phys.friction != 0.0))
+
+    def kernel_parts(self, phys) -> list:
+        if not np.any(phys.friction != 0.0):
+            return []
+        if phys.isotropic_friction:
+            return [("forces", StokesSphere, sphere_coefficients(phys.friction[:, 0], phys.inertia))]
+        return [("forces", StokesDiagonal, diagonal_coefficients(phys.friction, phys.inertia))]
+
+    def violations(self, s: dict):
+        body = s["body"]
+        if (body["shape"] == "ellipsoid" and body["center_of_mass"] != "shape"
+                and np.count_nonzero(body["center_of_mass"]) > 1 and s["fluid"]["viscosity"] > 0):
+            yield ("body.center_of_mass", "an ellipsoid in a viscous fluid pivots about a "
+                   "point on one of its axes (the drag of its centre about the pivot is "
+                   "then diagonal, as the kernels need): give G along a body axis",
+                   body["center_of_mass"])
+
+    def in_scene(self, s: dict) -> bool:
+        return s["fluid"]["viscosity"] > 0
+
+    def torque(self, phys, omega, gamma, scale):
+        return -bcast(phys.friction, omega) * omega
+
+    def dissipated_power(self, phys, omega, scale):
+        return np.sum(bcast(phys.friction, omega) * omega * omega, axis=-1)
+
+    def rate_bound(self, phys, omega_max):
+        return phys.friction.max(axis=1) / phys.inertia.min(axis=1)
+
+
+TERM = _Stokes()
