@@ -24,7 +24,8 @@ import pytest
 
 from conftest import OMEGA0, R0, paper_physics
 from liethermo.cli import main
-from liethermo.kernels.vi import COMPOSITIONS, FRICTION_WEIGHTS
+from liethermo.kernels.vi import FRICTION_WEIGHTS
+from liethermo.methods import COMPOSITIONS
 from liethermo.physics import physics_of_scene
 from liethermo.scene import (KEYS, SCENES_MARKDOWN_COMMAND, SceneError, _toml_value, builtin_scenes,
                              keys_table, load_scene, scenes_markdown)

@@ -191,7 +191,7 @@ def test_stability_negative_substeps(stab):
     """vi4/vi6: a substep of factor f < 0 makes the friction factor 1 + fκ/2 vanish at
     κ = −2/f; inside the growth band the composed step loses the small-step accuracy
     it has at small κ."""
-    from liethermo.kernels.vi import COMPOSITIONS
+    from liethermo.methods import COMPOSITIONS
     from liethermo.studies.stability import friction_amplification, negative_substep_limits
 
     _, out = stab

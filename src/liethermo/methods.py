@@ -1,10 +1,13 @@
 """The integrators liethermo offers, declared as data (cf. scipy's ``rk.py``).
 
-Each method states its family (``vi``: the variational integrator in node
-form and its compositions; ``rk``: explicit Runge–Kutta tableaus), its order
-on node values (by start and friction), how much a step costs, and which
-discrete laws hold for its solutions to round-off.  Tests and studies read
-these declarations instead of hard-coding them.
+A method is data plus the one step of its family: an explicit Runge–Kutta
+method is its Butcher tableau (:mod:`liethermo.kernels.rk`), a composition
+of the variational integrator its substep factors (:data:`COMPOSITIONS`).
+Each method states here, and only here, its family, its order on node
+values (by start and friction; an RK method's is its tableau's), whether it
+is implicit, how much a step costs, and which discrete laws hold for its
+solutions to round-off.  Tests, studies and the run driver read these
+declarations instead of hard-coding them.
 """
 
 from __future__ import annotations
@@ -19,6 +22,19 @@ LAW_ROTATION = "rotation"  # R_kᵀR_k = I at round-off (attitude)
 LAW_ENTROPY_MONOTONE = "entropy_monotone"  # S_{k+1} ≥ S_k (positive steps)
 LAW_KELVIN_NOETHER = "kelvin_noether"  # the discrete Kelvin–Noether law (docs/model.md)
 LAW_CASIMIR = "casimir"  # |μ| constant under double-bracket friction without torques
+
+_G1 = 1.0 / (2.0 - 2.0 ** (1.0 / 3.0))
+_G0 = 1.0 - 2.0 * _G1
+_D1 = 1.0 / (2.0 - 2.0 ** (1.0 / 5.0))
+_D0 = 1.0 - 2.0 * _D1
+
+#: substep factors of the variational integrator's compositions, h_i = factor_i · h:
+#: Yoshida's triple jump (order 4) and the triple jump of triple jumps (order 6)
+COMPOSITIONS = {
+    "vi": (1.0,),
+    "vi4": (_G1, _G0, _G1),
+    "vi6": tuple(d * g for d in (_D1, _D0, _D1) for g in (_G1, _G0, _G1)),
+}
 
 FRICTION = ("trapezoid", "endpoint")
 STARTS = ("node", "staggered", "legendre")
@@ -38,6 +54,19 @@ class Method:
     #: the start and entropy update the method always uses (None: the scene's)
     fixed_start: str | None = None
     fixed_entropy: str | None = None
+    #: rk: the name of its tableau in :mod:`liethermo.kernels.rk` (``TABLEAUS``)
+    tableau: str | None = None
+
+    @property
+    def substeps(self) -> tuple[float, ...]:
+        """vi: the factors f_i of the substeps h_i = f_i h of one step."""
+        return COMPOSITIONS[self.name] if self.family == "vi" else ()
+
+    def kernel_tableau(self):
+        """rk: the tableau marker the kernels are compiled for."""
+        from .kernels import rk
+
+        return rk.tableau(self.tableau)
 
     def order(self, start: str = "legendre", friction: str = "trapezoid") -> int:
         """Observed order on node values (Ω(t_k), Γ_k, S_k, E_k).
@@ -67,26 +96,39 @@ class Method:
         return "trapezoid" if self.fixed_start else friction
 
 
+def _rk_method(name: str, tableau: str, description: str) -> Method:
+    """An explicit Runge–Kutta method: its order and stages are its tableau's."""
+    from .kernels.rk import TABLEAUS
+
+    cls = TABLEAUS[tableau]
+    return Method(name, "rk", description, cls.order, False, cls.stages, (), tableau=tableau)
+
+
 _VI_LAWS = (LAW_UNIT_GAMMA, LAW_ROTATION, LAW_ENTROPY_MONOTONE, LAW_KELVIN_NOETHER, LAW_CASIMIR)
 #: the compositions take negative substeps, on which friction gives heat back:
 #: their entropy can decrease over a whole step when c h / I_min is near 1 (docs/model.md)
 _COMPOSED_LAWS = tuple(x for x in _VI_LAWS if x != LAW_ENTROPY_MONOTONE)
 
+def _vi_method(name: str, description: str, order: int, laws, composed: bool = False) -> Method:
+    """The variational integrator or a composition of it: one Newton solve per
+    substep; compositions always start from μ₀ = 𝕀Ω(0) and use the symmetric
+    entropy update (they need the symmetric map)."""
+    return Method(name, "vi", description, order, True, len(COMPOSITIONS[name]), laws,
+                  fixed_start="legendre" if composed else None,
+                  fixed_entropy="symmetric" if composed else None)
+
+
 METHODS: dict[str, Method] = {
-    "vi": Method("vi", "vi",
-                 "variational integrator in node form (Cayley map, discrete Legendre "
-                 "transforms, Newton momentum solve)", 2, True, 1, _VI_LAWS),
-    "vi4": Method("vi4", "vi", "variational integrator composed by Yoshida's triple jump "
-                  "(order 4, 3 substeps)", 4, True, 3, _COMPOSED_LAWS,
-                  fixed_start="legendre", fixed_entropy="symmetric"),
-    "vi6": Method("vi6", "vi", "variational integrator composed by two triple jumps "
-                  "(order 6, 9 substeps)", 6, True, 9, _COMPOSED_LAWS,
-                  fixed_start="legendre", fixed_entropy="symmetric"),
-    "rk2": Method("rk2", "rk", "explicit midpoint Runge-Kutta (order 2)", 2, False, 2, ()),
-    "rk4": Method("rk4", "rk", "classical Runge-Kutta (order 4)", 4, False, 4, ()),
-    "reference": Method("reference", "rk",
-                        "fixed-step DOP853 (order 8) with substeps: high-accuracy reference",
-                        8, False, 12, ()),
+    "vi": _vi_method("vi", "variational integrator in node form (Cayley map, discrete Legendre "
+                     "transforms, Newton momentum solve)", 2, _VI_LAWS),
+    "vi4": _vi_method("vi4", "variational integrator composed by Yoshida's triple jump "
+                      "(order 4, 3 substeps)", 4, _COMPOSED_LAWS, composed=True),
+    "vi6": _vi_method("vi6", "variational integrator composed by two triple jumps "
+                      "(order 6, 9 substeps)", 6, _COMPOSED_LAWS, composed=True),
+    "rk2": _rk_method("rk2", "midpoint", "explicit midpoint Runge-Kutta (order 2)"),
+    "rk4": _rk_method("rk4", "rk4", "classical Runge-Kutta (order 4)"),
+    "reference": _rk_method("reference", "dop853",
+                            "fixed-step DOP853 (order 8) with substeps: high-accuracy reference"),
 }
 
 

@@ -274,9 +274,7 @@ def simulate(
         threads = 1  # a few members: waking threads costs more than it gains
 
     if m.family == "rk":
-        from .kernels import rk as _rk
-
-        tab = {"rk2": _rk.MIDPOINT, "rk4": _rk.RK4}.get(m.name) or _rk.dop853()
+        tab = m.kernel_tableau()
         Y = _rk_initial(layout, omega0, R0)
         nsub = 1
         if m.name == "reference":
@@ -292,7 +290,7 @@ def simulate(
         from .kernels import vi as _vi
         from .kernels.terms.thermo import EXPLICIT, SYMMETRIC
 
-        factors = tuple(float(f) for f in _vi.COMPOSITIONS[m.name])
+        factors = tuple(float(f) for f in m.substeps)
         wl, wr = _vi.FRICTION_WEIGHTS[eff_friction]
         mode = EXPLICIT if eff_entropy == "explicit" else SYMMETRIC
         Y = np.zeros((N, layout.size))

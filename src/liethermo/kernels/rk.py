@@ -62,7 +62,11 @@ class ClassicalRK4(namedtuple("ClassicalRK4", "unused"), Tableau):
 
 
 class DOP853(namedtuple("DOP853", "unused"), Tableau):
+    """Filled from scipy on first use (:func:`dop853`)."""
+
     __slots__ = ()
+    order = 8
+    stages = 12
 
 
 _set(Midpoint, [[], [0.5]], [0.0, 1.0], [0.0, 0.5], 2)
@@ -70,6 +74,9 @@ _set(ClassicalRK4, [[], [0.5], [0.0, 0.5], [0.0, 0.0, 1.0]],
      [1.0 / 6.0, 1.0 / 3.0, 1.0 / 3.0, 1.0 / 6.0], [0.0, 0.5, 0.5, 1.0], 4)
 MIDPOINT = Midpoint(0.0)
 RK4 = ClassicalRK4(0.0)
+
+#: the tableaus by name (:func:`tableau` gives the marker the kernels take)
+TABLEAUS = {"midpoint": Midpoint, "rk4": ClassicalRK4, "dop853": DOP853}
 
 
 @functools.cache
@@ -81,6 +88,13 @@ def dop853():
     A = [[float(dop.A[i, j]) for j in range(i)] for i in range(12)]
     _set(DOP853, A, [float(x) for x in dop.B], [float(x) for x in dop.C[:12]], 8)
     return DOP853(0.0)
+
+
+def tableau(name: str):
+    """The marker instance of the tableau ``name`` (loading DOP853's from scipy)."""
+    if name == "dop853":
+        return dop853()
+    return TABLEAUS[name](0.0)
 
 
 def explicit_step(tab, model, y, h, exact):

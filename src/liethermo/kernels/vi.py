@@ -30,8 +30,9 @@ Newton solve of a step uses the torque of the node it starts from:
 
 The map is symmetric (Φ_{−h} ∘ Φ_h = id for trapezoid friction and the
 symmetric entropy update), so symmetric compositions raise its order:
-:data:`COMPOSITIONS` holds the substep factors of Yoshida's triple jump
-(order 4) and of its triple jump again (order 6).
+:data:`liethermo.methods.COMPOSITIONS` holds the substep factors of
+Yoshida's triple jump (order 4) and of its triple jump again (order 6); the
+kernels take them as data.
 
 Newton: F(X) = M_h(X) + w_L h CX − r (+ w_L h D(X)), with the analytic
 Jacobian
@@ -63,18 +64,6 @@ from .layout import NEWTON_MAXITER, NEWTON_OK, NEWTON_SINGULAR
 from .so3 import attitude_lane, cayley_lane, cross_lane
 from .terms import sum_discrete_power, sum_linear_friction, sum_nonlinear_friction, sum_torque
 from .terms.thermo import entropy_step, temperature
-
-_G1 = 1.0 / (2.0 - 2.0 ** (1.0 / 3.0))
-_G0 = 1.0 - 2.0 * _G1
-_D1 = 1.0 / (2.0 - 2.0 ** (1.0 / 5.0))
-_D0 = 1.0 - 2.0 * _D1
-
-#: substep factors of each method: h_i = factor_i · h
-COMPOSITIONS = {
-    "vi": (1.0,),
-    "vi4": (_G1, _G0, _G1),
-    "vi6": tuple(d * g for d in (_D1, _D0, _D1) for g in (_G1, _G0, _G1)),
-}
 
 #: friction weights (w_L, w_R): on the Newton side and on the update side
 FRICTION_WEIGHTS = {"trapezoid": (0.5, 0.5), "endpoint": (1.0, 0.0)}

@@ -44,7 +44,8 @@ import numpy as np
 import xarray as xr
 
 from ..initial import initial_conditions
-from ..kernels.vi import COMPOSITIONS, FRICTION_WEIGHTS
+from ..kernels.vi import FRICTION_WEIGHTS
+from ..methods import COMPOSITIONS
 from ..physics import Physics, kinetic_energy, physics_of_scene, potential_energy
 from ..simulate import simulate
 from .common import (fmt, parse_method, study_options, StudyError, cached_point, point_key, progress_bar, study_name,
