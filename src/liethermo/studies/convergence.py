@@ -27,10 +27,11 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
+from ..dataset import status_flags
 from ..initial import initial_conditions
 from ..methods import METHODS, ORDER_TOLERANCE, ORDER_TOLERANCE_REL, judge_order
 from ..physics import physics_of_scene
-from ..simulate import STATUS_MEANINGS, simulate
+from ..simulate import simulate
 from .common import (study_options, StudyError, cached_point, dim_name, expand_sweep, parse_method, point_is_cached, point_key,
                      progress_bar, stack_points, study_name, study_netcdf_path, study_scene,
                      write_netcdf_atomic, write_report, write_table, start_study, study_history,
@@ -221,8 +222,7 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
         ds[f"levels_fitted_{v}"].attrs.update(units="1", long_name=f"number of levels h in the fit of the "
                                               f"order of {v}")
     ds["status"].attrs.update(units="1", long_name="status of the run at this h",
-                              flag_values=np.array(sorted(STATUS_MEANINGS), dtype=ds["status"].dtype),
-                              flag_meanings=" ".join(STATUS_MEANINGS[k] for k in sorted(STATUS_MEANINGS)))
+                              **status_flags(ds["status"].dtype))
     ds["wall_time"].attrs.update(units="s", long_name="wall time of the run at this h")
     if "kernel_time" in ds:
         ds["kernel_time"].attrs.update(units="s", long_name="kernel wall time of the run at this h "

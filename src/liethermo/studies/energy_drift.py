@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
+from ..dataset import status_flags
 from ..initial import initial_conditions
 from ..physics import physics_of_scene
 from .common import (method_overrides, study_options, StudyError, cached_point, dim_name, expand_sweep, parse_method, point_key, progress_bar,
@@ -198,8 +199,7 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
     ds["member"].attrs.update(units="1", long_name="ensemble member")
     ds["mechanical_energy_initial"].attrs.update(units="J", long_name="initial mechanical energy above the "
                                                  "resting state K_0 + V_0 + m g l")
-    ds["status"].attrs.update(units="1", long_name="member status", flag_values=np.array([0, 1, 2], np.int8),
-                              flag_meanings="ok newton_not_converged non_finite")
+    ds["status"].attrs.update(units="1", long_name="member status", **status_flags(np.int8))
     ds["newton_iterations_mean"].attrs.update(units="1", long_name="mean Newton iterations per step, summed "
                                               "over its solves (3 for vi4, 9 for vi6; NaN: explicit method)")
     ds["kernel_time"].attrs.update(units="s", long_name="kernel wall time of the point's ensemble")
