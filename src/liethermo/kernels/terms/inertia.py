@@ -72,7 +72,7 @@ class _ThermalExpansion(Term):
         "`thermo.heat_capacity` to see the heating (the built-in `coupled_egg`). With `vi` "
         "and a friction it needs `integrator.start = \"legendre\"` and "
         "`integrator.friction = \"trapezoid\"`; frictions whose discrete form is nonlinear "
-        "(the internal friction) are not available with it.")
+        "(such as the internal friction) are not available with it.")
 
     def parameters_of_scene(self, scene, body) -> dict:
         return {"thermal_expansion": np.float64(scene["body"]["thermal_expansion"])}
