@@ -445,11 +445,12 @@ def test_convergence_and_paper_close_with_their_own_numbers(convergence, paper):
 
 
 @pytest.mark.parametrize("extra", [{}, {"internal_friction": 1.0},
-                                   {"thermal_expansion": 1e-3, "heat_capacity": 1e-3}])
+                                   {"thermal_expansion": 1e-3, "heat_capacity": 1e-3},
+                                   {"quadratic_drag": 2e-4}])
 def test_the_scipy_baseline_integrates_every_term_the_kernels_do(extra):
     """continuous_rhs is the kernels' own right-hand side of whatever terms a
     member has (the paper's, the double bracket, the coupled inertia, the
-    ): scipy's DOP853 on it meets the kernels' reference, so
+    quadratic drag): scipy's DOP853 on it meets the kernels' reference, so
     no term can be left out of the baseline silently."""
     from dataclasses import replace
 

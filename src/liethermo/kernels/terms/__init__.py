@@ -296,9 +296,9 @@ def bcast(a: np.ndarray, like: np.ndarray) -> np.ndarray:
 def _term_modules():
     """The term modules, frictions before conservative torques: the one place
     that names them (adding a term is adding its module here)."""
-    from . import double_bracket, gravity, inertia, stokes
+    from . import double_bracket, gravity, inertia, quadratic_drag, stokes
 
-    return (inertia, stokes, double_bracket, gravity)
+    return (inertia, stokes, double_bracket, quadratic_drag, gravity)
 
 
 class Registry(tuple):
