@@ -184,6 +184,44 @@ class ChunkedWriter:
             v.setncatts({k: _nc_attr(a) for k, a in var.attrs.items()})
         nc.setncatts({k: _nc_attr(a) for k, a in self.attrs.items()})
 
+    def define_like(self, source: Path) -> None:
+        """Create the file's dimensions and variables as the partial file
+        ``source`` of an earlier run of the same scene has them (the layout a
+        resumed run continues; nothing is simulated to learn it)."""
+        try:
+            with netCDF4.Dataset(source, "r") as src:
+                src.set_auto_mask(False)
+                self._define_from(src)
+        except (OSError, RuntimeError) as exc:
+            self._fail(exc)
+
+    def _define_from(self, src) -> None:
+        nc = netCDF4.Dataset(self.tmp, "w", format="NETCDF4")
+        self.nc = nc
+        for dim, d in src.dimensions.items():
+            nc.createDimension(dim, self.n_members if dim == "member" else len(d))
+        for name, var in src.variables.items():
+            dims = var.dimensions
+            if "member" in dims:
+                self.member_vars.append(name)
+            if var.dtype is str:
+                v = nc.createVariable(name, str, dims)
+                v[:] = var[:]
+            else:
+                chunks = None
+                if "member" in dims and len(dims) > 1:
+                    other = int(np.prod([len(src.dimensions[d]) for d in dims if d != "member"]))
+                    m = disk_chunk_members(self.n_members, other * var.dtype.itemsize)
+                    chunks = [m if d == "member" else len(src.dimensions[d]) for d in dims]
+                v = nc.createVariable(name, var.dtype, dims, chunksizes=chunks)
+                if chunks is not None:
+                    nbytes = int(np.prod(chunks)) * var.dtype.itemsize
+                    v.set_var_chunk_cache(size=2 * nbytes + 1024, nelems=17, preemption=1.0)
+                if "member" not in dims:
+                    v[...] = var[...]
+            v.setncatts({k: var.getncattr(k) for k in var.ncattrs()})
+        nc.setncatts({k: _nc_attr(a) for k, a in self.attrs.items()})
+
     def write(self, ds: xr.Dataset, offset: int) -> dict[str, int]:
         """Write a chunk at ``offset`` (CF-encoded: :func:`liethermo.cf.encode_variables`);
         returns the CRC-32 of each member variable's values as written."""

@@ -389,9 +389,7 @@ def _run_to_file(scene, attrs, out: Path, summ: RunSummary, total: ChunkStats, b
             copying = True
             recs = source.journal.chunks[:len(plan)]
             if all([r["lo"], r["hi"]] == list(plan[k]) for k, r in enumerate(recs)):
-                ds0, _ = run_chunk(scene, 0, 1, kernel=kernel)  # the file's layout, as chunk 0 gives it
-                writer.define(ds0)
-                del ds0
+                writer.define_like(source.data)  # the layout the earlier run wrote
                 for rec, arrays in source.read_chunks(writer.member_vars):
                     with critical():
                         crc = writer.write_arrays(arrays, rec["lo"])
