@@ -151,29 +151,13 @@ def map_tasks(func: Callable, items: Iterable, address: Any = "local", *, retrie
     task that still fails raises here, after the others have finished (so
     their side effects, e.g. files, are complete).
     """
-    from distributed import as_completed
-
     items = list(items)
     if not items:
         return []
     with client_for(address) as client:
         futures = client.map(func, items, pure=True, retries=retries)
         bar = _progress_bar(len(items), progress, desc)
-        first_error = None
-        try:
-            for fut in as_completed(futures):
-                if fut.status == "error" and first_error is None:
-                    first_error = fut
-                if bar:
-                    bar.update(1)
-        except Interrupted:
-            _cancel(client, futures)
-            raise
-        finally:
-            if bar:
-                bar.close()
-        if first_error is not None:
-            first_error.result()  # raises the task's exception
+        _wait_all(client, futures, bar, lambda fut: 1, error_step=1)
         return client.gather(futures)
 
 
@@ -398,6 +382,35 @@ def run_scene_dask(scene: dict | str, out: str | os.PathLike, *, address: Any = 
         raise
 
 
+def _wait_all(client, futures, bar, done: Callable, error_step: int = 0) -> None:
+    """Wait for every task; a failure does not stop the others (their side
+    effects, e.g. chunk files, are what a rerun resumes from).  ``done(fut)``
+    takes each successful task and returns how far it moves ``bar`` (a failed
+    one moves it by ``error_step``).  A stop
+    signal cancels the tasks; afterwards the first failed task's error is
+    raised here."""
+    from distributed import as_completed
+
+    first_error = None
+    try:
+        for fut in as_completed(futures):
+            if fut.status == "error":
+                first_error = first_error or fut
+                step = error_step
+            else:
+                step = done(fut)
+            if bar:
+                bar.update(step)
+    except Interrupted:
+        _cancel(client, futures)
+        raise
+    finally:
+        if bar:
+            bar.close()
+    if first_error is not None:
+        first_error.result()  # raises the task's exception
+
+
 def _cancel(client, futures) -> None:
     try:
         client.cancel(list(futures))
@@ -408,7 +421,6 @@ def _cancel(client, futures) -> None:
 def _run_scene_dask(scene, attrs, summ, out, key, parts, t_wall, chunks_out, address, progress, task_members,
                     keep_parts, combine, retries, numba_threads, task):
     from dask.base import tokenize
-    from distributed import as_completed
 
     members, steps = summ.members, summ.steps
     with client_for(address) as client:
@@ -440,34 +452,22 @@ def _run_scene_dask(scene, attrs, summ, out, key, parts, t_wall, chunks_out, add
             f = client.submit(task, scene, lo, hi, ppath, key, attrs, numba_threads,
                               key=tkey, pure=True, retries=retries)
             futures[f] = (lo, hi)
-        first_error = None
         overhead = []
         timings = []
-        try:
-            # wait for every task (a failure does not stop the others: their
-            # chunk files are what a rerun resumes from)
-            for fut in as_completed(list(futures)):
-                lo, hi = futures[fut]
-                if fut.status == "error":
-                    first_error = first_error or fut
-                    continue
-                res = fut.result()
-                st = ChunkStats.from_dict(res["stats"])
-                total.merge(st)
-                if not res["skipped"]:
-                    overhead.append(res["task_time"] - st.kernel_time)
-                    timings.append({"lo": lo, "hi": hi, "task": res["task_time"], "kernel": st.kernel_time,
-                                    "run": res.get("run_time"), "write": res.get("write_time")})
-                if bar:
-                    bar.update((hi - lo) * steps)
-        except Interrupted:
-            _cancel(client, futures)
-            raise
-        finally:
-            if bar:
-                bar.close()
-        if first_error is not None:
-            first_error.result()  # raise the task's error; finished chunks stay for a rerun
+
+        def done(fut) -> int:
+            lo, hi = futures[fut]
+            res = fut.result()
+            st = ChunkStats.from_dict(res["stats"])
+            total.merge(st)
+            if not res["skipped"]:
+                overhead.append(res["task_time"] - st.kernel_time)
+                timings.append({"lo": lo, "hi": hi, "task": res["task_time"], "kernel": st.kernel_time,
+                                "run": res.get("run_time"), "write": res.get("write_time")})
+            return (hi - lo) * steps
+
+        # finished chunk files stay for a rerun when a task fails
+        _wait_all(client, list(futures), bar, done)
     t_comb = time.perf_counter()
     if combine:
         combine_parts(parts, chunks, out, members, attrs)
