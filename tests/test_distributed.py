@@ -70,6 +70,19 @@ def ref_rk2(tmp_path_factory) -> Path:
     return _reference(tmp_path_factory.mktemp("ref") / "rk2.nc", RK2)
 
 
+def assert_same_values(va: np.ndarray, vb: np.ndarray, name: str) -> None:
+    """The same dtype; floats within 1e-14 relative with NaN and inf where the
+    reference has them, everything else equal."""
+    assert va.dtype == vb.dtype, name
+    if va.dtype.kind == "f":
+        fin = np.isfinite(vb)
+        assert np.array_equal(va[~fin], vb[~fin], equal_nan=True), name
+        scale = np.maximum(np.abs(vb[fin]), np.finfo(float).tiny)
+        assert np.all(np.abs(va[fin] - vb[fin]) <= 1e-14 * scale), name
+    else:
+        np.testing.assert_array_equal(va, vb, err_msg=name)
+
+
 def assert_same_run(path: Path, ref: Path) -> None:
     """Every variable within 1e-14 relative (NaN where the reference has NaN),
     integer variables and status flags equal, attributes equal but the provenance
@@ -78,17 +91,8 @@ def assert_same_run(path: Path, ref: Path) -> None:
         assert set(a.variables) == set(b.variables)
         assert a.sizes == b.sizes
         for name in b.variables:
-            va, vb = a[name].values, b[name].values
-            assert va.dtype == vb.dtype, name
             assert a[name].attrs.keys() == b[name].attrs.keys(), name
-            if va.dtype.kind == "f":
-                assert np.array_equal(np.isnan(va), np.isnan(vb)), name
-                fin = np.isfinite(vb)
-                assert np.array_equal(va[~fin], vb[~fin], equal_nan=True), name
-                scale = np.maximum(np.abs(vb[fin]), np.finfo(float).tiny)
-                assert np.all(np.abs(va[fin] - vb[fin]) <= 1e-14 * scale), name
-            else:
-                np.testing.assert_array_equal(va, vb, err_msg=name)
+            assert_same_values(a[name].values, b[name].values, name)
         np.testing.assert_array_equal(a["status"].values, b["status"].values)
         assert a.attrs.keys() == b.attrs.keys()
         for k in b.attrs:
@@ -356,15 +360,8 @@ def assert_same_study(a_dir: Path, b_dir: Path, name: str) -> None:
         for v in b.variables:
             if v in TIMING:
                 continue
-            va, vb = a[v].values, b[v].values
-            assert va.dtype == vb.dtype and a[v].dims == b[v].dims, v
-            if va.dtype.kind == "f":
-                fin = np.isfinite(vb)
-                assert np.array_equal(va[~fin], vb[~fin], equal_nan=True), v
-                scale = np.maximum(np.abs(vb[fin]), np.finfo(float).tiny)
-                assert np.all(np.abs(va[fin] - vb[fin]) <= 1e-14 * scale), v
-            else:
-                np.testing.assert_array_equal(va, vb, err_msg=v)
+            assert a[v].dims == b[v].dims, v
+            assert_same_values(a[v].values, b[v].values, v)
         np.testing.assert_array_equal(a["status"].values, b["status"].values)
         assert a.attrs.keys() == b.attrs.keys()
         assert {k: str(x) for k, x in a.attrs.items() if k not in TIMING | PROVENANCE} == \
