@@ -204,6 +204,29 @@ from ..io import (cached_point, point_is_cached, write_atomic,  # noqa: E402,F40
 
 # ----------------------------------------------------------------------------- tables and reports
 
+def status_units(not_run: bool = False) -> tuple[str, str]:
+    """(units, long_name) of a member status variable of a study; ``not_run``:
+    -1 marks a member the method did not run."""
+    from ..simulate import STATUS_MEANINGS
+
+    codes = ([(-1, "not run")] if not_run else []) + sorted(STATUS_MEANINGS.items())
+    return "1", "member status (" + ", ".join(f"{k} {v}" for k, v in codes) + ")"
+
+
+#: (units, long_name) of the variables several studies write, under one name
+_SHARED_UNITS = {
+    "gamma_defect": ("1", "max_k ||Gamma_k| - 1|"),
+    "max_relative_energy_error": ("1", "max_k |E_k - E_0| / E_mech,0, node values (failed: inf)"),
+    "final_relative_energy_error": ("1", "|E_K - E_0| / E_mech,0 at t_end, node values"),
+    "relative_energy_error_quantiles": ("1", "quantiles over members of |E_k - E_0| / E_mech,0, node values"),
+}
+
+
+def shared_units(*names: str) -> dict:
+    """The (units, long_name) of variables several studies write (one spelling)."""
+    return {k: _SHARED_UNITS[k] for k in names}
+
+
 def fmt(v) -> str:
     """A table cell: integers as such, floats to 3–4 significant digits."""
     if v is None:

@@ -57,7 +57,7 @@ from ..initial import initial_conditions
 from ..methods import METHODS
 from ..physics import inertia_scale, internal_energy_change, physics_of_scene
 from ..simulate import simulate
-from .common import (StudyError, cached_point, closing_fact, closing_section, dim_name, expand_sweep,
+from .common import (shared_units, status_units, StudyError, cached_point, closing_fact, closing_section, dim_name, expand_sweep,
                      method_overrides, parse_method, point_key,
                      progress_bar, stack_points, start_study, study_history, study_name, study_netcdf_path,
                      study_options, study_scene, write_netcdf_atomic, write_report, write_table)
@@ -268,6 +268,7 @@ def drift_point(scene, spec: dict, opt: dict) -> xr.Dataset:
 
 
 UNITS = {
+    **shared_units('gamma_defect', 'max_relative_energy_error', 'final_relative_energy_error', 'relative_energy_error_quantiles'),
     "settling_time": ("s", "first t with (K + V + |g|)/(K_0 + V_0 + |g|) <= settle_fraction, node values "
                            "(NaN: not settled within t_end or member not run)"),
     "final_gamma": ("1", "Gamma = R^T e3 at t_end"),
@@ -277,16 +278,12 @@ UNITS = {
     "final_inertia_factor": ("1", "I(S)/I0 = (1 + alpha (theta - T0))^2 at t_end"),
     "heat": ("J", "U(S) - U(S_0) at t_end"),
     "mechanical_energy_initial": ("J", "initial mechanical energy above rest E_mech,0 = K_0 + V_0 + |g|"),
-    "max_relative_energy_error": ("1", "max_k |E_k - E_0| / E_mech,0, node values (failed: inf)"),
-    "final_relative_energy_error": ("1", "|E_K - E_0| / E_mech,0 at t_end, node values"),
     "late_energy_drift_rate": ("s-1", "least-squares slope of (E_k - E_0)/E_mech,0 over the second half of the "
                                       "horizon, node values"),
-    "gamma_defect": ("1", "max_k ||Gamma_k| - 1|"),
-    "status": ("1", "member status (-1 not run, 0 ok, 1 newton_not_converged, 2 non_finite)"),
+    "status": status_units(not_run=True),
     "temperature_trace": ("K", "temperature T = -dL/dS of the first members, node values"),
     "inertia_factor_trace": ("1", "inertia factor I(S)/I0 of the first members"),
     "mechanical_energy_ratio_trace": ("1", "(K + V + |g|)/(K_0 + V_0 + |g|) of the first members"),
-    "relative_energy_error_quantiles": ("1", "quantiles over members of |E_k - E_0| / E_mech,0, node values"),
     "kernel_time": ("s", "kernel wall time of the point"),
     "settling_time_change": ("s", "settling time minus that of the decoupled run (alpha = 0) of the same member "
                                   "and method"),

@@ -49,7 +49,7 @@ import xarray as xr
 from ..dataset import node_energies
 from ..initial import initial_conditions
 from ..physics import kinetic_energy, physics_of_scene
-from .common import (StudyError, cached_point, closing_section, dim_name, expand_sweep, method_overrides,
+from .common import (status_units, StudyError, cached_point, closing_section, dim_name, expand_sweep, method_overrides,
                      parse_method, point_key, progress_bar, stack_points, start_study, step_text, study_history,
                      study_name, study_netcdf_path, study_options, study_scene, write_netcdf_atomic, write_report, write_table)
 from .tools import (band_text, direction_angle, display_table, observed_orders, quantile_band, run_spec,
@@ -223,7 +223,7 @@ UNITS = {
     "initial_kinetic_energy": ("J", "K_0 = 1/2 Omega_0 . I Omega_0"),
     "kinetic_energy_floor": ("J", "|mu_0|^2 / (2 I_max): the kinetic energy of the flat spin"),
     "final_excess_ratio": ("1", "(K - |mu|^2/(2 I_max)) / (K_0 - |mu_0|^2/(2 I_max)) at t_end"),
-    "status": ("1", "member status (-1 not run, 0 ok, 1 newton_not_converged, 2 non_finite)"),
+    "status": status_units(not_run=True),
     "casimir_drift_quantiles": ("1", "quantiles over members of ||mu_k| - |mu_0|| / |mu_0|"),
     "excess_ratio_quantiles": ("1", "quantiles over members of the excess kinetic energy ratio "
                                     "(K - |mu|^2/(2 I_max)) / (K_0 - |mu_0|^2/(2 I_max))"),

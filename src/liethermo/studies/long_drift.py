@@ -51,7 +51,7 @@ import xarray as xr
 from ..initial import initial_conditions
 from ..methods import METHODS
 from ..physics import physics_of_scene
-from .common import (StudyError, cached_point, closing_section, dim_name, expand_sweep, parse_method, point_key,
+from .common import (shared_units, status_units, StudyError, cached_point, closing_section, dim_name, expand_sweep, parse_method, point_key,
                      progress_bar, stack_points, step_text, start_study, study_history, study_name, study_netcdf_path, study_options,
                      study_scene, write_netcdf_atomic, write_report, write_table)
 from .tools import (NODE_VALUES_NOTE, continuous_kelvin_noether_residual, drift_fit, energy_errors,
@@ -254,17 +254,14 @@ def point(scene, spec: dict, h: float, steps: int, every: int, kn_steps: int, ke
 
 
 UNITS = {
+    **shared_units('gamma_defect', 'max_relative_energy_error', 'final_relative_energy_error', 'relative_energy_error_quantiles'),
     "drift_rate": ("s-1", "least-squares slope of (E_k - E_0)/E_mech,0 against t, node values"),
     "oscillation_amplitude": ("1", "RMS of (E_k - E_0)/E_mech,0 about its least-squares line, node values"),
-    "max_relative_energy_error": ("1", "max_k |E_k - E_0| / E_mech,0, node values (failed: inf)"),
-    "final_relative_energy_error": ("1", "|E_K - E_0| / E_mech,0 at t_end, node values"),
-    "gamma_defect": ("1", "max_k ||Gamma_k| - 1|"),
     "kelvin_noether_discrete": ("1", "max residual of the discrete Kelvin-Noether law / max |mu| (every = 1 "
                                      "window; NaN where it does not apply)"),
     "kelvin_noether_continuous": ("1", "max defect of d(Gamma.mu)/dt = -Gamma.C Omega by the trapezoid rule "
                                        "between nodes / max |mu| (every = 1 window)"),
-    "status": ("1", "member status (0 ok, 1 newton_not_converged, 2 non_finite)"),
-    "relative_energy_error_quantiles": ("1", "quantiles over members of |E_k - E_0| / E_mech,0, node values"),
+    "status": status_units(),
     "kernel_time": ("s", "kernel wall time of the long run"),
     "step": ("s", "time step h of the method (equal measured cost per simulated second, calibrated)"),
     "calibrated_cost": ("s", "kernel wall time per simulated second of the calibration run at this step"),

@@ -48,7 +48,7 @@ from ..kernels.vi import FRICTION_WEIGHTS
 from ..methods import COMPOSITIONS
 from ..physics import Physics, kinetic_energy, physics_of_scene, potential_energy
 from ..simulate import simulate
-from .common import (fmt, parse_method, study_options, StudyError, cached_point, point_key, progress_bar, study_name,
+from .common import (shared_units, status_units, fmt, parse_method, study_options, StudyError, cached_point, point_key, progress_bar, study_name,
                      study_netcdf_path, study_scene, write_netcdf_atomic, write_report, write_table, start_study,
                      study_history, closing_fact, kept_laws)
 from .tools import NODE_VALUES_NOTE, run_spec
@@ -360,12 +360,12 @@ def newton_analysis(limit: xr.Dataset, vi_maps: list) -> str:
 # ----------------------------------------------------------------------------- study
 
 UNITS = {
+    **shared_units('gamma_defect'),
     "regime": ("1", "regime: 0 accurate, 1 bounded but inaccurate, 2 unbounded, 3 newton_not_converged, 4 non_finite"),
-    "status": ("1", "member status (0 ok, 1 newton_not_converged, 2 non_finite)"),
+    "status": status_units(),
     "error_max": ("1", "max over the run of max(|dOmega|/|Omega0|, |dGamma|) against the reference"),
     "error_end": ("1", "error at the final step"),
     "energy_growth": ("1", "max over the run of the mechanical energy above rest / its initial value"),
-    "gamma_defect": ("1", "max over the run of ||Gamma| - 1|"),
     "newton_max": ("1", "max Newton iterations in one step (vi)"),
     "newton_mean": ("1", "mean Newton iterations per step (vi)"),
     "failed_at_step": ("1", "step whose computation failed (-1: none)"),

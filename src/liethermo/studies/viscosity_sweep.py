@@ -37,7 +37,7 @@ import xarray as xr
 from ..dataset import node_energies
 from ..initial import initial_conditions
 from ..physics import Physics, physics_of_scene
-from .common import (parse_method, study_options, StudyError, cached_point, expand_sweep, point_key, progress_bar,
+from .common import (status_units, parse_method, study_options, StudyError, cached_point, expand_sweep, point_key, progress_bar,
                      dim_name, stack_points, study_name, study_netcdf_path, study_scene, write_netcdf_atomic,
                      write_report, write_table, start_study, study_history, closing_fact, kept_laws)
 from .tools import NODE_VALUES_NOTE, run_spec
@@ -175,7 +175,7 @@ UNITS = {
     "mech_energy_final": ("J", "mechanical energy above the resting state at t_end"),
     "heat_ratio": ("1", "heat U - U0 produced by t_end over the mechanical energy lost (1 = exact balance)"),
     "entropy_rate_initial": ("W K-1", "initial entropy production rate Omega0 . C Omega0 / T0"),
-    "status": ("1", "member status (0 ok, 1 newton_not_converged, 2 non_finite)"),
+    "status": status_units(),
     "t_end": ("s", "simulated time (adapted to the viscosity)"),
     "wall_time": ("s", "wall time of the simulation"),
 }
