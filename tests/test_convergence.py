@@ -76,7 +76,12 @@ ORDER_CASES = [
     ("vi", dict(start="node", entropy="explicit"), 0.05, 5, 1, 0.3),
     ("vi", dict(friction="endpoint"), 0.05, 5, 1, 0.35),
     ("vi4", {}, 0.05, 5, 4, 0.3),
-    ("vi6", {}, 0.025, 5, 6, 0.7),
+    ("vi6", {}, 0.1, 5, 6, 0.7),
+    ("vi4", dict(composition="triple_jump"), 0.05, 5, 4, 0.3),
+    ("vi6", dict(composition="triple_jump"), 0.025, 5, 6, 0.7),
+    ("split", {}, 0.05, 5, 2, 0.15),
+    ("split4", {}, 0.05, 5, 4, 0.3),
+    ("split6", {}, 0.1, 5, 6, 0.7),
     ("rk2", {}, 0.025, 5, 2, 0.3),
     ("rk4", {}, 0.05, 5, 4, 0.3),
 ]
@@ -94,8 +99,9 @@ def paper_reference():
 def test_node_orders_on_the_paper_scene(method, kw, h0, levels, order, tol, paper_reference):
     """Node values of every method converge with the order it declares (the
     plain VI: 2 with the legendre or staggered start, 1 with the paper's
-    start or endpoint friction; vi4: 4; vi6: 6 within ±0.7), for Ω, Γ, S and
-    E, on the paper scene over 4 s."""
+    start or endpoint friction; vi4 and split4: 4; vi6 and split6: 6 within
+    ±0.7, with either composition; split: 2), for Ω, Γ, S and E, on the paper
+    scene over 4 s."""
     phys, om0, R, h_ref, ref = paper_reference
     m = METHODS[method]
     assert m.order(m.effective_start(kw.get("start", "legendre")),

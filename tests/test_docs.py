@@ -25,7 +25,7 @@ import pytest
 from conftest import OMEGA0, R0, paper_physics
 from liethermo.cli import main
 from liethermo.kernels.vi import FRICTION_WEIGHTS
-from liethermo.methods import COMPOSITIONS
+from liethermo.methods import COMPOSITION_FACTORS
 from liethermo.physics import physics_of_scene
 from liethermo.scene import (KEYS, SCENES_MARKDOWN_COMMAND, SceneError, _toml_value, builtin_scenes,
                              keys_table, load_scene, scenes_markdown)
@@ -142,27 +142,42 @@ def test_paper_scene_numbers_are_the_codes(model_md):
 
 
 def test_composition_factors_are_the_documented_ones(model_md):
-    """vi4 = Yoshida's triple jump (γ₁, γ₀, γ₁), γ₁ = 1/(2 − 2^{1/3}),
-    γ₀ = 1 − 2γ₁; vi6 = the triple jump of vi4 with δ₁ = 1/(2 − 2^{1/5}):
-    the nine factors δ_iγ_j.  Each sums to 1; the decimals docs/model.md prints
-    are the factors to the last digit."""
+    """small_error: Suzuki's (p, p, 1 − 4p, p, p), p = 1/(4 − 4^{1/3}), and
+    Kahan–Li's s9odr6a; triple_jump: Yoshida's (γ₁, γ₀, γ₁), γ₁ = 1/(2 − 2^{1/3}),
+    γ₀ = 1 − 2γ₁, and its triple jump with δ₁ = 1/(2 − 2^{1/5}): the nine
+    factors δ_iγ_j.  Each is a palindrome summing to 1; the decimals
+    docs/model.md prints are the factors."""
+    from liethermo.methods import METHODS
+
+    C = COMPOSITION_FACTORS
+    p = 1.0 / (4.0 - 4.0 ** (1.0 / 3.0))
     g1 = 1.0 / (2.0 - 2.0 ** (1.0 / 3.0))
     g0 = 1.0 - 2.0 * g1
     d1 = 1.0 / (2.0 - 2.0 ** (1.0 / 5.0))
     d0 = 1.0 - 2.0 * d1
-    assert COMPOSITIONS["vi"] == (1.0,)
-    assert COMPOSITIONS["vi4"] == (g1, g0, g1)
-    assert COMPOSITIONS["vi6"] == tuple(d * g for d in (d1, d0, d1) for g in (g1, g0, g1))
-    for name in ("vi4", "vi6"):
-        assert math.fsum(COMPOSITIONS[name]) == pytest.approx(1.0, abs=1e-15)
+    assert METHODS["vi"].substeps() == (1.0,) and METHODS["split"].substeps() == (1.0,)
+    assert C[("small_error", 4)] == (p, p, 1.0 - 4.0 * p, p, p)
+    assert C[("triple_jump", 4)] == (g1, g0, g1)
+    assert C[("triple_jump", 6)] == tuple(d * g for d in (d1, d0, d1) for g in (g1, g0, g1))
+    for f in C.values():
+        assert math.fsum(f) == pytest.approx(1.0, abs=1e-15)
+        assert f == f[::-1]
+    for name in ("vi4", "split4"):
+        assert METHODS[name].substeps() == C[("small_error", 4)]
+        assert METHODS[name].substeps("triple_jump") == C[("triple_jump", 4)]
+    assert _number_in(model_md, "0.4144907717943757") == p
+    assert _number_in(model_md, "-0.6579630871775028") == 1.0 - 4.0 * p
     assert _number_in(model_md, "1.3512071919596578") == g1
     assert _number_in(model_md, "-1.7024143839193155") == g0
     assert _number_in(model_md, "1.1746717580893635") == d1
     assert _number_in(model_md, "-1.349343516178727") == d0
-    printed = "1.5872, −1.9998, 1.5872, −1.8232, 2.2971, −1.8232, 1.5872, −1.9998, 1.5872"
-    assert _quotes(model_md, printed)
-    np.testing.assert_allclose([float(x.replace("−", "-")) for x in printed.split(", ")],
-                               COMPOSITIONS["vi6"], atol=5e-5)
+    for key, printed in ((("triple_jump", 6), "1.5872, −1.9998, 1.5872, −1.8232, 2.2971, −1.8232, 1.5872, "
+                                              "−1.9998, 1.5872"),
+                         (("small_error", 6), "0.3922, 0.3326, −0.7062,\n  0.0822, 0.7985, 0.0822, −0.7062, "
+                                              "0.3326, 0.3922")):
+        assert _quotes(model_md, printed.replace("\n  ", " ")) or printed in model_md
+        np.testing.assert_allclose([float(x.replace("−", "-")) for x in printed.replace("\n", " ").split(", ")],
+                                   C[key], atol=5e-5)
     assert FRICTION_WEIGHTS == {"trapezoid": (0.5, 0.5), "endpoint": (1.0, 0.0)}
 
 
@@ -171,15 +186,18 @@ def test_negative_substep_limits_are_the_documented_ones(model_md):
     substep's Newton matrix is singular and the band where a friction mode grows."""
     from liethermo.studies.stability import negative_substep_limits
 
-    v4, v6 = negative_substep_limits("vi4"), negative_substep_limits("vi6")
-    assert _quotes(model_md, "| vi4 | −1.7024 | 1.1748 | 1.134 < κ < 1.200 |")
-    assert _quotes(model_md, "| vi6 | −1.9998 | 1.0001 and 1.0969 (factor −1.8232) | 0.916 < κ < 1.133 |")
-    assert v4["min_factor"] == pytest.approx(-1.7024, abs=5e-5)
-    assert v4["kappa_singular"] == pytest.approx([1.1748], abs=5e-5)
-    assert v4["growth_band"] == pytest.approx((1.134, 1.200), abs=1e-3)
-    assert v6["min_factor"] == pytest.approx(-1.9998, abs=5e-5)
-    assert v6["kappa_singular"] == pytest.approx([1.0001, 1.0969], abs=5e-5)
-    assert v6["growth_band"] == pytest.approx((0.916, 1.133), abs=1e-3)
+    rows = (("vi4", "small_error", "| vi4 | −0.6580 | 3.0397 | 3.023 < κ < 3.055 |", -0.6580, [3.0397], (3.023, 3.055)),
+            ("vi6", "small_error", "| vi6 | −0.7062 | 2.8319 | 2.728 < κ < 2.950 |", -0.7062, [2.8319], (2.728, 2.950)),
+            ("vi4", "triple_jump", "| vi4, triple jump | −1.7024 | 1.1748 | 1.134 < κ < 1.200 |", -1.7024, [1.1748],
+             (1.134, 1.200)),
+            ("vi6", "triple_jump", "| vi6, triple jump | −1.9998 | 1.0001 and 1.0969 (factor −1.8232) | "
+             "0.916 < κ < 1.133 |", -1.9998, [1.0001, 1.0969], (0.916, 1.133)))
+    for method, comp, row, fmin, sing, band in rows:
+        lim = negative_substep_limits(method, "trapezoid", comp)
+        assert _quotes(model_md, row)
+        assert lim["min_factor"] == pytest.approx(fmin, abs=5e-5)
+        assert lim["kappa_singular"] == pytest.approx(sing, abs=5e-5)
+        assert lim["growth_band"] == pytest.approx(band, abs=1e-3)
     p = paper_physics()
     kappa = p.friction[0].max() * 0.1 / p.inertia[0].min()
     assert _quotes(model_md, f"$\\kappa = {kappa:.3f}$")

@@ -95,6 +95,13 @@ CASES = [  # (variant, method, extra simulate keywords)
     ("paper", "vi", dict(friction="endpoint")),
     ("paper", "vi4", {}),
     ("paper", "vi6", {}),
+    ("paper", "vi4", dict(composition="triple_jump")),
+    ("paper", "split", {}),
+    ("paper", "split4", {}),
+    ("paper", "split6", {}),
+    ("diagonal", "split4", {}),
+    ("no_friction", "split", {}),
+    ("no_gravity", "split6", {}),
     ("paper", "rk2", {}),
     ("paper", "rk4", {}),
     ("diagonal", "vi", {}),
@@ -116,7 +123,7 @@ CASES = [  # (variant, method, extra simulate keywords)
 def test_fast_equals_simple(variant, method, kw, n_random):
     phys, om, R = mixed(n_random=n_random, seed=1, variant=variant)
     assert (build_model(phys).shared is None) == (n_random > 0)
-    attitude = method in ("vi", "rk2") and variant == "paper"
+    attitude = method in ("vi", "rk2", "split", "split4") and variant == "paper"
     h = 0.05 if variant == "coupled" else 0.1
     fast = run("fast", method, phys, om, R, h, 100, 20, attitude=attitude, **kw)
     simple_ = run("simple", method, phys, om, R, h, 100, 20, attitude=attitude, **kw)
@@ -155,7 +162,7 @@ def test_newton_failures_and_nan_members():
     assert np.any(fast.newton_max == 1) and np.any(fast.newton_max == 2)
 
 
-@pytest.mark.parametrize("method", ["vi", "vi4", "rk2", "rk4"])
+@pytest.mark.parametrize("method", ["vi", "vi4", "rk2", "rk4", "split4"])
 def test_failing_member_does_not_corrupt_its_block(method):
     """One member of a full block fails at once; every other member is bitwise
     what it is in an ensemble without that member (in another lane) and what
@@ -178,13 +185,14 @@ def test_failing_member_does_not_corrupt_its_block(method):
 def test_composition_failure_mid_step_restores_the_step_start():
     """A vi4 member whose second (negative) substep fails keeps the state at
     the start of the failing step — a node value, not a substep value — in
-    both kernels."""
+    both kernels (the triple jump, whose negative substep −1.70 h is large
+    enough to fail here)."""
     phys, om, R = mixed(n_paper=40, n_random=0, seed=6)
     # the negative substep takes back more heat than a small heat capacity holds:
     # U(σ') − U(σ) = hP < −U(σ), no σ' exists (log1p of less than −1)
     hv = replace(phys, friction=phys.friction * 10.0, heat_capacity=np.full(len(om), 1e-7))
-    fast = run("fast", "vi4", hv, om, R, 0.1, 20, 1)
-    simple_ = run("simple", "vi4", hv, om, R, 0.1, 20, 1)
+    fast = run("fast", "vi4", hv, om, R, 0.1, 20, 1, composition="triple_jump")
+    simple_ = run("simple", "vi4", hv, om, R, 0.1, 20, 1, composition="triple_jump")
     assert_same(fast, simple_)
     failed = fast.status != L.STATUS_OK
     assert failed.any()

@@ -191,7 +191,7 @@ def test_stability_negative_substeps(stab):
     """vi4/vi6: a substep of factor f < 0 makes the friction factor 1 + fκ/2 vanish at
     κ = −2/f; inside the growth band the composed step loses the small-step accuracy
     it has at small κ."""
-    from liethermo.methods import COMPOSITIONS
+    from liethermo.methods import METHODS
     from liethermo.studies.stability import friction_amplification, negative_substep_limits
 
     _, out = stab
@@ -199,7 +199,7 @@ def test_stability_negative_substeps(stab):
     hw0 = ds["h_omega"].values.min()
     for m in ("vi4", "vi6"):
         lim = negative_substep_limits(m)
-        assert lim["min_factor"] == pytest.approx(min(COMPOSITIONS[m]))
+        assert lim["min_factor"] == pytest.approx(min(METHODS[m].substeps()))
         lo, hi = lim["growth_band"]
         assert lo < -2.0 / lim["min_factor"] < hi
         assert abs(friction_amplification(m, np.array([0.5 * (lo + hi)]))[0]) > 1

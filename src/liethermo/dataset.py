@@ -185,8 +185,8 @@ def term_variables(phys) -> dict:
 
 
 def global_attrs(scene_toml: str, *, method: str, h: float, friction: str | None,
-                 start: str, entropy: str | None, terms=(), extra: dict | None = None,
-                 history: str | None = None) -> dict:
+                 start: str, entropy: str | None, composition: str | None = None, terms=(),
+                 extra: dict | None = None, history: str | None = None) -> dict:
     """Global attributes of a run's dataset.  ``history``: the command line or
     API call that makes it (stored as a timestamped CF ``history`` line)."""
     m = METHODS[method]
@@ -202,6 +202,7 @@ def global_attrs(scene_toml: str, *, method: str, h: float, friction: str | None
         "friction": friction or "none",
         "start": start,
         "entropy_update": entropy or "none",
+        "composition": composition or "none",
         "model_terms": " ".join(terms),
         "scene": scene_toml,
         "software": f"liethermo {__version__}",

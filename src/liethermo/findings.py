@@ -92,8 +92,8 @@ def chunk_findings(ds, phys: ph.Physics) -> dict:
 
     # the exact solutions below hold for members on which no other term acts
     acting = phys.acting()
-    no_torque = phys.only("inertia", "double_bracket")  # forces ⟂ μ only: |μ| is kept
-    no_expansion = ~acting["inertia"]
+    no_torque = phys.only("thermal_expansion", "double_bracket")  # forces ⟂ μ only: |μ| is kept
+    no_expansion = ~acting["thermal_expansion"]
     out: dict = {}
 
     def put(name, sel, values):

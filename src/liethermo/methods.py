@@ -28,13 +28,22 @@ _G0 = 1.0 - 2.0 * _G1
 _D1 = 1.0 / (2.0 - 2.0 ** (1.0 / 5.0))
 _D0 = 1.0 - 2.0 * _D1
 
-#: substep factors of the variational integrator's compositions, h_i = factor_i · h:
-#: Yoshida's triple jump (order 4) and the triple jump of triple jumps (order 6)
-COMPOSITIONS = {
-    "vi": (1.0,),
-    "vi4": (_G1, _G0, _G1),
-    "vi6": tuple(d * g for d in (_D1, _D0, _D1) for g in (_G1, _G0, _G1)),
+_P4 = 1.0 / (4.0 - 4.0 ** (1.0 / 3.0))
+#: Kahan & Li (1997), s9odr6a: γ₁ … γ₅, then γ₄ … γ₁
+_KL = (0.39216144400731413928, 0.33259913678935943860, -0.70624617255763935981,
+       0.082213596293550800230, 0.79854399093482996340)
+
+#: factors h_i = f_i h of symmetric compositions of a symmetric step of order 2,
+#: by (kind, order): "small_error" — Suzuki's five stages (1990; largest negative
+#: substep −0.66 h) and Kahan & Li's nine (1997, s9odr6a); "triple_jump" —
+#: Yoshida's triple jump (1990; −1.70 h) and its triple jump again
+COMPOSITION_FACTORS = {
+    ("small_error", 4): (_P4, _P4, 1.0 - 4.0 * _P4, _P4, _P4),
+    ("small_error", 6): _KL + _KL[-2::-1],
+    ("triple_jump", 4): (_G1, _G0, _G1),
+    ("triple_jump", 6): tuple(d * g for d in (_D1, _D0, _D1) for g in (_G1, _G0, _G1)),
 }
+COMPOSITION_KINDS = ("small_error", "triple_jump")
 
 FRICTION = ("trapezoid", "endpoint")
 STARTS = ("node", "staggered", "legendre")
@@ -44,11 +53,12 @@ ENTROPY_UPDATES = ("explicit", "symmetric")
 @dataclass(frozen=True)
 class Method:
     name: str
-    family: str  # "vi" or "rk"
+    family: str  # "vi", "rk" or "split"
     description: str
     order_base: int  # on node values, with its best start and trapezoid friction
     implicit: bool
-    #: right-hand-side evaluations (rk) or Newton solves (vi) per step
+    #: right-hand-side evaluations (rk), Newton solves (vi) or Strang steps (split)
+    #: per step, with the default composition
     evaluations_per_step: int
     laws: tuple[str, ...]
     #: the start and entropy update the method always uses (None: the scene's)
@@ -56,14 +66,33 @@ class Method:
     fixed_entropy: str | None = None
     #: rk: the name of its tableau in :mod:`liethermo.kernels.rk` (``TABLEAUS``)
     tableau: str | None = None
+    #: vi, split: the order of the composition of the order-2 step (None: the step itself)
+    composed: int | None = None
 
     @property
-    def substeps(self) -> tuple[float, ...]:
-        """vi: the factors f_i of the substeps h_i = f_i h of one step."""
-        return COMPOSITIONS[self.name] if self.family == "vi" else ()
+    def layout(self) -> str:
+        """The state layout its kernels keep: "vi" (node values and the step
+        velocity) or "rk" (the explicit methods' node values (Ω, Γ, σ, R))."""
+        return "vi" if self.family == "vi" else "rk"
 
-    def kernel_tableau(self):
-        """rk: the tableau marker the kernels are compiled for."""
+    def substeps(self, composition: str = "small_error") -> tuple[float, ...]:
+        """vi, split: the factors f_i of the substeps h_i = f_i h of one step
+        (``composition``: a kind of :data:`COMPOSITION_FACTORS`)."""
+        if self.family not in ("vi", "split"):
+            return ()
+        if self.composed is None:
+            return (1.0,)
+        if composition not in COMPOSITION_KINDS:
+            raise ValueError(f"unknown composition {composition!r}: expected one of {list(COMPOSITION_KINDS)}")
+        return COMPOSITION_FACTORS[(composition, self.composed)]
+
+    def kernel_tableau(self, composition: str = "small_error"):
+        """rk, split: the marker the kernels are compiled for (a Butcher tableau,
+        or the factors of a splitting)."""
+        if self.family == "split":
+            from .kernels.split import splitting
+
+            return splitting(self.substeps(composition), self.order_base)
         from .kernels import rk
 
         return rk.tableau(self.tableau)
@@ -95,6 +124,10 @@ class Method:
             return None
         return "trapezoid" if self.fixed_start else friction
 
+    def effective_composition(self, composition: str) -> str | None:
+        """The composition a composed method runs (None for the others)."""
+        return composition if self.composed else None
+
 
 def _rk_method(name: str, tableau: str, description: str) -> Method:
     """An explicit Runge–Kutta method: its order and stages are its tableau's."""
@@ -108,23 +141,42 @@ _VI_LAWS = (LAW_UNIT_GAMMA, LAW_ROTATION, LAW_ENTROPY_MONOTONE, LAW_KELVIN_NOETH
 #: the compositions take negative substeps, on which friction gives heat back:
 #: their entropy can decrease over a whole step when c h / I_min is near 1 (docs/model.md)
 _COMPOSED_LAWS = tuple(x for x in _VI_LAWS if x != LAW_ENTROPY_MONOTONE)
+#: the splitting keeps |Γ| and RᵀR = I (every flow is a rotation or leaves Γ),
+#: and its heat is the kinetic energy its friction flows take
+_SPLIT_LAWS = (LAW_UNIT_GAMMA, LAW_ROTATION, LAW_ENTROPY_MONOTONE)
+
 
 def _vi_method(name: str, description: str, order: int, laws, composed: bool = False) -> Method:
     """The variational integrator or a composition of it: one Newton solve per
     substep; compositions always start from μ₀ = 𝕀Ω(0) and use the symmetric
     entropy update (they need the symmetric map)."""
-    return Method(name, "vi", description, order, True, len(COMPOSITIONS[name]), laws,
+    n = len(COMPOSITION_FACTORS[("small_error", order)]) if composed else 1
+    return Method(name, "vi", description, order, True, n, laws,
                   fixed_start="legendre" if composed else None,
-                  fixed_entropy="symmetric" if composed else None)
+                  fixed_entropy="symmetric" if composed else None,
+                  composed=order if composed else None)
+
+
+def _split_method(name: str, description: str, order: int) -> Method:
+    """The explicit thermodynamic splitting (Strang step of the terms' exact
+    flows) or a composition of it."""
+    n = len(COMPOSITION_FACTORS[("small_error", order)]) if order > 2 else 1
+    return Method(name, "split", description, order, False, n, _SPLIT_LAWS,
+                  composed=order if order > 2 else None)
 
 
 METHODS: dict[str, Method] = {
     "vi": _vi_method("vi", "variational integrator in node form (Cayley map, discrete Legendre "
                      "transforms, Newton momentum solve)", 2, _VI_LAWS),
-    "vi4": _vi_method("vi4", "variational integrator composed by Yoshida's triple jump "
-                      "(order 4, 3 substeps)", 4, _COMPOSED_LAWS, composed=True),
-    "vi6": _vi_method("vi6", "variational integrator composed by two triple jumps "
-                      "(order 6, 9 substeps)", 6, _COMPOSED_LAWS, composed=True),
+    "vi4": _vi_method("vi4", "variational integrator composed to order 4 (Suzuki's 5 substeps; "
+                      "integrator.composition = \"triple_jump\": Yoshida's 3)", 4, _COMPOSED_LAWS,
+                      composed=True),
+    "vi6": _vi_method("vi6", "variational integrator composed to order 6 (Kahan and Li's 9 substeps; "
+                      "\"triple_jump\": two triple jumps, 9)", 6, _COMPOSED_LAWS, composed=True),
+    "split": _split_method("split", "explicit thermodynamic splitting: Strang step of the terms' exact "
+                           "flows (friction and heat, gravity kick, Cayley free rotations)", 2),
+    "split4": _split_method("split4", "the splitting composed to order 4 (Suzuki's 5 Strang steps)", 4),
+    "split6": _split_method("split6", "the splitting composed to order 6 (Kahan and Li's 9 Strang steps)", 6),
     "rk2": _rk_method("rk2", "midpoint", "explicit midpoint Runge-Kutta (order 2)"),
     "rk4": _rk_method("rk4", "rk4", "classical Runge-Kutta (order 4)"),
     "reference": _rk_method("reference", "dop853",

@@ -211,7 +211,7 @@ def estimate(scene: dict) -> Estimate:
     method = get_method(integ["method"])
     phys = physics_of_scene(scene, 1)
     km = build_model(phys, bool(outp["attitude"]))
-    layout = km.layout(method.family)
+    layout = km.layout(method.layout)
     width = layout.size
     one = lambda dt: np.zeros(1, dtype=dt)  # noqa: E731
     traj = Trajectory(method=method.name, family=method.family, friction=integ["friction"],

@@ -49,6 +49,7 @@ class RunSummary:
     first_fail_step: int = 0  # earliest step at which a member failed (0: none failed)
     path: Path | None = None
     resumed_members: int = 0  # members taken over from an interrupted run
+    solves_per_step: int = 0  # Newton solves per step of a variational integrator
     #: what the run's physics shows (liethermo.findings): lines from its parameters,
     #: and {name: [min, max]} over the completed members
     physics_notes: list = field(default_factory=list)
@@ -89,7 +90,7 @@ class RunSummary:
         out += self.physics_notes
         m = get_method(self.method)
         if m.family == "vi":
-            n = m.evaluations_per_step
+            n = self.solves_per_step or m.evaluations_per_step
             per_solve = (f"mean {self.newton_mean / n:.2f} per solve ({self.newton_mean:.2f} per step "
                          f"of {n} solves)" if n > 1 else f"mean {self.newton_mean:.2f} per solve (one per step)")
             out.append(f"  Newton iterations         {per_solve}, max {self.newton_max} in one solve")
@@ -174,9 +175,11 @@ def scene_setup(scene, overrides=None, history: str | None = None) -> tuple[Scen
     attrs = global_attrs(scene_to_toml(scene), method=method, h=h,
                          friction=m.effective_friction(integ["friction"]),
                          start=m.effective_start(integ["start"]),
-                         entropy=m.effective_entropy(integ["entropy"]), terms=terms,
+                         entropy=m.effective_entropy(integ["entropy"]),
+                         composition=m.effective_composition(integ["composition"]), terms=terms,
                          history=history)
     summ = RunSummary(scene["scene"]["name"], method, members, steps, h)
+    summ.solves_per_step = len(m.substeps(integ["composition"])) if m.family == "vi" else 0
     summ.physics_notes = physics_lines(phys)
     return scene, attrs, summ
 
@@ -192,6 +195,7 @@ def simulate_options(scene, phys, kernel: str = "auto") -> dict:
     integ, outp = scene["integrator"], scene["output"]
     chunk = min(int(scene["ensemble"]["members"]), int(outp["member_chunk"]))
     return dict(friction=integ["friction"], start=integ["start"], entropy=integ["entropy"],
+                composition=integ["composition"],
                 attitude=bool(outp["attitude"]), newton_tol=float(integ["newton_tol"]),
                 newton_maxiter=int(integ["newton_maxiter"]),
                 kernel=kernel_for(integ["method"], chunk, int(integ["steps"]), kernel),

@@ -35,7 +35,7 @@ else:  # pragma: no cover
 
 import tomli_w
 
-from .methods import ENTROPY_UPDATES, FRICTION, METHODS, STARTS
+from .methods import COMPOSITION_KINDS, ENTROPY_UPDATES, FRICTION, METHODS, STARTS
 
 
 class SceneError(ValueError):
@@ -256,8 +256,9 @@ CORE_KEYS: tuple[Key, ...] = (
     Key("initial", "R", E1_ROTATION, "1", "a rotation matrix",
         "initial attitude R(0) (body to space); Γ(0) = R(0)ᵀ e3", _rotation_check),
     Key("integrator", "method", "vi", "", " | ".join(f'"{m}"' for m in METHODS),
-        "the integrator (see docs/model.md): the variational integrator in node form, its "
-        "order-4 and order-6 compositions, explicit RK2/RK4, the DOP853 reference",
+        "the integrator (see docs/model.md): the variational integrator in node form and its "
+        "order-4 and order-6 compositions, the explicit thermodynamic splitting and its "
+        "compositions, explicit RK2/RK4, the DOP853 reference",
         choice(*METHODS)),
     Key("integrator", "h", 0.1, "s", "> 0", "time step", number(0.0, lo_open=True)),
     Key("integrator", "steps", 300, "1", "integer ≥ 1", "number of steps", integer()),
@@ -271,6 +272,11 @@ CORE_KEYS: tuple[Key, ...] = (
     Key("integrator", "entropy", "symmetric", "", " | ".join(f'"{e}"' for e in ENTROPY_UPDATES),
         "vi: entropy update — symmetric: U(S') − U(S) = the friction work of the step; explicit: "
         "the paper's S' = S + h P/T(S).  vi4/vi6 always use symmetric", choice(*ENTROPY_UPDATES)),
+    Key("integrator", "composition", "small_error", "", " | ".join(f'"{c}"' for c in COMPOSITION_KINDS),
+        "vi4, vi6, split4, split6: how the order-2 step is composed — small_error: Suzuki's 5 "
+        "substeps (order 4) and Kahan and Li's 9 (order 6); triple_jump: Yoshida's triple jump "
+        "(3 substeps, order 4) and its triple jump (9, order 6), whose error constants and "
+        "negative substeps are larger", choice(*COMPOSITION_KINDS)),
     Key("integrator", "newton_tol", 1e-14, "1", "in (0, 1e-3)",
         "relative step tolerance of the Newton iteration", _tol_check),
     Key("integrator", "newton_maxiter", 30, "1", f"integer in [1, {NEWTON_MAXITER_LIMIT}]",
@@ -610,7 +616,7 @@ def _cross_rules(s: dict) -> None:
                          ("output.compare", s["output"]["compare"])):
         for m in methods:
             for t in on:
-                why = t.refuses(m)
+                why = t.refuses(METHODS[m].family, m)
                 if why:
                     raise SceneError(key, f"method {m!r} cannot run the {t.name} term "
                                      f"({t.settings[0].path}): {why}", m)

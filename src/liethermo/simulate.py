@@ -90,6 +90,8 @@ class Trajectory:
     wall_time: float = 0.0  # kernel time, s (compilation excluded)
     compile_time: float = 0.0  # compiling the kernels or loading them from the cache, s
     reference_substeps: int = 0
+    #: vi4, vi6, split4, split6: the composition they ran ("small_error" | "triple_jump")
+    composition: str | None = None
 
     @property
     def step_index(self) -> np.ndarray:
@@ -201,6 +203,7 @@ def simulate(
     friction: str = "trapezoid",
     start: str = "legendre",
     entropy: str = "symmetric",
+    composition: str = "small_error",
     attitude: bool = False,
     every: int = 1,
     newton_tol: float = DEFAULT_NEWTON_TOL,
@@ -222,7 +225,10 @@ def simulate(
     ``start`` ("legendre": μ₀ = 𝕀Ω(0); "node": the paper's Ω₀ := Ω(0) as
     first step velocity; "staggered": Ω₀ := Ω(h/2) from the reference) and
     ``entropy`` ("symmetric" | "explicit") — vi4 and vi6 always use the
-    legendre start, trapezoid friction and the symmetric update.
+    legendre start, trapezoid friction and the symmetric update.  For the
+    composed methods (vi4, vi6, split4, split6): ``composition``
+    ("small_error": Suzuki's order 4, Kahan and Li's order 6; "triple_jump":
+    Yoshida's).
     ``progress(n)`` is called with the number of steps just advanced.
     ``chunk_steps``: steps per kernel call; by default the first call covers
     CHUNK_MEMBER_STEPS member-steps and later calls grow towards CALL_SECONDS
@@ -257,7 +263,14 @@ def simulate(
         raise ValueError(f"omega0 must be ({N}, 3) and R0 ({N}, 3, 3) for {N} members, got "
                          f"{omega0.shape} and {R0.shape}")
     km: KernelModel = build_model(physics, attitude, heat=heat_bound)
-    layout = km.layout(m.family)
+    if m.family == "split":
+        from .kernels.split import can_split
+
+        part = can_split(km.model)
+        if part is not None:
+            raise ValueError(f"method {m.name!r} needs the exact flow of every term; {part} has none "
+                             f"(the vi and rk methods run it)")
+    layout = km.layout(m.layout)
     if m.family == "vi" and layout.has("sigma_next") and m.effective_start(start) != "legendre":
         raise ValueError("the coupled top (thermal expansion) starts from its node momentum: "
                          "use start='legendre'")
@@ -273,8 +286,8 @@ def simulate(
     if threads is None and N < SMALL_ENSEMBLE:
         threads = 1  # a few members: waking threads costs more than it gains
 
-    if m.family == "rk":
-        tab = m.kernel_tableau()
+    if m.layout == "rk":
+        tab = m.kernel_tableau(composition)
         Y = _rk_initial(layout, omega0, R0)
         nsub = 1
         if m.name == "reference":
@@ -290,7 +303,7 @@ def simulate(
         from .kernels import vi as _vi
         from .kernels.terms.thermo import EXPLICIT, SYMMETRIC
 
-        factors = tuple(float(f) for f in m.substeps)
+        factors = tuple(float(f) for f in m.substeps(composition))
         wl, wr = _vi.FRICTION_WEIGHTS[eff_friction]
         mode = EXPLICIT if eff_entropy == "explicit" else SYMMETRIC
         Y = np.zeros((N, layout.size))
@@ -316,7 +329,7 @@ def simulate(
     out_per_chunk = max(1, chunk_steps // every)
 
     def args_for(OUT, nj):
-        if m.family == "rk":
+        if m.layout == "rk":
             return pre, post + (int(nj), OUT, IS, FS)
         return pre, post + (int(nj),) + post_tail + (OUT, IS, FS)
 
@@ -351,6 +364,7 @@ def simulate(
     # leave its later outputs untouched), and its initial row if it could not start
     return Trajectory(
         method=m.name, family=m.family, friction=eff_friction, start=eff_start,
+        composition=m.effective_composition(composition),
         entropy=eff_entropy, h=float(h), steps=int(steps), every=int(every), physics=physics,
         layout=layout, terms=tuple(km.terms()), states=states,
         status=IS[:, _lay.IS_STATUS].astype(np.int8), fail_step=IS[:, _lay.IS_FAIL_STEP].copy(),

@@ -371,17 +371,18 @@ def _tree_select(c, x, y):
 # ----------------------------------------------------------------------------- folds
 
 
-def make_fold(protocol, n_args: int, n_acc: int, name: str):
+def make_fold(protocol, n_args: int, n_acc: int, name: str, reverse: bool = False):
     """A generic function ``fold(terms, *args, *acc) -> acc`` that applies
     ``protocol(term, *args, *acc)`` to every term of the tuple ``terms`` in
-    order, threading the ``n_acc`` accumulators (which may start as None; a
-    protocol with one accumulator returns it bare, with more a tuple)."""
+    order (last to first with ``reverse``), threading the ``n_acc``
+    accumulators (which may start as None; a protocol with one accumulator
+    returns it bare, with more a tuple)."""
     args = [f"x{k}" for k in range(n_args)]
     acc0 = [f"a{k}" for k in range(n_acc)]
     sig = ", ".join(["terms"] + args + acc0)
     ns: dict = {}
     py = [f"def {name}({sig}):", f"    acc = ({', '.join(acc0)}{',' if n_acc == 1 else ''})",
-          "    for term in terms:",
+          f"    for term in {'terms[::-1]' if reverse else 'terms'}:",
           f"        acc = protocol(term, {', '.join(args + [f'acc[{k}]' for k in range(n_acc)])})",
           "        acc = (acc,)" if n_acc == 1 else "        pass",
           "    return acc[0]" if n_acc == 1 else "    return acc"]
@@ -393,7 +394,8 @@ def make_fold(protocol, n_args: int, n_acc: int, name: str):
             return None
         acc = acc0
         lines = [f"def impl({sig}):"]
-        for t in range(len(terms.types)):
+        order = range(len(terms.types))
+        for t in (reversed(order) if reverse else order):
             new = [f"a{k}_{t}" for k in range(n_acc)]
             lhs = new[0] if n_acc == 1 else ", ".join(new)
             lines.append(f"    {lhs} = protocol(terms[{t}], {', '.join(args + acc)})")

@@ -30,6 +30,7 @@ from numba.extending import overload
 
 from .equations import rk_rhs
 from .gen import compile_source, tree_fma
+from .split import Splitting, register, split_step
 
 
 class Tableau(tuple):
@@ -100,8 +101,11 @@ def tableau(name: str):
 def explicit_step(tab, model, y, h, exact):
     """(y', small): one step of size h of the tableau ``tab`` from the
     ``rk``-layout state y; ``small`` says whether every stage's inline exp was
-    valid (always with ``exact``)."""
+    valid (always with ``exact``).  A splitting marker (:mod:`.split`) takes
+    its own step."""
     cls = type(tab)
+    if isinstance(tab, Splitting):
+        return split_step(tab, model, y, h, exact)
     k, small = [], True
     for i in range(cls.stages):
         z = y
@@ -141,3 +145,6 @@ def _explicit_step(tab, model, y, h, exact):
     lines.append(f"    return {z}, {' & '.join(small)}")
     return compile_source("\n".join(lines) + "\n", {"tree_fma": tree_fma, "rk_rhs": rk_rhs},
                           label=f"explicit_step {cls.__name__}")
+
+
+register(explicit_step)

@@ -337,24 +337,31 @@ def parse_method(spec: str) -> dict:
     ``endpoint``; entropy ``symmetric``, ``explicit`` — e.g. ``"vi:node:explicit"``
     for the paper's choices.  ``vi4`` and ``vi6`` accept and ignore variants
     (they always use legendre, trapezoid, symmetric); explicit methods take
-    none.  The values are the effective ones (None where a choice does not
-    apply), so the dict says what really ran."""
-    from ..methods import ENTROPY_UPDATES, FRICTION, METHODS, STARTS
+    none.  The composed methods (vi4, vi6, split4, split6) take a composition,
+    ``small_error`` (the default) or ``triple_jump`` — e.g. ``"vi4:triple_jump"``.
+    The values are the effective ones (None where a choice does not apply), so
+    the dict says what really ran."""
+    from ..methods import COMPOSITION_KINDS, ENTROPY_UPDATES, FRICTION, METHODS, STARTS
 
     parts = spec.split(":") if isinstance(spec, str) else [spec]
     name = parts[0]
     if name not in METHODS:
         raise StudyError(f"methods: unknown method {spec!r}; known methods: {', '.join(sorted(METHODS))}")
     m = METHODS[name]
-    chosen = {"start": "legendre", "friction": "trapezoid", "entropy": "symmetric"}
+    chosen = {"start": "legendre", "friction": "trapezoid", "entropy": "symmetric",
+              "composition": "small_error"}
     seen: set[str] = set()
     for p in parts[1:]:
         what = ("start" if p in STARTS else "friction" if p in FRICTION
-                else "entropy" if p in ENTROPY_UPDATES else None)
+                else "entropy" if p in ENTROPY_UPDATES else "composition" if p in COMPOSITION_KINDS
+                else None)
         if what is None:
             raise StudyError(f"methods: {spec!r}: unknown variant {p!r} (starts: {', '.join(STARTS)}; "
-                             f"friction: {', '.join(FRICTION)}; entropy: {', '.join(ENTROPY_UPDATES)})")
-        if m.family != "vi":
+                             f"friction: {', '.join(FRICTION)}; entropy: {', '.join(ENTROPY_UPDATES)}; "
+                             f"composition: {', '.join(COMPOSITION_KINDS)})")
+        if what == "composition" and not m.composed:
+            raise StudyError(f"methods: {spec!r}: {name} is not composed and takes no composition")
+        if what != "composition" and m.family != "vi":
             raise StudyError(f"methods: {spec!r}: {name} is explicit and takes no variant")
         if what in seen:
             raise StudyError(f"methods: {spec!r}: more than one {what} variant")
@@ -363,20 +370,23 @@ def parse_method(spec: str) -> dict:
     start = m.effective_start(chosen["start"]) if m.family == "vi" else None
     return {"label": spec, "method": name, "family": m.family, "start": start,
             "friction": m.effective_friction(chosen["friction"]),
-            "entropy": m.effective_entropy(chosen["entropy"])}
+            "entropy": m.effective_entropy(chosen["entropy"]),
+            "composition": m.effective_composition(chosen["composition"])}
 
 
 def method_kwargs(spec: dict) -> dict:
     """The ``simulate`` keywords of a parsed method spec."""
     return {"friction": spec["friction"] or "trapezoid", "start": spec["start"] or "legendre",
-            "entropy": spec["entropy"] or "symmetric"}
+            "entropy": spec["entropy"] or "symmetric",
+            "composition": spec.get("composition") or "small_error"}
 
 
 def method_overrides(spec: dict) -> dict:
     """Scene overrides that make a scene run a parsed method spec."""
     kw = method_kwargs(spec)
     return {"integrator.method": spec["method"], "integrator.start": kw["start"],
-            "integrator.friction": kw["friction"], "integrator.entropy": kw["entropy"]}
+            "integrator.friction": kw["friction"], "integrator.entropy": kw["entropy"],
+            "integrator.composition": kw["composition"]}
 
 
 # ----------------------------------------------------------------------------- closing table

@@ -45,7 +45,7 @@ import xarray as xr
 
 from ..initial import initial_conditions
 from ..kernels.vi import FRICTION_WEIGHTS
-from ..methods import COMPOSITIONS
+from ..methods import METHODS
 from ..physics import Physics, kinetic_energy, physics_of_scene, potential_energy
 from ..simulate import simulate
 from .common import (shared_units, status_units, fmt, parse_method, study_options, StudyError, cached_point, point_key, progress_bar, study_name,
@@ -201,7 +201,7 @@ def jacobian_condition(tr, h: float) -> np.ndarray:
     Jacobian at the stored step velocity X_k (for vi4/vi6 the step's own X
     stands for its substeps' velocities)."""
     wl = FRICTION_WEIGHTS[tr.friction][0]
-    factors = COMPOSITIONS[tr.method]
+    factors = METHODS[tr.method].substeps(tr.composition or "small_error")
     X = tr.omega_step
     phys = tr.physics
     out = np.full(X.shape[0], np.nan)
@@ -303,28 +303,29 @@ def newton_limit(scene, h: float, method: str = "vi", h_omegas=None, steps: int 
                       coords={"h_omega": h_omegas})
 
 
-def friction_amplification(method: str, kappa: np.ndarray, friction: str = "trapezoid") -> np.ndarray:
+def friction_amplification(method: str, kappa: np.ndarray, friction: str = "trapezoid",
+                           composition: str = "small_error") -> np.ndarray:
     """R(κ) = Π_i r(f_i κ): one step of the VI (family) on a purely frictional
     linear mode, trapezoid friction r(z) = (1 − z/2)/(1 + z/2) (endpoint: 1/(1 + z))."""
     kappa = np.asarray(kappa, float)
     wl, wr = FRICTION_WEIGHTS[friction]
     out = np.ones_like(kappa)
     with np.errstate(divide="ignore", invalid="ignore"):
-        for f in COMPOSITIONS[method]:
+        for f in METHODS[method].substeps(composition):
             out = out * (1.0 - wr * f * kappa) / (1.0 + wl * f * kappa)
     return out
 
 
-def negative_substep_limits(method: str, friction: str = "trapezoid") -> dict:
+def negative_substep_limits(method: str, friction: str = "trapezoid", composition: str = "small_error") -> dict:
     """For a VI-family method: the most negative substep factor, the κ at which
     a negative substep's Newton matrix 1 + w_L f κ vanishes, and the band of κ
     where |R(κ)| > 1 (a friction mode grows), from a fine grid."""
-    f = np.asarray(COMPOSITIONS[method], float)
+    f = np.asarray(METHODS[method].substeps(composition), float)
     wl = FRICTION_WEIGHTS[friction][0]
     neg = f[f < 0]
     sing = sorted(set(np.round(-1.0 / (wl * neg), 4))) if neg.size else []
     k = np.linspace(1e-3, 50.0, 200_000)
-    bad = np.abs(friction_amplification(method, k, friction)) > 1.0 + 1e-9
+    bad = np.abs(friction_amplification(method, k, friction, composition)) > 1.0 + 1e-9
     return {"min_factor": float(f.min()), "kappa_singular": sing,
             "growth_band": (float(k[bad].min()), float(k[bad].max())) if bad.any() else None}
 
@@ -509,7 +510,7 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
     neg_rows = []
     for m in vi_methods:
         spec = parse_method(m)
-        lim = negative_substep_limits(spec["method"], spec["friction"])
+        lim = negative_substep_limits(spec["method"], spec["friction"], spec["composition"] or "small_error")
         r = maps[m]["regime"].values
         ka = maps[m]["kappa"].values
         ok_k = [k for j, k in enumerate(ka) if np.all(r[:, j] <= 1)]

@@ -53,6 +53,11 @@ accumulators that start as None, see :func:`liethermo.kernels.gen.madd`):
 ``nonlinear_friction(term, inertia, h, x0, x1, x2, f0, f1, f2, j00, …, j22)``
     adds the variational integrator's discrete friction D(X) of a nonlinear
     friction law, and its Jacobian ∂D/∂X (see the variational integrator).
+``exact_flow(term, inertia, t, G0, G1, G2, m0, m1, m2, q)``
+    the exact flow over a time t of the sub-system with this term alone (Γ
+    fixed): the new body momentum μ and the heat q (J) with the kinetic
+    energy the flow dissipated added (the splitting integrators; a term
+    with this flow declares the capability ``"exact_flow"``).
 """
 
 from __future__ import annotations
@@ -119,6 +124,8 @@ dissipated_power = _protocol("dissipated_power", "term, inertia, iscale, w0, w1,
 discrete_power = _protocol("discrete_power", "term, inertia, h, x0, x1, x2, p", "p")
 linear_friction = _protocol("linear_friction", "term, c0, c1, c2", "c0, c1, c2")
 torque = _protocol("torque", "term, G0, G1, G2, t0, t1, t2", "t0, t1, t2")
+exact_flow = _protocol("exact_flow", "term, inertia, t, G0, G1, G2, m0, m1, m2, q",
+                       "m0, m1, m2, q")
 nonlinear_friction = _protocol(
     "nonlinear_friction",
     "term, inertia, h, x0, x1, x2, f0, f1, f2, j00, j01, j02, j10, j11, j12, j20, j21, j22",
@@ -155,6 +162,9 @@ sum_discrete_power = make_fold(discrete_power, 5, 1, "sum_discrete_power")
 sum_linear_friction = make_fold(linear_friction, 0, 3, "sum_linear_friction")
 sum_torque = make_fold(torque, 3, 3, "sum_torque")
 sum_nonlinear_friction = make_fold(nonlinear_friction, 5, 12, "sum_nonlinear_friction")
+#: the terms' exact flows one after the other, in registry order and back
+flow_forward = make_fold(exact_flow, 5, 4, "flow_forward")
+flow_backward = make_fold(exact_flow, 5, 4, "flow_backward", reverse=True)
 
 
 
@@ -221,7 +231,7 @@ class Term:
     (:meth:`torque`, :meth:`dissipated_power`, :meth:`potential_energy`),
     used by the diagnostics and the scipy baseline."""
 
-    #: registry name (its module's name)
+    #: registry name (in messages and for :meth:`Registry.by_name`)
     name: str = ""
     settings: tuple[Setting, ...] = ()
     parameters: tuple[Parameter, ...] = ()
@@ -261,8 +271,9 @@ class Term:
         break because of this term."""
         return ()
 
-    def refuses(self, method: str) -> str | None:
-        """Why ``method`` cannot run a model with this term (None: it can)."""
+    def refuses(self, family: str, method: str) -> str | None:
+        """Why ``method`` (of ``family``: "vi", "rk" or "split") cannot run a
+        model with this term (None: it can)."""
         return None
 
     # ---- plain numpy, (N, ..., 3) arrays with a leading member axis
@@ -329,4 +340,4 @@ def registry() -> Registry:
 
 
 __all__ = ["Model", "ATTITUDE", "Attitude", "angular_acceleration", "dissipated_power",
-           "discrete_power", "linear_friction", "torque", "nonlinear_friction", "implements", "types", "Term", "Setting", "Parameter", "Registry", "registry", "bcast"]
+           "discrete_power", "linear_friction", "torque", "nonlinear_friction", "exact_flow", "implements", "types", "Term", "Setting", "Parameter", "Registry", "registry", "bcast"]

@@ -141,6 +141,11 @@ class _DoubleBracket(Term):
             return []
         return [("forces", DoubleBracket, coefficients(phys.internal_friction, phys.inertia))]
 
+    def refuses(self, family: str, method: str) -> str | None:
+        if family == "split":
+            return "its flow has no closed form (it must keep |μ| and K + U with heat); the vi and rk methods run it"
+        return None
+
     def in_scene(self, s: dict) -> bool:
         return s["body"]["internal_friction"] > 0
 

@@ -13,12 +13,14 @@ from collections import namedtuple
 
 import numpy as np
 
+from .._jit import fma
 from ..gen import madd
-from . import Parameter, Setting, Term, angular_acceleration, bcast, implements, torque
+from . import Parameter, Setting, Term, angular_acceleration, bcast, exact_flow, implements, torque
 
 
 class Gravity(namedtuple("Gravity", "gx gy gz gz1 gy1 gx2 gz2 gy3 gx3")):
     __slots__ = ()
+    CAPABILITIES = frozenset({"exact_flow"})
 
 
 def coefficients(gravity_torque: np.ndarray, inertia0: np.ndarray) -> np.ndarray:
@@ -49,6 +51,14 @@ def _torque(term, G0, G1, G2, t0, t1, t2):
     return (madd(G1, term.gz, madd(-G2, term.gy, t0)),
             madd(G2, term.gx, madd(-G0, term.gz, t1)),
             madd(G0, term.gy, madd(-G1, term.gx, t2)))
+
+
+@implements(exact_flow, Gravity)
+def _kick(term, inertia, t, G0, G1, G2, m0, m1, m2, q):
+    """The exact flow of the torque alone (Γ fixed): μ ← μ + t Γ×g⃗."""
+    return (fma(t, fma(G1, term.gz, -(G2 * term.gy)), m0),
+            fma(t, fma(G2, term.gx, -(G0 * term.gz)), m1),
+            fma(t, fma(G0, term.gy, -(G1 * term.gx)), m2), q)
 
 
 class _Gravity(Term):

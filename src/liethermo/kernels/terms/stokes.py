@@ -20,18 +20,22 @@ import math
 
 import numpy as np
 
+from .._jit import fma, lane
+from ..lanemath import expm1_lane
 from ..gen import cadd, madd
 from ..so3 import norm2_lane
 from . import (Parameter, Setting, Term, bcast, angular_acceleration, discrete_power, dissipated_power,
-               implements, linear_friction)
+               exact_flow, implements, linear_friction)
 
 
 class StokesSphere(namedtuple("StokesSphere", "c K1 K2 K3")):
     __slots__ = ()
+    CAPABILITIES = frozenset({"exact_flow"})
 
 
 class StokesDiagonal(namedtuple("StokesDiagonal", "C1 C2 C3 K1 K2 K3")):
     __slots__ = ()
+    CAPABILITIES = frozenset({"exact_flow"})
 
 
 def sphere_coefficients(c: np.ndarray, inertia0: np.ndarray) -> np.ndarray:
@@ -84,6 +88,32 @@ def _diag_discrete_power(term, inertia, h, x0, x1, x2, p):
 @implements(linear_friction, StokesDiagonal)
 def _diag_linear(term, c0, c1, c2):
     return cadd(term.C1, c0), cadd(term.C2, c1), cadd(term.C3, c2)
+
+
+@lane
+def _friction_flow(term, inertia, t, m0, m1, m2, q):
+    """μ_i ← μ_i e^{−K_i t} (the exact flow of μ̇_i = −C_i Ω_i), with the
+    kinetic energy it takes, Σ μ_i² w_i, w_i = ½(1 − e^{−2K_i t})/I_i =
+    ½ d_i(2 − d_i)/I_i, d_i = −expm1(−K_i t) (no cancellation), added to the
+    heat q.  Backward in time (t < 0) it gives the heat back exactly.  The
+    factors depend on t and the member only: a sweep over members that share
+    their parameters computes them once (:func:`..lanemath.expm1_lane` is
+    plain arithmetic that LLVM hoists and vectorizes)."""
+    I = inertia
+    d0, d1, d2 = -expm1_lane(-(term.K1 * t)), -expm1_lane(-(term.K2 * t)), -expm1_lane(-(term.K3 * t))
+    w0, w1, w2 = (0.5 * I.iI1) * (d0 * (2.0 - d0)), (0.5 * I.iI2) * (d1 * (2.0 - d1)), (0.5 * I.iI3) * (d2 * (2.0 - d2))
+    dK = fma(m0 * m0, w0, fma(m1 * m1, w1, (m2 * m2) * w2))
+    return m0 * (1.0 - d0), m1 * (1.0 - d1), m2 * (1.0 - d2), q + dK
+
+
+@implements(exact_flow, StokesSphere)
+def _sphere_flow(term, inertia, t, G0, G1, G2, m0, m1, m2, q):
+    return _friction_flow(term, inertia, t, m0, m1, m2, q)
+
+
+@implements(exact_flow, StokesDiagonal)
+def _diag_flow(term, inertia, t, G0, G1, G2, m0, m1, m2, q):
+    return _friction_flow(term, inertia, t, m0, m1, m2, q)
 
 
 # ----------------------------------------------------------------------------- resistance of a body

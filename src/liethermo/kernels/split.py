@@ -1,0 +1,121 @@
+"""Explicit thermodynamic splitting: a step is the composition of the terms' exact flows.
+
+A splitting method is data (like an RK tableau, :mod:`.rk`): the factors
+f_k of its symmetric composition, held on a marker class whose *type* the
+kernels are compiled for.  One Strang step of size t is, in time order,
+
+    E_{t/2}  ∘  T_t  ∘  E_{t/2}ᵀ,
+
+where E runs the exact flows of the model's force terms one after the
+other in registry order (frictions first: F, the friction and its heat;
+then the conservative torques: V, the gravity kick) and back in reverse,
+and T is the free rotation T¹_{t/2} T²_{t/2} T³_t T²_{t/2} T¹_{t/2}
+(:func:`.terms.inertia.free_flow`, Cayley rotations: five divisions).  The
+step of size h composes Strang steps of sizes f_k h.  Every flow is the
+exact flow of a sub-system, so the step keeps |Γ| and RᵀR = I to
+round-off, is a Poisson map without friction, and moves the heat exactly:
+the friction flow takes kinetic energy ΔK and the step adds the sum q of
+the ΔK of its flows to the internal energy, U(S′) = U(S) + q (one
+conversion per step, :func:`.terms.thermo.entropy_step`; q and σ = S − S₀
+are small numbers, never T or U, whose size would swamp them).
+
+The state is the ``rk`` layout's (Ω, Γ, σ, R): the step takes μ = 𝕀Ω at its
+start and gives Ω = 𝕀⁻¹μ at its end, so both ensemble kernels run it through
+the explicit methods' loops (:func:`.rk.explicit_step`) and agree bit for bit.
+
+Terms without an exact flow (capability ``"exact_flow"``) cannot be split:
+a scene with one is refused before any work.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections import namedtuple
+
+from numba.extending import overload
+
+from ._jit import LANE_OPTIONS
+from .gen import compile_source, has_capability
+from .terms import flow_backward, flow_forward
+from .terms.inertia import free_flow
+from .terms.thermo import SYMMETRIC, entropy_step
+
+
+class Splitting(tuple):
+    """Base of the splitting marker classes; the class attributes are the data."""
+
+    __slots__ = ()
+    factors: tuple = ()
+    order: int = 0
+
+
+@functools.cache
+def splitting(factors: tuple, order: int):
+    """The marker instance of the symmetric composition of Strang steps with
+    these factors (a class per distinct composition, cached)."""
+    name = f"Splitting{len(factors)}o{order}"
+    cls = type(name, (namedtuple(name, "unused"), Splitting),
+               {"__slots__": (), "factors": tuple(float(f) for f in factors), "order": int(order)})
+    return cls(0.0)
+
+
+def can_split(model) -> str | None:
+    """None if every part of the model has an exact flow, else the name of
+    the first kernel part that has none."""
+    parts = (model.inertia,) + tuple(model.forces)
+    for part in parts:
+        if not has_capability(part, "exact_flow"):
+            return type(part).__name__
+    return None
+
+
+def split_step(tab, model, y, h, exact):
+    """(y', ok): one step of size h of the splitting ``tab`` from the ``rk``
+    layout state y = (Ω, Γ, σ, R); ``ok`` says whether the inline
+    polynomials of the heat-to-entropy conversion were valid (always with
+    ``exact``)."""
+    w, G, s, R = y
+    I = model.inertia
+    m0, m1, m2 = I.I1 * w[0], I.I2 * w[1], I.I3 * w[2]
+    G0, G1, G2 = G
+    q = 0.0
+    for f in type(tab).factors:
+        t = f * h
+        th = 0.5 * t
+        m0, m1, m2, q = flow_forward(model.forces, I, th, G0, G1, G2, m0, m1, m2, q)
+        m0, m1, m2, G0, G1, G2, R = free_flow(I, t, m0, m1, m2, G0, G1, G2, R)
+        m0, m1, m2, q = flow_backward(model.forces, I, th, G0, G1, G2, m0, m1, m2, q)
+    s1, ok = entropy_step(model.thermo, SYMMETRIC, 1.0, q, s, exact)
+    return ((m0 * I.iI1, m1 * I.iI2, m2 * I.iI3), (G0, G1, G2), s1, R), ok
+
+
+def _split_source(cls) -> str:
+    lines = ["def impl(tab, model, y, h, exact):",
+             "    w, G, s, R = y",
+             "    I = model.inertia",
+             "    m0, m1, m2 = I.I1 * w[0], I.I2 * w[1], I.I3 * w[2]",
+             "    G0, G1, G2 = G",
+             "    q = 0.0"]
+    for k, f in enumerate(cls.factors):
+        lines += [f"    t{k} = {f!r} * h",
+                  f"    th{k} = 0.5 * t{k}",
+                  f"    m0, m1, m2, q = flow_forward(model.forces, I, th{k}, G0, G1, G2, m0, m1, m2, q)",
+                  f"    m0, m1, m2, G0, G1, G2, R = free_flow(I, t{k}, m0, m1, m2, G0, G1, G2, R)",
+                  f"    m0, m1, m2, q = flow_backward(model.forces, I, th{k}, G0, G1, G2, m0, m1, m2, q)"]
+    lines += ["    s1, ok = entropy_step(model.thermo, SYMMETRIC, 1.0, q, s, exact)",
+              "    return ((m0 * I.iI1, m1 * I.iI2, m2 * I.iI3), (G0, G1, G2), s1, R), ok"]
+    return "\n".join(lines) + "\n"
+
+
+def _explicit_step_overload(tab, model, y, h, exact):
+    cls = getattr(tab, "instance_class", None)
+    if not (isinstance(cls, type) and issubclass(cls, Splitting)) or not cls.factors:
+        return None
+    ns = {"flow_forward": flow_forward, "flow_backward": flow_backward, "free_flow": free_flow,
+          "entropy_step": entropy_step, "SYMMETRIC": SYMMETRIC}
+    return compile_source(_split_source(cls), ns, label=f"split_step {cls.__name__} {cls.factors}")
+
+
+def register(explicit_step) -> None:
+    """Make ``explicit_step`` (of :mod:`.rk`) take splitting markers too."""
+    overload(explicit_step, jit_options=LANE_OPTIONS)(_explicit_step_overload)
