@@ -1,7 +1,8 @@
 """Kernel benchmark: ns per member-step of the ensemble kernels.
 
 ``python benchmarks/bench.py`` times the variational integrators (vi, vi4,
-vi6) and the explicit RK2 / RK4 on a random ensemble of the paper scene —
+vi6), the explicit splitting (split, split4, split6) and the explicit RK2 /
+RK4 on a random ensemble of the paper scene —
 attitudes uniform on SO(3) (so Γ = Rᵀe₃ uniform on S²), spins uniform in
 direction with |Ω₀| uniform in [0.5, 1.5]·√2 rad s⁻¹ — at h = 0.1 s, for
 ``--steps`` steps keeping every ``--every``-th state, with
@@ -63,7 +64,7 @@ os.environ.setdefault("NUMBA_OPT", "2")  # as the liethermo console script (numb
 
 import numpy as np  # noqa: E402
 
-METHODS = ("vi", "vi4", "vi6", "rk2", "rk4")
+METHODS = ("vi", "vi4", "vi6", "split", "split4", "split6", "rk2", "rk4")
 VARIANTS = ("paper", "no_gravity", "no_friction", "coupled", "coupled_alpha0")
 HERE = os.path.dirname(os.path.abspath(__file__))
 
@@ -284,7 +285,10 @@ def asm_report() -> dict:
     S = np.ones(F.buffer_size(0))
     vv = vi_coefficients(model, 0.1, 0.5, 0.5)
     out = {}
-    for name, tab in (("rk2 sweep", rk.MIDPOINT), ("rk4 sweep", rk.RK4)):
+    from liethermo.methods import METHODS as M
+
+    for name, tab in (("rk2 sweep", rk.MIDPOINT), ("rk4 sweep", rk.RK4),
+                      ("split sweep", M["split"].kernel_tableau())):
         g = fresh(F._rk_sweep)
         caller = numba.njit(lambda tab, model, S, nb: g(tab, model, model, S, nb, 0.1, 0))
         caller(tab, model, S, 8)

@@ -188,22 +188,23 @@ def test_stability_map(stab):
 
 @pytest.mark.slow
 def test_stability_negative_substeps(stab):
-    """vi4/vi6: a substep of factor f < 0 makes the friction factor 1 + fκ/2 vanish at
-    κ = −2/f; inside the growth band the composed step loses the small-step accuracy
-    it has at small κ."""
+    """vi4/vi6 (and vi4 with the triple jump): a substep of factor f < 0 makes the
+    friction factor 1 + fκ/2 vanish at κ = −2/f; inside the growth band the composed
+    step loses the small-step accuracy it has at small κ."""
     from liethermo.methods import METHODS
     from liethermo.studies.stability import friction_amplification, negative_substep_limits
 
     _, out = stab
     ds = cf.open_dataset(out / "stability.nc")
     hw0 = ds["h_omega"].values.min()
-    for m in ("vi4", "vi6"):
-        lim = negative_substep_limits(m)
-        assert lim["min_factor"] == pytest.approx(min(METHODS[m].substeps()))
+    for m in ("vi4", "vi6", "vi4:triple_jump"):
+        name, comp = (m.split(":") + ["small_error"])[:2]
+        lim = negative_substep_limits(name, "trapezoid", comp)
+        assert lim["min_factor"] == pytest.approx(min(METHODS[name].substeps(comp)))
         lo, hi = lim["growth_band"]
         assert lo < -2.0 / lim["min_factor"] < hi
-        assert abs(friction_amplification(m, np.array([0.5 * (lo + hi)]))[0]) > 1
-        assert np.all(np.abs(friction_amplification(m, np.array([0.5 * lo, 3 * hi]))) <= 1)
+        assert abs(friction_amplification(name, np.array([0.5 * (lo + hi)]), "trapezoid", comp)[0]) > 1
+        assert np.all(np.abs(friction_amplification(name, np.array([0.5 * lo, 3 * hi]), "trapezoid", comp)) <= 1)
         assert reg_at(ds, m, hw0, ds["kappa"].values.min()) == 0
         in_band = [k for k in ds["kappa"].values if lo <= k <= hi]
         assert in_band, "the reduced map must sample the growth band"
@@ -211,7 +212,7 @@ def test_stability_negative_substeps(stab):
             assert reg_at(ds, m, hw0, k) >= 1, (m, k)
     assert negative_substep_limits("vi")["growth_band"] is None
     df = pd.read_csv(out / "negative_substeps.csv").set_index("method")
-    assert {"vi4", "vi6"} <= set(df.index)
+    assert {"vi4", "vi6", "vi4:triple_jump"} <= set(df.index)
 
 
 def reg_at(ds, m, hw, k):

@@ -544,7 +544,15 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
         f"*accurate* (error ≤ {opt['error_threshold']:g}), *bounded* (ok, mechanical energy above rest ≤ "
         f"{opt['growth_limit']:g}× its initial value and ||Γ|−1| ≤ 0.1, but inaccurate), *unbounded*, "
         f"*newton_not_converged*, *non_finite* — failures are counted, never hidden. `vi` starts from the "
-        f"node momentum μ₀ = 𝕀Ω(0) (legendre); `vi:endpoint` is the VI with endpoint friction.")
+        f"node momentum μ₀ = 𝕀Ω(0) (legendre); `vi:endpoint` is the VI with endpoint friction; "
+        f"`vi4:triple_jump` composes with Yoshida's factors instead of Suzuki's.")
+    if any(parse_method(m)["family"] == "split" for m in methods):
+        sections.append(
+            "The splitting's free rotations are Cayley rotations, by 2 atan(h|Ω|/2) < π: like the VI's Cayley "
+            "map they never saturate, so large h|Ω₀| costs accuracy, not boundedness; an exact rotation by "
+            "h|Ω| would alias once h|Ω| ≥ π. Its friction flows are exact exponentials, so κ alone never "
+            "makes a friction mode grow; with negative substeps (split4, split6) the backward flows amplify "
+            "the motion by e^{|f|κ} per substep, which the map shows at large κ.")
     if neg_rows:
         sections.append(write_table(pd.DataFrame(neg_rows), outdir, "negative_substeps",
                                     "Where the negative substeps of vi4/vi6 limit h at high viscosity "
