@@ -34,7 +34,7 @@ from collections import namedtuple
 
 from numba.extending import overload
 
-from ._jit import LANE_OPTIONS
+from ._jit import LANE_OPTIONS, fma, lane
 from .gen import compile_source, has_capability
 from .terms import flow_backward, flow_forward
 from .terms.inertia import free_flow
@@ -69,6 +69,15 @@ def can_split(model) -> str | None:
     return None
 
 
+@lane
+def _quotient(m, I, iI):
+    """m/I without a division: q = m·(1/I) and one correction by the exact
+    residual m − Iq.  The product alone is off by the rounding of 1/I, the same
+    sign every step, which after 10⁵ steps left an error floor near 1e-11."""
+    q = m * iI
+    return fma(fma(-I, q, m), iI, q)
+
+
 def split_step(tab, model, y, h, exact):
     """(y', ok): one step of size h of the splitting ``tab`` from the ``rk``
     layout state y = (Ω, Γ, σ, R); ``ok`` says whether the inline
@@ -86,7 +95,8 @@ def split_step(tab, model, y, h, exact):
         m0, m1, m2, G0, G1, G2, R = free_flow(I, t, m0, m1, m2, G0, G1, G2, R)
         m0, m1, m2, q = flow_backward(model.forces, I, th, G0, G1, G2, m0, m1, m2, q)
     s1, ok = entropy_step(model.thermo, SYMMETRIC, 1.0, q, s, exact)
-    return ((m0 * I.iI1, m1 * I.iI2, m2 * I.iI3), (G0, G1, G2), s1, R), ok
+    w = (_quotient(m0, I.I1, I.iI1), _quotient(m1, I.I2, I.iI2), _quotient(m2, I.I3, I.iI3))
+    return (w, (G0, G1, G2), s1, R), ok
 
 
 def _split_source(cls) -> str:
@@ -103,7 +113,8 @@ def _split_source(cls) -> str:
                   f"    m0, m1, m2, G0, G1, G2, R = free_flow(I, t{k}, m0, m1, m2, G0, G1, G2, R)",
                   f"    m0, m1, m2, q = flow_backward(model.forces, I, th{k}, G0, G1, G2, m0, m1, m2, q)"]
     lines += ["    s1, ok = entropy_step(model.thermo, SYMMETRIC, 1.0, q, s, exact)",
-              "    return ((m0 * I.iI1, m1 * I.iI2, m2 * I.iI3), (G0, G1, G2), s1, R), ok"]
+              "    w = (quotient(m0, I.I1, I.iI1), quotient(m1, I.I2, I.iI2), quotient(m2, I.I3, I.iI3))",
+              "    return (w, (G0, G1, G2), s1, R), ok"]
     return "\n".join(lines) + "\n"
 
 
@@ -112,7 +123,7 @@ def _explicit_step_overload(tab, model, y, h, exact):
     if not (isinstance(cls, type) and issubclass(cls, Splitting)) or not cls.factors:
         return None
     ns = {"flow_forward": flow_forward, "flow_backward": flow_backward, "free_flow": free_flow,
-          "entropy_step": entropy_step, "SYMMETRIC": SYMMETRIC}
+          "entropy_step": entropy_step, "SYMMETRIC": SYMMETRIC, "quotient": _quotient}
     return compile_source(_split_source(cls), ns, label=f"split_step {cls.__name__} {cls.factors}")
 
 

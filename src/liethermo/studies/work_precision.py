@@ -305,7 +305,8 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
                     "median repeat /member-step (s)": float(np.median(reps)), "repeats": int(reps.size),
                     "timed members": int(ds.attrs["timed_members"]),
                     "evals/member": float(np.mean(ds["evals"].values)),
-                    "eval kind": "Newton iterations" if implicit else "rhs evaluations",
+                    "eval kind": ("Newton iterations" if implicit else "Strang steps"
+                                  if METHODS[parse_method(m)["method"]].family == "split" else "rhs evaluations"),
                     "error at t_end (max)": e, "error (median)": float(np.median(ds["error"].values)),
                     "failed members": failed,
                     "max Newton it./step": int(ds["newton_max"].max()) if implicit else float("nan"),
@@ -426,7 +427,9 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
         f"{int(opt['timing_member_steps'])} member-steps (so a call's fixed cost does not show at coarse "
         f"levels), repeated until at least {float(opt['min_timing']):g} s per level were spent; the cost is the "
         f"**minimum** over the repeats (their median is in the table of all runs), per member-step and per "
-        f"member. vi4 and vi6 take 3 and 9 Newton solves per step; "
+        f"member. vi4 and vi6 take {METHODS['vi4'].evaluations_per_step} and {METHODS['vi6'].evaluations_per_step} "
+        f"Newton solves per step, split4 and split6 {METHODS['split4'].evaluations_per_step} and "
+        f"{METHODS['split6'].evaluations_per_step} Strang steps; "
         f"scipy `solve_ivp` integrates {M} member(s) **one at a time, serially**, calling the numba-jitted "
         f"right-hand side through a Python wrapper (atol = {opt['scipy_atol_factor']:g}·rtol). "
         f"Reference: fixed-step DOP853 with automatic substeps; |ref − ref(2× substeps)| = {ref_check:.1e}. "

@@ -67,17 +67,19 @@ def thermal_coefficients(inertia0: np.ndarray, alpha: np.ndarray) -> np.ndarray:
 
 @lane
 def _cayley(tau):
-    """(1 − τ², 2τ, 1/(1 + τ²)): the Cayley rotation by θ′ = 2 atan τ is
-    (a_j, a_k) ↦ ((1 − τ²)a_j + 2τa_k, (1 − τ²)a_k − 2τa_j)/(1 + τ²); one
-    division, which runs while the numerators are formed."""
-    u = tau * tau
-    return 1.0 - u, tau + tau, 1.0 / (1.0 + u)
+    """(−2τ², 2τ, 1/(1 + τ²)): the Cayley rotation by θ′ = 2 atan τ is
+    (a_j, a_k) ↦ (a_j + (−2τ²a_j + 2τa_k)/(1 + τ²), a_k + (−2τ²a_k − 2τa_j)/(1 + τ²))
+    (cos θ′ − 1 = −2τ²/(1 + τ²), sin θ′ = 2τ/(1 + τ²)).  One division, which
+    runs while the numerators are formed; only the small increments are
+    rounded before the last addition, so the rotation keeps |a| without the
+    bias that rounding 1 − τ² and 1 + τ² the same way step after step gives."""
+    return -2.0 * (tau * tau), tau + tau, 1.0 / fma(tau, tau, 1.0)
 
 
 @lane
 def _turn(c, s, r, aj, ak):
-    """(a_j, a_k) turned: ((a_j c + a_k s) r, (a_k c − a_j s) r) (c = 1 − τ², s = 2τ, r = 1/(1 + τ²))."""
-    return fma(aj, c, ak * s) * r, fma(ak, c, -(aj * s)) * r
+    """(a_j, a_k) turned (c = −2τ², s = 2τ, r = 1/(1 + τ²); see :func:`_cayley`)."""
+    return fma(fma(aj, c, ak * s), r, aj), fma(fma(ak, c, -(aj * s)), r, ak)
 
 
 def _turn_rows(R, axis, c, s, r):

@@ -103,7 +103,8 @@ def _friction_flow(term, inertia, t, m0, m1, m2, q):
     d0, d1, d2 = -expm1_lane(-(term.K1 * t)), -expm1_lane(-(term.K2 * t)), -expm1_lane(-(term.K3 * t))
     w0, w1, w2 = (0.5 * I.iI1) * (d0 * (2.0 - d0)), (0.5 * I.iI2) * (d1 * (2.0 - d1)), (0.5 * I.iI3) * (d2 * (2.0 - d2))
     dK = fma(m0 * m0, w0, fma(m1 * m1, w1, (m2 * m2) * w2))
-    return m0 * (1.0 - d0), m1 * (1.0 - d1), m2 * (1.0 - d2), q + dK
+    # μ − μd (one rounding, of the result): μ(1 − d) would round 1 − d the same way every step
+    return fma(-m0, d0, m0), fma(-m1, d1, m1), fma(-m2, d2, m2), q + dK
 
 
 @implements(exact_flow, StokesSphere)
