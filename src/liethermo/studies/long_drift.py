@@ -376,7 +376,10 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
         f"each long run then cost (one run, on a machine others share: expect a few per cent of noise, more "
         f"where the machine was busy). *Counted cost* is the same step's cost in right-hand-side evaluations "
         f"(RK2 2, RK4 4 per step; a Newton solve of the variational integrators counted as "
-        f"{opt['newton_cost']:g} evaluations, vi / vi4 / vi6 taking 1 / 3 / 9 solves per step): where it "
+        f"{opt['newton_cost']:g} evaluations, vi / vi4 / vi6 taking 1 / {METHODS['vi4'].evaluations_per_step} / "
+        f"{METHODS['vi6'].evaluations_per_step} solves per step; a Strang step of the splitting counted as one "
+        f"evaluation, split4 / split6 taking {METHODS['split4'].evaluations_per_step} / "
+        f"{METHODS['split6'].evaluations_per_step}): where it "
         f"differs between methods, counting would not have given equal cost. Drift rate: per-member least-squares slope of (E_k − E₀)/E_mech,0 against t; oscillation "
         f"amplitude: RMS about that line. Kelvin–Noether residuals from a window of {opt['kn_steps']} steps "
         f"stored with every = 1 (discrete law: variational integrators; continuous law by the trapezoid rule: "
@@ -437,16 +440,22 @@ def _finding(df) -> str:
         lines.append(f"- μ = {mu:g} kg m⁻¹ s⁻¹: median |drift rate| " + "; ".join(
             f"{r['method']} {r['median |drift rate| (s⁻¹)']:.2e} s⁻¹ (oscillation {r['median oscillation amplitude (1)']:.1e})"
             + (f", {r['failed']} failed" if r["failed"] else "") for _, r in g.iterrows()) + ".")
-    vi = df[df["method"].str.startswith("vi")]
-    rk = df[~df["method"].str.startswith("vi")]
+    fam = df["method"].map(lambda m: METHODS[parse_method(m)["method"]].family)
+    groups = (("variational integrator", fam == "vi"), ("splitting", fam == "split"),
+              ("Runge–Kutta method", fam == "rk"))
     for mu in df["μ (kg m⁻¹ s⁻¹)"].unique():
-        a = vi[vi["μ (kg m⁻¹ s⁻¹)"] == mu]["median |drift rate| (s⁻¹)"]
-        b = rk[rk["μ (kg m⁻¹ s⁻¹)"] == mu]["median |drift rate| (s⁻¹)"]
-        if len(a) and len(b):
-            better = a.min() < b.min()
-            lines.append(f"- At μ = {mu:g}: the best variational integrator drifts "
-                         f"{'less' if better else 'more'} than the best Runge–Kutta method "
-                         f"({a.min():.2e} vs {b.min():.2e} s⁻¹).")
+        at = df["μ (kg m⁻¹ s⁻¹)"] == mu
+        best = [(what, df[at & sel]) for what, sel in groups if (at & sel).any()]
+        best = [(what, g.loc[g["median |drift rate| (s⁻¹)"].idxmin()]) for what, g in best]
+        if len(best) < 2:
+            continue
+        best.sort(key=lambda x: x[1]["median |drift rate| (s⁻¹)"])
+        win, r = best[0]
+        rest = "; ".join(f"the best {what}, {o['method']}, {o['median |drift rate| (s⁻¹)']:.2e} s⁻¹ "
+                         f"({o['median |drift rate| (s⁻¹)'] / max(r['median |drift rate| (s⁻¹)'], 1e-300):.3g}×)"
+                         for what, o in best[1:])
+        lines.append(f"- At μ = {mu:g}: the {win} {r['method']} drifts least, {r['median |drift rate| (s⁻¹)']:.2e} s⁻¹, "
+                     f"at h = {r['h (s)']:.3g} s; {rest}.")
     return "\n".join(lines)
 
 
