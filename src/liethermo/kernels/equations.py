@@ -26,14 +26,13 @@ from numba.extending import overload
 from ._jit import LANE_OPTIONS, fma, lane
 from .gen import has_capability, madd, or_zero
 from .so3 import attitude_rate_lane, cross_lane
-from .terms import sum_angular_acceleration, sum_dissipated_power
+from .terms import NONE3, sum_angular_acceleration, sum_dissipated_power
 from .terms.thermo import entropy_rate, temperature
 
 
 def _omega_rate_constant(model, w0, w1, w2, G0, G1, G2, s, exact):
     I = model.inertia
-    a0, a1, a2 = sum_angular_acceleration(model.forces, I, None, w0, w1, w2, G0, G1, G2,
-                                          None, None, None)
+    a0, a1, a2 = sum_angular_acceleration(model.forces, I, None, (w0, w1, w2), (G0, G1, G2), NONE3)
     return madd(I.A1 * w1, w2, a0), madd(I.A2 * w2, w0, a1), madd(I.A3 * w0, w1, a2)
 
 
@@ -66,10 +65,9 @@ def _thermal_rates(model, w0, w1, w2, G0, G1, G2, s):
     dphi = (I.alpha * theta) * th.icv
     K2 = fma(I.I1 * w0, w0, fma(I.I2 * w1, w1, (I.I3 * w2) * w2))
     T = theta - (phi * dphi) * K2
-    P = sum_dissipated_power(model.forces, I, sc, w0, w1, w2, None)
+    P = sum_dissipated_power(model.forces, I, sc, (w0, w1, w2), None)
     sd = or_zero(P) / T
-    a0, a1, a2 = sum_angular_acceleration(model.forces, I, sc, w0, w1, w2, G0, G1, G2,
-                                          None, None, None)
+    a0, a1, a2 = sum_angular_acceleration(model.forces, I, sc, (w0, w1, w2), (G0, G1, G2), NONE3)
     k = (2.0 * dphi / phi) * sd
     isc = 1.0 / sc
     wd = (madd(I.A1 * w1, w2, or_zero(a0) * isc - k * w0),
@@ -79,7 +77,7 @@ def _thermal_rates(model, w0, w1, w2, G0, G1, G2, s):
 
 
 def _rates_constant(model, w0, w1, w2, G0, G1, G2, s, exact):
-    P = sum_dissipated_power(model.forces, model.inertia, None, w0, w1, w2, None)
+    P = sum_dissipated_power(model.forces, model.inertia, None, (w0, w1, w2), None)
     sd, small = entropy_rate(model.thermo, P, s, exact)
     return omega_rate(model, w0, w1, w2, G0, G1, G2, s, exact), sd, small
 

@@ -91,9 +91,9 @@ def split_step(tab, model, y, h, exact):
     for f in type(tab).factors:
         t = f * h
         th = 0.5 * t
-        m0, m1, m2, q = flow_forward(model.forces, I, th, G0, G1, G2, m0, m1, m2, q)
+        (m0, m1, m2), q = flow_forward(model.forces, I, th, (G0, G1, G2), (m0, m1, m2), q)
         m0, m1, m2, G0, G1, G2, R = free_flow(I, t, m0, m1, m2, G0, G1, G2, R)
-        m0, m1, m2, q = flow_backward(model.forces, I, th, G0, G1, G2, m0, m1, m2, q)
+        (m0, m1, m2), q = flow_backward(model.forces, I, th, (G0, G1, G2), (m0, m1, m2), q)
     s1, ok = entropy_step(model.thermo, SYMMETRIC, 1.0, q, s, exact)
     w = (_quotient(m0, I.I1, I.iI1), _quotient(m1, I.I2, I.iI2), _quotient(m2, I.I3, I.iI3))
     return (w, (G0, G1, G2), s1, R), ok
@@ -109,9 +109,9 @@ def _split_source(cls) -> str:
     for k, f in enumerate(cls.factors):
         lines += [f"    t{k} = {f!r} * h",
                   f"    th{k} = 0.5 * t{k}",
-                  f"    m0, m1, m2, q = flow_forward(model.forces, I, th{k}, G0, G1, G2, m0, m1, m2, q)",
+                  f"    (m0, m1, m2), q = flow_forward(model.forces, I, th{k}, (G0, G1, G2), (m0, m1, m2), q)",
                   f"    m0, m1, m2, G0, G1, G2, R = free_flow(I, t{k}, m0, m1, m2, G0, G1, G2, R)",
-                  f"    m0, m1, m2, q = flow_backward(model.forces, I, th{k}, G0, G1, G2, m0, m1, m2, q)"]
+                  f"    (m0, m1, m2), q = flow_backward(model.forces, I, th{k}, (G0, G1, G2), (m0, m1, m2), q)"]
     lines += ["    s1, ok = entropy_step(model.thermo, SYMMETRIC, 1.0, q, s, exact)",
               "    w = (quotient(m0, I.I1, I.iI1), quotient(m1, I.I2, I.iI2), quotient(m2, I.I3, I.iI3))",
               "    return (w, (G0, G1, G2), s1, R), ok"]

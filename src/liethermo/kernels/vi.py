@@ -62,7 +62,7 @@ from .gen import axpy_opt, finite, madd, none_dispatch, or_zero, overload_by_cap
 from .lanemath import expm1_sel
 from .layout import NEWTON_MAXITER, NEWTON_OK, NEWTON_SINGULAR
 from .so3 import attitude_lane, cayley_lane, cross_lane
-from .terms import sum_discrete_power, sum_linear_friction, sum_nonlinear_friction, sum_torque
+from .terms import NONE3, NONE9, sum_discrete_power, sum_linear_friction, sum_nonlinear_friction, sum_torque
 from .terms.thermo import entropy_step, temperature
 
 #: friction weights (w_L, w_R): on the Newton side and on the update side
@@ -70,7 +70,7 @@ FRICTION_WEIGHTS = {"trapezoid": (0.5, 0.5), "endpoint": (1.0, 0.0)}
 
 
 def _folded_friction(inertia, forces):
-    return sum_linear_friction(forces, None, None, None)
+    return sum_linear_friction(forces, NONE3)
 
 
 _folded_friction = overload_by_capability(
@@ -133,9 +133,8 @@ def residual_jacobian(model, v, x0, x1, x2, b0, b1, b2):
     J20 = fma(Q0, hx2, v.hD3 * x1)
     J21 = fma(Q1, hx2, v.hD3 * x0)
     J22 = fma(Q2, hx2, v.M3 + h4xQ)
-    f0, f1, f2, j00, j01, j02, j10, j11, j12, j20, j21, j22 = sum_nonlinear_friction(
-        model.forces, I, v.h, x0, x1, x2, None, None, None, None, None, None, None, None, None,
-        None, None, None)
+    (f0, f1, f2), (j00, j01, j02, j10, j11, j12, j20, j21, j22) = sum_nonlinear_friction(
+        model.forces, I, v.h, (x0, x1, x2), NONE3, NONE9)
     w = v.wlh
     return (axpy_opt(w, f0, F0), axpy_opt(w, f1, F1), axpy_opt(w, f2, F2),
             axpy_opt(w, j00, J00), axpy_opt(w, j01, J01), axpy_opt(w, j02, J02),
@@ -203,7 +202,7 @@ def _coupled_step(model, v, x0, x1, x2, xs, b0, b1, b2, tn, exact):
     ss = 0.5 * fma(phip, phip, phin * phin)
     a0, a1, a2, A00, A01, A02, A10, A11, A12, A20, A21, A22 = residual_jacobian(
         model, v, x0, x1, x2, 0.0, 0.0, 0.0)
-    c0, c1, c2 = sum_linear_friction(model.forces, None, None, None)
+    c0, c1, c2 = sum_linear_friction(model.forces, NONE3)
     c0, c1, c2 = or_zero(c0), or_zero(c1), or_zero(c2)
     wl = v.wlh
     F0 = fma(ss, a0, fma(wl * c0, x0, b0))
@@ -298,7 +297,7 @@ def vi_entropy(model, v, y, mode, exact):
     """(σ', ok): the entropy at the end of the step of size v.h from the
     ``vi``-layout state y (None without thermodynamics)."""
     X = y[0]
-    P = sum_discrete_power(model.forces, model.inertia, v.h, X[0], X[1], X[2], None)
+    P = sum_discrete_power(model.forces, model.inertia, v.h, X, None)
     return entropy_step(model.thermo, mode, v.h, P, y[2], exact)
 
 
@@ -323,10 +322,9 @@ def _advance_constant(inertia, model, v, vn, y, hn, mode, exact, t0):
     I = model.inertia
     s1, ok = vi_entropy(model, v, y, mode, exact)
     R1 = attitude_step(R, h * x0, h * x1, h * x2)
-    t0, t1, t2 = sum_torque(model.forces, G0, G1, G2, None, None, None)
-    f0, f1, f2, j00, j01, j02, j10, j11, j12, j20, j21, j22 = sum_nonlinear_friction(
-        model.forces, I, h, x0, x1, x2, None, None, None, None, None, None, None, None, None,
-        None, None, None)
+    t0, t1, t2 = sum_torque(model.forces, (G0, G1, G2), NONE3)
+    (f0, f1, f2), (j00, j01, j02, j10, j11, j12, j20, j21, j22) = sum_nonlinear_friction(
+        model.forces, I, h, (x0, x1, x2), NONE3, NONE9)
     h4xQ = v.h4 * fma(I.I1 * x0, x0, fma(I.I2 * x1, x1, (I.I3 * x2) * x2))
     m0 = axpy_opt(-v.wrh, f0, fma(I.I1, x0, axpy_opt(x0, v.R1, madd(-v.hD1 * x1, x2, madd(
         h4xQ, x0, scale_opt(v.hh, t0))))))
@@ -362,8 +360,8 @@ def _advance_coupled(inertia, model, v, vn, y, hn, mode, exact, t0):
     phi0 = fma(I.alpha, th0 - th.T0, 1.0)
     phi1 = fma(I.alpha, th1 - th.T0, 1.0)
     ss = 0.5 * fma(phi0, phi0, phi1 * phi1)
-    t0, t1, t2 = sum_torque(model.forces, G0, G1, G2, None, None, None)
-    c0, c1, c2 = sum_linear_friction(model.forces, None, None, None)
+    t0, t1, t2 = sum_torque(model.forces, (G0, G1, G2), NONE3)
+    c0, c1, c2 = sum_linear_friction(model.forces, NONE3)
     c0, c1, c2 = or_zero(c0), or_zero(c1), or_zero(c2)
     q0, q1, q2 = I.I1 * x0, I.I2 * x1, I.I3 * x2
     K2 = fma(q0, x0, fma(q1, x1, q2 * x2))
@@ -442,7 +440,7 @@ def momentum_map(model, v, x0, x1, x2, G0, G1, G2):
     μ_k = M_h(X) + w_L h (CX + D(X)) − (h/2) τ(Γ_k) (the Newton equation read
     backwards); the paper's start Ω₀ := Ω(0) is μ₀ of X = Ω(0).  (Constant
     inertia only: the coupled top starts from μ₀ = 𝕀Ω(0).)"""
-    t0, t1, t2 = sum_torque(model.forces, G0, G1, G2, None, None, None)
+    t0, t1, t2 = sum_torque(model.forces, (G0, G1, G2), NONE3)
     F0, F1, F2, j00, j01, j02, j10, j11, j12, j20, j21, j22 = residual_jacobian(
         model, v, x0, x1, x2, 0.0, 0.0, 0.0)
     return (axpy_opt(-v.hh, t0, F0), axpy_opt(-v.hh, t1, F1), axpy_opt(-v.hh, t2, F2))
@@ -452,7 +450,7 @@ def momentum_map(model, v, x0, x1, x2, G0, G1, G2):
 def newton_rhs(model, v, mu0, mu1, mu2, G0, G1, G2):
     """b = −(μ + (h/2) τ(Γ)): the constant part of the Newton function of a
     step of size v.h that starts from the node (Γ, μ)."""
-    t0, t1, t2 = sum_torque(model.forces, G0, G1, G2, None, None, None)
+    t0, t1, t2 = sum_torque(model.forces, (G0, G1, G2), NONE3)
     return -axpy_opt(v.hh, t0, mu0), -axpy_opt(v.hh, t1, mu1), -axpy_opt(v.hh, t2, mu2)
 
 
@@ -464,7 +462,7 @@ def entropy_predictor(inertia, model, v, X, s):
 def _entropy_predictor_coupled(inertia, model, v, X, s):
     th = model.thermo
     I = inertia
-    c0, c1, c2 = sum_linear_friction(model.forces, None, None, None)
+    c0, c1, c2 = sum_linear_friction(model.forces, NONE3)
     x0, x1, x2 = X
     P = fma(or_zero(c0) * x0, x0, fma(or_zero(c1) * x1, x1, (or_zero(c2) * x2) * x2))
     th0 = temperature(th, s)

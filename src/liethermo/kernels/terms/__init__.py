@@ -33,27 +33,30 @@ The kernels' model is a :class:`Model` namedtuple::
 * ``forces`` — the force parts of the terms present, in registry order;
 * ``attitude`` — :data:`ATTITUDE` when R is integrated, else None.
 
-Protocol (all lane functions on floats; ``a``, ``p``, ``c``, ``t`` are
-accumulators that start as None, see :func:`liethermo.kernels.gen.madd`):
+Protocol (lane functions; vectors are 3-tuples, ``w`` = (Ω₁, Ω₂, Ω₃), ``G``
+= Γ, ``x`` the step velocity X, ``m`` = μ; the accumulators ``a``, ``c``,
+``t``, ``f`` (3-tuples), ``J`` (a row-major 9-tuple) and ``p``, ``q``
+(floats) hold None where no term has added anything yet, see
+:func:`liethermo.kernels.gen.madd`; :data:`NONE3`, :data:`NONE9`):
 
-``angular_acceleration(term, inertia, iscale, w0, w1, w2, G0, G1, G2, a0, a1, a2)``
+``angular_acceleration(term, inertia, iscale, w, G, a) -> a``
     adds 𝕀₀⁻¹ f(Ω, Γ) (rad s⁻²): the term's force or torque over the
     reference inertia 𝕀₀; ``iscale`` is None (constant inertia) or the
     factor s with 𝕀(S) = s 𝕀₀.
-``dissipated_power(term, inertia, iscale, w0, w1, w2, p)``
+``dissipated_power(term, inertia, iscale, w, p) -> p``
     adds −⟨f, Ω⟩ ≥ 0 (W): frictions only.
-``discrete_power(term, inertia, h, x0, x1, x2, p)``
+``discrete_power(term, inertia, h, x, p) -> p``
     adds the power −⟨D(X), X⟩ ≥ 0 of the variational integrator's discrete
     friction at the step velocity X (for a linear law, X·CX).
-``linear_friction(term, c0, c1, c2)``
+``linear_friction(term, c) -> c``
     adds the diagonal friction tensor C (N m s) of a friction linear in Ω
     (f = −CΩ); the variational integrator folds it into its Newton matrix.
-``torque(term, G0, G1, G2, t0, t1, t2)``
+``torque(term, G, t) -> t``
     adds the conservative torque τ(Γ) (N m).
-``nonlinear_friction(term, inertia, h, x0, x1, x2, f0, f1, f2, j00, …, j22)``
+``nonlinear_friction(term, inertia, h, x, f, J) -> (f, J)``
     adds the variational integrator's discrete friction D(X) of a nonlinear
     friction law, and its Jacobian ∂D/∂X (see the variational integrator).
-``exact_flow(term, inertia, t, G0, G1, G2, m0, m1, m2, q)``
+``exact_flow(term, inertia, t, G, m, q) -> (m, q)``
     the exact flow over a time t of the sub-system with this term alone (Γ
     fixed): the new body momentum μ and the heat q (J) with the kinetic
     energy the flow dissipated added (the splitting integrators; a term
@@ -117,19 +120,13 @@ def _protocol(name: str, args: str, passthrough: str):
     return fn
 
 
-angular_acceleration = _protocol(
-    "angular_acceleration", "term, inertia, iscale, w0, w1, w2, G0, G1, G2, a0, a1, a2",
-    "a0, a1, a2")
-dissipated_power = _protocol("dissipated_power", "term, inertia, iscale, w0, w1, w2, p", "p")
-discrete_power = _protocol("discrete_power", "term, inertia, h, x0, x1, x2, p", "p")
-linear_friction = _protocol("linear_friction", "term, c0, c1, c2", "c0, c1, c2")
-torque = _protocol("torque", "term, G0, G1, G2, t0, t1, t2", "t0, t1, t2")
-exact_flow = _protocol("exact_flow", "term, inertia, t, G0, G1, G2, m0, m1, m2, q",
-                       "m0, m1, m2, q")
-nonlinear_friction = _protocol(
-    "nonlinear_friction",
-    "term, inertia, h, x0, x1, x2, f0, f1, f2, j00, j01, j02, j10, j11, j12, j20, j21, j22",
-    "f0, f1, f2, j00, j01, j02, j10, j11, j12, j20, j21, j22")
+angular_acceleration = _protocol("angular_acceleration", "term, inertia, iscale, w, G, a", "a")
+dissipated_power = _protocol("dissipated_power", "term, inertia, iscale, w, p", "p")
+discrete_power = _protocol("discrete_power", "term, inertia, h, x, p", "p")
+linear_friction = _protocol("linear_friction", "term, c", "c")
+torque = _protocol("torque", "term, G, t", "t")
+exact_flow = _protocol("exact_flow", "term, inertia, t, G, m, q", "m, q")
+nonlinear_friction = _protocol("nonlinear_friction", "term, inertia, h, x, f, J", "f, J")
 
 
 def implements(protocol, cls):
@@ -156,15 +153,19 @@ def implements(protocol, cls):
 
 
 #: folds of the force protocols over a tuple of terms
-sum_angular_acceleration = make_fold(angular_acceleration, 8, 3, "sum_angular_acceleration")
-sum_dissipated_power = make_fold(dissipated_power, 5, 1, "sum_dissipated_power")
-sum_discrete_power = make_fold(discrete_power, 5, 1, "sum_discrete_power")
-sum_linear_friction = make_fold(linear_friction, 0, 3, "sum_linear_friction")
-sum_torque = make_fold(torque, 3, 3, "sum_torque")
-sum_nonlinear_friction = make_fold(nonlinear_friction, 5, 12, "sum_nonlinear_friction")
+sum_angular_acceleration = make_fold(angular_acceleration, 4, 1, "sum_angular_acceleration")
+sum_dissipated_power = make_fold(dissipated_power, 3, 1, "sum_dissipated_power")
+sum_discrete_power = make_fold(discrete_power, 3, 1, "sum_discrete_power")
+sum_linear_friction = make_fold(linear_friction, 0, 1, "sum_linear_friction")
+sum_torque = make_fold(torque, 1, 1, "sum_torque")
+sum_nonlinear_friction = make_fold(nonlinear_friction, 3, 2, "sum_nonlinear_friction")
 #: the terms' exact flows one after the other, in registry order and back
-flow_forward = make_fold(exact_flow, 5, 4, "flow_forward")
-flow_backward = make_fold(exact_flow, 5, 4, "flow_backward", reverse=True)
+flow_forward = make_fold(exact_flow, 3, 2, "flow_forward")
+flow_backward = make_fold(exact_flow, 3, 2, "flow_backward", reverse=True)
+
+#: accumulators that no term has touched yet (a term adds to None as to nothing)
+NONE3 = (None, None, None)
+NONE9 = (None,) * 9
 
 
 
@@ -340,4 +341,4 @@ def registry() -> Registry:
 
 
 __all__ = ["Model", "ATTITUDE", "Attitude", "angular_acceleration", "dissipated_power",
-           "discrete_power", "linear_friction", "torque", "nonlinear_friction", "exact_flow", "implements", "types", "Term", "Setting", "Parameter", "Registry", "registry", "bcast"]
+           "discrete_power", "linear_friction", "torque", "nonlinear_friction", "exact_flow", "implements", "types", "NONE3", "NONE9", "Term", "Setting", "Parameter", "Registry", "registry", "bcast"]

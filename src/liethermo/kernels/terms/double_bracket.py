@@ -49,7 +49,9 @@ def coefficients(internal_friction: np.ndarray, inertia0: np.ndarray) -> np.ndar
 
 
 @implements(angular_acceleration, DoubleBracket)
-def _acceleration(term, inertia, iscale, w0, w1, w2, G0, G1, G2, a0, a1, a2):
+def _acceleration(term, inertia, iscale, w, G, a):
+    w0, w1, w2 = w
+    a0, a1, a2 = a
     I = inertia
     m0, m1, m2 = I.I1 * w0, I.I2 * w1, I.I3 * w2
     u0, u1, u2 = cross_lane(m0, m1, m2, w0, w1, w2)
@@ -59,7 +61,8 @@ def _acceleration(term, inertia, iscale, w0, w1, w2, G0, G1, G2, a0, a1, a2):
 
 
 @implements(dissipated_power, DoubleBracket)
-def _power(term, inertia, iscale, w0, w1, w2, p):
+def _power(term, inertia, iscale, w, p):
+    w0, w1, w2 = w
     I = inertia
     u0, u1, u2 = cross_lane(I.I1 * w0, I.I2 * w1, I.I3 * w2, w0, w1, w2)
     lam = term.lam if iscale is None else term.lam * (iscale * iscale)
@@ -67,7 +70,8 @@ def _power(term, inertia, iscale, w0, w1, w2, p):
 
 
 @implements(discrete_power, DoubleBracket)
-def _discrete_power(term, inertia, h, x0, x1, x2, p):
+def _discrete_power(term, inertia, h, x, p):
+    x0, x1, x2 = x
     I = inertia
     Q0, Q1, Q2 = I.I1 * x0, I.I2 * x1, I.I3 * x2
     h4xQ = (0.25 * (h * h)) * fma(Q0, x0, fma(Q1, x1, Q2 * x2))
@@ -76,8 +80,10 @@ def _discrete_power(term, inertia, h, x0, x1, x2, p):
 
 
 @implements(nonlinear_friction, DoubleBracket)
-def _discrete(term, inertia, h, x0, x1, x2, f0, f1, f2, j00, j01, j02, j10, j11, j12, j20,
-              j21, j22):
+def _discrete(term, inertia, h, x, f, J):
+    x0, x1, x2 = x
+    f0, f1, f2 = f
+    j00, j01, j02, j10, j11, j12, j20, j21, j22 = J
     I = inertia
     lam = term.lam
     Q0, Q1, Q2 = I.I1 * x0, I.I2 * x1, I.I3 * x2
@@ -108,10 +114,10 @@ def _discrete(term, inertia, h, x0, x1, x2, f0, f1, f2, j00, j01, j02, j10, j11,
     J20 = lam * (fma(2.0 * x2, p0, -fma(m2, m0, m2 * q0)) - t * x2 * Q0)
     J21 = lam * (fma(2.0 * x2, p1, -fma(m2, m1, m2 * q1)) - t * x2 * Q1)
     J22 = lam * (fma(2.0 * x2, p2, -fma(m2, m2, m2 * q2)) - t * x2 * Q2 + c2)
-    return (cadd(d0, f0), cadd(d1, f1), cadd(d2, f2),
-            cadd(J00, j00), cadd(J01, j01), cadd(J02, j02),
-            cadd(J10, j10), cadd(J11, j11), cadd(J12, j12),
-            cadd(J20, j20), cadd(J21, j21), cadd(J22, j22))
+    return ((cadd(d0, f0), cadd(d1, f1), cadd(d2, f2)),
+            (cadd(J00, j00), cadd(J01, j01), cadd(J02, j02),
+             cadd(J10, j10), cadd(J11, j11), cadd(J12, j12),
+             cadd(J20, j20), cadd(J21, j21), cadd(J22, j22)))
 
 
 class _DoubleBracket(Term):

@@ -40,25 +40,31 @@ def potential_energy(gravity_torque: np.ndarray, gamma: np.ndarray) -> np.ndarra
 
 
 @implements(angular_acceleration, Gravity)
-def _acceleration(term, inertia, iscale, w0, w1, w2, G0, G1, G2, a0, a1, a2):
+def _acceleration(term, inertia, iscale, w, G, a):
+    G0, G1, G2 = G
+    a0, a1, a2 = a
     return (madd(term.gz1, G1, madd(-term.gy1, G2, a0)),
             madd(term.gx2, G2, madd(-term.gz2, G0, a1)),
             madd(term.gy3, G0, madd(-term.gx3, G1, a2)))
 
 
 @implements(torque, Gravity)
-def _torque(term, G0, G1, G2, t0, t1, t2):
+def _torque(term, G, t):
+    G0, G1, G2 = G
+    t0, t1, t2 = t
     return (madd(G1, term.gz, madd(-G2, term.gy, t0)),
             madd(G2, term.gx, madd(-G0, term.gz, t1)),
             madd(G0, term.gy, madd(-G1, term.gx, t2)))
 
 
 @implements(exact_flow, Gravity)
-def _kick(term, inertia, t, G0, G1, G2, m0, m1, m2, q):
+def _kick(term, inertia, t, G, m, q):
     """The exact flow of the torque alone (Γ fixed): μ ← μ + t Γ×g⃗."""
-    return (fma(t, fma(G1, term.gz, -(G2 * term.gy)), m0),
-            fma(t, fma(G2, term.gx, -(G0 * term.gz)), m1),
-            fma(t, fma(G0, term.gy, -(G1 * term.gx)), m2), q)
+    G0, G1, G2 = G
+    m0, m1, m2 = m
+    return ((fma(t, fma(G1, term.gz, -(G2 * term.gy)), m0),
+             fma(t, fma(G2, term.gx, -(G0 * term.gz)), m1),
+             fma(t, fma(G0, term.gy, -(G1 * term.gx)), m2)), q)
 
 
 class _Gravity(Term):

@@ -44,37 +44,43 @@ def coefficients(c2: np.ndarray, inertia0: np.ndarray) -> np.ndarray:
 
 
 @implements(angular_acceleration, QuadraticDrag)
-def _acceleration(term, inertia, iscale, w0, w1, w2, G0, G1, G2, a0, a1, a2):
+def _acceleration(term, inertia, iscale, w, G, a):
+    w0, w1, w2 = w
+    a0, a1, a2 = a
     n = math.sqrt(norm2_lane(w0, w1, w2))
     return (madd(-(term.K1 * n), w0, a0), madd(-(term.K2 * n), w1, a1),
             madd(-(term.K3 * n), w2, a2))
 
 
 @implements(dissipated_power, QuadraticDrag)
-def _power(term, inertia, iscale, w0, w1, w2, p):
+def _power(term, inertia, iscale, w, p):
+    w0, w1, w2 = w
     n2 = norm2_lane(w0, w1, w2)
     return madd(term.c * math.sqrt(n2), n2, p)
 
 
 @implements(discrete_power, QuadraticDrag)
-def _discrete_power(term, inertia, h, x0, x1, x2, p):
+def _discrete_power(term, inertia, h, x, p):
+    x0, x1, x2 = x
     n2 = norm2_lane(x0, x1, x2)
     return madd(term.c * math.sqrt(n2), n2, p)
 
 
 @implements(nonlinear_friction, QuadraticDrag)
-def _discrete(term, inertia, h, x0, x1, x2, f0, f1, f2, j00, j01, j02, j10, j11, j12, j20,
-              j21, j22):
+def _discrete(term, inertia, h, x, f, J):
+    x0, x1, x2 = x
+    f0, f1, f2 = f
+    j00, j01, j02, j10, j11, j12, j20, j21, j22 = J
     c = term.c
     n = math.sqrt(norm2_lane(x0, x1, x2))
     cn = c * n
     # c XXᵀ/|X|, 0 at X = 0
     q = select(n > 0.0, c / n, 0.0)
     q0, q1, q2 = q * x0, q * x1, q * x2
-    return (cadd(cn * x0, f0), cadd(cn * x1, f1), cadd(cn * x2, f2),
-            cadd(fma(q0, x0, cn), j00), cadd(q0 * x1, j01), cadd(q0 * x2, j02),
-            cadd(q1 * x0, j10), cadd(fma(q1, x1, cn), j11), cadd(q1 * x2, j12),
-            cadd(q2 * x0, j20), cadd(q2 * x1, j21), cadd(fma(q2, x2, cn), j22))
+    return ((cadd(cn * x0, f0), cadd(cn * x1, f1), cadd(cn * x2, f2)),
+            (cadd(fma(q0, x0, cn), j00), cadd(q0 * x1, j01), cadd(q0 * x2, j02),
+             cadd(q1 * x0, j10), cadd(fma(q1, x1, cn), j11), cadd(q1 * x2, j12),
+             cadd(q2 * x0, j20), cadd(q2 * x1, j21), cadd(fma(q2, x2, cn), j22)))
 
 
 

@@ -51,42 +51,52 @@ def diagonal_coefficients(C: np.ndarray, inertia0: np.ndarray) -> np.ndarray:
 
 
 @implements(angular_acceleration, StokesSphere)
-def _sphere_acc(term, inertia, iscale, w0, w1, w2, G0, G1, G2, a0, a1, a2):
+def _sphere_acc(term, inertia, iscale, w, G, a):
+    w0, w1, w2 = w
+    a0, a1, a2 = a
     return madd(-term.K1, w0, a0), madd(-term.K2, w1, a1), madd(-term.K3, w2, a2)
 
 
 @implements(dissipated_power, StokesSphere)
-def _sphere_power(term, inertia, iscale, w0, w1, w2, p):
+def _sphere_power(term, inertia, iscale, w, p):
+    w0, w1, w2 = w
     return madd(term.c, norm2_lane(w0, w1, w2), p)
 
 
 @implements(discrete_power, StokesSphere)
-def _sphere_discrete_power(term, inertia, h, x0, x1, x2, p):
+def _sphere_discrete_power(term, inertia, h, x, p):
+    x0, x1, x2 = x
     return madd(term.c, norm2_lane(x0, x1, x2), p)
 
 
 @implements(linear_friction, StokesSphere)
-def _sphere_linear(term, c0, c1, c2):
+def _sphere_linear(term, c):
+    c0, c1, c2 = c
     return cadd(term.c, c0), cadd(term.c, c1), cadd(term.c, c2)
 
 
 @implements(angular_acceleration, StokesDiagonal)
-def _diag_acc(term, inertia, iscale, w0, w1, w2, G0, G1, G2, a0, a1, a2):
+def _diag_acc(term, inertia, iscale, w, G, a):
+    w0, w1, w2 = w
+    a0, a1, a2 = a
     return madd(-term.K1, w0, a0), madd(-term.K2, w1, a1), madd(-term.K3, w2, a2)
 
 
 @implements(dissipated_power, StokesDiagonal)
-def _diag_power(term, inertia, iscale, w0, w1, w2, p):
+def _diag_power(term, inertia, iscale, w, p):
+    w0, w1, w2 = w
     return madd(term.C1 * w0, w0, madd(term.C2 * w1, w1, madd(term.C3 * w2, w2, p)))
 
 
 @implements(discrete_power, StokesDiagonal)
-def _diag_discrete_power(term, inertia, h, x0, x1, x2, p):
+def _diag_discrete_power(term, inertia, h, x, p):
+    x0, x1, x2 = x
     return madd(term.C1 * x0, x0, madd(term.C2 * x1, x1, madd(term.C3 * x2, x2, p)))
 
 
 @implements(linear_friction, StokesDiagonal)
-def _diag_linear(term, c0, c1, c2):
+def _diag_linear(term, c):
+    c0, c1, c2 = c
     return cadd(term.C1, c0), cadd(term.C2, c1), cadd(term.C3, c2)
 
 
@@ -104,16 +114,18 @@ def _friction_flow(term, inertia, t, m0, m1, m2, q):
     w0, w1, w2 = (0.5 * I.iI1) * (d0 * (2.0 - d0)), (0.5 * I.iI2) * (d1 * (2.0 - d1)), (0.5 * I.iI3) * (d2 * (2.0 - d2))
     dK = fma(m0 * m0, w0, fma(m1 * m1, w1, (m2 * m2) * w2))
     # μ − μd (one rounding, of the result): μ(1 − d) would round 1 − d the same way every step
-    return fma(-m0, d0, m0), fma(-m1, d1, m1), fma(-m2, d2, m2), q + dK
+    return (fma(-m0, d0, m0), fma(-m1, d1, m1), fma(-m2, d2, m2)), q + dK
 
 
 @implements(exact_flow, StokesSphere)
-def _sphere_flow(term, inertia, t, G0, G1, G2, m0, m1, m2, q):
+def _sphere_flow(term, inertia, t, G, m, q):
+    m0, m1, m2 = m
     return _friction_flow(term, inertia, t, m0, m1, m2, q)
 
 
 @implements(exact_flow, StokesDiagonal)
-def _diag_flow(term, inertia, t, G0, G1, G2, m0, m1, m2, q):
+def _diag_flow(term, inertia, t, G, m, q):
+    m0, m1, m2 = m
     return _friction_flow(term, inertia, t, m0, m1, m2, q)
 
 
