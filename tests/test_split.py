@@ -72,7 +72,10 @@ def test_vi_compositions_with_small_error_constants(random_members):
 def test_unit_gamma_rotation_and_vertical_momentum_over_1e5_steps(method):
     """Without friction, over 10⁵ steps: ||Γ| − 1| ≤ 3e-11, RᵀR = I to 3e-11 and
     Γ·μ kept to 3e-11 relative (every flow is a rotation of μ and Γ together
-    or a kick along Γ×g⃗)."""
+    or a kick along Γ×g⃗), as the method declares."""
+    from liethermo.methods import LAW_ROTATION, LAW_UNIT_GAMMA, LAW_VERTICAL_MOMENTUM, METHODS
+
+    assert {LAW_UNIT_GAMMA, LAW_ROTATION, LAW_VERTICAL_MOMENTUM} <= set(METHODS[method].laws)
     phys, w0, R0 = _members(4, **{"fluid.viscosity": 0.0})
     tr = simulate(phys, w0, R0, 0.05, 100_000, method, every=10_000, attitude=True)
     assert np.all(tr.status == STATUS_OK)

@@ -22,6 +22,7 @@ LAW_ROTATION = "rotation"  # R_kᵀR_k = I at round-off (attitude)
 LAW_ENTROPY_MONOTONE = "entropy_monotone"  # S_{k+1} ≥ S_k (positive steps)
 LAW_KELVIN_NOETHER = "kelvin_noether"  # the discrete Kelvin–Noether law (docs/model.md)
 LAW_CASIMIR = "casimir"  # |μ| constant under double-bracket friction without torques
+LAW_VERTICAL_MOMENTUM = "vertical_momentum"  # Γ·μ constant without friction (gravity's symmetry)
 
 _G1 = 1.0 / (2.0 - 2.0 ** (1.0 / 3.0))
 _G0 = 1.0 - 2.0 * _G1
@@ -137,13 +138,15 @@ def _rk_method(name: str, tableau: str, description: str) -> Method:
     return Method(name, "rk", description, cls.order, False, cls.stages, (), tableau=tableau)
 
 
-_VI_LAWS = (LAW_UNIT_GAMMA, LAW_ROTATION, LAW_ENTROPY_MONOTONE, LAW_KELVIN_NOETHER, LAW_CASIMIR)
+_VI_LAWS = (LAW_UNIT_GAMMA, LAW_ROTATION, LAW_ENTROPY_MONOTONE, LAW_KELVIN_NOETHER, LAW_CASIMIR,
+            LAW_VERTICAL_MOMENTUM)
 #: the compositions take negative substeps, on which friction gives heat back:
 #: their entropy can decrease over a whole step when c h / I_min is near 1 (docs/model.md)
 _COMPOSED_LAWS = tuple(x for x in _VI_LAWS if x != LAW_ENTROPY_MONOTONE)
 #: the splitting keeps |Γ| and RᵀR = I (every flow is a rotation or leaves Γ),
+#: Γ·μ without friction (the rotations turn Γ and μ together, the kick is ⟂ Γ),
 #: and its heat is the kinetic energy its friction flows take
-_SPLIT_LAWS = (LAW_UNIT_GAMMA, LAW_ROTATION, LAW_ENTROPY_MONOTONE)
+_SPLIT_LAWS = (LAW_UNIT_GAMMA, LAW_ROTATION, LAW_ENTROPY_MONOTONE, LAW_VERTICAL_MOMENTUM)
 
 
 def _vi_method(name: str, description: str, order: int, laws, composed: bool = False) -> Method:
