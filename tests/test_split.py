@@ -143,3 +143,24 @@ def test_a_run_records_the_composition():
     plain = liethermo.run("paper", {"integrator.method": "rk4", "integrator.steps": 10},
                           compare=False, output=None, progress=False)
     assert plain.attrs["composition"] == "none"
+
+
+def test_compositions_of_one_length_compile_apart():
+    """Kahan–Li's and the triple jump's order-6 compositions both have nine
+    factors; in one process each runs its own kernel (their markers differ by
+    name, which numba keys its types and its cache on), and both kernels agree."""
+    from liethermo.kernels.split import splitting
+    from liethermo.methods import COMPOSITION_FACTORS
+
+    a = splitting(COMPOSITION_FACTORS[("small_error", 6)], 6)
+    b = splitting(COMPOSITION_FACTORS[("triple_jump", 6)], 6)
+    assert type(a).__name__ != type(b).__name__
+    phys, w0, R0 = _members(200)
+    runs = {}
+    for comp in ("small_error", "triple_jump", "small_error"):
+        fast = simulate(phys, w0, R0, 0.05, 20, "split6", composition=comp, kernel="fast")
+        simple = simulate(phys, w0, R0, 0.05, 20, "split6", composition=comp, kernel="simple")
+        np.testing.assert_array_equal(fast.states, simple.states)
+        runs.setdefault(comp, fast.states)
+        np.testing.assert_array_equal(fast.states, runs[comp])
+    assert not np.array_equal(runs["small_error"], runs["triple_jump"])

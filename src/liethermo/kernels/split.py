@@ -52,8 +52,16 @@ class Splitting(tuple):
 @functools.cache
 def splitting(factors: tuple, order: int):
     """The marker instance of the symmetric composition of Strang steps with
-    these factors (a class per distinct composition, cached)."""
-    name = f"Splitting{len(factors)}o{order}"
+    these factors (a class per distinct composition, cached).  The class name
+    carries a digest of the factors: numba tells marker types apart, in memory
+    and in its on-disk cache, by their names, and two compositions of the same
+    length and order (Kahan–Li's and the double triple jump) must not share a
+    kernel."""
+    import hashlib
+
+    factors = tuple(float(f) for f in factors)
+    digest = hashlib.sha1(repr(factors).encode()).hexdigest()[:10]
+    name = f"Splitting{len(factors)}o{order}x{digest}"
     cls = type(name, (namedtuple(name, "unused"), Splitting),
                {"__slots__": (), "factors": tuple(float(f) for f in factors), "order": int(order)})
     return cls(0.0)
