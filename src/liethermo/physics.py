@@ -36,7 +36,7 @@ import numpy as np
 
 from .kernels import gen
 from .kernels.layout import StateLayout, state_layout
-from .kernels.terms import ATTITUDE, Model, constant_inertia_part, registry
+from .kernels.terms import ATTITUDE, Model, bcast, constant_inertia_part, registry
 from .kernels.terms import thermo as _thermo
 
 R_GAS = 8.314462618  # J mol⁻¹ K⁻¹
@@ -287,14 +287,9 @@ def build_model(phys: Physics, attitude: bool = False, heat=None) -> KernelModel
 # ----------------------------------------------------------------------------- energies (numpy)
 
 
-def _bcast(a: np.ndarray, like: np.ndarray) -> np.ndarray:
-    """Per-member values a (N, ...) broadcast against arrays (N, T, ...)."""
-    return a.reshape(a.shape[:1] + (1,) * (like.ndim - a.ndim) + a.shape[1:])
-
-
 def theta(phys: Physics, sigma: np.ndarray) -> np.ndarray:
     """θ(S) = U′(S) = T₀ exp(σ/c_v) in K, σ = S − S₀ (N, ...)."""
-    return _bcast(phys.T0, sigma) * np.exp(sigma / _bcast(phys.heat_capacity, sigma))
+    return bcast(phys.T0, sigma) * np.exp(sigma / bcast(phys.heat_capacity, sigma))
 
 
 def _expansion(phys: Physics, th: np.ndarray):
@@ -319,13 +314,13 @@ def node_velocity(phys: Physics, momentum: np.ndarray, sigma: np.ndarray | None)
     """Ω = 𝕀(S)⁻¹ μ (rad s⁻¹) for momenta (N, ..., 3)."""
     s = inertia_scale(phys, sigma)
     s = s[..., None] if isinstance(s, np.ndarray) else s
-    return momentum / (_bcast(phys.inertia, momentum) * s)
+    return momentum / (bcast(phys.inertia, momentum) * s)
 
 
 def kinetic_energy(phys: Physics, omega: np.ndarray, sigma: np.ndarray | None) -> np.ndarray:
     """K = ½ Ω·𝕀(S)Ω in J."""
     s = inertia_scale(phys, sigma)
-    return 0.5 * s * np.sum(_bcast(phys.inertia, omega) * omega * omega, axis=-1)
+    return 0.5 * s * np.sum(bcast(phys.inertia, omega) * omega * omega, axis=-1)
 
 
 def potential_energy(phys: Physics, gamma: np.ndarray) -> np.ndarray:
@@ -340,8 +335,8 @@ def potential_energy(phys: Physics, gamma: np.ndarray) -> np.ndarray:
 
 def internal_energy_change(phys: Physics, sigma: np.ndarray) -> np.ndarray:
     """U(S) − U(S₀) = c_v T₀ expm1(σ/c_v) in J, without cancellation."""
-    cv = _bcast(phys.heat_capacity, sigma)
-    return cv * _bcast(phys.T0, sigma) * np.expm1(sigma / cv)
+    cv = bcast(phys.heat_capacity, sigma)
+    return cv * bcast(phys.T0, sigma) * np.expm1(sigma / cv)
 
 
 def temperature(phys: Physics, omega: np.ndarray, sigma: np.ndarray) -> np.ndarray:
@@ -351,7 +346,7 @@ def temperature(phys: Physics, omega: np.ndarray, sigma: np.ndarray) -> np.ndarr
     if e is None:
         return th
     phi, dphi = e
-    return th - phi * dphi * np.sum(_bcast(phys.inertia, omega) * omega * omega, axis=-1)
+    return th - phi * dphi * np.sum(bcast(phys.inertia, omega) * omega * omega, axis=-1)
 
 
 def torque(phys: Physics, omega: np.ndarray, gamma: np.ndarray, sigma: np.ndarray | None = None) -> np.ndarray:
@@ -397,7 +392,7 @@ def continuous_rhs_numpy(phys: Physics, omega: np.ndarray, gamma: np.ndarray, si
     included (shapes (N, ..., 3), (N, ..., 3), (N, ...)): with 𝕀(S) = φ²𝕀₀
     (φ = 1: Euler's equations), 𝕀₀Ω̇ = (𝕀₀Ω×Ω + Σf)/φ² − 2(φ′/φ)σ̇ 𝕀₀Ω,
     Γ̇ = Γ×Ω, σ̇ = P/T."""
-    I = _bcast(phys.inertia, omega)
+    I = bcast(phys.inertia, omega)
     sd = dissipated_power(phys, omega, sigma) / temperature(phys, omega, sigma)
     wd = np.cross(I * omega, omega) / I + torque(phys, omega, gamma, sigma) / I
     e = _expansion(phys, theta(phys, sigma))

@@ -232,7 +232,7 @@ class Term:
     (:meth:`torque`, :meth:`dissipated_power`, :meth:`potential_energy`),
     used by the diagnostics and the scipy baseline."""
 
-    #: registry name (in messages and for :meth:`Registry.by_name`)
+    #: registry name (in messages and in Physics.only)
     name: str = ""
     settings: tuple[Setting, ...] = ()
     parameters: tuple[Parameter, ...] = ()
@@ -243,6 +243,9 @@ class Term:
     #: to its Newton residual and Jacobian through ``nonlinear_friction``)
     friction: bool = False
     nonlinear_friction: bool = False
+    #: why the term has no exact flow (None: it has one): the splitting
+    #: methods, which compose exact flows, refuse it with this reason
+    no_exact_flow: str | None = None
 
     def in_scene(self, s: dict) -> bool:
         """Whether the scene tables ``s`` switch the term on."""
@@ -275,6 +278,8 @@ class Term:
     def refuses(self, family: str, method: str) -> str | None:
         """Why ``method`` (of ``family``: "vi", "rk" or "split") cannot run a
         model with this term (None: it can)."""
+        if family == "split" and self.no_exact_flow:
+            return f"{self.no_exact_flow}; the vi and rk methods run it"
         return None
 
     # ---- plain numpy, (N, ..., 3) arrays with a leading member axis
@@ -299,6 +304,47 @@ class Term:
         return 0.0
 
 
+class ScalarTerm(Term):
+    """A term with one number per member, the value of its one scene key (a
+    ``Parameter`` of shape ()): it acts where that number is not 0, and as a
+    force adds ``kernel_class`` with ``coefficients(value, 𝕀₀)``."""
+
+    kernel_class: type | None = None
+    coefficients = None
+
+    @property
+    def _key(self) -> Setting:
+        return self.settings[0]
+
+    @property
+    def _param(self) -> str:
+        return self.parameters[0].name
+
+    def parameters_of_scene(self, scene, body) -> dict:
+        return {self._param: np.float64(scene[self._key.section][self._key.name])}
+
+    def in_scene(self, s: dict) -> bool:
+        return s[self._key.section][self._key.name] > 0
+
+    def active(self, phys) -> np.ndarray:
+        return getattr(phys, self._param) != 0.0
+
+    def dissipates(self, phys) -> bool:
+        return self.friction and bool(np.any(self.active(phys)))
+
+    def kernel_parts(self, phys) -> list:
+        if not np.any(self.active(phys)):
+            return []
+        return [("forces", self.kernel_class, type(self).coefficients(getattr(phys, self._param), phys.inertia))]
+
+
+def over_inertia(c: np.ndarray, inertia0: np.ndarray, width: int) -> np.ndarray:
+    """(N, width + 3) coefficients [c, c/I_i] of a friction c (N, width; width
+    1 for a scalar, 3 per axis) over the reference moments 𝕀₀ (N, 3)."""
+    c = np.asarray(c, dtype=np.float64).reshape(-1, width)
+    return np.hstack([c, c * (1.0 / np.asarray(inertia0, dtype=np.float64).reshape(-1, 3))])
+
+
 def bcast(a: np.ndarray, like: np.ndarray) -> np.ndarray:
     """Per-member values a (N, ...) broadcast against arrays (N, T, ..., 3) or (N, T, ...)."""
     extra = like.ndim - a.ndim
@@ -315,12 +361,6 @@ def _term_modules():
 
 class Registry(tuple):
     """The terms, in the order the kernels add them."""
-
-    def by_name(self, name: str) -> Term:
-        for t in self:
-            if t.name == name:
-                return t
-        raise KeyError(f"no model term {name!r}; the terms are {', '.join(t.name for t in self)}")
 
 
 def constant_inertia_part(phys) -> tuple:
@@ -341,4 +381,4 @@ def registry() -> Registry:
 
 
 __all__ = ["Model", "ATTITUDE", "Attitude", "angular_acceleration", "dissipated_power",
-           "discrete_power", "linear_friction", "torque", "nonlinear_friction", "exact_flow", "implements", "types", "NONE3", "NONE9", "Term", "Setting", "Parameter", "Registry", "registry", "bcast"]
+           "discrete_power", "linear_friction", "torque", "nonlinear_friction", "exact_flow", "implements", "types", "NONE3", "NONE9", "Term", "ScalarTerm", "Setting", "Parameter", "Registry", "registry", "bcast", "over_inertia"]

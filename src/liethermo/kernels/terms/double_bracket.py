@@ -35,7 +35,7 @@ import numpy as np
 from .._jit import fma
 from ..gen import cadd, madd
 from ..so3 import cross_lane, norm2_lane
-from . import (Parameter, Setting, Term, angular_acceleration, bcast, discrete_power,
+from . import (Parameter, ScalarTerm, Setting, angular_acceleration, bcast, discrete_power,
                dissipated_power, implements, nonlinear_friction)
 
 
@@ -120,7 +120,7 @@ def _discrete(term, inertia, h, x, f, J):
              cadd(J20, j20), cadd(J21, j21), cadd(J22, j22)))
 
 
-class _DoubleBracket(Term):
+class _DoubleBracket(ScalarTerm):
     name = "double_bracket"
     settings = (Setting("body", "internal_friction", 0.0, "s kg-1 m-2",
                         "λ of the double-bracket friction λ μ×(μ×Ω), which keeps |μ| (the flat spin)"),)
@@ -128,32 +128,13 @@ class _DoubleBracket(Term):
                             "double-bracket friction lambda: f = lambda mu x (mu x Omega)"),)
     friction = True
     nonlinear_friction = True
+    kernel_class = DoubleBracket
+    coefficients = coefficients
+    no_exact_flow = "its flow has no closed form (it must keep |μ| and K + U with heat)"
     scene_doc = (
         "*Internal friction* — `body.internal_friction = λ > 0` adds the double-bracket "
         "friction λ μ×(μ×Ω), which keeps |μ|; with no other torque or friction the body "
         "ends in a flat spin (the built-in `flat_spin`).")
-
-    def parameters_of_scene(self, scene, body) -> dict:
-        return {"internal_friction": np.float64(scene["body"]["internal_friction"])}
-
-    def active(self, phys):
-        return phys.internal_friction != 0.0
-
-    def dissipates(self, phys) -> bool:
-        return bool(np.any(phys.internal_friction != 0.0))
-
-    def kernel_parts(self, phys) -> list:
-        if not np.any(phys.internal_friction != 0.0):
-            return []
-        return [("forces", DoubleBracket, coefficients(phys.internal_friction, phys.inertia))]
-
-    def refuses(self, family: str, method: str) -> str | None:
-        if family == "split":
-            return "its flow has no closed form (it must keep |μ| and K + U with heat); the vi and rk methods run it"
-        return None
-
-    def in_scene(self, s: dict) -> bool:
-        return s["body"]["internal_friction"] > 0
 
     def torque(self, phys, omega, gamma, scale):
         mu = scale[..., None] * bcast(phys.inertia, omega) * omega if np.ndim(scale) else (

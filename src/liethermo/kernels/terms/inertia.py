@@ -24,7 +24,7 @@ import numpy as np
 
 from .._jit import fma, lane
 from ..gen import none_dispatch
-from . import Parameter, Setting, Term, bcast
+from . import Parameter, ScalarTerm, Setting, bcast
 
 
 class ConstantInertia(namedtuple("ConstantInertia",
@@ -138,7 +138,7 @@ def free_flow(inertia, t, m0, m1, m2, G0, G1, G2, R):
     return _axis_flow(inertia, 0, h2, m0, m1, m2, G0, G1, G2, R)
 
 
-class _ThermalExpansion(Term):
+class _ThermalExpansion(ScalarTerm):
     """The coupled top: thermal expansion makes the inertia depend on S."""
 
     name = "thermal_expansion"
@@ -146,6 +146,7 @@ class _ThermalExpansion(Term):
                         "linear thermal expansion α: 𝕀(S) = 𝕀₀ (1 + α(θ − T0))², the fully coupled top"),)
     parameters = (Parameter("thermal_expansion", (), "K-1",
                             "linear thermal expansion alpha: I(S) = I0 (1 + alpha (theta - T0))^2"),)
+    no_exact_flow = "the entropy-dependent inertia has no exact flow"
     scene_doc = (
         "*Thermal expansion* — `body.thermal_expansion = α > 0` makes the inertia depend "
         "on the entropy, 𝕀(S) = 𝕀₀(1 + α(θ − T₀))²: the fully coupled top. Give it a small "
@@ -153,12 +154,6 @@ class _ThermalExpansion(Term):
         "and a friction it needs `integrator.start = \"legendre\"` and "
         "`integrator.friction = \"trapezoid\"`; frictions whose discrete form is nonlinear "
         "(such as the internal friction) are not available with it.")
-
-    def parameters_of_scene(self, scene, body) -> dict:
-        return {"thermal_expansion": np.float64(scene["body"]["thermal_expansion"])}
-
-    def active(self, phys):
-        return phys.thermal_expansion != 0.0
 
     def coupled(self, phys) -> bool:
         """The inertia follows the entropy: something expands and something heats."""
@@ -168,14 +163,6 @@ class _ThermalExpansion(Term):
         if not self.coupled(phys):
             return []
         return [("inertia", ThermalInertia, thermal_coefficients(phys.inertia, phys.thermal_expansion))]
-
-    def refuses(self, family: str, method: str) -> str | None:
-        if family == "split":
-            return "the entropy-dependent inertia has no exact flow; the vi and rk methods run it"
-        return None
-
-    def in_scene(self, s: dict) -> bool:
-        return s["body"]["thermal_expansion"] > 0
 
     def violations(self, s: dict):
         from . import registry

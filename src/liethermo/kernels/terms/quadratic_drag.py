@@ -29,7 +29,7 @@ import numpy as np
 from .._jit import fma, select
 from ..gen import cadd, madd
 from ..so3 import norm2_lane
-from . import (Parameter, Setting, Term, angular_acceleration, bcast, discrete_power,
+from . import (Parameter, ScalarTerm, Setting, over_inertia, angular_acceleration, bcast, discrete_power,
                dissipated_power, implements, nonlinear_friction)
 
 
@@ -39,8 +39,7 @@ class QuadraticDrag(namedtuple("QuadraticDrag", "c K1 K2 K3")):
 
 def coefficients(c2: np.ndarray, inertia0: np.ndarray) -> np.ndarray:
     """(N, 4) coefficients from c₂ (N,) and 𝕀₀ (N, 3)."""
-    c = np.asarray(c2, dtype=np.float64).reshape(-1, 1)
-    return np.hstack([c, c * (1.0 / np.asarray(inertia0, dtype=np.float64).reshape(-1, 3))])
+    return over_inertia(c2, inertia0, 1)
 
 
 @implements(angular_acceleration, QuadraticDrag)
@@ -84,7 +83,7 @@ def _discrete(term, inertia, h, x, f, J):
 
 
 
-class _QuadraticDrag(Term):
+class _QuadraticDrag(ScalarTerm):
     name = "quadratic_drag"
     settings = (Setting("fluid", "quadratic_drag", 0.0, "kg m2",
                         "c₂ of the quadratic drag −c₂|Ω|Ω of a body turning at moderate Reynolds "
@@ -93,32 +92,13 @@ class _QuadraticDrag(Term):
                             "quadratic drag c2: friction torque -c2 |Omega| Omega"),)
     friction = True
     nonlinear_friction = True
+    kernel_class = QuadraticDrag
+    coefficients = coefficients
+    no_exact_flow = "its flow has a closed form only for an isotropic body, which is not covered"
     scene_doc = (
         "*Quadratic drag* — `fluid.quadratic_drag = c₂ > 0` adds the torque −c₂|Ω|Ω of a "
         "body turning at moderate Reynolds number, beside or instead of the Stokes friction. "
         "Not together with thermal expansion.")
-
-    def parameters_of_scene(self, scene, body) -> dict:
-        return {"quadratic_drag": np.float64(scene["fluid"]["quadratic_drag"])}
-
-    def active(self, phys):
-        return phys.quadratic_drag != 0.0
-
-    def dissipates(self, phys) -> bool:
-        return bool(np.any(phys.quadratic_drag != 0.0))
-
-    def kernel_parts(self, phys) -> list:
-        if not np.any(phys.quadratic_drag != 0.0):
-            return []
-        return [("forces", QuadraticDrag, coefficients(phys.quadratic_drag, phys.inertia))]
-
-    def refuses(self, family: str, method: str) -> str | None:
-        if family == "split":
-            return "its flow has a closed form only for an isotropic body, which is not covered; the vi and rk methods run it"
-        return None
-
-    def in_scene(self, s: dict) -> bool:
-        return s["fluid"]["quadratic_drag"] > 0
 
     def torque(self, phys, omega, gamma, scale):
         c = bcast(phys.quadratic_drag, omega[..., 0])[..., None]

@@ -24,7 +24,7 @@ from .._jit import fma, lane
 from ..lanemath import expm1_lane
 from ..gen import cadd, madd
 from ..so3 import norm2_lane
-from . import (Parameter, Setting, Term, bcast, angular_acceleration, discrete_power, dissipated_power,
+from . import (Parameter, Setting, Term, bcast, over_inertia, angular_acceleration, discrete_power, dissipated_power,
                exact_flow, implements, linear_friction)
 
 
@@ -40,14 +40,12 @@ class StokesDiagonal(namedtuple("StokesDiagonal", "C1 C2 C3 K1 K2 K3")):
 
 def sphere_coefficients(c: np.ndarray, inertia0: np.ndarray) -> np.ndarray:
     """(N, 4) from c (N,) and 𝕀₀ (N, 3)."""
-    c = np.asarray(c, dtype=np.float64).reshape(-1, 1)
-    return np.hstack([c, c * (1.0 / np.asarray(inertia0, dtype=np.float64).reshape(-1, 3))])
+    return over_inertia(c, inertia0, 1)
 
 
 def diagonal_coefficients(C: np.ndarray, inertia0: np.ndarray) -> np.ndarray:
     """(N, 6) from diag C (N, 3) and 𝕀₀ (N, 3)."""
-    C = np.asarray(C, dtype=np.float64).reshape(-1, 3)
-    return np.hstack([C, C * (1.0 / np.asarray(inertia0, dtype=np.float64).reshape(-1, 3))])
+    return over_inertia(C, inertia0, 3)
 
 
 @implements(angular_acceleration, StokesSphere)
