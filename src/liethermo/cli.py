@@ -36,6 +36,8 @@ def cmd_run(args) -> int:
 
     try:
         scene = load_scene(args.scene, args.set)
+        if getattr(scene, "model", None) == "zeitlin":
+            return _run_zeitlin(args, scene)
         if args.resume and args.force:
             raise PreflightError("--resume keeps what an earlier run left and --force replaces it: "
                                  "give one of them")
@@ -117,6 +119,30 @@ def _run_outputs(args, scene, plan) -> int:
     finally:
         if warming is not None and warming.is_alive():
             warming.terminate()
+    return 0
+
+
+def _run_zeitlin(args, scene) -> int:
+    """A Zeitlin fluid's run: every method in memory, then written atomically."""
+    from .io import WriteError
+    from .zeitlin.run import OutputError, output_paths, run_outputs
+
+    for flag in ("resume", "dask"):
+        if getattr(args, flag):
+            return _error(f"--{flag} is not available for a Zeitlin scene (its runs are written whole)")
+    if args.check:
+        paths = output_paths(scene, args.output)
+        print(f"scene {scene.name!r} is valid: outputs {', '.join(str(p) for p in paths.values())}")
+        return 0
+    try:
+        results = run_outputs(scene, args.output, progress=None if not args.no_progress else False,
+                              force=args.force, history=args.command_line)
+    except (OutputError, WriteError) as exc:
+        return _error(exc)
+    for ds in results.values():
+        print(ds.attrs["summary"])
+    for f in next(iter(results.values())).attrs.get("figures", []):
+        print(f"  figure {f}")
     return 0
 
 

@@ -542,6 +542,12 @@ def load_scene(source: str | Path | dict | Scene | None = "paper",
 
     Returns a validated :class:`Scene` (or, with ``validate_scene=False``, the
     unvalidated tables as a dict)."""
+    from .zeitlin import scene as zeitlin_scene
+
+    if isinstance(source, zeitlin_scene.ZeitlinScene):
+        source = source.to_dict()
+    if isinstance(source, dict) and zeitlin_scene.is_zeitlin(source):
+        return _zeitlin(source, "the scene", overrides, validate_scene)
     scene = copy.deepcopy(DEFAULTS)
     if isinstance(source, Scene):
         source = source.to_dict()
@@ -551,7 +557,10 @@ def load_scene(source: str | Path | dict | Scene | None = "paper",
         src = str(source)
         text = builtin_scene_text(src) if "/" not in src and not src.endswith(".toml") else None
         if text is not None:
-            _merge(scene, tomllib.loads(text), f"built-in scene {src!r}")
+            data = tomllib.loads(text)
+            if zeitlin_scene.is_zeitlin(data):
+                return _zeitlin(data, f"built-in scene {src!r}", overrides, validate_scene)
+            _merge(scene, data, f"built-in scene {src!r}")
         else:
             path = Path(src)
             if not path.is_file():
@@ -563,6 +572,9 @@ def load_scene(source: str | Path | dict | Scene | None = "paper",
                 raise SceneError(str(path), f"cannot be read ({exc.strerror})", show_value=False, what="file") from None
             except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
                 raise SceneError(str(path), f"not valid TOML: {exc}", show_value=False, what="file") from None
+            if zeitlin_scene.is_zeitlin(data):
+                data.setdefault("scene", {}).setdefault("name", path.stem)
+                return _zeitlin(data, str(path), overrides, validate_scene)
             _merge(scene, data, str(path))
             if scene["scene"]["name"] == "custom":
                 scene["scene"]["name"] = path.stem
@@ -571,6 +583,19 @@ def load_scene(source: str | Path | dict | Scene | None = "paper",
     if not validate_scene:
         return scene
     return validate(scene)
+
+
+def _zeitlin(tables: dict, origin: str, overrides, validate_scene: bool):
+    """A Zeitlin fluid's scene (:mod:`liethermo.zeitlin.scene`): its own keys and rules."""
+    from .zeitlin import scene as zeitlin_scene
+
+    if not validate_scene:
+        d = copy.deepcopy(zeitlin_scene.DEFAULTS)
+        zeitlin_scene.merge(d, tables, origin)
+        for table, o in _overrides_as_tables(overrides):
+            zeitlin_scene.merge(d, table, o)
+        return d
+    return zeitlin_scene.load(tables, origin, overrides)
 
 
 def scene_to_toml(scene) -> str:

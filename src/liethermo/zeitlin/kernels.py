@@ -1,0 +1,416 @@
+"""Numeric core of the thermodynamic Zeitlin fluid on the sphere (no xarray, no I/O).
+
+The vorticity is a skew-Hermitian, traceless matrix W ∈ su(N), stored as a
+batch ``(members, N, N)`` of complex128.  Conventions:
+
+* Hermitian spin matrices J_a of spin s = (N−1)/2, basis m_i = s − i;
+* Laplacian Δ_N W = −Σ_a [J_a, [J_a, W]], eigenvalues −l(l+1), l = 0 … N−1.
+  It maps each diagonal d of W (entries W[i, i+d]) to itself, as a symmetric
+  tridiagonal matrix: applied and inverted in O(N²);
+* ħ = 2/√(N²−1); Ẇ = (1/ħ)[P, W] + ν(Δ_N + 2)W with P = Δ_N⁻¹W;
+* ⟨A, B⟩ = −tr(AB); energy H = ½⟨W, −P⟩, enstrophy ½⟨W, W⟩;
+* the modes: diagonal d ≥ 0 of W expanded in the orthonormal eigenvectors of
+  its tridiagonal block, coefficient c[d, l] for l = d … N−1; the eigenvectors
+  are the quantized spherical harmonics T_lm (m = d), signed so that their
+  coherent-state symbol is a positive multiple of Y_lm.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+
+from ..kernels._jit import CACHE
+
+
+def hbar(N: int) -> float:
+    return 2.0 / math.sqrt(N * N - 1.0)
+
+
+def spin_matrices(N: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Hermitian J_x, J_y, J_z of spin (N−1)/2, [J_x, J_y] = i J_z."""
+    s = (N - 1) / 2.0
+    m = s - np.arange(N)
+    jp = np.zeros((N, N))
+    for i in range(1, N):  # J+ |m_i> = c |m_i + 1> = c |m_{i-1}>
+        jp[i - 1, i] = math.sqrt(s * (s + 1) - m[i] * (m[i] + 1))
+    jx = (jp + jp.T) / 2.0
+    jy = (jp - jp.T) / 2.0j
+    return jx.astype(complex), jy, np.diag(m).astype(complex)
+
+
+def laplacian_dense(W: np.ndarray) -> np.ndarray:
+    """Δ_N W from its definition (tests; O(N³))."""
+    out = np.zeros_like(W)
+    for J in spin_matrices(W.shape[-1]):
+        c = J @ W - W @ J
+        out -= J @ c - c @ J
+    return out
+
+
+@dataclass(frozen=True)
+class Basis:
+    """Everything that depends on N alone, computed once per N.
+
+    Packed mode index: diagonal d occupies ``offset[d] : offset[d] + N − d``,
+    its entries ordered l = d … N−1.  ``vecs`` holds each block's eigenvectors
+    column by column, packed the same way (block d is (N−d)×(N−d), starting at
+    ``voff[d]``)."""
+
+    N: int
+    hbar: float
+    offset: np.ndarray    # (N+1,) int64
+    ell: np.ndarray       # (K,) degree l of each mode
+    voff: np.ndarray      # (N+1,) int64
+    vecs: np.ndarray      # (Σ (N−d)²,) float64, row-major per block
+    diag: np.ndarray      # (K,) main diagonal of −Δ's blocks, packed like the modes
+    off: np.ndarray       # (K,) off-diagonal of −Δ's blocks (entry i couples i and i+1)
+    # Thomas factors of −Δ's blocks d ≥ 1 (block 0 is singular: solved through its modes)
+    tc: np.ndarray        # (K,)
+    tinv: np.ndarray      # (K,)
+
+    @property
+    def modes(self) -> int:
+        return int(self.offset[-1])
+
+    @property
+    def lam(self) -> np.ndarray:
+        """l(l+1) of each mode."""
+        return self.ell * (self.ell + 1.0)
+
+
+def _block(N: int, d: int) -> tuple[np.ndarray, np.ndarray]:
+    """Main and off-diagonal of −Δ_N restricted to diagonal d."""
+    s = (N - 1) / 2.0
+    m = s - np.arange(N)
+    c = np.zeros(N + 1)
+    for k in range(1, N):
+        c[k] = math.sqrt(s * (s + 1) - m[k] * (m[k] + 1))
+    n = N - d
+    i = np.arange(n)
+    a = 2.0 * (s * (s + 1) - m[i] * m[i + d])
+    b = -c[i[:-1] + 1] * c[i[:-1] + 1 + d]
+    return a, b
+
+
+def _coherent(N: int, theta: float, phi: float) -> np.ndarray:
+    """Spin coherent state |θ, φ⟩ in the basis m_i = s − i (|s⟩ at the north pole)."""
+    s = (N - 1) / 2.0
+    m = s - np.arange(N)
+    k = (s - m).astype(int)  # 0 … N-1
+    logc = np.array([0.5 * (math.lgamma(N) - math.lgamma(kk + 1) - math.lgamma(N - kk)) for kk in k])
+    amp = np.exp(logc) * np.cos(theta / 2) ** (N - 1 - k) * np.sin(theta / 2) ** k
+    return amp * np.exp(-1j * m * phi)
+
+
+@functools.lru_cache(maxsize=16)
+def basis(N: int) -> Basis:
+    if not (isinstance(N, (int, np.integer)) and N >= 2):
+        raise ValueError(f"N must be an integer of at least 2, not {N!r}")
+    from scipy.linalg import eigh_tridiagonal
+    from scipy.special import sph_harm_y
+
+    N = int(N)
+    offset = np.zeros(N + 1, dtype=np.int64)
+    voff = np.zeros(N + 1, dtype=np.int64)
+    for d in range(N):
+        offset[d + 1] = offset[d] + (N - d)
+        voff[d + 1] = voff[d] + (N - d) ** 2
+    K = int(offset[-1])
+    ell = np.zeros(K)
+    vecs = np.zeros(int(voff[-1]))
+    diag = np.zeros(K)
+    off = np.zeros(K)
+    tc = np.zeros(K)
+    tinv = np.zeros(K)
+    theta0, phi0 = 1.1, 0.0  # a generic point: fixes each T_lm's sign against Y_lm
+    z = _coherent(N, theta0, phi0)
+    for d in range(N):
+        a, b = _block(N, d)
+        n = N - d
+        w, v = eigh_tridiagonal(a, b)
+        ls = np.arange(d, N)
+        if not np.allclose(w, ls * (ls + 1.0), rtol=1e-9, atol=1e-9 * N * N):
+            raise ArithmeticError(f"Laplacian block {d} of N = {N}: eigenvalues {w} are not l(l+1)")
+        for j, l in enumerate(ls):
+            # symbol <z|T|z> of the matrix with v[:, j] on diagonal d; positive multiple of Y_l^d
+            sym = np.sum(np.conj(z[:n]) * v[:, j] * z[d:])
+            y = sph_harm_y(l, d, theta0, phi0)
+            if (sym * np.conj(y)).real < 0:
+                v[:, j] = -v[:, j]
+        o = offset[d]
+        ell[o:o + n] = ls
+        vecs[voff[d]:voff[d + 1]] = v.ravel()
+        diag[o:o + n] = a
+        off[o:o + n - 1] = b
+        if d >= 1:  # Thomas factors (non-singular: eigenvalues ≥ 2)
+            cp = np.zeros(n)
+            inv = np.zeros(n)
+            for i in range(n):
+                den = a[i] - (b[i - 1] * cp[i - 1] if i else 0.0)
+                inv[i] = 1.0 / den
+                cp[i] = b[i] * inv[i] if i < n - 1 else 0.0
+            tc[o:o + n] = cp
+            tinv[o:o + n] = inv
+    return Basis(N, hbar(N), offset, ell, voff, vecs, diag, off, tc, tinv)
+
+
+# ----------------------------------------------------------------------------- modes
+
+
+@numba.njit(cache=CACHE, error_model="numpy")
+def _to_modes(W, offset, voff, vecs, out):
+    M, N = W.shape[0], W.shape[1]
+    for k in range(M):
+        for d in range(N):
+            n = N - d
+            o = offset[d]
+            vo = voff[d]
+            for j in range(n):
+                acc = 0j
+                for i in range(n):
+                    acc += vecs[vo + i * n + j] * W[k, i, i + d]
+                out[k, o + j] = acc
+
+
+@numba.njit(cache=CACHE, error_model="numpy")
+def _from_modes(C, offset, voff, vecs, W):
+    M, N = W.shape[0], W.shape[1]
+    for k in range(M):
+        for d in range(N):
+            n = N - d
+            o = offset[d]
+            vo = voff[d]
+            for i in range(n):
+                acc = 0j
+                for j in range(n):
+                    acc += vecs[vo + i * n + j] * C[k, o + j]
+                if d == 0:
+                    W[k, i, i] = 1j * acc.imag
+                else:
+                    W[k, i, i + d] = acc
+                    W[k, i + d, i] = -acc.conjugate()
+
+
+def to_modes(W: np.ndarray, b: Basis) -> np.ndarray:
+    """Mode coefficients c[d, l] (packed, (members, K)) of the upper diagonals of W."""
+    W = np.ascontiguousarray(W, dtype=np.complex128)
+    out = np.empty((W.shape[0], b.modes), dtype=np.complex128)
+    _to_modes(W, b.offset, b.voff, b.vecs, out)
+    return out
+
+
+def from_modes(C: np.ndarray, b: Basis) -> np.ndarray:
+    """The skew-Hermitian W whose upper diagonals have the mode coefficients C
+    (the real part of block 0's coefficients is dropped: W's diagonal is imaginary)."""
+    C = np.ascontiguousarray(C, dtype=np.complex128)
+    W = np.empty((C.shape[0], b.N, b.N), dtype=np.complex128)
+    _from_modes(C, b.offset, b.voff, b.vecs, W)
+    return W
+
+
+def mode_weights(b: Basis) -> np.ndarray:
+    """1 for block 0, 2 for d ≥ 1 (the diagonal −d mirrors d): ⟨W, W⟩ = Σ weight·|c|²."""
+    w = np.full(b.modes, 2.0)
+    w[: b.N] = 1.0
+    return w
+
+
+def energy_of_modes(C: np.ndarray, b: Basis) -> np.ndarray:
+    """H = ½⟨W, −P⟩ = ½ Σ weight |c|² / l(l+1) (the l = 0 mode carries nothing)."""
+    lam = b.lam
+    inv = np.where(lam > 0, 1.0 / np.where(lam > 0, lam, 1.0), 0.0)
+    return 0.5 * (np.abs(C) ** 2 * (mode_weights(b) * inv)).sum(axis=-1)
+
+
+def spectrum_of_modes(C: np.ndarray, b: Basis) -> np.ndarray:
+    """E_l, l = 1 … N−1: the energy of degree l (Σ_l E_l = H)."""
+    lam = b.lam
+    inv = np.where(lam > 0, 1.0 / np.where(lam > 0, lam, 1.0), 0.0)
+    e = 0.5 * np.abs(C) ** 2 * (mode_weights(b) * inv)
+    out = np.zeros(C.shape[:-1] + (b.N,))
+    for l in range(b.N):
+        out[..., l] = e[..., b.ell == l].sum(axis=-1)
+    return out[..., 1:]
+
+
+# ----------------------------------------------------------------------------- Laplacian
+
+
+@numba.njit(cache=CACHE, error_model="numpy")
+def _lapinv(W, scale, offset, voff, vecs, ell, tc, tinv, off, P):
+    """P = scale · Δ_N⁻¹ W on the traceless part (Thomas per diagonal d ≥ 1, modes for d = 0)."""
+    M, N = W.shape[0], W.shape[1]
+    y = np.empty(N, dtype=np.complex128)
+    for k in range(M):
+        # block 0 (singular: l = 0 dropped) through its eigenvectors, O(N²)
+        for j in range(1, N):
+            acc = 0.0
+            for i in range(N):
+                acc += vecs[i * N + j] * W[k, i, i].imag
+            y[j] = -acc * scale / (ell[j] * (ell[j] + 1.0))
+        for i in range(N):
+            acc = 0.0
+            for j in range(1, N):
+                acc += vecs[i * N + j] * y[j].real
+            P[k, i, i] = 1j * acc
+        # blocks d ≥ 1: (−Δ) x = −W along the diagonal, Thomas with stored factors
+        for d in range(1, N):
+            n = N - d
+            o = offset[d]
+            prev = 0j
+            for i in range(n):
+                r = -W[k, i, i + d] * scale
+                if i > 0:
+                    r -= off[o + i - 1] * prev
+                prev = r * tinv[o + i]
+                y[i] = prev
+            for i in range(n - 2, -1, -1):
+                y[i] -= tc[o + i] * y[i + 1]
+            for i in range(n):
+                P[k, i, i + d] = y[i]
+                P[k, i + d, i] = -y[i].conjugate()
+
+
+def laplacian_inverse(W: np.ndarray, b: Basis, scale: float = 1.0, out=None) -> np.ndarray:
+    """scale · Δ_N⁻¹ W (W skew-Hermitian; its trace is ignored)."""
+    P = np.empty_like(W) if out is None else out
+    _lapinv(W, scale, b.offset, b.voff, b.vecs, b.ell, b.tc, b.tinv, b.off, P)
+    return P
+
+
+@numba.njit(cache=CACHE, error_model="numpy")
+def _lap(W, offset, diag, off, out):
+    M, N = W.shape[0], W.shape[1]
+    for k in range(M):
+        for d in range(N):
+            n = N - d
+            o = offset[d]
+            for i in range(n):
+                acc = diag[o + i] * W[k, i, i + d]
+                if i > 0:
+                    acc += off[o + i - 1] * W[k, i - 1, i - 1 + d]
+                if i < n - 1:
+                    acc += off[o + i] * W[k, i + 1, i + 1 + d]
+                out[k, i, i + d] = -acc
+                if d > 0:
+                    out[k, i + d, i] = acc.conjugate()
+
+
+def laplacian(W: np.ndarray, b: Basis) -> np.ndarray:
+    """Δ_N W (W skew-Hermitian), O(N²)."""
+    out = np.empty_like(W)
+    _lap(np.ascontiguousarray(W), b.offset, b.diag, b.off, out)
+    return out
+
+
+# ----------------------------------------------------------------------------- flows
+
+
+def viscous_flow(W: np.ndarray, t: float, nu: float, b: Basis) -> tuple[np.ndarray, np.ndarray]:
+    """The exact flow of Ẇ = ν(Δ_N + 2)W for a time t, and the heat it releases
+    (the energy lost, a sum of non-negative terms: never negative in floating point)."""
+    if nu == 0.0 or t == 0.0:
+        return W, np.zeros(W.shape[0])
+    C = to_modes(W, b)
+    rate = nu * (b.lam - 2.0)  # ≥ 0 for l ≥ 1; the l = 0 mode is zero
+    rate = np.where(b.ell >= 1, rate, 0.0)
+    lam = np.where(b.lam > 0, b.lam, 1.0)
+    keep = np.exp(-t * rate)
+    lost = -np.expm1(-2.0 * t * rate)  # 1 − keep², ≥ 0
+    heat = 0.5 * (np.abs(C) ** 2 * (mode_weights(b) * np.where(b.ell >= 1, lost / lam, 0.0))).sum(axis=-1)
+    return from_modes(C * keep, b), heat
+
+
+def _dagger(X):
+    return np.conj(np.swapaxes(X, -1, -2))
+
+
+def isomp(W: np.ndarray, h: float, b: Basis, tol: float, max_iter: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One isospectral midpoint step (a Cayley conjugation, so W's spectrum is kept):
+
+        W̃ = W + [A, W̃] + A W̃ A,  A = (h/2ħ) Δ_N⁻¹ W̃,  W' = W + 2[A, W̃],
+
+    solved per member by fixed-point iteration on D = W̃ − W.  Two complex
+    matrix products per iteration (X = A W̃; [A, W̃] = X − X†, A W̃ A = X A).
+    A member stops when its correction is at most ``tol`` × max|W| (or when
+    the correction stops falling below 100 × that, at round-off).  Returns W',
+    the iterations per member and a flag per member: True where the iteration
+    did not converge within ``max_iter``."""
+    M = W.shape[0]
+    scale = h / (2.0 * b.hbar)
+    D = np.zeros_like(W)
+    Wn = W.copy()
+    its = np.zeros(M, dtype=np.int64)
+    failed = np.zeros(M, dtype=bool)
+    wmax = np.abs(W).reshape(M, -1).max(axis=1)
+    thresh = tol * np.where(wmax > 0, wmax, 1.0)
+    last = np.full(M, np.inf)
+    active = np.arange(M)
+    X = np.empty_like(W)
+    while active.size:
+        Wt = W[active] + D[active]
+        A = laplacian_inverse(Wt, b, scale)
+        Xa = A @ Wt
+        Dn = Xa - _dagger(Xa) + Xa @ A
+        change = np.abs(Dn - D[active]).reshape(active.size, -1).max(axis=1)
+        D[active] = Dn
+        X[active] = Xa
+        its[active] += 1
+        done = (change <= thresh[active]) | ((change >= last[active]) & (change <= 100.0 * thresh[active]))
+        out = its[active] >= max_iter
+        failed[active[out & ~done]] = True
+        bad = ~np.isfinite(change)
+        failed[active[bad]] = True
+        last[active] = change
+        active = active[~(done | out | bad)]
+    Wn = W + 2.0 * (X - _dagger(X))
+    return Wn, its, failed
+
+
+def rhs(W: np.ndarray, nu: float, b: Basis) -> tuple[np.ndarray, np.ndarray]:
+    """(Ẇ, q̇): the vector field and the heat rate ν⟨(Δ+2)W, P⟩ ≥ 0."""
+    P = laplacian_inverse(W, b)
+    X = P @ W
+    dW = (X - _dagger(X)) / b.hbar
+    if nu == 0.0:
+        return dW, np.zeros(W.shape[0])
+    V = laplacian(W, b) + 2.0 * W
+    dW = dW + nu * V
+    qdot = -nu * np.einsum("kij,kji->k", V, P).real  # ν⟨V, P⟩ = −ν tr(VP)
+    return dW, qdot
+
+
+# ----------------------------------------------------------------------------- diagnostics
+
+
+def casimirs(W: np.ndarray, ks=(2, 3, 4)) -> np.ndarray:
+    """tr((iW)^k): the power sums of the Hermitian iW's eigenvalues, (members, len(ks))."""
+    H = 1j * W
+    out = np.empty(W.shape[:-2] + (len(ks),))
+    P = H
+    power = 1
+    for j, k in enumerate(ks):
+        while power < k:
+            P = P @ H
+            power += 1
+        out[..., j] = np.trace(P, axis1=-2, axis2=-1).real
+    return out
+
+
+def angular_momentum(W: np.ndarray) -> np.ndarray:
+    """L_a = ⟨W, iJ_a⟩ / |iJ_a|, the l = 1 part of W, (members, 3)."""
+    N = W.shape[-1]
+    norm = math.sqrt(N * (N * N - 1) / 12.0)
+    out = np.empty(W.shape[:-2] + (3,))
+    for a, J in enumerate(spin_matrices(N)):
+        out[..., a] = (-np.einsum("...ij,ji->...", W, 1j * J)).real / norm
+    return out
+
+
+def enstrophy(W: np.ndarray) -> np.ndarray:
+    return 0.5 * (np.abs(W) ** 2).sum(axis=(-2, -1))

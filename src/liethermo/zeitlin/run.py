@@ -1,0 +1,403 @@
+"""Ensembles of the thermodynamic Zeitlin fluid: initial fields, the methods'
+steps over a batch of members, and the dataset a run writes."""
+
+from __future__ import annotations
+
+import platform
+import time as _time
+from dataclasses import dataclass
+
+import numpy as np
+import xarray as xr
+
+from .. import __version__, cf
+from ..methods import COMPOSITION_FACTORS
+from . import kernels as zk
+from .scene import ZeitlinScene
+
+#: per-member status (dataset variable ``status``)
+STATUS_MEANINGS = {0: "ok", 1: "fixed_point_not_converged", 2: "non_finite"}
+METHOD_ORDER = {"split": 2, "split4": 4, "split6": 6, "rk4": 4, "reference": 8}
+METHOD_DESCRIPTION = {
+    "split": "Strang splitting: exact viscous-and-heat flow (h/2), isospectral midpoint (h), exact flow (h/2)",
+    "split4": "the Strang splitting composed to order 4",
+    "split6": "the Strang splitting composed to order 6",
+    "rk4": "classical Runge-Kutta 4 on the vorticity equation, with the heat integrated alongside",
+    "reference": "DOP853 (scipy) at rtol 1e-13 on the vorticity equation and the heat",
+}
+REFERENCE_RTOL = 1e-13
+
+
+# ----------------------------------------------------------------------------- initial fields
+
+
+def _random_modes(b: zk.Basis, rng, lmax: int) -> np.ndarray:
+    C = np.zeros(b.modes, dtype=np.complex128)
+    sel = (b.ell >= 1) & (b.ell <= lmax)
+    n = int(sel.sum())
+    re, im = rng.standard_normal(n), rng.standard_normal(n)
+    C[sel] = re + 1j * im
+    C[: b.N] = 1j * C[: b.N].imag  # block 0: W's diagonal is imaginary
+    return C
+
+
+def _shape_spectrum(C: np.ndarray, b: zk.Basis, target: np.ndarray) -> np.ndarray:
+    """Rescale each degree l of C so that its energy is target[l - 1]."""
+    E = zk.spectrum_of_modes(C[None], b)[0]
+    scale = np.zeros(b.N)
+    scale[1:] = np.sqrt(np.divide(target, E, out=np.zeros_like(E), where=E > 0))
+    return C * scale[b.ell.astype(int)]
+
+
+def initial_fields(scene: ZeitlinScene, members: np.ndarray | None = None) -> np.ndarray:
+    """W(0) of the given members (default: all), (members, N, N).  Member k's
+    field depends on (ensemble.seed, k) only, so any subset is reproducible."""
+    z, ini, ens = scene["zeitlin"], scene["initial"], scene["ensemble"]
+    b = zk.basis(z["N"])
+    members = np.arange(ens["members"]) if members is None else np.asarray(members)
+    lmax, energy = ini["lmax"], ini["energy"]
+    ls = np.arange(1, b.N, dtype=float)
+    out = np.empty((len(members), b.N, b.N), dtype=np.complex128)
+    for j, k in enumerate(members):
+        rng = np.random.default_rng([ens["seed"], int(k)])
+        C = _random_modes(b, rng, lmax)
+        if ini["kind"] == "random":
+            prof = np.where(ls <= lmax, ls ** (-ini["slope"]), 0.0)
+            C = _shape_spectrum(C, b, energy * prof / prof.sum())
+        else:  # rossby_haurwitz: solid-body rotation and the (lmax, m) wave, equal energy, plus noise
+            noise = ini["noise"]
+            prof = np.where(ls <= lmax, 1.0, 0.0)
+            C = _shape_spectrum(C, b, noise * energy * prof / prof.sum()) if noise > 0 else 0 * C
+            wave = np.zeros(b.modes, dtype=np.complex128)
+            m = ini["m"]
+            wave[b.offset[m] + (lmax - m)] = 1j if m == 0 else 1.0
+            rot = np.zeros(b.modes, dtype=np.complex128)
+            rot[1] = 1j  # (l, m) = (1, 0): rotation about the z axis
+            modes = [rot] if (lmax, m) == (1, 0) else [rot, wave]
+            for mode in modes:
+                share = (1.0 - noise) * energy / len(modes)
+                C = C + mode * np.sqrt(share / zk.energy_of_modes(mode[None], b)[0])
+        out[j] = zk.from_modes(C[None], b)[0]
+    return out
+
+
+# ----------------------------------------------------------------------------- steps
+
+
+def factors(method: str, composition: str) -> tuple[float, ...]:
+    if method == "split":
+        return (1.0,)
+    return COMPOSITION_FACTORS[(composition, 4 if method == "split4" else 6)]
+
+
+def split_step(W, q, h, nu, b, fac, tol, max_iter):
+    """One step of the split family on a batch: returns W', q', iterations, failed."""
+    its = np.zeros(W.shape[0], dtype=np.int64)
+    failed = np.zeros(W.shape[0], dtype=bool)
+    pending = fac[0] * h / 2.0  # adjacent viscous half flows merge into one exact flow
+    for i, f in enumerate(fac):
+        W, dq = zk.viscous_flow(W, pending, nu, b)
+        q = q + dq
+        W, it, fl = zk.isomp(W, f * h, b, tol, max_iter)
+        its += it
+        failed |= fl
+        pending = f * h / 2.0 + (fac[i + 1] * h / 2.0 if i + 1 < len(fac) else 0.0)
+    W, dq = zk.viscous_flow(W, pending, nu, b)
+    return W, q + dq, its, failed
+
+
+def rk4_step(W, q, h, nu, b):
+    k1, r1 = zk.rhs(W, nu, b)
+    k2, r2 = zk.rhs(W + 0.5 * h * k1, nu, b)
+    k3, r3 = zk.rhs(W + 0.5 * h * k2, nu, b)
+    k4, r4 = zk.rhs(W + h * k3, nu, b)
+    return (W + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4),
+            q + (h / 6.0) * (r1 + 2.0 * r2 + 2.0 * r3 + r4))
+
+
+# ----------------------------------------------------------------------------- a run
+
+
+@dataclass
+class Trajectory:
+    """Output-time states of a batch: W (members, times, N, N), q (members, times)."""
+
+    times: np.ndarray
+    W: np.ndarray
+    q: np.ndarray
+    iterations: np.ndarray   # (members, times): fixed-point iterations per step over the interval before
+    status: np.ndarray       # (members,)
+    failed_step: np.ndarray  # (members,), −1 if none
+    kernel_seconds: float
+
+
+def integrate(scene: ZeitlinScene, W0: np.ndarray, *, method: str | None = None, progress=None) -> Trajectory:
+    """Integrate the members W0 with the scene's method; outputs every output.every steps."""
+    z, itg, out = scene["zeitlin"], scene["integrator"], scene["output"]
+    method = method or itg["method"]
+    b = zk.basis(z["N"])
+    nu = float(scene["fluid"]["viscosity"])
+    h, steps, every = float(itg["h"]), int(itg["steps"]), int(out["every"])
+    M = W0.shape[0]
+    n_out = steps // every + 1
+    times = np.arange(n_out) * every * h
+    Ws = np.full((M, n_out, b.N, b.N), np.nan + 0j)
+    qs = np.full((M, n_out), np.nan)
+    its = np.zeros((M, n_out))
+    status = np.zeros(M, dtype=np.int8)
+    failed_step = np.full(M, -1, dtype=np.int64)
+    Ws[:, 0], qs[:, 0] = W0, 0.0
+    t0 = _time.perf_counter()
+    if method == "reference":
+        _reference(W0, times, nu, b, Ws, qs, status, progress)
+        return Trajectory(times, Ws, qs, its, status, failed_step, _time.perf_counter() - t0)
+    from tqdm.auto import tqdm
+
+    fac = factors(method, itg["composition"]) if method != "rk4" else ()
+    W, q = W0.copy(), np.zeros(M)
+    active = np.arange(M)
+    acc_its = np.zeros(M)
+    bar = tqdm(total=steps, desc=f"{scene.name} {method}", unit="step", leave=False,
+               disable=None if progress is None else not progress)
+    for k in range(1, steps + 1):
+        if active.size == 0:
+            break
+        Wa, qa = W[active], q[active]
+        if method == "rk4":
+            Wa, qa = rk4_step(Wa, qa, h, nu, b)
+            bad = np.zeros(active.size, dtype=bool)
+        else:
+            Wa, qa, it, bad = split_step(Wa, qa, h, nu, b, fac, itg["tol"], itg["max_iter"])
+            acc_its[active] += it
+        finite = np.isfinite(Wa).all(axis=(1, 2)) & np.isfinite(qa)
+        status[active[bad]] = 1
+        status[active[~finite & ~bad]] = 2
+        failed_step[active[bad | ~finite]] = k
+        W[active], q[active] = Wa, qa
+        active = active[~(bad | ~finite)]
+        if k % every == 0:
+            j = k // every
+            Ws[active, j], qs[active, j] = W[active], q[active]
+            its[active, j] = acc_its[active] / every
+            acc_its[:] = 0.0
+        bar.update(1)
+    bar.close()
+    return Trajectory(times, Ws, qs, its, status, failed_step, _time.perf_counter() - t0)
+
+
+def _reference(W0, times, nu, b, Ws, qs, status, progress):
+    from scipy.integrate import solve_ivp
+    from tqdm.auto import tqdm
+
+    N = b.N
+
+    def f(t, y):
+        W = y[:-1].view(np.complex128).reshape(1, N, N)
+        dW, qd = zk.rhs(W, nu, b)
+        return np.concatenate([dW.ravel().view(np.float64), qd])
+
+    for k in tqdm(range(W0.shape[0]), desc="reference", unit="member", leave=False,
+                  disable=None if progress is None else not progress):
+        y0 = np.concatenate([np.ascontiguousarray(W0[k]).ravel().view(np.float64), [0.0]])
+        atol = REFERENCE_RTOL * np.abs(W0[k]).max()
+        sol = solve_ivp(f, (0.0, times[-1]), y0, method="DOP853", t_eval=times, rtol=REFERENCE_RTOL, atol=atol)
+        if not sol.success:
+            status[k] = 2
+            continue
+        y = sol.y.T.copy()
+        Ws[k] = y[:, :-1].copy().view(np.complex128).reshape(len(times), N, N)
+        qs[k] = y[:, -1]
+
+
+# ----------------------------------------------------------------------------- dataset
+
+
+def _var(data, dims, units, long_name, **extra):
+    return xr.Variable(dims, data, {"units": units, "long_name": long_name, **extra})
+
+
+def trajectory_dataset(scene: ZeitlinScene, traj: Trajectory, method: str, history: str | None = None) -> xr.Dataset:
+    b = zk.basis(scene["zeitlin"]["N"])
+    cv, T0 = scene["thermo"]["heat_capacity"], scene["thermo"]["T0"]
+    M, T = traj.q.shape
+    Wf = traj.W.reshape(M * T, b.N, b.N)
+    ok = np.isfinite(Wf).all(axis=(1, 2))
+    Wz = np.where(ok[:, None, None], Wf, 0.0)
+    C = zk.to_modes(Wz, b)
+
+    def shaped(x):
+        x = np.asarray(x, dtype=float)
+        x[~ok] = np.nan
+        return x.reshape((M, T) + x.shape[1:])
+
+    H = shaped(zk.energy_of_modes(C, b))
+    spec = shaped(zk.spectrum_of_modes(C, b))
+    cas = shaped(zk.casimirs(Wz))
+    L = shaped(zk.angular_momentum(Wz))
+    ens = shaped(zk.enstrophy(Wz))
+    q = traj.q
+    E0 = H[:, :1]
+    scale = cas[:, :1, :1] ** (np.array([2, 3, 4]) / 2.0)  # tr((iW)²)^(k/2) ≥ |tr((iW)^k)|
+    dims_t = ("member", "t")
+    data = {
+        "energy": _var(H, dims_t, "J", "kinetic energy H = <W, -P>/2 of the fluid"),
+        "heat": _var(q, dims_t, "J", "heat absorbed q = U - U0 (the energy viscosity dissipated)"),
+        "total_energy": _var(H + q, dims_t, "J", "H + q: conserved by the model"),
+        "energy_error": _var((H + q - E0) / E0, dims_t, "1", "(H + q - H(0)) / H(0): total energy error"),
+        "entropy": _var(cv * np.log1p(q / (cv * T0)), dims_t, "J K-1",
+                        "entropy produced since t = 0, c_v log(T/T0)"),
+        "temperature": _var(T0 + q / cv, dims_t, "K", "temperature T = T0 + q/c_v"),
+        "enstrophy": _var(ens, dims_t, "s-2", "enstrophy <W, W>/2"),
+        "casimir": _var(cas, dims_t + ("k",), "s-k", "Casimir tr((iW)^k): power sums of W's spectrum"),
+        "casimir_drift": _var((cas - cas[:, :1]) / scale, dims_t + ("k",), "1",
+                              "(tr((iW)^k) - its value at t = 0) / tr((iW)^2)(0)^(k/2)"),
+        "angular_momentum": _var(L, dims_t + ("axis",), "s-1",
+                                 "angular momentum: the l = 1 part of W, <W, iJ_a>/|iJ_a|"),
+        "energy_spectrum": _var(spec, dims_t + ("l",), "J", "energy of degree l, E_l (sums to H)"),
+        "fixed_point_iterations": _var(traj.iterations, dims_t, "1",
+                                       "mean fixed-point iterations per step over the output interval"
+                                       " (0 for rk4 and the reference)"),
+        "status": _var(traj.status, ("member",), "1", "member status",
+                       flag_values=np.array(sorted(STATUS_MEANINGS), dtype=np.int8),
+                       flag_meanings=" ".join(STATUS_MEANINGS[k] for k in sorted(STATUS_MEANINGS))),
+        "failed_step": _var(traj.failed_step, ("member",), "1",
+                            "step at which the member failed (-1: none); its later values are NaN"),
+    }
+    if scene["output"]["vorticity"]:
+        dims_w = dims_t + ("row", "col")
+        data["vorticity_real"] = _var(traj.W.real, dims_w, "s-1", "real part of the vorticity matrix W")
+        data["vorticity_imag"] = _var(traj.W.imag, dims_w, "s-1", "imaginary part of the vorticity matrix W")
+    coords = {
+        "member": _var(np.arange(M), ("member",), "1", "ensemble member"),
+        "t": _var(traj.times, ("t",), "s", "time since the start of the run"),
+        "k": _var(np.array([2, 3, 4]), ("k",), "1", "power k of the Casimir"),
+        "axis": xr.Variable(("axis",), np.array(["x", "y", "z"]), {"long_name": "space axis"}),
+        "l": _var(np.arange(1, b.N), ("l",), "1", "degree l of the spherical harmonics"),
+    }
+    itg = scene["integrator"]
+    created = cf.timestamp()
+    attrs = {
+        "Conventions": cf.CONVENTIONS,
+        "title": "liethermo ensemble: thermodynamic Zeitlin fluid on the sphere",
+        "model": "zeitlin",
+        "method": method,
+        "method_description": METHOD_DESCRIPTION[method],
+        "method_order": METHOD_ORDER[method],
+        "composition": itg["composition"] if method in ("split4", "split6") else "none",
+        "N": scene["zeitlin"]["N"],
+        "hbar": b.hbar,
+        "h": float(itg["h"]),
+        "h_units": "s",
+        "kernel_seconds": traj.kernel_seconds,
+        "scene": scene.to_toml(),
+        "software": f"liethermo {__version__}",
+        "software_version": __version__,
+        "python": platform.python_version(),
+        "created": created,
+        "history": cf.history_entry(history or f"liethermo {__version__}", created),
+        "references": "Zeitlin (1991, 2004); Modin & Viviani (2020), the isospectral midpoint; "
+                      "liethermo docs/model.md, the thermodynamic Zeitlin fluid",
+    }
+    return xr.Dataset(data, coords=coords, attrs=attrs)
+
+
+def summary(ds: xr.Dataset) -> str:
+    n_bad = int((ds["status"] != 0).sum())
+    M = ds.sizes["member"]
+    err = float(np.nanmax(np.abs(ds["energy_error"].values)))
+    cas = float(np.nanmax(np.abs(ds["casimir_drift"].sel(k=2).values)))
+    L = ds["angular_momentum"].values
+    dL = float(np.nanmax(np.abs(L - L[:, :1]))) / max(float(np.nanmax(np.abs(L[:, :1]))), 1e-300)
+    heat = float(np.nanmean(ds["heat"].values[:, -1] / ds["energy"].values[:, 0]))
+    its = ds["fixed_point_iterations"].values[:, 1:]
+    lines = [f"{ds.attrs['method']}: {M} member(s), N = {ds.attrs['N']}, h = {ds.attrs['h']:g} s, "
+             f"t = {float(ds['t'][-1]):g} s, kernels {ds.attrs['kernel_seconds']:.2f} s",
+             f"  |H + q − H(0)|/H(0) ≤ {err:.2e}; tr W² drift ≤ {cas:.2e}; angular momentum drift ≤ {dL:.2e} "
+             f"(relative); heat {100 * heat:.1f} % of H(0)"]
+    if its.size and np.nanmax(its) > 0:
+        lines.append(f"  fixed-point iterations per step: mean {np.nanmean(its):.2f}, max {np.nanmax(its):.2f}")
+    if n_bad:
+        lines.append(f"  {n_bad} member(s) failed: see status and failed_step")
+    return "\n".join(lines)
+
+
+def simulate(scene: ZeitlinScene, *, method: str | None = None, progress=None, history=None) -> xr.Dataset:
+    """Run the scene's ensemble with its method (or ``method``) into an in-memory dataset."""
+    W0 = initial_fields(scene)
+    method = method or scene["integrator"]["method"]
+    traj = integrate(scene, W0, method=method, progress=progress)
+    ds = trajectory_dataset(scene, traj, method, history)
+    ds.attrs["summary"] = summary(ds)
+    return ds
+
+
+# ----------------------------------------------------------------------------- runs with outputs
+
+
+class OutputError(ValueError):
+    """An output that would replace another scene's run (without force)."""
+
+
+def output_paths(scene: ZeitlinScene, output=None) -> dict:
+    """{method: path}: ``output`` (or data/runs/<name>_<method>.nc) for the scene's
+    method, ``<stem>_<method>.nc`` beside it for the compared ones."""
+    from pathlib import Path
+
+    method = scene["integrator"]["method"]
+    methods = [method] + [m for m in dict.fromkeys(scene["output"]["compare"]) if m != method]
+    if output is None:
+        return {m: Path("data/runs") / f"{scene.name}_{m}.nc" for m in methods}
+    out = Path(output)
+    return {m: out if m == method else out.with_name(f"{out.stem}_{m}.nc") for m in methods}
+
+
+def _check_output(path, scene: ZeitlinScene, force: bool) -> None:
+    from ..cf import load_dataset
+
+    if force or not path.exists():
+        return
+    try:
+        old = load_dataset(path).attrs.get("scene", "")
+    except (OSError, ValueError):
+        raise OutputError(f"{path} exists and is not a liethermo file: give --force to replace it") from None
+    import tomllib
+
+    try:
+        name = tomllib.loads(old)["scene"]["name"]
+    except (tomllib.TOMLDecodeError, KeyError):
+        name = None
+    if name != scene.name:
+        raise OutputError(f"{path} holds a run of scene {name!r}, not {scene.name!r}: give --force to replace it")
+
+
+def run_outputs(scene: ZeitlinScene, output=None, *, compare: bool = True, figures: bool | None = None,
+                progress=None, force: bool = False, history: str | None = None) -> dict:
+    """Run the scene's method (and its output.compare methods if ``compare``) and
+    write each to its file (atomically); draw the figures beside the first.
+    Returns {method: Dataset} with ``attrs["summary"]`` and, on the first,
+    ``attrs["figures"]``."""
+    from ..io import write_netcdf_atomic
+    from . import plotting
+
+    paths = output_paths(scene, output)
+    if not compare:
+        paths = dict(list(paths.items())[:1])
+    for p in paths.values():
+        _check_output(p, scene, force)
+    W0 = initial_fields(scene)
+    results, W_first = {}, None
+    for m, p in paths.items():
+        traj = integrate(scene, W0, method=m, progress=progress)
+        ds = trajectory_dataset(scene, traj, m, history)
+        ds.attrs["summary"] = summary(ds) + f"\n  wrote {p}"
+        write_netcdf_atomic(ds, p, history=history)
+        if W_first is None:
+            W_first = traj.W[0]
+        results[m] = ds
+    draw = scene["output"]["figures"] if figures is None else figures
+    if draw:
+        first = next(iter(paths.values()))
+        W = W_first if np.isfinite(W_first).all() else None
+        figs = plotting.draw(results, W, first.parent, first.stem)
+        results[next(iter(results))].attrs["figures"] = [str(f) for f in figs]
+    return results

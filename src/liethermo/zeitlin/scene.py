@@ -1,0 +1,204 @@
+"""Scenes of the thermodynamic Zeitlin fluid: keys, defaults, rules.
+
+A scene with a ``[zeitlin]`` table is a Zeitlin fluid (the built-in
+``zeitlin_decay`` and ``zeitlin_ideal`` are two).  Its keys are checked with
+the same rules and messages as the top's (:mod:`liethermo.scene`); the
+result is a :class:`ZeitlinScene`, which reads like the top's Scene
+(``scene["integrator"]["h"]``, ``scene.name``).
+"""
+
+from __future__ import annotations
+
+import copy
+from typing import Any
+
+import tomli_w
+
+from ..methods import COMPOSITION_KINDS
+from ..scene import Key, SceneError, boolean, choice, integer, number, string
+
+#: the methods a Zeitlin scene runs (names as for the top)
+METHODS = ("split", "split4", "split6", "rk4", "reference")
+INITIAL_KINDS = ("random", "rossby_haurwitz")
+MAX_N = 1024
+
+
+def _lmax_check(name, v, scene):
+    v = integer(1)(name, v, scene)
+    N = scene["zeitlin"]["N"]
+    if isinstance(N, int) and v > N - 1:
+        raise SceneError(name, f"must be at most zeitlin.N − 1 = {N - 1} (the degrees of su(N) are l = 1 … N−1)", v)
+    return v
+
+
+def _m_check(name, v, scene):
+    v = integer(0)(name, v, scene)
+    lmax = scene["initial"]["lmax"]
+    if isinstance(lmax, int) and v > lmax:
+        raise SceneError(name, f"must be at most initial.lmax = {lmax} (|m| ≤ l)", v)
+    return v
+
+
+def _compare_check(name, v, scene):
+    if not isinstance(v, list) or not all(isinstance(x, str) for x in v):
+        raise SceneError(name, "must be a list of method names", v)
+    for x in v:
+        if x not in METHODS:
+            raise SceneError(name, f"unknown method {x!r}; a Zeitlin scene runs {', '.join(METHODS)}", v)
+    return list(v)
+
+
+KEYS: tuple[Key, ...] = (
+    Key("scene", "name", "zeitlin", "", "a string", "name of the scene (files are named after it)", string),
+    Key("scene", "description", "", "", "a string", "one line on what the scene is", string),
+    Key("zeitlin", "N", 32, "1", f"integer in [3, {MAX_N}]",
+        "matrix size: the vorticity W ∈ su(N) holds the spherical harmonics of degree l = 1 … N−1",
+        integer(3, MAX_N)),
+    Key("fluid", "viscosity", 1e-3, "s-1", "≥ 0",
+        "kinematic viscosity ν on the unit sphere: Ẇ = (1/ħ)[P, W] + ν(Δ_N + 2)W", number(0.0)),
+    Key("thermo", "heat_capacity", 1.0, "J K-1", "> 0", "heat capacity c_v of the fluid",
+        number(0.0, lo_open=True)),
+    Key("thermo", "T0", 300.0, "K", "> 0", "initial temperature", number(0.0, lo_open=True)),
+    Key("initial", "kind", "random", "", " | ".join(f'"{k}"' for k in INITIAL_KINDS),
+        "random: a random field of degrees 1 … lmax with the spectrum E_l ∝ l^(−slope), drawn per "
+        "member from ensemble.seed; rossby_haurwitz: the mode (l = lmax, m) with solid-body "
+        "rotation (l = 1), plus a random field carrying the fraction initial.noise of the energy",
+        choice(*INITIAL_KINDS)),
+    Key("initial", "lmax", 6, "1", "integer in [1, zeitlin.N − 1]", "highest degree of the initial field",
+        _lmax_check),
+    Key("initial", "m", 4, "1", "integer in [0, initial.lmax]", "rossby_haurwitz: the wave's order m", _m_check),
+    Key("initial", "energy", 1.0, "J", "> 0", "initial energy H(0) of every member", number(0.0, lo_open=True)),
+    Key("initial", "slope", 0.0, "1", "finite", "random: energy spectrum E_l ∝ l^(−slope) for l ≤ lmax",
+        number()),
+    Key("initial", "noise", 1e-3, "1", "in [0, 1)", "rossby_haurwitz: fraction of the energy in the random field",
+        number(0.0, 1.0, hi_open=True)),
+    Key("integrator", "method", "split", "", " | ".join(f'"{m}"' for m in METHODS),
+        "split: Strang splitting of the exact viscous-and-heat flow around the isospectral midpoint; "
+        "split4/split6 its compositions; rk4; reference: DOP853 at tight tolerance", choice(*METHODS)),
+    Key("integrator", "h", 0.01, "s", "> 0", "time step", number(0.0, lo_open=True)),
+    Key("integrator", "steps", 1000, "1", "integer ≥ 1", "number of steps", integer()),
+    Key("integrator", "composition", "small_error", "", " | ".join(f'"{c}"' for c in COMPOSITION_KINDS),
+        "split4, split6: Suzuki's (order 4) and Kahan and Li's (order 6) compositions, or Yoshida's "
+        "triple jumps", choice(*COMPOSITION_KINDS)),
+    Key("integrator", "tol", 1e-14, "1", "in (0, 1e-3)",
+        "split: the fixed-point iteration stops when its correction is below tol × max|W| "
+        "(or stalls at round-off below 100 × that)", number(0.0, 1e-3, lo_open=True, hi_open=True)),
+    Key("integrator", "max_iter", 100, "1", "integer in [1, 1000]",
+        "split: fixed-point iterations before a step counts as failed (the member is flagged)",
+        integer(1, 1000)),
+    Key("ensemble", "members", 4, "1", "integer ≥ 1", "members (initial conditions drawn from the seed)",
+        integer()),
+    Key("ensemble", "seed", 0, "1", "integer ≥ 0", "seed of the random initial conditions", integer(0)),
+    Key("output", "every", 10, "1", "integer ≥ 1 dividing integrator.steps", "keep every k-th step", integer()),
+    Key("output", "vorticity", False, "", "true | false", "also store W (vorticity_real, vorticity_imag)",
+        boolean),
+    Key("output", "compare", [], "", "list of methods",
+        "further methods run on the same scene (files <OUT>_<method>.nc)", _compare_check),
+    Key("output", "figures", False, "", "true | false", "write PNG figures next to the netCDF", boolean),
+)
+SECTIONS = tuple(dict.fromkeys(k.section for k in KEYS))
+DEFAULTS: dict[str, dict[str, Any]] = {s: {k.name: k.default for k in KEYS if k.section == s} for s in SECTIONS}
+
+
+class ZeitlinScene:
+    """A validated Zeitlin scene: sections of keys, read like TOML tables."""
+
+    model = "zeitlin"
+
+    def __init__(self, tables: dict):
+        self._t = {s: dict(tables[s]) for s in SECTIONS}
+
+    def __getitem__(self, section: str) -> dict:
+        return dict(self._t[section])
+
+    def __contains__(self, section) -> bool:
+        return section in self._t
+
+    def keys(self):
+        return self._t.keys()
+
+    def __iter__(self):
+        return iter(self._t)
+
+    def items(self):
+        return ((s, dict(t)) for s, t in self._t.items())
+
+    def __eq__(self, other) -> bool:
+        return isinstance(other, ZeitlinScene) and other._t == self._t
+
+    @property
+    def name(self) -> str:
+        return self._t["scene"]["name"]
+
+    def to_dict(self) -> dict:
+        return copy.deepcopy(self._t)
+
+    def to_toml(self) -> str:
+        return tomli_w.dumps(self._t)
+
+    def with_overrides(self, overrides) -> "ZeitlinScene":
+        from ..scene import _overrides_as_tables
+
+        d = self.to_dict()
+        for table, origin in _overrides_as_tables(overrides):
+            merge(d, table, origin)
+        return validate(d)
+
+    def __repr__(self) -> str:
+        return f"ZeitlinScene({self.name!r}, N={self._t['zeitlin']['N']}, method={self._t['integrator']['method']!r})"
+
+
+def is_zeitlin(source) -> bool:
+    """Whether scene tables (or a scene) describe a Zeitlin fluid: it has a [zeitlin] table."""
+    if isinstance(source, ZeitlinScene):
+        return True
+    return isinstance(source, dict) and "zeitlin" in source
+
+
+def merge(base: dict, new: dict, origin: str) -> None:
+    for section, table in new.items():
+        if section not in DEFAULTS:
+            raise SceneError(section, f"unknown section [{section}] of a Zeitlin scene in {origin}; known "
+                             f"sections: {', '.join(SECTIONS)}", show_value=False)
+        if not isinstance(table, dict):
+            raise SceneError(section, f"must be a table of keys in {origin}", table)
+        for key, value in table.items():
+            if key not in DEFAULTS[section]:
+                raise SceneError(f"{section}.{key}", f"unknown key of a Zeitlin scene in {origin}; known keys of "
+                                 f"[{section}]: {', '.join(DEFAULTS[section])}", show_value=False)
+            base[section][key] = copy.deepcopy(value)
+
+
+def load(tables: dict, origin: str, overrides=None) -> ZeitlinScene:
+    """Defaults ← ``tables`` ← overrides, validated."""
+    from ..scene import _overrides_as_tables
+
+    d = copy.deepcopy(DEFAULTS)
+    merge(d, tables, origin)
+    for table, o in _overrides_as_tables(overrides):
+        merge(d, table, o)
+    return validate(d)
+
+
+def validate(d: dict) -> ZeitlinScene:
+    clean = copy.deepcopy(DEFAULTS)
+    for s in SECTIONS:
+        clean[s].update(d.get(s, {}))
+    for k in KEYS:
+        clean[k.section][k.name] = k.check(k.path, clean[k.section][k.name], clean)
+    steps, every = clean["integrator"]["steps"], clean["output"]["every"]
+    if steps % every:
+        raise SceneError("output.every", f"must divide integrator.steps = {steps}", every)
+    return ZeitlinScene(clean)
+
+
+def keys_table() -> str:
+    lines = []
+    for s in SECTIONS:
+        lines.append(f"[{s}]")
+        for k in KEYS:
+            if k.section == s:
+                unit = f" [{k.unit}]" if k.unit and k.unit != "1" else ""
+                lines.append(f"  {k.path}{unit} = {k.default!r}   ({k.rule}) {k.doc}")
+        lines.append("")
+    return "\n".join(lines)
