@@ -70,17 +70,22 @@ def test_scenes_md_lists_every_key_and_builtin_scene():
     """Each key appears once, in its section's table, with its unit and its
     default; each built-in scene with its description; table rows have as many
     cells as their header."""
-    text = scenes_markdown()
-    for k in KEYS:
-        rows = [line for line in text.splitlines() if line.startswith(f"| `{k.path}` |")]
-        assert len(rows) == 1, k.path
-        cells = re.split(r"(?<!\\)\|", rows[0])[1:-1]
-        assert len(cells) == 5, rows[0]
-        assert cells[1].strip() == (k.unit or "—")
-        assert cells[2].strip() == f"`{_toml_value(k.default)}`"
-        start = text.index(f"### [{k.section}]")
-        end = text.find("### [", start + 1)
-        assert start < text.index(rows[0]) < (end if end > 0 else len(text))
+    from liethermo.zeitlin.scene import KEYS as ZKEYS
+
+    full = scenes_markdown()
+    cut = full.index("## Keys of a Zeitlin fluid")
+    for keys, text, heading in ((KEYS, full[:cut], "### ["), (ZKEYS, full[cut:], "### zeitlin scene: [")):
+        for k in keys:
+            rows = [line for line in text.splitlines() if line.startswith(f"| `{k.path}` |")]
+            assert len(rows) == 1, k.path
+            cells = re.split(r"(?<!\\)\|", rows[0])[1:-1]
+            assert len(cells) == 5, rows[0]
+            assert cells[1].strip() == (k.unit or "—")
+            assert cells[2].strip() == f"`{_toml_value(k.default)}`"
+            start = text.index(f"{heading}{k.section}]")
+            end = text.find(heading, start + 1)
+            assert start < text.index(rows[0]) < (end if end > 0 else len(text))
+    text = full
     for name, description in builtin_scenes().items():
         assert f"| `{name}` |" in text and description.split(":")[0] in text
 
@@ -97,7 +102,11 @@ def test_keys_command_prints_every_key(capsys):
         if k.unit and k.unit != "1":
             assert f"[{k.unit}]" in line, line
         assert f"({k.rule})" in line, line
-    assert out == keys_table(markdown=False)
+    from liethermo.zeitlin.scene import KEYS as ZKEYS
+
+    assert out.startswith(keys_table(markdown=False))
+    for k in ZKEYS:  # after the top's keys, under their own heading
+        assert f"  {k.path}" in out.split("a Zeitlin fluid")[1], k.path
     assert main(["keys", "--markdown"]) == 0
     assert capsys.readouterr().out == SCENES_MD.read_text(encoding="utf-8")
 

@@ -236,7 +236,13 @@ def build_parser() -> argparse.ArgumentParser:
 def cmd_keys(args) -> int:
     from .scene import keys_table, scenes_markdown
 
-    sys.stdout.write(scenes_markdown() if args.markdown else keys_table(markdown=False))
+    if args.markdown:
+        sys.stdout.write(scenes_markdown())
+        return 0
+    from .zeitlin.scene import KEYS as ZKEYS
+
+    sys.stdout.write(keys_table(markdown=False) + "\n# a Zeitlin fluid (a scene with a [zeitlin] table)\n\n"
+                     + keys_table(markdown=False, keys=ZKEYS))
     return 0
 
 

@@ -650,12 +650,13 @@ def _cross_rules(s: dict) -> None:
 # ----------------------------------------------------------------------------- key documentation
 
 
-def keys_table(markdown: bool = True) -> str:
-    """Every key with its unit, default and rule: the body of docs/scenes.md
-    and of ``liethermo keys``."""
+def keys_table(markdown: bool = True, keys: tuple[Key, ...] | None = None) -> str:
+    """Every key (of :data:`KEYS`, or ``keys``) with its unit, default and rule:
+    the body of docs/scenes.md and of ``liethermo keys``."""
+    keys = KEYS if keys is None else keys
     lines = []
-    for section in SECTIONS:
-        ks = [k for k in KEYS if k.section == section]
+    for section in dict.fromkeys(k.section for k in keys):
+        ks = [k for k in keys if k.section == section]
         if markdown:
             lines += [f"### [{section}]", "", "| key | unit | default | rule | meaning |",
                       "|---|---|---|---|---|"]
@@ -762,5 +763,22 @@ def scenes_markdown() -> str:
         lines.append(f"| `{name}` | {_md_cell(description)} |")
     lines += ["", "## Keys", "",
               "Units are SI; 1 marks a dimensionless number, — a key without a unit.", "",
-              keys_table(markdown=True).rstrip("\n")]
+              keys_table(markdown=True).rstrip("\n"), "",
+              "## Keys of a Zeitlin fluid", "",
+              ZEITLIN_INTRO.rstrip("\n"), "",
+              keys_table(markdown=True, keys=_zeitlin_keys()).replace("### [", "### zeitlin scene: [").rstrip("\n")]
     return "\n".join(lines) + "\n"
+
+
+ZEITLIN_INTRO = """\
+A scene with a `[zeitlin]` table is a thermodynamic Zeitlin fluid on the sphere (docs/model.md,
+"A second Lie group"): the vorticity is a matrix W in su(N), viscosity turns its energy into heat.
+It has keys of its own, below; sections it shares with the top (`[fluid]`, `[thermo]`, `[initial]`,
+`[integrator]`, `[ensemble]`, `[output]`) hold only the keys listed here.  Its methods are `split`,
+`split4`, `split6`, `rk4` and `reference`."""
+
+
+def _zeitlin_keys():
+    from .zeitlin.scene import KEYS as ZKEYS
+
+    return ZKEYS

@@ -302,6 +302,14 @@ def trajectory_dataset(scene: ZeitlinScene, traj: Trajectory, method: str, histo
 
 
 def summary(ds: xr.Dataset) -> str:
+    import warnings
+
+    with warnings.catch_warnings():  # members that failed are NaN; all of them may have
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return _summary(ds)
+
+
+def _summary(ds: xr.Dataset) -> str:
     n_bad = int((ds["status"] != 0).sum())
     M = ds.sizes["member"]
     err = float(np.nanmax(np.abs(ds["energy_error"].values)))

@@ -158,7 +158,8 @@ def is_zeitlin(source) -> bool:
 def merge(base: dict, new: dict, origin: str) -> None:
     for section, table in new.items():
         if section not in DEFAULTS:
-            raise SceneError(section, f"unknown section [{section}] of a Zeitlin scene in {origin}; known "
+            name = f"{section}.{next(iter(table))}" if isinstance(table, dict) and table else section
+            raise SceneError(name, f"unknown section [{section}] of a Zeitlin scene in {origin}; known "
                              f"sections: {', '.join(SECTIONS)}", show_value=False)
         if not isinstance(table, dict):
             raise SceneError(section, f"must be a table of keys in {origin}", table)

@@ -1,0 +1,215 @@
+"""The thermodynamic Zeitlin fluid on the sphere: operators, flows, orders,
+conservation laws, scenes, datasets, the command line."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import xarray as xr
+from scipy.special import sph_harm_y
+
+from liethermo.cli import main
+from liethermo.methods import COMPOSITION_FACTORS
+from liethermo.scene import SceneError, load_scene
+from liethermo.zeitlin import kernels as zk
+from liethermo.zeitlin import run as zr
+
+
+def _random_W(N, M, lmax, rng):
+    b = zk.basis(N)
+    C = np.zeros((M, b.modes), complex)
+    sel = (b.ell >= 1) & (b.ell <= lmax)
+    C[:, sel] = rng.normal(size=(M, sel.sum())) + 1j * rng.normal(size=(M, sel.sum()))
+    W = zk.from_modes(C, b)
+    return W / np.sqrt(zk.energy_of_modes(zk.to_modes(W, b), b))[:, None, None]
+
+
+@pytest.mark.parametrize("N", [3, 8, 17])
+def test_laplacian_by_diagonals_is_the_spin_definition_and_inverts(N):
+    rng = np.random.default_rng(N)
+    b = zk.basis(N)
+    A = rng.normal(size=(3, N, N)) + 1j * rng.normal(size=(3, N, N))
+    W = A - np.conj(np.swapaxes(A, 1, 2))
+    W -= np.trace(W, axis1=1, axis2=2)[:, None, None] * np.eye(N) / N
+    dense = np.array([zk.laplacian_dense(w) for w in W])
+    assert np.abs(zk.laplacian(W, b) - dense).max() < 1e-13 * N * N * np.abs(W).max()
+    P = zk.laplacian_inverse(W, b)
+    assert np.abs(zk.laplacian(P, b) - W).max() < 1e-13 * N * np.abs(W).max()
+    # the modes are orthonormal: ⟨W, W⟩ = Σ weight |c|², and W is rebuilt from them
+    C = zk.to_modes(W, b)
+    assert np.allclose((np.abs(C) ** 2 * zk.mode_weights(b)).sum(1), (np.abs(W) ** 2).sum((1, 2)), rtol=1e-13)
+    assert np.abs(zk.from_modes(C, b) - W).max() < 1e-13 * np.abs(W).max()
+    # H = ½⟨W, −P⟩ from the modes, and the spectrum sums to it
+    H = 0.5 * np.einsum("kij,kji->k", W, P).real
+    assert np.allclose(zk.energy_of_modes(C, b), H, rtol=1e-13)
+    assert np.allclose(zk.spectrum_of_modes(C, b).sum(-1), H, rtol=1e-13)
+
+
+def test_quantized_harmonics_have_the_spherical_harmonics_as_symbols():
+    """The coherent-state symbol of each T_lm is a positive multiple of Y_lm,
+    the same at every point: what the vorticity maps rely on."""
+    N = 7
+    b = zk.basis(N)
+    pts = [(0.4, 0.3), (1.3, 2.0), (2.5, -1.1)]
+    for d in range(N):
+        n = N - d
+        V = b.vecs[b.voff[d]:b.voff[d + 1]].reshape(n, n)
+        for j, l in enumerate(range(d, N)):
+            ratios = []
+            for th, ph in pts:
+                z = zk._coherent(N, th, ph)
+                sym = np.sum(np.conj(z[:n]) * V[:, j] * z[d:])
+                ratios.append(sym / sph_harm_y(l, d, th, ph))
+            ratios = np.array(ratios)
+            assert np.all(ratios.real > 0) and np.abs(ratios.imag).max() < 1e-10
+            assert np.ptp(ratios.real) < 1e-10 * ratios.real.max()
+
+
+def test_viscous_flow_is_exact_and_its_heat_is_the_energy_lost():
+    rng = np.random.default_rng(3)
+    N, nu = 9, 0.05
+    b = zk.basis(N)
+    W = _random_W(N, 3, N - 1, rng)
+    W1, q1 = zk.viscous_flow(W, 0.3, nu, b)
+    W2, q2 = zk.viscous_flow(W1, 0.2, nu, b)
+    W12, q12 = zk.viscous_flow(W, 0.5, nu, b)
+    assert np.abs(W2 - W12).max() < 1e-14 * np.abs(W).max()  # a flow: F_s ∘ F_t = F_(s+t)
+    assert np.allclose(q1 + q2, q12, rtol=1e-13)
+    H = lambda X: zk.energy_of_modes(zk.to_modes(X, b), b)  # noqa: E731
+    assert np.allclose(H(W) - H(W12), q12, rtol=1e-12)
+    # its generator is ν(Δ + 2)W, and the l = 1 part (angular momentum) is undamped
+    eps = 1e-6
+    Wp, _ = zk.viscous_flow(W, eps, nu, b)
+    Wm, _ = zk.viscous_flow(W, -eps, nu, b)
+    assert np.abs((Wp - Wm) / (2 * eps) - nu * (zk.laplacian(W, b) + 2 * W)).max() < 1e-8
+    assert np.abs(zk.angular_momentum(W12) - zk.angular_momentum(W)).max() < 1e-14
+
+
+def _split_run(W, h, T, nu, b, fac):
+    q = np.zeros(W.shape[0])
+    for _ in range(int(round(T / h))):
+        W, q, _, failed = zr.split_step(W, q, h, nu, b, fac, 1e-14, 100)
+        assert not failed.any()
+    return W, q
+
+
+def _reference(W0, T, nu, N):
+    class S(dict):
+        pass
+
+    b = zk.basis(N)
+    Ws = np.empty((W0.shape[0], 2, N, N), complex)
+    qs = np.empty((W0.shape[0], 2))
+    status = np.zeros(W0.shape[0], np.int8)
+    zr._reference(W0, np.array([0.0, T]), nu, b, Ws, qs, status, False)
+    assert not status.any()
+    return Ws[:, 1], qs[:, 1]
+
+
+def test_orders_2_4_6_against_the_reference():
+    """N = 8, ν = 0.01, t = 1, unit energy, l ≤ 5: the observed orders of split,
+    split4 (Suzuki) and split6 (Kahan–Li), and the RK4 baseline, on W and q."""
+    rng = np.random.default_rng(2)
+    N, nu, T = 8, 0.01, 1.0
+    b = zk.basis(N)
+    W0 = _random_W(N, 2, 5, rng)
+    Wr, qr = _reference(W0, T, nu, N)
+    cases = {"split": ((1.0,), (0.1, 0.05), 2), "split4": (COMPOSITION_FACTORS[("small_error", 4)], (0.05, 0.025), 4),
+             "split6": (COMPOSITION_FACTORS[("small_error", 6)], (0.1, 0.05), 6)}
+    for name, (fac, hs, order) in cases.items():
+        errs = []
+        for h in hs:
+            W, q = _split_run(W0, h, T, nu, b, fac)
+            errs.append(np.abs(W - Wr).max() / np.abs(Wr).max())
+        observed = np.log2(errs[0] / errs[1])
+        assert abs(observed - order) < 0.15, (name, errs, observed)
+    assert errs[1] > 1e-11  # the order-6 pair is above the reference's own error
+    # the oracle's figure: split4 at h = 0.025 has an error near 1e-7 here
+    W, _ = _split_run(W0, 0.025, T, nu, b, COMPOSITION_FACTORS[("small_error", 4)])
+    assert 1e-8 < np.abs(W - Wr).max() / np.abs(Wr).max() < 1e-6
+    errs = []
+    for h in (0.05, 0.025):
+        W, q = W0, np.zeros(2)
+        for _ in range(int(round(T / h))):
+            W, q = zr.rk4_step(W, q, h, nu, b)
+        errs.append((np.abs(W - Wr).max() / np.abs(Wr).max(), np.abs(q - qr).max()))
+    assert abs(np.log2(errs[0][0] / errs[1][0]) - 4) < 0.2
+    assert abs(np.log2(errs[0][1] / errs[1][1]) - 4) < 0.3  # and the heat it integrates alongside
+
+
+def test_ideal_fluid_keeps_casimirs_and_angular_momentum_over_ten_thousand_steps():
+    rng = np.random.default_rng(5)
+    N = 8
+    b = zk.basis(N)
+    W0 = _random_W(N, 2, 5, rng)
+    W, q = _split_run(W0, 0.05, 500.0, 0.0, b, (1.0,))
+    c0, c1 = zk.casimirs(W0), zk.casimirs(W)
+    assert np.abs(c1[:, 0] / c0[:, 0] - 1).max() < 1e-11  # tr W²
+    assert np.abs(c1[:, 2] / c0[:, 2] - 1).max() < 1e-11  # tr W⁴
+    L0, L1 = zk.angular_momentum(W0), zk.angular_momentum(W)
+    assert np.abs(L1 - L0).max() < 1e-11 * np.linalg.norm(L0, axis=1).max()
+    assert np.all(q == 0.0)
+    H0, H1 = (zk.energy_of_modes(zk.to_modes(X, b), b) for X in (W0, W))
+    assert np.abs(H1 / H0 - 1).max() < 1e-3  # bounded, not kept: the midpoint's energy error
+
+
+def test_viscous_fluid_conserves_total_energy_to_the_order_and_entropy_never_decreases():
+    base = {"zeitlin.N": 10, "fluid.viscosity": 0.02, "initial.lmax": 6, "ensemble.members": 3,
+            "integrator.steps": 100, "output.every": 1}
+    errs = []
+    for h in (0.04, 0.02):
+        sc = load_scene("zeitlin_decay", {**base, "integrator.h": h, "integrator.steps": int(round(4 / h))})
+        ds = zr.simulate(sc, progress=False)
+        errs.append(float(np.abs(ds["energy_error"]).max()))
+        assert (np.diff(ds["entropy"].values, axis=1) >= 0).all()
+        assert float(ds["heat"][:, -1].min()) > 0.1 * float(ds["energy"][:, 0].min())
+        L = ds["angular_momentum"].values
+        assert np.abs(L - L[:, :1]).max() < 1e-12 * np.abs(L).max()
+    assert abs(np.log2(errs[0] / errs[1]) - 2) < 0.2
+
+
+def test_a_member_whose_fixed_point_fails_is_flagged_and_stops():
+    sc = load_scene("zeitlin_ideal", {"zeitlin.N": 8, "initial.lmax": 4, "ensemble.members": 2,
+                                      "integrator.steps": 10, "output.every": 1, "integrator.max_iter": 2})
+    ds = zr.simulate(sc, progress=False)
+    assert (ds["status"].values == 1).all() and (ds["failed_step"].values == 1).all()
+    assert np.isnan(ds["energy"].values[:, 1:]).all() and np.isfinite(ds["energy"].values[:, 0]).all()
+
+
+def test_scene_rules_name_the_key():
+    with pytest.raises(SceneError, match="initial.lmax.*zeitlin.N"):
+        load_scene("zeitlin_decay", {"zeitlin.N": 8, "initial.lmax": 8})
+    with pytest.raises(SceneError, match="output.compare"):
+        load_scene("zeitlin_decay", {"output.compare": ["vi"]})
+    with pytest.raises(SceneError, match="body.radius.*Zeitlin"):
+        load_scene("zeitlin_decay", {"body.radius": 1.0})
+    with pytest.raises(SceneError, match="zeitlin.N"):
+        load_scene("zeitlin_decay", {"zeitlin.N": 2})
+    # members are reproducible one by one
+    sc = load_scene("zeitlin_decay", {"zeitlin.N": 8, "initial.lmax": 4, "ensemble.members": 3})
+    assert np.array_equal(zr.initial_fields(sc)[2:], zr.initial_fields(sc, [2]))
+
+
+def test_command_line_writes_the_named_variables(tmp_path, capsys):
+    out = tmp_path / "z.nc"
+    rc = main(["run", "zeitlin_ideal", "-o", str(out), "--no-progress", "--set", "zeitlin.N=8",
+               "--set", "initial.lmax=5", "--set", "integrator.steps=20", "--set", "output.every=5",
+               "--set", "output.figures=false"])
+    assert rc == 0
+    printed = capsys.readouterr().out
+    assert "tr W² drift" in printed and str(out) in printed
+    ds = xr.open_dataset(out)  # plain xarray
+    for v in ("energy", "heat", "entropy", "temperature", "enstrophy"):
+        assert ds[v].dims == ("member", "t") and ds[v].attrs["units"]
+    assert ds["casimir"].dims == ("member", "t", "k") and list(ds["k"].values) == [2, 3, 4]
+    assert ds["angular_momentum"].dims[:2] == ("member", "t") and ds["angular_momentum"].shape[-1] == 3
+    assert ds["energy_spectrum"].dims == ("member", "t", "l") and ds.sizes["l"] == 7
+    assert ds["vorticity_real"].dims == ("member", "t", "row", "col")
+    W = ds["vorticity_real"].values + 1j * ds["vorticity_imag"].values
+    assert np.abs(W + np.conj(np.swapaxes(W, -1, -2))).max() == 0.0  # skew-Hermitian
+    assert (tmp_path / "z_rk4.nc").exists()
+    ds.close()
+    # another scene's file is not replaced without --force
+    assert main(["run", "zeitlin_decay", "-o", str(out), "--no-progress", "--set", "zeitlin.N=8",
+                 "--set", "initial.lmax=5"]) == 2
+    assert "--force" in capsys.readouterr().err
