@@ -15,7 +15,7 @@ import importlib
 from types import ModuleType
 
 KINDS = ("paper", "convergence", "energy_drift", "work_precision", "stability", "viscosity_sweep",
-         "long_drift", "coupling", "flat_spin")
+         "long_drift", "coupling", "flat_spin", "zeitlin_convergence", "zeitlin_decay", "zeitlin_structure")
 
 
 def get_study(kind: str) -> ModuleType:

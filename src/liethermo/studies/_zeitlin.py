@@ -1,0 +1,70 @@
+"""What the three Zeitlin studies share: scenes, warm timing, report pieces."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from ..zeitlin import kernels as zk
+from ..zeitlin import run as zr
+from .common import StudyError, study_options, study_scene
+
+ZEITLIN_METHODS = ("split", "split4", "split6", "rk4")
+
+
+def zeitlin_scene(s: dict, overrides: dict | None = None):
+    sc = study_scene(s, overrides)
+    if getattr(sc, "model", None) != "zeitlin":
+        raise StudyError("study.base_scene: a Zeitlin study needs a Zeitlin scene (with a [zeitlin] table), "
+                         f"e.g. zeitlin_decay; got {s['study'].get('base_scene')!r}")
+    return sc
+
+
+def check_methods(s: dict) -> list[str]:
+    methods = s.get("methods", [])
+    for m in methods:
+        if m not in ZEITLIN_METHODS:
+            raise StudyError(f"methods: {m!r} is not a method of the Zeitlin fluid ({', '.join(ZEITLIN_METHODS)})")
+    return list(methods)
+
+
+def options(s: dict, defaults: dict, kind: str) -> dict:
+    return study_options(s, defaults, kind)
+
+
+def advance(method: str, W, q, h: float, steps: int, nu: float, b, composition="small_error",
+            tol=1e-14, max_iter=100):
+    """``steps`` steps of ``method`` on a batch; returns W, q and the fixed-point
+    iterations per step (mean over members), raising if a member fails."""
+    fac = zr.factors(method, composition) if method != "rk4" else ()
+    its = 0.0
+    for _ in range(steps):
+        if method == "rk4":
+            W, q = zr.rk4_step(W, q, h, nu, b)
+        else:
+            W, q, it, failed = zr.split_step(W, q, h, nu, b, fac, tol, max_iter)
+            if failed.any():
+                raise ArithmeticError(f"{method} at h = {h:g} s: the fixed point did not converge")
+            its += float(it.mean())
+    return W, q, its / max(steps, 1)
+
+
+def step_seconds(method: str, W, h: float, nu: float, b, min_time: float = 0.2) -> float:
+    """Warm wall time of one step of ``method`` on the batch W (seconds per step):
+    a first step compiles and warms, then steps are repeated for at least ``min_time``."""
+    q = np.zeros(W.shape[0])
+    advance(method, W, q, h, 1, nu, b)
+    n, t = 0, 0.0
+    t0 = time.perf_counter()
+    while t < min_time:
+        advance(method, W, q, h, 1, nu, b)
+        n += 1
+        t = time.perf_counter() - t0
+    return t / n
+
+
+def invariants(W, b) -> dict:
+    C = zk.to_modes(W, b)
+    return {"H": zk.energy_of_modes(C, b), "cas": zk.casimirs(W), "L": zk.angular_momentum(W),
+            "spec": zk.spectrum_of_modes(C, b), "Z": zk.enstrophy(W)}
