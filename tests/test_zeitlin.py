@@ -194,8 +194,10 @@ def test_command_line_writes_the_named_variables(tmp_path, capsys):
     out = tmp_path / "z.nc"
     rc = main(["run", "zeitlin_ideal", "-o", str(out), "--no-progress", "--set", "zeitlin.N=8",
                "--set", "initial.lmax=5", "--set", "integrator.steps=20", "--set", "output.every=5",
-               "--set", "output.figures=false"])
+               "--set", "output.figures=true"])
     assert rc == 0
+    for f in ("vorticity", "energy_heat", "spectrum", "casimirs"):
+        assert (tmp_path / f"z_{f}.png").stat().st_size > 10_000
     printed = capsys.readouterr().out
     assert "tr W² drift" in printed and str(out) in printed
     ds = xr.open_dataset(out)  # plain xarray
@@ -213,3 +215,65 @@ def test_command_line_writes_the_named_variables(tmp_path, capsys):
     assert main(["run", "zeitlin_decay", "-o", str(out), "--no-progress", "--set", "zeitlin.N=8",
                  "--set", "initial.lmax=5"]) == 2
     assert "--force" in capsys.readouterr().err
+
+
+# ----------------------------------------------------------------------------- studies (reduced)
+
+
+def _study(name, tmp_path):
+    from pathlib import Path
+
+    from liethermo.studies.runner import load_study, run_study, validate_study
+
+    study = load_study(Path(__file__).resolve().parents[1] / "studies" / f"{name}.toml")
+    validate_study(study)
+    return run_study(study, tmp_path / name, reduced=True, progress=False)
+
+
+def test_convergence_study_reports_the_orders(tmp_path):
+    import pandas as pd
+
+    report = _study("zeitlin_convergence", tmp_path)
+    df = pd.read_csv(report.parent / "orders.csv")
+    for m, order in (("split", 2), ("split4", 4), ("split6", 6), ("rk4", 4)):
+        last = df[df["method"] == m]["order"].iloc[-1]
+        assert abs(last - order) < 0.2, (m, last)
+    assert (report.parent / "convergence.png").stat().st_size > 10_000
+    assert "observed orders" in report.read_text()
+
+
+def test_decay_study_turns_energy_into_heat(tmp_path):
+    import pandas as pd
+
+    from liethermo.cf import load_dataset
+
+    report = _study("zeitlin_decay", tmp_path)
+    df = pd.read_csv(report.parent / "decay.csv").set_index("viscosity (s-1)")
+    assert df.loc[0.0, "heat / H(0) at the end"] == 0.0 and df.loc[0.01, "heat / H(0) at the end"] > 0.3
+    assert (df["smallest entropy change per output (J K-1)"] >= 0).all()
+    assert (df["angular momentum drift (relative)"] < 1e-11).all()
+    ds = load_dataset(report.parent / "zeitlin_decay.nc")
+    assert ds["energy"].dims == ("viscosity", "member", "t") and ds["viscosity"].attrs["units"] == "s-1"
+    for f in ("decay.png", "spectrum.png"):
+        assert (report.parent / f).stat().st_size > 10_000
+
+
+def test_structure_study_compares_at_equal_measured_cost(tmp_path):
+    import pandas as pd
+
+    report = _study("zeitlin_structure", tmp_path)
+    df = pd.read_csv(report.parent / "drift.csv")
+    split, rk4 = df[df["method"] == "split"].iloc[0], df[df["method"] == "rk4"].iloc[0]
+    # the costs were measured, and RK4's step corrected until they agree
+    assert abs(rk4["wall per simulated second (s)"] / split["wall per simulated second (s)"] - 1) < 0.35
+    assert split["tr W² drift"] < 1e-13 and split["tr W⁴ drift"] < 1e-13  # the spectrum is kept
+    assert rk4["tr W² drift"] > 100 * split["tr W² drift"]
+    assert (report.parent / "drift.png").stat().st_size > 10_000
+
+
+def test_a_zeitlin_study_refuses_a_top_scene():
+    from liethermo.studies.common import StudyError
+    from liethermo.studies.runner import validate_study
+
+    with pytest.raises(StudyError, match="Zeitlin scene"):
+        validate_study({"study": {"kind": "zeitlin_convergence", "base_scene": "paper"}, "methods": ["split"]})

@@ -92,7 +92,7 @@ def _figure(df, outdir, N, nu, T) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(6.2, 4.2))
+    fig, ax = plt.subplots(figsize=(6.2, 4.2), layout="constrained")
     for m, g in df.groupby("method", sort=False):
         ax.loglog(g["h (s)"], g["error W"], "o-", label=m)
     ax.set_xlabel("step h (s)")

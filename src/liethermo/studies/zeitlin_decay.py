@@ -92,7 +92,7 @@ def _figures(ds, outdir) -> list[Path]:
     t = ds["t"].values
     nus = ds["viscosity"].values
     out = []
-    fig, axes = plt.subplots(1, 3, figsize=(14, 3.9))
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2), layout="constrained")
     for nu in nus:
         d = ds.sel(viscosity=nu)
         H0 = d["energy"].values[:, :1]
@@ -108,6 +108,7 @@ def _figures(ds, outdir) -> list[Path]:
     axes[0].set_ylabel("heat q / H(0)")
     axes[1].set_xlabel("time t (s)")
     axes[1].set_ylabel("entropy produced (J K⁻¹)")
+    axes[1].ticklabel_format(axis="y", style="sci", scilimits=(-2, 3))
     axes[2].set_xlabel("time t (s)")
     axes[2].set_ylabel("enstrophy Z(t)/Z(0)")
     for a in axes:
@@ -117,7 +118,8 @@ def _figures(ds, outdir) -> list[Path]:
     fig.savefig(p, dpi=110, bbox_inches="tight")
     plt.close(fig)
     out.append(p)
-    fig, axes = plt.subplots(1, len(nus), figsize=(3.6 * len(nus), 3.4), sharey=True, squeeze=False)
+    fig, axes = plt.subplots(1, len(nus), figsize=(3.8 * len(nus) + 0.6, 3.6), sharey=True, squeeze=False,
+                             layout="constrained")
     cmap = plt.get_cmap("viridis")
     idx = np.unique(np.linspace(0, len(t) - 1, 5).round().astype(int))
     for a, nu in zip(axes[0], nus):

@@ -125,7 +125,8 @@ def _figure(cv, outdir) -> Path:
     import matplotlib.pyplot as plt
 
     keys = list(cv.groupby(["N", "viscosity"]).groups)
-    fig, axes = plt.subplots(2, len(keys), figsize=(3.8 * len(keys), 6.2), squeeze=False, sharex=True)
+    fig, axes = plt.subplots(2, len(keys), figsize=(3.9 * len(keys) + 0.8, 6.2), squeeze=False, sharex=True,
+                             layout="constrained")
     for j, (N, nu) in enumerate(keys):
         g = cv[(cv["N"] == N) & (cv["viscosity"] == nu)]
         for (pair, meth), gg in g.groupby(["pair", "method"], sort=False):

@@ -57,7 +57,7 @@ def draw(datasets: dict, W_member0: np.ndarray | None, folder, stem: str) -> lis
         idx = np.unique(np.linspace(0, len(t) - 1, 4).round().astype(int))
         fields = [vorticity_on_grid(W_member0[i]) for i in idx]
         vmax = max(np.abs(f[2]).max() for f in fields)
-        fig = plt.figure(figsize=(3.6 * len(idx), 2.6))
+        fig = plt.figure(figsize=(3.6 * len(idx) + 0.8, 2.8), layout="constrained")
         for j, (i, (lon, lat, om)) in enumerate(zip(idx, fields)):
             ax = fig.add_subplot(1, len(idx), j + 1, projection="mollweide")
             im = ax.pcolormesh(lon, lat, om, cmap="RdBu_r", vmin=-vmax, vmax=vmax, shading="auto")
@@ -72,7 +72,7 @@ def draw(datasets: dict, W_member0: np.ndarray | None, folder, stem: str) -> lis
         plt.close(fig)
         out.append(p)
 
-    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    fig, ax = plt.subplots(figsize=(6.4, 4.0), layout="constrained")
     H, q = _mean(ds["energy"]), _mean(ds["heat"])
     ax.plot(t, H, label="kinetic energy H")
     ax.plot(t, q, label="heat q = U − U₀")
@@ -86,7 +86,7 @@ def draw(datasets: dict, W_member0: np.ndarray | None, folder, stem: str) -> lis
     plt.close(fig)
     out.append(p)
 
-    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    fig, ax = plt.subplots(figsize=(6.4, 4.0), layout="constrained")
     spec = _mean(ds["energy_spectrum"])
     ls = ds["l"].values
     cmap = plt.get_cmap("viridis")
@@ -103,7 +103,7 @@ def draw(datasets: dict, W_member0: np.ndarray | None, folder, stem: str) -> lis
     plt.close(fig)
     out.append(p)
 
-    fig, axes = plt.subplots(1, 2, figsize=(10.5, 3.8))
+    fig, axes = plt.subplots(1, 2, figsize=(10.5, 3.8), layout="constrained")
     for m, d in datasets.items():
         tm = d["t"].values[1:]
         for k, ls_ in ((2, "-"), (4, ":")):
