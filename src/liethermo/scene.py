@@ -772,7 +772,7 @@ def scenes_markdown() -> str:
 
 ZEITLIN_INTRO = """\
 A scene with a `[zeitlin]` table is a thermodynamic Zeitlin fluid on the sphere (docs/model.md,
-"A second Lie group"): the vorticity is a matrix W in su(N), viscosity turns its energy into heat.
+"A second Lie group: the thermodynamic Zeitlin fluid"): the vorticity is a matrix W in su(N), viscosity turns its energy into heat.
 It has keys of its own, below; sections it shares with the top (`[fluid]`, `[thermo]`, `[initial]`,
 `[integrator]`, `[ensemble]`, `[output]`) hold only the keys listed here.  Its methods are `split`,
 `split4`, `split6`, `rk4` and `reference`."""

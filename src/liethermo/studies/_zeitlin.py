@@ -39,11 +39,12 @@ def advance(method: str, W, q, h: float, steps: int, nu: float, b, composition="
     iterations per step (mean over members), raising if a member fails."""
     fac = zr.factors(method, composition) if method != "rk4" else ()
     its = 0.0
+    D = None
     for _ in range(steps):
         if method == "rk4":
             W, q = zr.rk4_step(W, q, h, nu, b)
         else:
-            W, q, it, failed = zr.split_step(W, q, h, nu, b, fac, tol, max_iter)
+            W, q, it, failed, D = zr.split_step(W, q, h, nu, b, fac, tol, max_iter, D)
             if failed.any():
                 raise ArithmeticError(f"{method} at h = {h:g} s: the fixed point did not converge")
             its += float(it.mean())

@@ -330,7 +330,8 @@ def _dagger(X):
     return np.conj(np.swapaxes(X, -1, -2))
 
 
-def isomp(W: np.ndarray, h: float, b: Basis, tol: float, max_iter: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def isomp(W: np.ndarray, h: float, b: Basis, tol: float, max_iter: int,
+          guess: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """One isospectral midpoint step (a Cayley conjugation, so W's spectrum is kept):
 
         W̃ = W + [A, W̃] + A W̃ A,  A = (h/2ħ) Δ_N⁻¹ W̃,  W' = W + 2[A, W̃],
@@ -340,10 +341,11 @@ def isomp(W: np.ndarray, h: float, b: Basis, tol: float, max_iter: int) -> tuple
     A member stops when its correction is at most ``tol`` × max|W| (or when
     the correction stops falling below 100 × that, at round-off).  Returns W',
     the iterations per member and a flag per member: True where the iteration
-    did not converge within ``max_iter``."""
+    did not converge within ``max_iter``.  ``guess``: a first D (e.g. the
+    previous step's, scaled to this step); the solution D is returned last."""
     M = W.shape[0]
     scale = h / (2.0 * b.hbar)
-    D = np.zeros_like(W)
+    D = np.zeros_like(W) if guess is None else guess.copy()
     Wn = W.copy()
     its = np.zeros(M, dtype=np.int64)
     failed = np.zeros(M, dtype=bool)
@@ -369,7 +371,7 @@ def isomp(W: np.ndarray, h: float, b: Basis, tol: float, max_iter: int) -> tuple
         last[active] = change
         active = active[~(done | out | bad)]
     Wn = W + 2.0 * (X - _dagger(X))
-    return Wn, its, failed
+    return Wn, its, failed, D
 
 
 def rhs(W: np.ndarray, nu: float, b: Basis) -> tuple[np.ndarray, np.ndarray]:

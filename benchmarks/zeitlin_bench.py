@@ -1,0 +1,185 @@
+"""Zeitlin fluid: time per member-step of split and rk4 against the BLAS bound.
+
+    python benchmarks/zeitlin_bench.py                       # N = 32, 64, 128, 256; 64 members
+    python benchmarks/zeitlin_bench.py --N 128 --loop        # also the per-member loop of products
+    PYTHONPATH=/path/to/quflow python benchmarks/zeitlin_bench.py --quflow   # quflow's isomp as a peer
+
+The members are the ``zeitlin_decay`` scene's random fields (l ≤ 8, unit
+energy) at each N, h = 0.01 s, viscosity 1e-3.  Timings are warm (a first
+step compiles and fills caches) and repeated for at least ``--seconds``; the
+figure is the median of ``--rounds`` rounds alternating the methods.  The
+bound: a fixed-point iteration of the isospectral midpoint is "about 4
+complex GEMMs" (32 N³ flops) in the usual formulation; ours needs 2 (X = A W̃,
+then X A; [A, W̃] = X − X† since A and W̃ are skew-Hermitian), 16 N³ flops.
+Both bounds are given, at the DGEMM rate this machine measures (its ZGEMM
+rate at that N is printed too).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import statistics
+import time
+
+import numpy as np
+
+from liethermo.scene import load_scene
+from liethermo.zeitlin import kernels as zk
+from liethermo.zeitlin import run as zr
+
+
+def cpu_name() -> str:
+    try:
+        for line in open("/proc/cpuinfo"):
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown CPU"
+
+
+def gemm_rate(n: int, dtype, seconds: float = 0.5) -> float:
+    """flop/s of one n×n product (real: 2n³ flops, complex: 8n³)."""
+    rng = np.random.default_rng(0)
+    a = rng.standard_normal((n, n)).astype(dtype)
+    b = rng.standard_normal((n, n)).astype(dtype)
+    if np.iscomplexobj(a):
+        a = a + 1j * rng.standard_normal((n, n))
+        b = b + 1j * rng.standard_normal((n, n))
+    a @ b
+    k, t0 = 0, time.perf_counter()
+    while time.perf_counter() - t0 < seconds:
+        a @ b
+        k += 1
+    flops = (8 if np.iscomplexobj(a) else 2) * n ** 3
+    return k * flops / (time.perf_counter() - t0)
+
+
+def batched_zgemm_rate(n: int, members: int, seconds: float = 0.3) -> float:
+    rng = np.random.default_rng(0)
+    a = rng.standard_normal((members, n, n)) + 1j * rng.standard_normal((members, n, n))
+    b = rng.standard_normal((members, n, n)) + 1j * rng.standard_normal((members, n, n))
+    a @ b
+    k, t0 = 0, time.perf_counter()
+    while time.perf_counter() - t0 < seconds:
+        a @ b
+        k += 1
+    return k * 8 * n ** 3 * members / (time.perf_counter() - t0)
+
+
+def fields(N: int, members: int) -> np.ndarray:
+    sc = load_scene("zeitlin_decay", {"zeitlin.N": N, "initial.lmax": min(8, N - 1), "ensemble.members": members})
+    return zr.initial_fields(sc)
+
+
+def time_steps(step, seconds: float) -> tuple[float, int]:
+    step()
+    n, t0 = 0, time.perf_counter()
+    while time.perf_counter() - t0 < seconds:
+        step()
+        n += 1
+    return (time.perf_counter() - t0) / n, n
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--N", type=int, nargs="+", default=[32, 64, 128, 256])
+    ap.add_argument("--members", type=int, default=64)
+    ap.add_argument("--h", type=float, default=0.01)
+    ap.add_argument("--nu", type=float, default=1e-3)
+    ap.add_argument("--seconds", type=float, default=1.0)
+    ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--loop", action="store_true", help="also time the products member by member (np.dot)")
+    ap.add_argument("--quflow", action="store_true", help="time quflow's isomp_fixedpoint (importable quflow)")
+    args = ap.parse_args()
+
+    print(f"{cpu_name()}, {os.cpu_count()} cores, numpy {np.__version__}, "
+          f"{time.strftime('%Y-%m-%d')}, {args.members} members, h = {args.h} s, ν = {args.nu}")
+    dgemm = gemm_rate(1024, np.float64, 1.0)
+    print(f"DGEMM rate (1024³, all threads): {dgemm / 1e9:.1f} GFLOP/s")
+    print()
+    head = ("|   N | split µs/member-step | its/step | µs/iteration | bound 32N³ µs/it | × bound | "
+            "bound 16N³ × | batched ZGEMM GFLOP/s | rk4 µs/member-step |")
+    print(head)
+    print("|" + "---|" * head.count("|")[:-1] if False else "|---|---|---|---|---|---|---|---|---|")
+    for N in args.N:
+        b = zk.basis(N)
+        W = fields(N, args.members)
+        q = np.zeros(args.members)
+        state = {"D": None, "its": []}
+
+        def split_step():
+            _, _, its, failed, state["D"] = zr.split_step(W, q, args.h, args.nu, b, (1.0,), 1e-14, 100, state["D"])
+            assert not failed.any()
+            state["its"].append(its.mean())
+
+        def rk4_step():
+            zr.rk4_step(W, q, args.h, args.nu, b)
+
+        ts, tr = [], []
+        for _ in range(args.rounds):
+            ts.append(time_steps(split_step, args.seconds)[0])
+            tr.append(time_steps(rk4_step, args.seconds)[0])
+        t_split = statistics.median(ts) / args.members
+        t_rk4 = statistics.median(tr) / args.members
+        its = float(np.mean(state["its"]))
+        per_it = t_split / its
+        b32 = 32 * N ** 3 / dgemm
+        zrate = batched_zgemm_rate(N, args.members)
+        print(f"| {N:3d} | {t_split * 1e6:.1f} | {its:.2f} | {per_it * 1e6:.2f} | {b32 * 1e6:.2f} | "
+              f"{per_it / b32:.2f} | {per_it / (b32 / 2):.2f} | {zrate / 1e9:.1f} | {t_rk4 * 1e6:.1f} |")
+        if args.loop:
+            A = rng_skew(N, args.members)
+            t_batch = time_steps(lambda: A @ A, 0.3)[0]
+            t_loop = time_steps(lambda: [np.dot(a, a) for a in A], 0.3)[0]
+            print(f"|     | products: batched matmul {t_batch / args.members * 1e6:.1f} µs, "
+                  f"member loop {t_loop / args.members * 1e6:.1f} µs per member |")
+    if args.quflow:
+        quflow_peer(args)
+
+
+def rng_skew(N, M):
+    rng = np.random.default_rng(1)
+    A = rng.standard_normal((M, N, N)) + 1j * rng.standard_normal((M, N, N))
+    return A - np.conj(np.swapaxes(A, 1, 2))
+
+
+def quflow_peer(args) -> None:
+    import quflow as qf
+
+    print()
+    print("quflow isomp_fixedpoint, one member per call (as quflow runs), the same fields, h and tolerance")
+    print("| N | tol | ms/step | its/step | liethermo split ms/step, one member, same tol |")
+    print("|---|---|---|---|---|")
+    for N in args.N:
+        W0 = fields(N, 1)
+        b = zk.basis(N)
+        wmax = np.abs(W0[0]).max()
+        for label, tol in (("quflow auto", "auto"), ("1e-14 max|W|", 1e-14 * wmax)):
+            W = W0[0].copy()
+            stats: dict = {}
+            qf.isomp_fixedpoint(W, args.h, steps=2, maxit=100, tol=tol, stats=stats)  # compile, warm
+            stats = {}
+            t0 = time.perf_counter()
+            n = 0
+            while time.perf_counter() - t0 < args.seconds:
+                qf.isomp_fixedpoint(W, args.h, steps=10, maxit=100, tol=tol, stats=stats)
+                n += 10
+            t_q = (time.perf_counter() - t0) / n
+            its = stats.get("total_iterations", float("nan")) / n
+            mine = ""
+            if tol != "auto":
+                W1, q1 = W0.copy(), np.zeros(1)
+                st = {"D": None}
+
+                def one():
+                    _, _, _, _, st["D"] = zr.split_step(W1, q1, args.h, 0.0, b, (1.0,), 1e-14, 100, st["D"])
+
+                mine = f"{time_steps(one, args.seconds)[0] * 1e3:.3f}"
+            print(f"| {N} | {label} | {t_q * 1e3:.3f} | {its:.2f} | {mine} |")
+
+
+if __name__ == "__main__":
+    main()
