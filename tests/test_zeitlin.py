@@ -278,3 +278,29 @@ def test_a_zeitlin_study_refuses_a_top_scene():
 
     with pytest.raises(StudyError, match="Zeitlin scene"):
         validate_study({"study": {"kind": "zeitlin_convergence", "base_scene": "paper"}, "methods": ["split"]})
+
+
+def test_vorticity_map_is_the_field_of_the_harmonic_coefficients():
+    """The map's ω = Σ ω_lm Y_lm: ∫ω² dA = ⟨W, W⟩ (the T_lm are orthonormal),
+    and solid-body rotation about z (the l = 1, m = 0 mode) is ∝ sin(latitude)."""
+    from liethermo.zeitlin import plotting as zp
+
+    sc = load_scene("zeitlin_ideal", {"zeitlin.N": 9, "initial.lmax": 6, "ensemble.members": 1})
+    W = zr.initial_fields(sc)[0]
+    lon, lat, om = zp.vorticity_on_grid(W, 1500, 401)
+    integral = (om[:, :-1] ** 2 * np.cos(lat)[:, None]).sum() * (lat[1] - lat[0]) * (2 * np.pi / 400)
+    assert abs(integral / (np.abs(W) ** 2).sum() - 1) < 1e-6
+    b = zk.basis(9)
+    C = np.zeros((1, b.modes), complex)
+    C[0, 1] = 1j
+    _, lat, om = zp.vorticity_on_grid(zk.from_modes(C, b)[0], 31, 8)
+    assert np.allclose(om, np.sqrt(3 / (4 * np.pi)) * np.sin(lat)[:, None], atol=1e-14)
+
+
+def test_a_member_gets_the_same_bits_alone_or_in_a_batch():
+    sc = load_scene("zeitlin_decay", {"zeitlin.N": 10, "initial.lmax": 6, "ensemble.members": 5,
+                                      "integrator.steps": 20, "output.every": 10, "integrator.method": "split4"})
+    W0 = zr.initial_fields(sc)
+    whole = zr.integrate(sc, W0, progress=False).W
+    alone = zr.integrate(sc, W0[3:4], progress=False).W
+    assert np.array_equal(whole[3], alone[0])

@@ -345,33 +345,62 @@ def isomp(W: np.ndarray, h: float, b: Basis, tol: float, max_iter: int,
     previous step's, scaled to this step); the solution D is returned last."""
     M = W.shape[0]
     scale = h / (2.0 * b.hbar)
-    D = np.zeros_like(W) if guess is None else guess.copy()
-    Wn = W.copy()
+    D = np.zeros_like(W) if guess is None else np.array(guess, dtype=np.complex128, order="C")
     its = np.zeros(M, dtype=np.int64)
     failed = np.zeros(M, dtype=bool)
     wmax = np.abs(W).reshape(M, -1).max(axis=1)
     thresh = tol * np.where(wmax > 0, wmax, 1.0)
     last = np.full(M, np.inf)
-    active = np.arange(M)
     X = np.empty_like(W)
-    while active.size:
-        Wt = W[active] + D[active]
-        A = laplacian_inverse(Wt, b, scale)
-        Xa = A @ Wt
-        Dn = Xa - _dagger(Xa) + Xa @ A
-        change = np.abs(Dn - D[active]).reshape(active.size, -1).max(axis=1)
-        D[active] = Dn
-        X[active] = Xa
+    active = np.arange(M)
+    # the active members' arrays, compacted when some stop (views of the whole batch until then)
+    Wa, Da, Xa, tha, lasta = W, D, X, thresh, last
+    Wt = W + D
+    A = np.empty_like(W)
+    XA = np.empty_like(W)
+    change = np.empty(M)
+    while True:
+        laplacian_inverse(Wt, b, scale, out=A[: len(active)])
+        np.matmul(A[: len(active)], Wt, out=Xa)
+        np.matmul(Xa, A[: len(active)], out=XA[: len(active)])
+        _fixed_point_update(Wa, Xa, XA, Da, Wt, change)  # D = X − X† + XA, W̃ = W + D, change
+        ch = change[: len(active)]
         its[active] += 1
-        done = (change <= thresh[active]) | ((change >= last[active]) & (change <= 100.0 * thresh[active]))
+        done = (ch <= tha) | ((ch >= lasta) & (ch <= 100.0 * tha))
+        bad = ~np.isfinite(ch)
         out = its[active] >= max_iter
-        failed[active[out & ~done]] = True
-        bad = ~np.isfinite(change)
-        failed[active[bad]] = True
-        last[active] = change
-        active = active[~(done | out | bad)]
-    Wn = W + 2.0 * (X - _dagger(X))
-    return Wn, its, failed, D
+        failed[active[bad | (out & ~done)]] = True
+        stop = done | out | bad
+        if stop.all():
+            if Da is not D:
+                D[active], X[active] = Da, Xa
+            break
+        lasta = ch.copy()
+        if stop.any():
+            if Da is not D:  # (while the whole batch is active, Da and Xa are D and X)
+                D[active[stop]], X[active[stop]] = Da[stop], Xa[stop]
+            keep = ~stop
+            active = active[keep]
+            Wa, Da, Xa, Wt = W[active], Da[keep], Xa[keep], Wt[keep]
+            tha, lasta = tha[keep], lasta[keep]
+    return W + 2.0 * (X - _dagger(X)), its, failed, D
+
+
+@numba.njit(cache=CACHE, error_model="numpy")
+def _fixed_point_update(W, X, XA, D, Wt, change):
+    """D = X − X† + XA, W̃ = W + D and the largest change of D, per member, in one pass."""
+    M, N = X.shape[0], X.shape[1]
+    for k in range(M):
+        ch = 0.0
+        for i in range(N):
+            for j in range(N):
+                d = X[k, i, j] - X[k, j, i].conjugate() + XA[k, i, j]
+                e = abs(d - D[k, i, j])
+                if e > ch or e != e:
+                    ch = e
+                D[k, i, j] = d
+                Wt[k, i, j] = W[k, i, j] + d
+        change[k] = ch
 
 
 def rhs(W: np.ndarray, nu: float, b: Basis) -> tuple[np.ndarray, np.ndarray]:

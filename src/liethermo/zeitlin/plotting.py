@@ -14,23 +14,36 @@ def vorticity_on_grid(W: np.ndarray, n_lat: int = 90, n_lon: int = 180):
     """ω(θ, φ) = Σ_lm ω_lm Y_lm on a longitude–latitude grid, where ω_lm are
     W's coefficients on the orthonormal T_lm (so ∫ω² dA = ⟨W, W⟩).  Returns
     (lon, lat, ω) in radians, radians, s⁻¹; W is one (N, N) matrix."""
-    from scipy.special import sph_harm_y
-
     b = zk.basis(W.shape[-1])
     C = zk.to_modes(W[None], b)[0]
     lat = np.linspace(-np.pi / 2, np.pi / 2, n_lat)
     lon = np.linspace(-np.pi, np.pi, n_lon)
-    theta = (np.pi / 2 - lat)[:, None]
-    phi = lon[None, :]
-    om = np.zeros((n_lat, n_lon))
+    Y0 = _harmonics_at_zero_longitude(b.N, n_lat)  # (modes, n_lat): Y_l^d(θ, 0), real
+    # F_d(θ) = Σ_l c_{d,l} Y_l^d(θ, 0); ω = Σ_l Im(c_{0,l}) Y_l^0 + 2 Σ_{d≥1} Im(F_d(θ) e^{idφ})
+    F = np.zeros((b.N, n_lat), dtype=complex)
     for d in range(b.N):
-        for j, l in enumerate(range(d, b.N)):
-            c = C[b.offset[d] + j]
-            if l == 0 or c == 0:
-                continue
-            Y = sph_harm_y(l, d, theta, phi)
-            om += (c.imag * Y.real) if d == 0 else 2.0 * (c * Y).imag
+        sl = slice(b.offset[d], b.offset[d + 1])
+        F[d] = C[sl] @ Y0[sl]
+    phase = np.exp(1j * np.outer(np.arange(b.N), lon))  # (N, n_lon)
+    om = (F[0].imag[:, None] * np.ones(n_lon)[None, :]
+          + 2.0 * (F[1:].T @ phase[1:]).imag)
     return lon, lat, om
+
+
+_Y0_CACHE: dict = {}
+
+
+def _harmonics_at_zero_longitude(N: int, n_lat: int) -> np.ndarray:
+    from scipy.special import sph_harm_y
+
+    key = (N, n_lat)
+    if key not in _Y0_CACHE:
+        b = zk.basis(N)
+        theta = np.pi / 2 - np.linspace(-np.pi / 2, np.pi / 2, n_lat)
+        ls = b.ell.astype(int)
+        ds = np.repeat(np.arange(N), np.arange(N, 0, -1))
+        _Y0_CACHE[key] = sph_harm_y(ls[:, None], ds[:, None], theta[None, :], 0.0).real
+    return _Y0_CACHE[key]
 
 
 def _mean(da):

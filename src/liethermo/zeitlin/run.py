@@ -325,10 +325,14 @@ def _summary(ds: xr.Dataset) -> str:
     dL = float(np.nanmax(np.abs(L - L[:, :1]))) / max(float(np.nanmax(np.abs(L[:, :1]))), 1e-300)
     heat = float(np.nanmean(ds["heat"].values[:, -1] / ds["energy"].values[:, 0]))
     its = ds["fixed_point_iterations"].values[:, 1:]
+    import tomllib
+
+    viscous = tomllib.loads(ds.attrs["scene"])["fluid"]["viscosity"] > 0
+    casimir_words = "changed by (viscosity dissipates it)" if viscous else "drift ≤"
     lines = [f"{ds.attrs['method']}: {M} member(s), N = {ds.attrs['N']}, h = {ds.attrs['h']:g} s, "
              f"t = {float(ds['t'][-1]):g} s, kernels {ds.attrs['kernel_seconds']:.2f} s",
-             f"  |H + q − H(0)|/H(0) ≤ {err:.2e}; tr W² drift ≤ {cas:.2e}; angular momentum drift ≤ {dL:.2e} "
-             f"(relative); heat {100 * heat:.1f} % of H(0)"]
+             f"  |H + q − H(0)|/H(0) ≤ {err:.2e}; tr W² {casimir_words} {cas:.2e}; angular momentum drift ≤ "
+             f"{dL:.2e} (relative); heat {100 * heat:.1f} % of H(0)"]
     if its.size and np.nanmax(its) > 0:
         lines.append(f"  fixed-point iterations per step: mean {np.nanmean(its):.2f}, max {np.nanmax(its):.2f}")
     if n_bad:
