@@ -125,7 +125,7 @@ def _figures(ds, outdir) -> list[Path]:
     for a, nu in zip(axes[0], nus):
         spec = np.nanmean(ds["energy_spectrum"].sel(viscosity=nu).values, axis=0)
         for n, i in enumerate(idx):
-            e = np.where(spec[i] > 0, spec[i], np.nan)
+            e = np.where(spec[i] > 1e-14 * np.nanmax(spec), spec[i], np.nan)  # round-off left out
             a.loglog(ds["l"].values, e, color=cmap(n / max(len(idx) - 1, 1)), label=f"t = {t[i]:g} s")
         a.set_title(f"ν = {nu:g} s⁻¹", fontsize=9)
         a.set_xlabel("degree l")

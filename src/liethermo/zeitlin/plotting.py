@@ -105,7 +105,7 @@ def draw(datasets: dict, W_member0: np.ndarray | None, folder, stem: str) -> lis
     cmap = plt.get_cmap("viridis")
     idx = np.unique(np.linspace(0, len(t) - 1, 6).round().astype(int))
     for n, i in enumerate(idx):
-        e = np.where(spec[i] > 0, spec[i], np.nan)
+        e = np.where(spec[i] > 1e-14 * np.nanmax(spec), spec[i], np.nan)  # round-off left out
         ax.loglog(ls, e, color=cmap(n / max(len(idx) - 1, 1)), label=f"t = {t[i]:g} s")
     ax.set_xlabel("degree l")
     ax.set_ylabel("energy spectrum E_l (J), member mean")
