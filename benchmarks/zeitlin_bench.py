@@ -106,17 +106,17 @@ def main() -> None:
     print("|" + "---|" * head.count("|")[:-1] if False else "|---|---|---|---|---|---|---|---|---|")
     for N in args.N:
         b = zk.basis(N)
-        W = fields(N, args.members)
-        q = np.zeros(args.members)
-        state = {"D": None, "its": []}
+        W0 = fields(N, args.members)
+        state = {"D": None, "its": [], "W": W0, "q": np.zeros(args.members), "Wr": W0, "qr": np.zeros(args.members)}
 
-        def split_step():
-            _, _, its, failed, state["D"] = zr.split_step(W, q, args.h, args.nu, b, (1.0,), 1e-14, 100, state["D"])
+        def split_step():  # the state advances: the fixed point starts from the previous step's solution
+            state["W"], state["q"], its, failed, state["D"] = zr.split_step(
+                state["W"], state["q"], args.h, args.nu, b, (1.0,), 1e-14, 100, state["D"])
             assert not failed.any()
             state["its"].append(its.mean())
 
         def rk4_step():
-            zr.rk4_step(W, q, args.h, args.nu, b)
+            state["Wr"], state["qr"] = zr.rk4_step(state["Wr"], state["qr"], args.h, args.nu, b)
 
         ts, tr = [], []
         for _ in range(args.rounds):

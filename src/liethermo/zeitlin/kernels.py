@@ -67,6 +67,8 @@ class Basis:
     ell: np.ndarray       # (K,) degree l of each mode
     voff: np.ndarray      # (N+1,) int64
     vecs: np.ndarray      # (Σ (N−d)²,) float64, row-major per block
+    vecs_t: np.ndarray    # the same blocks transposed
+    g0: np.ndarray        # (N, N): −Δ_N⁻¹ on block 0 without its l = 0 mode, V diag(1/l(l+1)) Vᵀ
     diag: np.ndarray      # (K,) main diagonal of −Δ's blocks, packed like the modes
     off: np.ndarray       # (K,) off-diagonal of −Δ's blocks (entry i couples i and i+1)
     # Thomas factors of −Δ's blocks d ≥ 1 (block 0 is singular: solved through its modes)
@@ -156,60 +158,73 @@ def basis(N: int) -> Basis:
                 cp[i] = b[i] * inv[i] if i < n - 1 else 0.0
             tc[o:o + n] = cp
             tinv[o:o + n] = inv
-    return Basis(N, hbar(N), offset, ell, voff, vecs, diag, off, tc, tinv)
+    vecs_t = np.concatenate([vecs[voff[d]:voff[d + 1]].reshape(N - d, N - d).T.ravel() for d in range(N)])
+    v0 = vecs[: N * N].reshape(N, N)
+    g0 = (v0[:, 1:] / (ell[1:N] * (ell[1:N] + 1.0))) @ v0[:, 1:].T
+    return Basis(N, hbar(N), offset, ell, voff, vecs, vecs_t, np.ascontiguousarray(g0), diag, off, tc, tinv)
 
 
 # ----------------------------------------------------------------------------- modes
 
 
 @numba.njit(cache=CACHE, error_model="numpy")
-def _to_modes(W, offset, voff, vecs, out):
+def _gather_diagonals(W, offset, R):
+    """R[:M] and R[M:] (2M × K): the real and imaginary parts of W's upper
+    diagonals, diagonal d at columns offset[d] … offset[d+1]."""
     M, N = W.shape[0], W.shape[1]
     for k in range(M):
         for d in range(N):
-            n = N - d
             o = offset[d]
-            vo = voff[d]
-            for j in range(n):
-                acc = 0j
-                for i in range(n):
-                    acc += vecs[vo + i * n + j] * W[k, i, i + d]
-                out[k, o + j] = acc
+            for i in range(N - d):
+                w = W[k, i, i + d]
+                R[k, o + i] = w.real
+                R[M + k, o + i] = w.imag
 
 
 @numba.njit(cache=CACHE, error_model="numpy")
-def _from_modes(C, offset, voff, vecs, W):
+def _scatter_diagonals(Y, offset, W):
+    """The skew-Hermitian W whose upper diagonals are Y[:M] + i Y[M:] (block 0: imaginary part only)."""
     M, N = W.shape[0], W.shape[1]
     for k in range(M):
         for d in range(N):
-            n = N - d
             o = offset[d]
-            vo = voff[d]
-            for i in range(n):
-                acc = 0j
-                for j in range(n):
-                    acc += vecs[vo + i * n + j] * C[k, o + j]
+            for i in range(N - d):
                 if d == 0:
-                    W[k, i, i] = 1j * acc.imag
+                    W[k, i, i] = complex(0.0, Y[M + k, o + i])
                 else:
-                    W[k, i, i + d] = acc
-                    W[k, i + d, i] = -acc.conjugate()
+                    W[k, i, i + d] = complex(Y[k, o + i], Y[M + k, o + i])
+                    W[k, i + d, i] = complex(-Y[k, o + i], Y[M + k, o + i])
+
+
+def _blocks(b: Basis, R: np.ndarray, transpose: bool) -> np.ndarray:
+    """Each diagonal's columns of R (2M × K) times its block of eigenvectors (or
+    their transpose): one BLAS product per diagonal, all members at once."""
+    Y = np.empty_like(R)
+    vecs = b.vecs_t if transpose else b.vecs
+    for d in range(b.N):
+        n = b.N - d
+        o = b.offset[d]
+        np.matmul(R[:, o:o + n], vecs[b.voff[d]:b.voff[d + 1]].reshape(n, n), out=Y[:, o:o + n])
+    return Y
 
 
 def to_modes(W: np.ndarray, b: Basis) -> np.ndarray:
     """Mode coefficients c[d, l] (packed, (members, K)) of the upper diagonals of W."""
     W = np.ascontiguousarray(W, dtype=np.complex128)
-    out = np.empty((W.shape[0], b.modes), dtype=np.complex128)
-    _to_modes(W, b.offset, b.voff, b.vecs, out)
-    return out
+    M = W.shape[0]
+    R = np.empty((2 * M, b.modes))
+    _gather_diagonals(W, b.offset, R)
+    Y = _blocks(b, R, False)
+    return Y[:M] + 1j * Y[M:]
 
 
 def from_modes(C: np.ndarray, b: Basis) -> np.ndarray:
     """The skew-Hermitian W whose upper diagonals have the mode coefficients C
     (the real part of block 0's coefficients is dropped: W's diagonal is imaginary)."""
-    C = np.ascontiguousarray(C, dtype=np.complex128)
+    C = np.asarray(C, dtype=np.complex128)
+    Y = _blocks(b, np.concatenate([C.real, C.imag]), True)
     W = np.empty((C.shape[0], b.N, b.N), dtype=np.complex128)
-    _from_modes(C, b.offset, b.voff, b.vecs, W)
+    _scatter_diagonals(Y, b.offset, W)
     return W
 
 
@@ -242,44 +257,55 @@ def spectrum_of_modes(C: np.ndarray, b: Basis) -> np.ndarray:
 
 
 @numba.njit(cache=CACHE, error_model="numpy")
-def _lapinv(W, scale, offset, voff, vecs, ell, tc, tinv, off, P):
-    """P = scale · Δ_N⁻¹ W on the traceless part (Thomas per diagonal d ≥ 1, modes for d = 0)."""
+def _lapinv(W, scale, offset, g0, tc, tinv, off, P):
+    """P = scale · Δ_N⁻¹ W on the traceless part: block 0 (singular, its l = 0
+    mode dropped) through the stored g0, blocks d ≥ 1 by Thomas with stored
+    factors.  The members are the innermost loop: their recurrences are
+    independent, so they overlap instead of waiting on each other."""
     M, N = W.shape[0], W.shape[1]
-    y = np.empty(N, dtype=np.complex128)
+    yr = np.empty((N, M))
+    yi = np.empty((N, M))
+    w0 = np.empty((M, N))
     for k in range(M):
-        # block 0 (singular: l = 0 dropped) through its eigenvectors, O(N²)
-        for j in range(1, N):
-            acc = 0.0
-            for i in range(N):
-                acc += vecs[i * N + j] * W[k, i, i].imag
-            y[j] = -acc * scale / (ell[j] * (ell[j] + 1.0))
+        for i in range(N):
+            w0[k, i] = W[k, i, i].imag
+    for k in range(M):
         for i in range(N):
             acc = 0.0
-            for j in range(1, N):
-                acc += vecs[i * N + j] * y[j].real
-            P[k, i, i] = 1j * acc
-        # blocks d ≥ 1: (−Δ) x = −W along the diagonal, Thomas with stored factors
-        for d in range(1, N):
-            n = N - d
-            o = offset[d]
-            prev = 0j
+            for j in range(N):
+                acc += g0[i, j] * w0[k, j]
+            P[k, i, i] = complex(0.0, -scale * acc)
+    for d in range(1, N):
+        n = N - d
+        o = offset[d]
+        for i in range(n):
+            t = tinv[o + i]
+            if i == 0:
+                for k in range(M):
+                    w = W[k, 0, d]
+                    yr[0, k] = -scale * w.real * t
+                    yi[0, k] = -scale * w.imag * t
+            else:
+                b = off[o + i - 1]
+                for k in range(M):
+                    w = W[k, i, i + d]
+                    yr[i, k] = (-scale * w.real - b * yr[i - 1, k]) * t
+                    yi[i, k] = (-scale * w.imag - b * yi[i - 1, k]) * t
+        for i in range(n - 2, -1, -1):
+            c = tc[o + i]
+            for k in range(M):
+                yr[i, k] -= c * yr[i + 1, k]
+                yi[i, k] -= c * yi[i + 1, k]
+        for k in range(M):
             for i in range(n):
-                r = -W[k, i, i + d] * scale
-                if i > 0:
-                    r -= off[o + i - 1] * prev
-                prev = r * tinv[o + i]
-                y[i] = prev
-            for i in range(n - 2, -1, -1):
-                y[i] -= tc[o + i] * y[i + 1]
-            for i in range(n):
-                P[k, i, i + d] = y[i]
-                P[k, i + d, i] = -y[i].conjugate()
+                P[k, i, i + d] = complex(yr[i, k], yi[i, k])
+                P[k, i + d, i] = complex(-yr[i, k], yi[i, k])
 
 
 def laplacian_inverse(W: np.ndarray, b: Basis, scale: float = 1.0, out=None) -> np.ndarray:
     """scale · Δ_N⁻¹ W (W skew-Hermitian; its trace is ignored)."""
     P = np.empty_like(W) if out is None else out
-    _lapinv(W, scale, b.offset, b.voff, b.vecs, b.ell, b.tc, b.tinv, b.off, P)
+    _lapinv(W, scale, b.offset, b.g0, b.tc, b.tinv, b.off, P)
     return P
 
 
@@ -338,7 +364,8 @@ def isomp(W: np.ndarray, h: float, b: Basis, tol: float, max_iter: int,
 
     solved per member by fixed-point iteration on D = W̃ − W.  Two complex
     matrix products per iteration (X = A W̃; [A, W̃] = X − X†, A W̃ A = X A).
-    A member stops when its correction is at most ``tol`` × max|W| (or when
+    A member stops when its correction is at most ``tol`` × max|W| (largest
+    real or imaginary part, for the correction and for W; or when
     the correction stops falling below 100 × that, at round-off).  Returns W',
     the iterations per member and a flag per member: True where the iteration
     did not converge within ``max_iter``.  ``guess``: a first D (e.g. the
@@ -348,7 +375,7 @@ def isomp(W: np.ndarray, h: float, b: Basis, tol: float, max_iter: int,
     D = np.zeros_like(W) if guess is None else np.array(guess, dtype=np.complex128, order="C")
     its = np.zeros(M, dtype=np.int64)
     failed = np.zeros(M, dtype=bool)
-    wmax = np.abs(W).reshape(M, -1).max(axis=1)
+    wmax = np.maximum(np.abs(W.real), np.abs(W.imag)).reshape(M, -1).max(axis=1)
     thresh = tol * np.where(wmax > 0, wmax, 1.0)
     last = np.full(M, np.inf)
     X = np.empty_like(W)
@@ -388,18 +415,24 @@ def isomp(W: np.ndarray, h: float, b: Basis, tol: float, max_iter: int,
 
 @numba.njit(cache=CACHE, error_model="numpy")
 def _fixed_point_update(W, X, XA, D, Wt, change):
-    """D = X − X† + XA, W̃ = W + D and the largest change of D, per member, in one pass."""
+    """D = X − X† + XA, W̃ = W + D and the largest change of D (the largest
+    real or imaginary part of D_new − D_old), per member, in one pass."""
     M, N = X.shape[0], X.shape[1]
     for k in range(M):
         ch = 0.0
         for i in range(N):
             for j in range(N):
-                d = X[k, i, j] - X[k, j, i].conjugate() + XA[k, i, j]
-                e = abs(d - D[k, i, j])
-                if e > ch or e != e:
+                x, y = X[k, i, j], X[k, j, i]
+                xa = XA[k, i, j]
+                re = (x.real - y.real) + xa.real
+                im = (x.imag + y.imag) + xa.imag
+                old = D[k, i, j]
+                e = max(abs(re - old.real), abs(im - old.imag))
+                if not e <= ch:  # also a NaN
                     ch = e
-                D[k, i, j] = d
-                Wt[k, i, j] = W[k, i, j] + d
+                D[k, i, j] = complex(re, im)
+                w = W[k, i, j]
+                Wt[k, i, j] = complex(w.real + re, w.imag + im)
         change[k] = ch
 
 
