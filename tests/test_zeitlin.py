@@ -304,3 +304,14 @@ def test_a_member_gets_the_same_bits_alone_or_in_a_batch():
     whole = zr.integrate(sc, W0, progress=False).W
     alone = zr.integrate(sc, W0[3:4], progress=False).W
     assert np.array_equal(whole[3], alone[0])
+
+
+def test_zeitlin_files_are_cf_clean(tmp_path):
+    from cfcheck import assert_cf_clean
+
+    out = tmp_path / "cf.nc"
+    assert main(["run", "zeitlin_decay", "-o", str(out), "--no-progress", "--set", "zeitlin.N=6",
+                 "--set", "initial.lmax=4", "--set", "integrator.steps=10", "--set", "output.every=5",
+                 "--set", "output.vorticity=true",
+                 "--set", "output.compare=[]", "--set", "output.figures=false"]) == 0
+    assert_cf_clean(out)
