@@ -315,3 +315,15 @@ def test_zeitlin_files_are_cf_clean(tmp_path):
                  "--set", "output.vorticity=true",
                  "--set", "output.compare=[]", "--set", "output.figures=false"]) == 0
     assert_cf_clean(out)
+
+
+def test_python_api_runs_a_zeitlin_scene(tmp_path):
+    import liethermo
+
+    over = {"zeitlin.N": 8, "initial.lmax": 5, "integrator.steps": 10, "output.every": 5}
+    with pytest.raises(SceneError, match="compare=True"):
+        liethermo.run("zeitlin_ideal", over)
+    out = liethermo.run("zeitlin_ideal", over, compare=True)
+    assert set(out) == {"split", "rk4"} and out["split"]["energy"].dims == ("member", "t")
+    ds = liethermo.run("zeitlin_ideal", over, compare=False, output=tmp_path / "z.nc", figures=False)
+    assert (tmp_path / "z.nc").exists() and "tr W²" in ds.attrs["summary"]

@@ -79,6 +79,9 @@ def run(scene: str | Path | dict | Scene = "paper", overrides: dict | list | Non
     from .preflight import method_scene, output_paths
 
     sc = load_scene(scene, overrides)
+    if getattr(sc, "model", None) == "zeitlin":
+        return _run_zeitlin(sc, scene, overrides, output=output, compare=compare, figures=figures,
+                            progress=progress, force=force, history=history)
     if output is None:  # an output's checks (prepare_run) include these
         from .preflight import check_parameters
 
@@ -116,6 +119,36 @@ def run(scene: str | Path | dict | Scene = "paper", overrides: dict | list | Non
         line = "  figures: none drawn (an in-memory run; pass output= to draw them beside the file)"
     for ds in results.values():
         ds.attrs["summary"] += "\n" + line
+    return results if compare else results[method]
+
+
+def _run_zeitlin(sc, scene, overrides, *, output, compare, figures, progress, force, history):
+    """:func:`run` for a Zeitlin fluid: in memory, or written whole to ``output``
+    (no member chunks, no resume)."""
+    from .zeitlin import run as zr
+
+    method = sc["integrator"]["method"]
+    others = [m for m in dict.fromkeys(sc["output"]["compare"]) if m != method]
+    if others and compare is None:
+        raise SceneError("output.compare", f"scene {sc.name!r} compares its method {method} with "
+                         f"{', '.join(others)}: pass compare=True to run those too (a dict "
+                         f"{{method: Dataset}} is returned) or compare=False to run {method} only",
+                         show_value=False)
+    if figures and output is None:
+        raise SceneError("output.figures", "figures are drawn beside the output file: pass output= "
+                         "(a .nc path) or figures=False", show_value=False)
+    if history is None:
+        history = cf.api_call("liethermo.run", scene if isinstance(scene, (str, Path)) else sc.name,
+                              overrides=overrides, output=output)
+    if output is None:
+        methods = [method] + (others if compare else [])
+        results = {m: zr.simulate(sc, method=m, progress=progress, history=history) for m in methods}
+    else:
+        try:
+            results = zr.run_outputs(sc, output, compare=bool(compare), figures=figures, progress=progress,
+                                     force=force, history=history)
+        except zr.OutputError as exc:
+            raise PreflightError(str(exc).replace("give --force", "pass force=True")) from None
     return results if compare else results[method]
 
 
