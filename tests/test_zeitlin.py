@@ -95,14 +95,11 @@ def _split_run(W, h, T, nu, b, fac):
 
 
 def _reference(W0, T, nu, N):
-    class S(dict):
-        pass
-
     b = zk.basis(N)
     Ws = np.empty((W0.shape[0], 2, N, N), complex)
     qs = np.empty((W0.shape[0], 2))
     status = np.zeros(W0.shape[0], np.int8)
-    zr._reference(W0, np.array([0.0, T]), nu, b, Ws, qs, status, False)
+    zr.reference_run(W0, np.array([0.0, T]), nu, b, Ws, qs, status, False)
     assert not status.any()
     return Ws[:, 1], qs[:, 1]
 

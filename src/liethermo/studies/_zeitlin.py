@@ -8,7 +8,7 @@ import numpy as np
 
 from ..zeitlin import kernels as zk
 from ..zeitlin import run as zr
-from .common import StudyError, study_options, study_scene
+from .common import StudyError, study_scene
 
 ZEITLIN_METHODS = ("split", "split4", "split6", "rk4")
 
@@ -27,10 +27,6 @@ def check_methods(s: dict) -> list[str]:
         if m not in ZEITLIN_METHODS:
             raise StudyError(f"methods: {m!r} is not a method of the Zeitlin fluid ({', '.join(ZEITLIN_METHODS)})")
     return list(methods)
-
-
-def options(s: dict, defaults: dict, kind: str) -> dict:
-    return study_options(s, defaults, kind)
 
 
 def advance(method: str, W, q, h: float, steps: int, nu: float, b, composition="small_error",

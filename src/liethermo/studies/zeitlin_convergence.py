@@ -44,12 +44,10 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress=None, dask=None, h
     T = float(opt["t_end"])
     W0 = zr.initial_fields(sc)
     M = W0.shape[0]
-    Wr = np.empty_like(W0)
-    qr = np.empty(M)
     status = np.zeros(M, np.int8)
     Ws = np.empty((M, 2) + W0.shape[1:], complex)
     qs = np.empty((M, 2))
-    zr._reference(W0, np.array([0.0, T]), nu, b, Ws, qs, status, progress)
+    zr.reference_run(W0, np.array([0.0, T]), nu, b, Ws, qs, status, progress)
     Wr, qr = Ws[:, 1], qs[:, 1]
     H0 = zk.energy_of_modes(zk.to_modes(W0, b), b)
     rows = []

@@ -153,7 +153,7 @@ def integrate(scene: ZeitlinScene, W0: np.ndarray, *, method: str | None = None,
     Ws[:, 0], qs[:, 0] = W0, 0.0
     t0 = _time.perf_counter()
     if method == "reference":
-        _reference(W0, times, nu, b, Ws, qs, status, progress)
+        reference_run(W0, times, nu, b, Ws, qs, status, progress)
         return Trajectory(times, Ws, qs, its, status, failed_step, _time.perf_counter() - t0)
     from tqdm.auto import tqdm
 
@@ -192,7 +192,8 @@ def integrate(scene: ZeitlinScene, W0: np.ndarray, *, method: str | None = None,
     return Trajectory(times, Ws, qs, its, status, failed_step, _time.perf_counter() - t0)
 
 
-def _reference(W0, times, nu, b, Ws, qs, status, progress):
+def reference_run(W0, times, nu, b, Ws, qs, status, progress):
+    """DOP853 per member at rtol REFERENCE_RTOL into Ws, qs at ``times`` (status 2 where it fails)."""
     from scipy.integrate import solve_ivp
     from tqdm.auto import tqdm
 
