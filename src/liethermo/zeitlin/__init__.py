@@ -6,6 +6,6 @@
 * :mod:`.run` — initial fields, the methods' steps over a batch, the dataset;
 * :mod:`.plotting` — the vorticity on the sphere and the run's figures.
 
-The model, the scheme and what each method keeps: docs/model.md, "A second Lie
-group: the thermodynamic Zeitlin fluid".
+The model, the scheme and what each method keeps:
+docs/model.md, "A second Lie group: the thermodynamic Zeitlin fluid".
 """
