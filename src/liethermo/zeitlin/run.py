@@ -330,10 +330,10 @@ def _summary(ds: xr.Dataset) -> str:
     import tomllib
 
     viscous = tomllib.loads(ds.attrs["scene"])["fluid"]["viscosity"] > 0
-    casimir_words = "changed by (viscosity dissipates it)" if viscous else "drift ≤"
+    casimir_words = "tr W² changed by {:.2e} (viscosity dissipates it)" if viscous else "tr W² drift ≤ {:.2e}"
     lines = [f"{ds.attrs['method']}: {M} member(s), N = {ds.attrs['N']}, h = {ds.attrs['h']:g} s, "
              f"t = {float(ds['t'][-1]):g} s, kernels {ds.attrs['kernel_seconds']:.2f} s",
-             f"  |H + q − H(0)|/H(0) ≤ {err:.2e}; tr W² {casimir_words} {cas:.2e}; angular momentum drift ≤ "
+             f"  |H + q − H(0)|/H(0) ≤ {err:.2e}; {casimir_words.format(cas)}; angular momentum drift ≤ "
              f"{dL:.2e} (relative); heat {100 * heat:.1f} % of H(0)"]
     if its.size and np.nanmax(its) > 0:
         lines.append(f"  fixed-point iterations per step: mean {np.nanmean(its):.2f}, max {np.nanmax(its):.2f}")
