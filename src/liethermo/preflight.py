@@ -201,15 +201,15 @@ def estimate(scene: dict) -> Estimate:
     one-member, two-time dataset labelled like a run's (no kernel runs)."""
     from .dataset import trajectory_dataset
     from .io import disk_chunk_members
-    from .methods import get_method
-    from .physics import build_model, physics_of_scene
+    from .physics import build_model
+    from .resolve import resolve
     from .simulate import Trajectory
 
     integ, outp = scene["integrator"], scene["output"]
     steps, every = int(integ["steps"]), int(outp["every"])
     n_t = steps // every + 1
-    method = get_method(integ["method"])
-    phys = physics_of_scene(scene, 1)
+    run = resolve(scene)
+    method, phys = run.method, run.physics
     km = build_model(phys, bool(outp["attitude"]))
     layout = km.layout(method.layout)
     width = layout.size
@@ -325,7 +325,8 @@ def check_parameters(scene: dict) -> None:
     finite parameters (every key may be valid on its own and the derived mass,
     moments, friction, heat capacity or gravity torque still overflow or
     vanish: a radius of 1e-300 m)."""
-    from .physics import build_model, physics_of_scene
+    from .physics import build_model
+    from .resolve import resolve
 
     for key in INT64_KEYS:
         section, name = key.split(".")
@@ -336,7 +337,7 @@ def check_parameters(scene: dict) -> None:
 
     try:
         with np.errstate(all="ignore"):
-            phys = physics_of_scene(scene, 1)
+            phys = resolve(scene).physics
             p = build_model(phys, bool(scene["output"]["attitude"])).P
         bad = not all(np.all(np.isfinite(v)) for v in vars(phys).values() if isinstance(v, np.ndarray))
         bad = bad or not np.all(np.isfinite(p))

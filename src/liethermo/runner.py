@@ -19,11 +19,11 @@ from . import cf
 from .dataset import global_attrs, trajectory_dataset
 from .faults import check_stop
 from .findings import chunk_findings, finding_lines, merge_findings, physics_lines
-from .initial import heat_bound, initial_conditions
+from .initial import initial_conditions
 from .methods import get_method
-from .physics import build_model, physics_of_scene
+from .resolve import resolve
 from .scene import Scene, load_scene, scene_to_toml
-from .simulate import STATUS_MEANINGS, kernel_for, simulate
+from .simulate import STATUS_MEANINGS, simulate
 
 
 @dataclass
@@ -169,9 +169,8 @@ def scene_setup(scene, overrides=None, history: str | None = None) -> tuple[Scen
     integ = scene["integrator"]
     method, h, steps = integ["method"], float(integ["h"]), int(integ["steps"])
     members = int(scene["ensemble"]["members"])
-    m = get_method(method)
-    phys = physics_of_scene(scene)
-    terms = build_model(phys, bool(scene["output"]["attitude"])).terms()
+    run = resolve(scene)
+    m, phys, terms = run.method, run.physics, list(run.terms)
     attrs = global_attrs(scene_to_toml(scene), method=method, h=h,
                          friction=m.effective_friction(integ["friction"]),
                          start=m.effective_start(integ["start"]),
@@ -182,24 +181,6 @@ def scene_setup(scene, overrides=None, history: str | None = None) -> tuple[Scen
     summ.solves_per_step = len(m.substeps(integ["composition"])) if m.family == "vi" else 0
     summ.physics_notes = physics_lines(phys)
     return scene, attrs, summ
-
-
-def simulate_options(scene, phys, kernel: str = "auto") -> dict:
-    """The keywords of :func:`liethermo.simulate.simulate` that a resolved scene
-    fixes for every part of its run (each member chunk, a Dask task, the
-    time probe, the process that warms the kernel cache): the integrator's
-    variants and Newton settings, the attitude, the ensemble loop (chosen on
-    the full chunk size, so every chunk uses the same one) and the scene's
-    heat bound (the same kernel model for every chunk).  ``phys``: the
-    scene's physics, any number of members."""
-    integ, outp = scene["integrator"], scene["output"]
-    chunk = min(int(scene["ensemble"]["members"]), int(outp["member_chunk"]))
-    return dict(friction=integ["friction"], start=integ["start"], entropy=integ["entropy"],
-                composition=integ["composition"],
-                attitude=bool(outp["attitude"]), newton_tol=float(integ["newton_tol"]),
-                newton_maxiter=int(integ["newton_maxiter"]),
-                kernel=kernel_for(integ["method"], chunk, int(integ["steps"]), kernel),
-                heat_bound=heat_bound(scene, phys))
 
 
 #: Size of the timed probe behind :func:`estimate_time`: large enough that the
@@ -247,9 +228,10 @@ def estimate_time(scene: Scene) -> TimeEstimate:
     method, h, steps = integ["method"], float(integ["h"]), int(integ["steps"])
     members = int(scene["ensemble"]["members"])
     pm, ps = min(members, PROBE_MEMBERS), min(steps, PROBE_STEPS)
-    phys = physics_of_scene(scene, pm)
+    run = resolve(scene)
+    phys = run.physics_for(pm)
     om0, R0 = initial_conditions(scene, 0, pm)
-    options = simulate_options(scene, phys)
+    options = run.simulate_options()
     best, compile_s = np.inf, 0.0
     for _ in range(2):
         traj = simulate(phys, om0, R0, h, ps, method, every=ps, **options)
@@ -270,11 +252,12 @@ def run_chunk(scene: dict, lo: int, hi: int, *, progress_cb=None, kernel: str | 
     integ = scene["integrator"]
     method, h, steps = integ["method"], float(integ["h"]), int(integ["steps"])
     every = int(scene["output"]["every"])
-    phys = physics_of_scene(scene, hi - lo)
+    run = resolve(scene)
+    phys = run.physics_for(hi - lo)
     om0, R0 = initial_conditions(scene, lo, hi)
     traj = simulate(phys, om0, R0, h, steps, method, every=every,
                     progress=(lambda n, k=hi - lo: progress_cb(n * k)) if progress_cb else None,
-                    threads=threads, **simulate_options(scene, phys, kernel or "auto"))
+                    threads=threads, **run.simulate_options(kernel or "auto"))
     ds = trajectory_dataset(traj, omega0=om0, R0=R0, member_offset=lo)
     st = ChunkStats(members=hi - lo, kernel_time=traj.wall_time, compile_time=traj.compile_time)
     ncounts = len(STATUS_MEANINGS)

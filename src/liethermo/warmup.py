@@ -37,8 +37,7 @@ def _warm(scene_toml: str, jobs: list[tuple[str, str]]) -> None:
         import tomli as tomllib
 
     from .initial import initial_conditions
-    from .physics import physics_of_scene
-    from .runner import simulate_options
+    from .resolve import resolve
     from .scene import load_scene
     from .simulate import simulate
 
@@ -47,10 +46,10 @@ def _warm(scene_toml: str, jobs: list[tuple[str, str]]) -> None:
         sc = scene.with_overrides({"integrator.method": method})
         om0, R0 = initial_conditions(sc, 0, 1)
         every = int(sc.output.every)
-        phys = physics_of_scene(sc, 1)
+        run = resolve(sc)
         # the kernels the run's member chunks use, compiled on one member
-        simulate(phys, om0, R0, float(sc.integrator.h), every, method, every=every,
-                 compile_only="start" if part == "start" else True, **simulate_options(sc, phys))
+        simulate(run.physics, om0, R0, float(sc.integrator.h), every, method, every=every,
+                 compile_only="start" if part == "start" else True, **run.simulate_options())
 
 
 def start_warming(scene, methods: list[str]):
