@@ -122,21 +122,67 @@ def rk4_step(W, q, h, nu, b):
 # ----------------------------------------------------------------------------- a run
 
 
+class Recorder:
+    """The outputs of a run, gathered as the run goes: the diagnostics of every
+    member at every output time (a few numbers each), W itself only where it
+    is kept (``keep_all``: every member; always member 0, for the figures).
+    A run's memory is then O(members × times × N), not × N²."""
+
+    def __init__(self, M: int, n_out: int, b: zk.Basis, keep_all: bool):
+        self.b = b
+        nan = np.nan
+        self.H = np.full((M, n_out), nan)
+        self.spec = np.full((M, n_out, b.N - 1), nan)
+        self.cas = np.full((M, n_out, 3), nan)
+        self.L = np.full((M, n_out, 3), nan)
+        self.Z = np.full((M, n_out), nan)
+        self.q = np.full((M, n_out), nan)
+        self.W = np.full((M, n_out, b.N, b.N), nan + 0j) if keep_all else None
+        self.W_first = np.full((n_out, b.N, b.N), nan + 0j)
+
+    def record(self, j: int, members: np.ndarray, W: np.ndarray, q: np.ndarray) -> None:
+        if members.size == 0:
+            return
+        C = zk.to_modes(W, self.b)
+        self.H[members, j] = zk.energy_of_modes(C, self.b)
+        self.spec[members, j] = zk.spectrum_of_modes(C, self.b)
+        self.cas[members, j] = zk.casimirs(W)
+        self.L[members, j] = zk.angular_momentum(W)
+        self.Z[members, j] = zk.enstrophy(W)
+        self.q[members, j] = q
+        if self.W is not None:
+            self.W[members, j] = W
+        first = np.flatnonzero(members == 0)
+        if first.size:
+            self.W_first[j] = W[first[0]]
+
+
 @dataclass
 class Trajectory:
-    """Output-time states of a batch: W (members, times, N, N), q (members, times)."""
+    """A run's outputs: the diagnostics (:class:`Recorder`) at the output times."""
 
     times: np.ndarray
-    W: np.ndarray
-    q: np.ndarray
+    out: Recorder
     iterations: np.ndarray   # (members, times): fixed-point iterations per step over the interval before
     status: np.ndarray       # (members,)
     failed_step: np.ndarray  # (members,), −1 if none
     kernel_seconds: float
 
+    @property
+    def W(self) -> np.ndarray | None:
+        """W of every member at every output time (None unless kept)."""
+        return self.out.W
 
-def integrate(scene: ZeitlinScene, W0: np.ndarray, *, method: str | None = None, progress=None) -> Trajectory:
-    """Integrate the members W0 with the scene's method; outputs every output.every steps."""
+    @property
+    def q(self) -> np.ndarray:
+        return self.out.q
+
+
+def integrate(scene: ZeitlinScene, W0: np.ndarray, *, method: str | None = None, progress=None,
+              keep_vorticity: bool | None = None) -> Trajectory:
+    """Integrate the members W0 with the scene's method; outputs every
+    output.every steps.  ``keep_vorticity``: keep W of every member at every
+    output (default: the scene's output.vorticity)."""
     z, itg, out = scene["zeitlin"], scene["integrator"], scene["output"]
     method = method or itg["method"]
     b = zk.basis(z["N"])
@@ -145,16 +191,24 @@ def integrate(scene: ZeitlinScene, W0: np.ndarray, *, method: str | None = None,
     M = W0.shape[0]
     n_out = steps // every + 1
     times = np.arange(n_out) * every * h
-    Ws = np.full((M, n_out, b.N, b.N), np.nan + 0j)
-    qs = np.full((M, n_out), np.nan)
+    rec = Recorder(M, n_out, b, bool(out["vorticity"] if keep_vorticity is None else keep_vorticity))
     its = np.zeros((M, n_out))
     status = np.zeros(M, dtype=np.int8)
     failed_step = np.full(M, -1, dtype=np.int64)
-    Ws[:, 0], qs[:, 0] = W0, 0.0
+    rec.record(0, np.arange(M), W0, np.zeros(M))
     t0 = _time.perf_counter()
     if method == "reference":
-        reference_run(W0, times, nu, b, Ws, qs, status, progress)
-        return Trajectory(times, Ws, qs, its, status, failed_step, _time.perf_counter() - t0)
+        from tqdm.auto import tqdm
+
+        for k in tqdm(range(M), desc="reference", unit="member", leave=False,
+                      disable=None if progress is None else not progress):
+            Wk = np.full((1, n_out, b.N, b.N), np.nan + 0j)
+            qk = np.full((1, n_out), np.nan)
+            reference_run(W0[k:k + 1], times, nu, b, Wk, qk, status[k:k + 1], False)
+            if status[k] == 0:
+                for j in range(1, n_out):
+                    rec.record(j, np.array([k]), Wk[:, j], qk[:, j])
+        return Trajectory(times, rec, its, status, failed_step, _time.perf_counter() - t0)
     from tqdm.auto import tqdm
 
     fac = factors(method, itg["composition"]) if method != "rk4" else ()
@@ -184,12 +238,12 @@ def integrate(scene: ZeitlinScene, W0: np.ndarray, *, method: str | None = None,
         active = active[~(bad | ~finite)]
         if k % every == 0:
             j = k // every
-            Ws[active, j], qs[active, j] = W[active], q[active]
+            rec.record(j, active, W[active], q[active])
             its[active, j] = acc_its[active] / every
             acc_its[:] = 0.0
         bar.update(1)
     bar.close()
-    return Trajectory(times, Ws, qs, its, status, failed_step, _time.perf_counter() - t0)
+    return Trajectory(times, rec, its, status, failed_step, _time.perf_counter() - t0)
 
 
 def reference_run(W0, times, nu, b, Ws, qs, status, progress):
@@ -227,23 +281,9 @@ def _var(data, dims, units, long_name, **extra):
 def trajectory_dataset(scene: ZeitlinScene, traj: Trajectory, method: str, history: str | None = None) -> xr.Dataset:
     b = zk.basis(scene["zeitlin"]["N"])
     cv, T0 = scene["thermo"]["heat_capacity"], scene["thermo"]["T0"]
-    M, T = traj.q.shape
-    Wf = traj.W.reshape(M * T, b.N, b.N)
-    ok = np.isfinite(Wf).all(axis=(1, 2))
-    Wz = np.where(ok[:, None, None], Wf, 0.0)
-    C = zk.to_modes(Wz, b)
-
-    def shaped(x):
-        x = np.asarray(x, dtype=float)
-        x[~ok] = np.nan
-        return x.reshape((M, T) + x.shape[1:])
-
-    H = shaped(zk.energy_of_modes(C, b))
-    spec = shaped(zk.spectrum_of_modes(C, b))
-    cas = shaped(zk.casimirs(Wz))
-    L = shaped(zk.angular_momentum(Wz))
-    ens = shaped(zk.enstrophy(Wz))
-    q = traj.q
+    r = traj.out
+    M, T = r.q.shape
+    H, spec, cas, L, ens, q = r.H, r.spec, r.cas, r.L, r.Z, r.q
     E0 = H[:, :1]
     scale = cas[:, :1, :1] ** (np.array([2, 3, 4]) / 2.0)  # tr((iW)²)^(k/2) ≥ |tr((iW)^k)|
     dims_t = ("member", "t")
@@ -272,10 +312,10 @@ def trajectory_dataset(scene: ZeitlinScene, traj: Trajectory, method: str, histo
         "failed_step": _var(traj.failed_step, ("member",), "1",
                             "step at which the member failed (-1: none); its later values are NaN"),
     }
-    if scene["output"]["vorticity"]:
+    if scene["output"]["vorticity"] and r.W is not None:
         dims_w = dims_t + ("row", "col")
-        data["vorticity_real"] = _var(traj.W.real, dims_w, "s-1", "real part of the vorticity matrix W")
-        data["vorticity_imag"] = _var(traj.W.imag, dims_w, "s-1", "imaginary part of the vorticity matrix W")
+        data["vorticity_real"] = _var(r.W.real, dims_w, "s-1", "real part of the vorticity matrix W")
+        data["vorticity_imag"] = _var(r.W.imag, dims_w, "s-1", "imaginary part of the vorticity matrix W")
     coords = {
         "member": _var(np.arange(M), ("member",), "1", "ensemble member"),
         "t": _var(traj.times, ("t",), "s", "time since the start of the run"),
@@ -413,7 +453,7 @@ def run_outputs(scene: ZeitlinScene, output=None, *, compare: bool = True, figur
         ds.attrs["summary"] = summary(ds) + f"\n  wrote {p}"
         write_netcdf_atomic(ds, p, history=history)
         if W_first is None:
-            W_first = traj.W[0]
+            W_first = traj.out.W_first
         results[m] = ds
     draw = scene["output"]["figures"] if figures is None else figures
     if draw:
