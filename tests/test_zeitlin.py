@@ -324,3 +324,12 @@ def test_python_api_runs_a_zeitlin_scene(tmp_path):
     assert set(out) == {"split", "rk4"} and out["split"]["energy"].dims == ("member", "t")
     ds = liethermo.run("zeitlin_ideal", over, compare=False, output=tmp_path / "z.nc", figures=False)
     assert (tmp_path / "z.nc").exists() and "tr W²" in ds.attrs["summary"]
+
+
+def test_a_vorticity_that_would_not_fit_in_memory_is_refused_before_any_work(tmp_path, capsys):
+    out = tmp_path / "big.nc"
+    args = ["run", "zeitlin_decay", "-o", str(out), "--set", "zeitlin.N=1024", "--set", "ensemble.members=4096",
+            "--set", "output.vorticity=true"]
+    assert main(args + ["--check"]) == 2
+    assert "output.vorticity" in capsys.readouterr().err
+    assert main(args) == 2 and not out.exists()

@@ -125,19 +125,26 @@ def _run_outputs(args, scene, plan) -> int:
 def _run_zeitlin(args, scene) -> int:
     """A Zeitlin fluid's run: every method in memory, then written atomically."""
     from .io import WriteError
+    from .scene import SceneError
     from .zeitlin.run import OutputError, output_paths, run_outputs
 
     for flag in ("resume", "dask"):
         if getattr(args, flag):
             return _error(f"--{flag} is not available for a Zeitlin scene (its runs are written whole)")
     if args.check:
+        from .zeitlin.run import check_memory
+
+        try:
+            check_memory(scene)
+        except SceneError as exc:
+            return _error(exc)
         paths = output_paths(scene, args.output)
         print(f"scene {scene.name!r} is valid: outputs {', '.join(str(p) for p in paths.values())}")
         return 0
     try:
         results = run_outputs(scene, args.output, progress=None if not args.no_progress else False,
                               force=args.force, history=args.command_line)
-    except (OutputError, WriteError) as exc:
+    except (OutputError, WriteError, SceneError) as exc:
         return _error(exc)
     for ds in results.values():
         print(ds.attrs["summary"])

@@ -3,6 +3,7 @@ steps over a batch of members, and the dataset a run writes."""
 
 from __future__ import annotations
 
+import os
 import platform
 import time as _time
 from dataclasses import dataclass
@@ -382,8 +383,29 @@ def _summary(ds: xr.Dataset) -> str:
     return "\n".join(lines)
 
 
+def check_memory(scene: ZeitlinScene) -> None:
+    """A run keeps W of every member at every output only with output.vorticity:
+    refuse one whose W would not fit in half of this machine's memory."""
+    from ..scene import SceneError
+
+    if not scene["output"]["vorticity"]:
+        return
+    M, N = scene["ensemble"]["members"], scene["zeitlin"]["N"]
+    T = scene["integrator"]["steps"] // scene["output"]["every"] + 1
+    need = 16 * M * T * N * N
+    try:
+        have = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return
+    if need > have / 2:
+        raise SceneError("output.vorticity", f"W of {M} members at {T} output times, N = {N}, needs "
+                         f"{need / 2**30:.1f} GiB, more than half of this machine's {have / 2**30:.1f} GiB: "
+                         f"store fewer outputs (output.every) or members, or leave the vorticity out", True)
+
+
 def simulate(scene: ZeitlinScene, *, method: str | None = None, progress=None, history=None) -> xr.Dataset:
     """Run the scene's ensemble with its method (or ``method``) into an in-memory dataset."""
+    check_memory(scene)
     W0 = initial_fields(scene)
     method = method or scene["integrator"]["method"]
     traj = integrate(scene, W0, method=method, progress=progress)
@@ -440,6 +462,7 @@ def run_outputs(scene: ZeitlinScene, output=None, *, compare: bool = True, figur
     from ..io import write_netcdf_atomic
     from . import plotting
 
+    check_memory(scene)
     paths = output_paths(scene, output)
     if not compare:
         paths = dict(list(paths.items())[:1])
