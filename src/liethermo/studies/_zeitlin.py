@@ -30,17 +30,24 @@ def check_methods(s: dict) -> list[str]:
 
 
 def advance(method: str, W, q, h: float, steps: int, nu: float, b, composition="small_error",
-            tol=1e-14, max_iter=100):
+            tol=1e-14, max_iter=100, state: dict | None = None):
     """``steps`` steps of ``method`` on a batch; returns W, q and the fixed-point
-    iterations per step (mean over members), raising if a member fails."""
+    iterations per step (mean over members), raising if a member fails.
+    ``state``: a dict carried from one call to the next (the fixed point's
+    predictor), so that a run cut into calls costs what one call would."""
     fac = zr.factors(method, composition) if method != "rk4" else ()
+    state = {} if state is None else state
+    if method != "rk4" and "predictor" not in state:
+        state["predictor"] = zr.Predictor(len(fac), W.shape[0], W.shape[-1])
+        state["D"] = None
+    members = np.arange(W.shape[0])
     its = 0.0
-    D = None
     for _ in range(steps):
         if method == "rk4":
             W, q = zr.rk4_step(W, q, h, nu, b)
         else:
-            W, q, it, failed, D = zr.split_step(W, q, h, nu, b, fac, tol, max_iter, D)
+            W, q, it, failed, state["D"] = zr.split_step(W, q, h, nu, b, fac, tol, max_iter, state["D"],
+                                                         state["predictor"], members)
             if failed.any():
                 raise ArithmeticError(f"{method} at h = {h:g} s: the fixed point did not converge")
             its += float(it.mean())
@@ -49,16 +56,19 @@ def advance(method: str, W, q, h: float, steps: int, nu: float, b, composition="
 
 def step_seconds(method: str, W, h: float, nu: float, b, min_time: float = 0.2) -> float:
     """Warm wall time of one step of ``method`` on the batch W (seconds per step):
-    a first step compiles and warms, then steps are repeated for at least ``min_time``."""
+    a few steps compile and warm (and fill the predictor), then runs of doubling
+    length are timed until one takes at least ``min_time``."""
     q = np.zeros(W.shape[0])
-    advance(method, W, q, h, 1, nu, b)
-    n, t = 0, 0.0
-    t0 = time.perf_counter()
-    while t < min_time:
-        advance(method, W, q, h, 1, nu, b)
-        n += 1
+    state: dict = {}
+    W, q, _ = advance(method, W, q, h, 5, nu, b, state=state)
+    n = 4
+    while True:
+        t0 = time.perf_counter()
+        W, q, _ = advance(method, W, q, h, n, nu, b, state=state)
         t = time.perf_counter() - t0
-    return t / n
+        if t >= min_time:
+            return t / n
+        n *= 2
 
 
 def invariants(W, b) -> dict:

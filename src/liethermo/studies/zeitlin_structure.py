@@ -57,9 +57,10 @@ def _long_run(meth, W0, h, T, samples, nu, b):
     h = T / (per * samples)
     W, q = W0.copy(), np.zeros(W0.shape[0])
     wall, its, seg = 0.0, [], []
+    state: dict = {}
     for j in range(samples):
         t0 = time.perf_counter()
-        W, q, it = advance(meth, W, q, h, per, nu, b)
+        W, q, it = advance(meth, W, q, h, per, nu, b, state=state)
         wall += time.perf_counter() - t0
         its.append(it)
         d = _drifts(W0, W, q, b)
