@@ -89,16 +89,7 @@ def run(scene: str | Path | dict | Scene = "paper", overrides: dict | list | Non
             check_parameters(sc)
         except PreflightError as exc:
             raise PreflightError(_in_python_words(exc)) from None
-    method = sc["integrator"]["method"]
-    others = [m for m in dict.fromkeys(sc["output"]["compare"]) if m != method]
-    if others and compare is None:
-        raise SceneError("output.compare", f"scene {sc.name!r} compares its method {method} with "
-                         f"{', '.join(others)}: pass compare=True to run those too (a dict "
-                         f"{{method: Dataset}} is returned) or compare=False to run {method} only",
-                         show_value=False)
-    if figures and output is None:
-        raise SceneError("output.figures", "figures are drawn beside the output file: pass output= "
-                         "(a .nc path) or figures=False", show_value=False)
+    method, others = _methods_to_run(sc, compare, figures, output)
     draw = bool(sc["output"]["figures"] if figures is None else figures) and output is not None
     if history is None:
         history = cf.api_call("liethermo.run", scene if not isinstance(scene, Scene) else sc.name,
@@ -122,11 +113,10 @@ def run(scene: str | Path | dict | Scene = "paper", overrides: dict | list | Non
     return results if compare else results[method]
 
 
-def _run_zeitlin(sc, scene, overrides, *, output, compare, figures, progress, force, history):
-    """:func:`run` for a Zeitlin fluid: in memory, or written whole to ``output``
-    (no member chunks, no resume)."""
-    from .zeitlin import run as zr
-
+def _methods_to_run(sc, compare, figures, output) -> tuple[str, list[str]]:
+    """The scene's method and the other methods of its output.compare; a scene
+    that compares but was called without ``compare``, or ``figures`` without
+    ``output``, raises SceneError saying what to pass."""
     method = sc["integrator"]["method"]
     others = [m for m in dict.fromkeys(sc["output"]["compare"]) if m != method]
     if others and compare is None:
@@ -137,6 +127,15 @@ def _run_zeitlin(sc, scene, overrides, *, output, compare, figures, progress, fo
     if figures and output is None:
         raise SceneError("output.figures", "figures are drawn beside the output file: pass output= "
                          "(a .nc path) or figures=False", show_value=False)
+    return method, others
+
+
+def _run_zeitlin(sc, scene, overrides, *, output, compare, figures, progress, force, history):
+    """:func:`run` for a Zeitlin fluid: in memory, or written whole to ``output``
+    (no member chunks, no resume)."""
+    from .zeitlin import run as zr
+
+    method, others = _methods_to_run(sc, compare, figures, output)
     if history is None:
         history = cf.api_call("liethermo.run", scene if isinstance(scene, (str, Path)) else sc.name,
                               overrides=overrides, output=output)

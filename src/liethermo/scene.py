@@ -458,18 +458,22 @@ def builtin_scene_text(name: str) -> str | None:
 # ----------------------------------------------------------------------------- loading
 
 
-def _merge(base: dict, new: dict, origin: str) -> None:
+def _merge(base: dict, new: dict, origin: str, defaults: dict | None = None, kind: str = "") -> None:
+    """Merge the tables ``new`` into ``base``, refusing sections and keys that
+    ``defaults`` (the top's :data:`DEFAULTS`, or another model's) does not
+    have; ``kind`` names the model in the messages (" of a Zeitlin scene")."""
+    defaults = DEFAULTS if defaults is None else defaults
     for section, table in new.items():
-        if section not in DEFAULTS:
+        if section not in defaults:
             name = f"{section}.{next(iter(table))}" if isinstance(table, dict) and table else section
-            raise SceneError(name, f"unknown section [{section}] in {origin}; known sections: "
-                             f"{', '.join(SECTIONS)}", show_value=False)
+            raise SceneError(name, f"unknown section [{section}]{kind} in {origin}; known sections: "
+                             f"{', '.join(defaults)}", show_value=False)
         if not isinstance(table, dict):
             raise SceneError(section, f"must be a table of keys in {origin}", table)
         for key, value in table.items():
-            if key not in DEFAULTS[section]:
-                raise SceneError(f"{section}.{key}", f"unknown key in {origin}; known keys of "
-                                 f"[{section}]: {', '.join(DEFAULTS[section])}", show_value=False)
+            if key not in defaults[section]:
+                raise SceneError(f"{section}.{key}", f"unknown key{kind} in {origin}; known keys of "
+                                 f"[{section}]: {', '.join(defaults[section])}", show_value=False)
             base[section][key] = copy.deepcopy(_thaw(value))
 
 

@@ -1,4 +1,4 @@
-"""What the three Zeitlin studies share: scenes, warm timing, report pieces."""
+"""What the three Zeitlin studies share: scenes, methods, steps, warm timing."""
 
 from __future__ import annotations
 
@@ -6,11 +6,12 @@ import time
 
 import numpy as np
 
-from ..zeitlin import kernels as zk
 from ..zeitlin import run as zr
+from ..zeitlin.scene import METHODS
 from .common import StudyError, study_scene
 
-ZEITLIN_METHODS = ("split", "split4", "split6", "rk4")
+#: what a Zeitlin study compares (the reference is what they measure against)
+ZEITLIN_METHODS = tuple(m for m in METHODS if m != "reference")
 
 
 def zeitlin_scene(s: dict, overrides: dict | None = None):
@@ -69,9 +70,3 @@ def step_seconds(method: str, W, h: float, nu: float, b, min_time: float = 0.2) 
         if t >= min_time:
             return t / n
         n *= 2
-
-
-def invariants(W, b) -> dict:
-    C = zk.to_modes(W, b)
-    return {"H": zk.energy_of_modes(C, b), "cas": zk.casimirs(W), "L": zk.angular_momentum(W),
-            "spec": zk.spectrum_of_modes(C, b), "Z": zk.enstrophy(W)}

@@ -17,6 +17,7 @@ import xarray as xr
 from ..io import write_netcdf_atomic
 from ..zeitlin import kernels as zk
 from ..zeitlin import run as zr
+from ..zeitlin.plotting import save
 from ._zeitlin import advance, check_methods, zeitlin_scene
 from .common import start_study, study_history, study_netcdf_path, study_options, write_report, write_table
 
@@ -97,7 +98,4 @@ def _figure(df, outdir, N, nu, T) -> Path:
     ax.set_ylabel("max |W − W_ref| / max |W_ref|")
     ax.set_title(f"Zeitlin fluid, N = {N}, ν = {nu:g} s⁻¹, t = {T:g} s")
     ax.legend()
-    p = Path(outdir) / "convergence.png"
-    fig.savefig(p, dpi=110, bbox_inches="tight")
-    plt.close(fig)
-    return p
+    return save(fig, Path(outdir) / "convergence.png")

@@ -15,6 +15,7 @@ import xarray as xr
 
 from ..io import write_netcdf_atomic
 from ..zeitlin import run as zr
+from ..zeitlin.plotting import save, spectrum_lines
 from ._zeitlin import zeitlin_scene
 from .common import (StudyError, expand_sweep, start_study, study_history, study_netcdf_path, study_options,
                      write_report, write_table)
@@ -114,26 +115,15 @@ def _figures(ds, outdir) -> list[Path]:
     for a in axes:
         a.legend(fontsize=8)
     fig.suptitle("Zeitlin fluid: energy into heat, entropy, enstrophy (member means)", fontsize=10)
-    p = Path(outdir) / "decay.png"
-    fig.savefig(p, dpi=110, bbox_inches="tight")
-    plt.close(fig)
-    out.append(p)
+    out.append(save(fig, Path(outdir) / "decay.png"))
     fig, axes = plt.subplots(1, len(nus), figsize=(3.8 * len(nus) + 0.6, 3.6), sharey=True, squeeze=False,
                              layout="constrained")
-    cmap = plt.get_cmap("viridis")
-    idx = np.unique(np.linspace(0, len(t) - 1, 5).round().astype(int))
     for a, nu in zip(axes[0], nus):
-        spec = np.nanmean(ds["energy_spectrum"].sel(viscosity=nu).values, axis=0)
-        for n, i in enumerate(idx):
-            e = np.where(spec[i] > 1e-14 * np.nanmax(spec), spec[i], np.nan)  # round-off left out
-            a.loglog(ds["l"].values, e, color=cmap(n / max(len(idx) - 1, 1)), label=f"t = {t[i]:g} s")
+        spectrum_lines(a, ds["l"].values, t, np.nanmean(ds["energy_spectrum"].sel(viscosity=nu).values, axis=0), 5)
         a.set_title(f"ν = {nu:g} s⁻¹", fontsize=9)
         a.set_xlabel("degree l")
     axes[0][0].set_ylabel("E_l (J)")
     axes[0][-1].legend(fontsize=7)
     fig.suptitle("energy spectrum over time", fontsize=10)
-    p = Path(outdir) / "spectrum.png"
-    fig.savefig(p, dpi=110, bbox_inches="tight")
-    plt.close(fig)
-    out.append(p)
+    out.append(save(fig, Path(outdir) / "spectrum.png"))
     return out

@@ -22,7 +22,8 @@ import xarray as xr
 from ..io import write_netcdf_atomic
 from ..zeitlin import kernels as zk
 from ..zeitlin import run as zr
-from ._zeitlin import advance, check_methods, invariants, step_seconds, zeitlin_scene
+from ..zeitlin.plotting import save
+from ._zeitlin import advance, check_methods, step_seconds, zeitlin_scene
 from .common import StudyError, start_study, study_history, study_netcdf_path, study_options, write_report, write_table
 
 EXTRA_KEYS = ()
@@ -44,7 +45,7 @@ def validate(s: dict) -> None:
 
 
 def _drifts(W0, W, q, b):
-    a, z = invariants(W0, b), invariants(W, b)
+    a, z = zk.diagnostics(W0, b), zk.diagnostics(W, b)
     c2 = a["cas"][:, :1]
     scale = c2 ** (np.array([2, 3, 4]) / 2.0)
     return {"cas2": np.max(np.abs(z["cas"][:, 0] - a["cas"][:, 0]) / scale[:, 0]),
@@ -146,7 +147,4 @@ def _figure(cv, outdir) -> Path:
     axes[1][0].set_ylabel("|H + q − H(0)| / H(0)")
     axes[0][-1].legend(fontsize=7)
     fig.suptitle("Zeitlin fluid: split family against RK4 at equal measured cost", fontsize=10)
-    p = Path(outdir) / "drift.png"
-    fig.savefig(p, dpi=110, bbox_inches="tight")
-    plt.close(fig)
-    return p
+    return save(fig, Path(outdir) / "drift.png")

@@ -478,3 +478,11 @@ def angular_momentum(W: np.ndarray) -> np.ndarray:
 
 def enstrophy(W: np.ndarray) -> np.ndarray:
     return 0.5 * (np.abs(W) ** 2).sum(axis=(-2, -1))
+
+
+def diagnostics(W: np.ndarray, b: Basis) -> dict:
+    """What a run records of a batch W: energy H, spectrum E_l, Casimirs
+    tr((iW)^k) for k = 2, 3, 4, angular momentum L, enstrophy Z."""
+    C = to_modes(W, b)
+    return {"H": energy_of_modes(C, b), "spec": spectrum_of_modes(C, b), "cas": casimirs(W),
+            "L": angular_momentum(W), "Z": enstrophy(W)}

@@ -46,6 +46,33 @@ def _harmonics_at_zero_longitude(N: int, n_lat: int) -> np.ndarray:
     return _Y0_CACHE[key]
 
 
+def sample_times(n_times: int, count: int) -> np.ndarray:
+    """Indices of ``count`` output times spread evenly over a run (first and last included)."""
+    return np.unique(np.linspace(0, n_times - 1, count).round().astype(int))
+
+
+def spectrum_lines(ax, ls, t, spec, count: int) -> None:
+    """E_l (``spec``: times × degrees) at ``count`` times of the run, one
+    line each from dark to light, on log axes; degrees at round-off level are
+    left out."""
+    import matplotlib.pyplot as plt
+
+    cmap = plt.get_cmap("viridis")
+    idx = sample_times(len(t), count)
+    for n, i in enumerate(idx):
+        e = np.where(spec[i] > 1e-14 * np.nanmax(spec), spec[i], np.nan)
+        ax.loglog(ls, e, color=cmap(n / max(len(idx) - 1, 1)), label=f"t = {t[i]:g} s")
+
+
+def save(fig, path) -> Path:
+    """Write a figure as PNG (110 dpi, tight) and close it."""
+    import matplotlib.pyplot as plt
+
+    fig.savefig(path, dpi=110, bbox_inches="tight")
+    plt.close(fig)
+    return Path(path)
+
+
 def _mean(da):
     return np.nanmean(da.values, axis=0)
 
@@ -67,7 +94,7 @@ def draw(datasets: dict, W_member0: np.ndarray | None, folder, stem: str) -> lis
     N = int(ds.attrs["N"])
 
     if W_member0 is not None:
-        idx = np.unique(np.linspace(0, len(t) - 1, 4).round().astype(int))
+        idx = sample_times(len(t), 4)
         fields = [vorticity_on_grid(W_member0[i]) for i in idx]
         vmax = max(np.abs(f[2]).max() for f in fields)
         fig = plt.figure(figsize=(3.6 * len(idx) + 0.8, 2.8), layout="constrained")
@@ -80,10 +107,7 @@ def draw(datasets: dict, W_member0: np.ndarray | None, folder, stem: str) -> lis
             ax.set_title(f"t = {t[i]:g} s", fontsize=9)
         fig.colorbar(im, ax=fig.axes, shrink=0.7, label="vorticity ω (s⁻¹)")
         fig.suptitle(f"vorticity of member 0 ({first}, N = {N}), Mollweide projection", fontsize=10)
-        p = folder / f"{stem}_vorticity.png"
-        fig.savefig(p, dpi=110, bbox_inches="tight")
-        plt.close(fig)
-        out.append(p)
+        out.append(save(fig, folder / f"{stem}_vorticity.png"))
 
     fig, ax = plt.subplots(figsize=(6.4, 4.0), layout="constrained")
     H, q = _mean(ds["energy"]), _mean(ds["heat"])
@@ -94,27 +118,17 @@ def draw(datasets: dict, W_member0: np.ndarray | None, folder, stem: str) -> lis
     ax.set_ylabel("energy (J), member mean")
     ax.set_title(f"energy into heat ({first}, ν = {_nu(ds)} s⁻¹, N = {N})")
     ax.legend()
-    p = folder / f"{stem}_energy_heat.png"
-    fig.savefig(p, dpi=110, bbox_inches="tight")
-    plt.close(fig)
-    out.append(p)
+    out.append(save(fig, folder / f"{stem}_energy_heat.png"))
 
     fig, ax = plt.subplots(figsize=(6.4, 4.0), layout="constrained")
     spec = _mean(ds["energy_spectrum"])
     ls = ds["l"].values
-    cmap = plt.get_cmap("viridis")
-    idx = np.unique(np.linspace(0, len(t) - 1, 6).round().astype(int))
-    for n, i in enumerate(idx):
-        e = np.where(spec[i] > 1e-14 * np.nanmax(spec), spec[i], np.nan)  # round-off left out
-        ax.loglog(ls, e, color=cmap(n / max(len(idx) - 1, 1)), label=f"t = {t[i]:g} s")
+    spectrum_lines(ax, ls, t, spec, 6)
     ax.set_xlabel("degree l")
     ax.set_ylabel("energy spectrum E_l (J), member mean")
     ax.set_title("energy spectrum over time")
     ax.legend(fontsize=8)
-    p = folder / f"{stem}_spectrum.png"
-    fig.savefig(p, dpi=110, bbox_inches="tight")
-    plt.close(fig)
-    out.append(p)
+    out.append(save(fig, folder / f"{stem}_spectrum.png"))
 
     fig, axes = plt.subplots(1, 2, figsize=(10.5, 3.8), layout="constrained")
     for m, d in datasets.items():
@@ -130,10 +144,7 @@ def draw(datasets: dict, W_member0: np.ndarray | None, folder, stem: str) -> lis
     for a in axes:
         a.set_xlabel("time t (s)")
         a.legend(fontsize=8)
-    p = folder / f"{stem}_casimirs.png"
-    fig.savefig(p, dpi=110, bbox_inches="tight")
-    plt.close(fig)
-    out.append(p)
+    out.append(save(fig, folder / f"{stem}_casimirs.png"))
     return out
 
 

@@ -176,6 +176,7 @@ class Recorder:
     def __init__(self, M: int, n_out: int, b: zk.Basis, keep_all: bool):
         self.b = b
         nan = np.nan
+        # the fields of kernels.diagnostics, per member and output time
         self.H = np.full((M, n_out), nan)
         self.spec = np.full((M, n_out, b.N - 1), nan)
         self.cas = np.full((M, n_out, 3), nan)
@@ -188,12 +189,8 @@ class Recorder:
     def record(self, j: int, members: np.ndarray, W: np.ndarray, q: np.ndarray) -> None:
         if members.size == 0:
             return
-        C = zk.to_modes(W, self.b)
-        self.H[members, j] = zk.energy_of_modes(C, self.b)
-        self.spec[members, j] = zk.spectrum_of_modes(C, self.b)
-        self.cas[members, j] = zk.casimirs(W)
-        self.L[members, j] = zk.angular_momentum(W)
-        self.Z[members, j] = zk.enstrophy(W)
+        for name, values in zk.diagnostics(W, self.b).items():
+            getattr(self, name)[members, j] = values
         self.q[members, j] = q
         if self.W is not None:
             self.W[members, j] = W

@@ -156,18 +156,10 @@ def is_zeitlin(source) -> bool:
 
 
 def merge(base: dict, new: dict, origin: str) -> None:
-    for section, table in new.items():
-        if section not in DEFAULTS:
-            name = f"{section}.{next(iter(table))}" if isinstance(table, dict) and table else section
-            raise SceneError(name, f"unknown section [{section}] of a Zeitlin scene in {origin}; known "
-                             f"sections: {', '.join(SECTIONS)}", show_value=False)
-        if not isinstance(table, dict):
-            raise SceneError(section, f"must be a table of keys in {origin}", table)
-        for key, value in table.items():
-            if key not in DEFAULTS[section]:
-                raise SceneError(f"{section}.{key}", f"unknown key of a Zeitlin scene in {origin}; known keys of "
-                                 f"[{section}]: {', '.join(DEFAULTS[section])}", show_value=False)
-            base[section][key] = copy.deepcopy(value)
+    """Merge scene tables into ``base``, refusing sections and keys a Zeitlin scene does not have."""
+    from ..scene import _merge
+
+    _merge(base, new, origin, DEFAULTS, " of a Zeitlin scene")
 
 
 def load(tables: dict, origin: str, overrides=None) -> ZeitlinScene:
