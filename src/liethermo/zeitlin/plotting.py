@@ -138,7 +138,8 @@ def draw(datasets: dict, W_member0: np.ndarray | None, folder, stem: str) -> lis
             axes[0].semilogy(tm, np.maximum(v, 1e-17), ls_, label=f"{m}: tr W{'²' if k == 2 else '⁴'}")
         e = np.nanmax(np.abs(d["energy_error"].values[:, 1:]), axis=0)
         axes[1].semilogy(tm, np.maximum(e, 1e-17), label=m)
-    axes[0].set_title("Casimir drift (max over members)")
+    axes[0].set_title("Casimir drift (max over members)" if _nu(ds) == "0"
+                      else "Casimir change (max over members): viscosity dissipates it")
     axes[0].set_ylabel("|C_k(t) − C_k(0)| / C₂(0)^(k/2)")
     axes[1].set_title("total energy error |H + q − H(0)| / H(0)")
     for a in axes:
