@@ -122,7 +122,7 @@ def test_orders_2_4_6_against_the_reference():
         observed = np.log2(errs[0] / errs[1])
         assert abs(observed - order) < 0.15, (name, errs, observed)
     assert errs[1] > 1e-11  # the order-6 pair is above the reference's own error
-    # the oracle's figure: split4 at h = 0.025 has an error near 1e-7 here
+    # split4 at h = 0.025 s: an error near 1e-7 on these members
     W, _ = _split_run(W0, 0.025, T, nu, b, COMPOSITION_FACTORS[("small_error", 4)])
     assert 1e-8 < np.abs(W - Wr).max() / np.abs(Wr).max() < 1e-6
     errs = []
