@@ -28,6 +28,7 @@ from conftest import paper_physics, random_body, random_ensemble, stack
 from liethermo.kernels import fast as F
 from liethermo.kernels import layout as L
 from liethermo.kernels import parallel, rk, simple, vi
+from liethermo.kernels.steppers import Explicit
 from liethermo.kernels.terms.thermo import EXPLICIT, EXP_SMALL, SYMMETRIC
 from liethermo.physics import build_model
 from liethermo.simulate import simulate
@@ -266,12 +267,13 @@ def test_members_already_failed_are_skipped_by_both_kernels():
         IS[1::4, L.IS_STEPS] = 17
         FS = np.zeros((len(om), L.NFSTAT))
         FS[2::5, 0] = 1e3
+        stepper = Explicit(rk.RK4, 1)
         if kernel == "fast":
-            parallel.run_ranges(F.advance_rk_blocks, -(-len(om) // F.BLOCK),
-                                (rk.RK4, km.model, km.shared, Y, km.P), (0.1, 5, 3, OUT, IS, FS))
+            parallel.run_ranges(F.advance_blocks, -(-len(om) // F.BLOCK),
+                                (stepper, km.model, km.shared, Y, km.P), (0.1, 5, 3, OUT, IS, FS))
         else:
-            parallel.run_ranges(simple.advance_rk_members, len(om), (rk.RK4, km.model, km.shared, Y, km.P),
-                                (0.1, 1, 5, 3, OUT, IS, FS))
+            parallel.run_ranges(simple.advance_members, len(om), (stepper, km.model, km.shared, Y, km.P),
+                                (0.1, 5, 3, OUT, IS, FS))
         res.append((Y, OUT, IS, FS))
     for a, b in zip(*res):
         np.testing.assert_array_equal(a, b)
@@ -310,8 +312,7 @@ def test_kernels_are_vectorized():
 
 def test_import_compiles_nothing():
     code = ("import liethermo, liethermo.simulate, liethermo.kernels.fast as F, liethermo.kernels.simple as S;"
-            "assert not F.advance_vi_blocks.overloads and not F.advance_rk_blocks.overloads"
-            " and not S.advance_vi_members.overloads")
+            "assert not F.advance_blocks.overloads and not S.advance_members.overloads")
     subprocess.run([sys.executable, "-c", code], check=True)
 
 

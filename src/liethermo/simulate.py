@@ -19,6 +19,7 @@ from .kernels import fast as _fast
 from .kernels import layout as _lay
 from .kernels import parallel as _par
 from .kernels import simple as _simple
+from .kernels.steppers import Explicit, Variational
 from .kernels.layout import STATUS_MEANINGS, STATUS_NEWTON, STATUS_NONFINITE, STATUS_OK  # noqa: F401
 from .kernels.layout import StateLayout
 from .methods import ENTROPY_UPDATES, FRICTION, STARTS, Method, get_method
@@ -293,12 +294,7 @@ def simulate(
         if m.name == "reference":
             nsub = int(ref_substeps) if ref_substeps else 0
             IS[:, _lay.IS_NSUB] = reference_substeps(h, physics, omega0)
-        if fast:
-            fn, n_items = _fast.advance_rk_blocks, -(-N // _fast.BLOCK)
-            pre, post = (tab, km.model, km.shared, Y, km.P), (float(h), int(every))
-        else:
-            fn, n_items = _simple.advance_rk_members, N
-            pre, post = (tab, km.model, km.shared, Y, km.P), (float(h), int(nsub), int(every))
+        stepper = Explicit(tab, int(nsub))
     else:
         from .kernels import vi as _vi
         from .kernels.terms.thermo import EXPLICIT, SYMMETRIC
@@ -315,12 +311,7 @@ def simulate(
             Y[:, layout.slice("attitude")] = R0.reshape(N, 9)
         start_args = (km.model, km.shared, Y, km.P, 0, N, float(factors[0] * h), wl, wr,
                       eff_start == "legendre", float(newton_tol), int(newton_maxiter), IS)
-        if fast:
-            fn, n_items = _fast.advance_vi_blocks, -(-N // _fast.BLOCK)
-        else:
-            fn, n_items = _simple.advance_vi_members, N
-        pre, post = (km.model, km.shared, Y, km.P), (float(h), factors, int(every))
-        post_tail = (wl, wr, mode, float(newton_tol), int(newton_maxiter))
+        stepper = Variational(factors, float(wl), float(wr), mode, float(newton_tol), int(newton_maxiter))
 
     states = np.full((N, n_out + 1, layout.size), np.nan)
     adapt = chunk_steps is None
@@ -328,10 +319,14 @@ def simulate(
         chunk_steps = max(every, min(steps, CHUNK_MEMBER_STEPS // max(N, 1)))
     out_per_chunk = max(1, chunk_steps // every)
 
+    # one driver per memory layout, for every method
+    if fast:
+        fn, n_items = _fast.advance_blocks, -(-N // _fast.BLOCK)
+    else:
+        fn, n_items = _simple.advance_members, N
+
     def args_for(OUT, nj):
-        if m.layout == "rk":
-            return pre, post + (int(nj), OUT, IS, FS)
-        return pre, post + (int(nj),) + post_tail + (OUT, IS, FS)
+        return (stepper, km.model, km.shared, Y, km.P), (float(h), int(every), int(nj), OUT, IS, FS)
 
     # compile the main kernel first, then the variational integrators' start:
     # a process warming the cache for this run compiles the start meanwhile

@@ -155,6 +155,48 @@ def axpy_opt(a, x, y):
     return fma(a, x, y)
 
 
+def register_overload(fn, args: str, typer, label: str, inline: str = "llvm") -> None:
+    """The one overload factory.  Numba compiles a call of the generic
+    function ``fn`` (whose parameters are ``args``) with the implementation
+    that ``typer(*argument types)`` returns, or tries fn's other overloads
+    when it returns None.  Numba wants the typer to have ``fn``'s signature:
+    it gets one through generated source labelled ``LABEL typer``.
+    ``inline``: "llvm" (a lane function: compiled once per argument types,
+    then inlined by LLVM into every caller) or "ir" (numba pastes its code
+    into the caller before compiling it: for the few driver-level functions
+    that call sweeps, whose code then is the same as if written in place)."""
+    if inline == "ir":
+        deco = overload(fn, inline="always", jit_options={**LANE_OPTIONS, "forceinline": False})
+    else:
+        deco = overload(fn, jit_options=LANE_OPTIONS)
+    deco(compile_source(f"def _typer({args}):\n    return typer({args})\n", {"typer": typer},
+                        "_typer", f"{label} typer"))
+
+
+def overload_choice(default, choose, arg: int = 0, label: str | None = None, inline="llvm"):
+    """A generic lane function whose implementation is ``choose(t)``, where
+    t is the numba type of its ``arg``-th argument when numba types a call
+    (and that argument itself when it runs as plain Python).  ``default``
+    lends its name, signature and docstring.  ``inline``: as for
+    :func:`register_overload`, or a function of the chosen implementation
+    that says it."""
+    import inspect
+
+    args = ", ".join(inspect.signature(default).parameters)
+    name = default.__name__
+    label = label or f"overload_choice {name}"
+    fn = compile_source(f"def {name}({args}):\n    return choose(({args},)[{arg}])({args})\n",
+                        {"choose": choose}, name, label)
+    fn.__doc__ = default.__doc__
+    if isinstance(inline, str):
+        register_overload(fn, args, lambda *types: choose(types[arg]), label, inline)
+    else:  # one overload per inline mode, each taking the implementations of its mode
+        for mode in ("llvm", "ir"):
+            register_overload(fn, args, lambda *types, mode=mode: (
+                choose(types[arg]) if inline(choose(types[arg])) == mode else None), label, mode)
+    return fn
+
+
 def none_dispatch(present, absent, arg: int = 0):
     """A generic lane function that is ``present`` for arguments whose
     ``arg``-th one is not None and ``absent`` when it is None, chosen when
@@ -162,22 +204,8 @@ def none_dispatch(present, absent, arg: int = 0):
     that branch removed only when x *is* None; for any other type both
     branches are compiled, and one that returns None makes the result
     Optional.)  ``present`` lends its name, signature and docstring."""
-    import inspect
-
-    args = ", ".join(inspect.signature(present).parameters)
-    ns: dict = {}
-    ns.update(present=present, absent=absent)
-    label = f"none_dispatch {present.__name__}"
-    fn = compile_source(f"def {present.__name__}({args}):\n"
-                        f"    return (absent if ({args},)[{arg}] is None else present)({args})\n", ns,
-                        present.__name__, label)
-    fn.__doc__ = present.__doc__
-    tns = {"is_none": is_none, "present": present, "absent": absent}
-    typer = compile_source(f"def _typer({args}):\n"
-                           f"    return absent if is_none(({args},)[{arg}]) else present\n", tns,
-                           "_typer", label + " typer")
-    overload(fn, jit_options=LANE_OPTIONS)(typer)
-    return fn
+    return overload_choice(present, lambda t: absent if is_none(t) else present, arg,
+                           f"none_dispatch {present.__name__}")
 
 
 def has_capability(term, capability: str) -> bool:
@@ -195,22 +223,9 @@ def overload_by_capability(default, capability: str, special, arg: int = 0):
     argument is a term declaring ``capability`` (see :func:`has_capability`)
     and ``default`` otherwise (chosen when numba types the call): solvers
     ask terms for what they need, never for their class."""
-    import inspect
-
-    args = ", ".join(inspect.signature(default).parameters)
-    ns: dict = {}
-    ns.update(default=default, special=special, has=has_capability, cap=capability)
-    label = f"overload_by_capability {default.__name__} {capability}"
-    fn = compile_source(f"def {default.__name__}({args}):\n"
-                        f"    return (special if has(({args},)[{arg}], cap) else default)({args})\n",
-                        ns, default.__name__, label)
-    fn.__doc__ = default.__doc__
-    tns = {"default": default, "special": special, "has": has_capability, "cap": capability}
-    typer = compile_source(f"def _typer({args}):\n"
-                           f"    return special if has(({args},)[{arg}], cap) else default\n",
-                           tns, "_typer", label + " typer")
-    overload(fn, jit_options=LANE_OPTIONS)(typer)
-    return fn
+    return overload_choice(default,
+                           lambda t: special if has_capability(t, capability) else default, arg,
+                           f"overload_by_capability {default.__name__} {capability}")
 
 
 def scale_opt(a, x):
@@ -405,9 +420,7 @@ def make_fold(protocol, n_args: int, n_acc: int, name: str, reverse: bool = Fals
         return compile_source("\n".join(lines) + "\n", {"protocol": protocol},
                               label=f"fold {name} over {kinds or 'no terms'}")
 
-    tns: dict = {"typer": typer}
-    overload(fold, jit_options=LANE_OPTIONS)(
-        compile_source(f"def _typer({sig}):\n    return typer({sig})\n", tns, "_typer", f"fold {name} typer"))
+    register_overload(fold, sig, typer, f"fold {name}")
     return fold
 
 

@@ -1,7 +1,8 @@
 """The straightforward ensemble kernel: one member at a time.
 
-:func:`advance_rk_members` and :func:`advance_vi_members` advance members
-``m0 … m1−1`` in place; :mod:`liethermo.kernels.parallel` runs member ranges
+:func:`advance_members` advances members ``m0 … m1−1`` in place, by the
+step of the method whose kernel data (a stepper, :mod:`.steppers`) it is
+given; :mod:`liethermo.kernels.parallel` runs member ranges
 on threads (the functions release the GIL).  They are the reference the
 vectorized block kernel (:mod:`.fast`) is tested against, bitwise: both call
 the same lane functions.  Arrays (all caller-allocated):
@@ -40,6 +41,7 @@ from .layout import (FS_MAX_H_OMEGA, IS_FAIL_STEP, IS_NEWTON_MAX, IS_NEWTON_TOTA
                      load_rk_state, load_vi_state, store_rk_state, store_vi_state)
 from .rk import explicit_step
 from .so3 import norm2_lane
+from .steppers import by_stepper
 from .equations import omega_rate
 from .vi import (add_opt, entropy_predictor, momentum_map, newton_rhs, newton_solve, vi_advance,
                  vi_coefficients)
@@ -63,31 +65,96 @@ def max_h_omega(entry, h, w2max):
     return hw if hw > entry else entry
 
 
+def member_load(stepper, md, row):
+    """The state of a member from its row (the layout of its method family)."""
+    return load_rk_state(md, row, 0, 1)
+
+
+def _vi_member_load(stepper, md, row):
+    return load_vi_state(md, row, 0, 1)
+
+
+member_load = by_stepper(member_load, _vi_member_load)
+
+
+def member_store(stepper, md, row, y):
+    """Store a member's state y into its row."""
+    store_rk_state(md, row, 0, 1, y)
+
+
+def _vi_member_store(stepper, md, row, y):
+    store_vi_state(md, row, 0, 1, y)
+
+
+member_store = by_stepper(member_store, _vi_member_store)
+
+
+def member_step(stepper, md, y, h, w2, ISTAT, m):
+    """One step of member m from its state y: (y', w2', status), with w2' the
+    running max |Ω|² (times the squared substep factor) and y' the state at
+    the start of the step when status is not STATUS_OK.  Explicit: ``nsub``
+    substeps of the tableau (or the splitting) of size h/nsub."""
+    ns = stepper.nsub if stepper.nsub > 0 else ISTAT[m, IS_NSUB]
+    hs = h / ns
+    w = y[0]
+    ww = norm2_lane(w[0], w[1], w[2])
+    w2 = ww if ww > w2 else w2
+    yn = y
+    for _s in range(ns):
+        yn, ok = explicit_step(stepper.tab, md, yn, hs, True)
+    if not tree_finite(yn):
+        return y, w2, STATUS_NONFINITE
+    return yn, w2, STATUS_OK
+
+
+def _vi_member_step(stepper, md, y, h, w2, ISTAT, m):
+    """The variational integrator: the composition of substeps of sizes
+    factors[i]·h (one substep for ``vi``), each a Newton solve."""
+    factors = stepper.factors
+    ns = len(factors)
+    ystart = y
+    for i in range(ns):
+        v = vi_coefficients(md, factors[i] * h, stepper.wl, stepper.wr)
+        vn = vi_coefficients(md, factors[(i + 1) % ns] * h, stepper.wl, stepper.wr)
+        X = y[0]
+        ww = (factors[i] * factors[i]) * norm2_lane(X[0], X[1], X[2])
+        w2 = ww if ww > w2 else w2
+        G1, s1, mu1, R1, b, xp, ps, sc0, scs, ok = vi_advance(md, v, vn, y, vn.h, stepper.mode, True)
+        X1, xs, code, its = newton_solve(md, vn, b, xp, ps, s1, sc0, scs, stepper.tol,
+                                         stepper.maxiter)
+        ISTAT[m, IS_NEWTON_TOTAL] += its
+        if its > ISTAT[m, IS_NEWTON_MAX]:
+            ISTAT[m, IS_NEWTON_MAX] = its
+        yn = (X1, G1, s1, mu1, add_opt(s1, xs), R1)
+        if code != NEWTON_OK:
+            return ystart, w2, STATUS_NEWTON  # back to the start of the failing step
+        if not tree_finite(yn):
+            return ystart, w2, STATUS_NONFINITE
+        y = yn
+    return y, w2, STATUS_OK
+
+
+member_step = by_stepper(member_step, _vi_member_step)
+
+
 @jit(nogil=True)
-def advance_rk_members(tab, model, shared, Y, P, m0, m1, h, nsub, every, n_out,
-                       OUT, ISTAT, FSTAT):
-    """Explicit steps of the tableau ``tab`` (``nsub`` substeps of h/nsub per
-    step; nsub ≤ 0: each member's ISTAT[m, IS_NSUB])."""
+def advance_members(stepper, model, shared, Y, P, m0, m1, h, every, n_out, OUT, ISTAT, FSTAT):
+    """Members m0 … m1−1, ``every`` × ``n_out`` steps of the method whose
+    kernel data is ``stepper`` (:mod:`.steppers`), output after every
+    ``every`` steps."""
     for m in range(m0, m1):
         if ISTAT[m, IS_STATUS] != STATUS_OK:
             continue
         md = member_model(shared, model, P, m)
-        y = load_rk_state(md, Y[m], 0, 1)
-        ns = nsub if nsub > 0 else ISTAT[m, IS_NSUB]
-        hs = h / ns
+        y = member_load(stepper, md, Y[m])
         w2 = -1.0
         failed = False
         for j in range(n_out):
             for _ in range(every):
                 k = ISTAT[m, IS_STEPS]
-                w = y[0]
-                ww = norm2_lane(w[0], w[1], w[2])
-                w2 = ww if ww > w2 else w2
-                yn = y
-                for _s in range(ns):
-                    yn, ok = explicit_step(tab, md, yn, hs, True)
-                if not tree_finite(yn):
-                    ISTAT[m, IS_STATUS] = STATUS_NONFINITE
+                yn, w2, status = member_step(stepper, md, y, h, w2, ISTAT, m)
+                if status != STATUS_OK:
+                    ISTAT[m, IS_STATUS] = status
                     ISTAT[m, IS_FAIL_STEP] = k + 1
                     failed = True
                     break
@@ -95,59 +162,8 @@ def advance_rk_members(tab, model, shared, Y, P, m0, m1, h, nsub, every, n_out,
                 ISTAT[m, IS_STEPS] = k + 1
             if failed:
                 break
-            store_rk_state(md, OUT[m, j], 0, 1, y)
-        store_rk_state(md, Y[m], 0, 1, y)
-        FSTAT[m, FS_MAX_H_OMEGA] = max_h_omega(FSTAT[m, FS_MAX_H_OMEGA], h, w2)
-
-
-@jit(nogil=True)
-def advance_vi_members(model, shared, Y, P, m0, m1, h, factors, every, n_out, wl, wr, mode,
-                       tol, maxiter, OUT, ISTAT, FSTAT):
-    """Steps of the variational integrator in node form; each step is the
-    composition of substeps of sizes factors[i]·h (one substep for ``vi``)."""
-    ns = len(factors)
-    for m in range(m0, m1):
-        if ISTAT[m, IS_STATUS] != STATUS_OK:
-            continue
-        md = member_model(shared, model, P, m)
-        y = load_vi_state(md, Y[m], 0, 1)
-        w2 = -1.0
-        failed = False
-        for j in range(n_out):
-            for _ in range(every):
-                k = ISTAT[m, IS_STEPS]
-                ystart = y
-                for i in range(ns):
-                    v = vi_coefficients(md, factors[i] * h, wl, wr)
-                    vn = vi_coefficients(md, factors[(i + 1) % ns] * h, wl, wr)
-                    X = y[0]
-                    ww = (factors[i] * factors[i]) * norm2_lane(X[0], X[1], X[2])
-                    w2 = ww if ww > w2 else w2
-                    G1, s1, mu1, R1, b, xp, ps, sc0, scs, ok = vi_advance(md, v, vn, y, vn.h,
-                                                                          mode, True)
-                    X1, xs, code, its = newton_solve(md, vn, b, xp, ps, s1, sc0, scs, tol, maxiter)
-                    ISTAT[m, IS_NEWTON_TOTAL] += its
-                    if its > ISTAT[m, IS_NEWTON_MAX]:
-                        ISTAT[m, IS_NEWTON_MAX] = its
-                    yn = (X1, G1, s1, mu1, add_opt(s1, xs), R1)
-                    if code != NEWTON_OK:
-                        ISTAT[m, IS_STATUS] = STATUS_NEWTON
-                        failed = True
-                    elif not tree_finite(yn):
-                        ISTAT[m, IS_STATUS] = STATUS_NONFINITE
-                        failed = True
-                    if failed:
-                        ISTAT[m, IS_FAIL_STEP] = k + 1
-                        break
-                    y = yn
-                if failed:  # back to the start of the failing step
-                    y = ystart
-                    break
-                ISTAT[m, IS_STEPS] = k + 1
-            if failed:
-                break
-            store_vi_state(md, OUT[m, j], 0, 1, y)
-        store_vi_state(md, Y[m], 0, 1, y)
+            member_store(stepper, md, OUT[m, j], y)
+        member_store(stepper, md, Y[m], y)
         FSTAT[m, FS_MAX_H_OMEGA] = max_h_omega(FSTAT[m, FS_MAX_H_OMEGA], h, w2)
 
 

@@ -72,10 +72,8 @@ from typing import Any
 import numpy as np
 
 from numba import types
-from numba.extending import overload
 
-from .._jit import LANE_OPTIONS
-from ..gen import compile_source, is_none, make_fold
+from ..gen import compile_source, is_none, make_fold, register_overload
 
 Model = namedtuple("Model", "inertia thermo forces attitude")
 
@@ -113,10 +111,7 @@ def _protocol(name: str, args: str, passthrough: str):
                                   label=f"protocol {name} passthrough for {getattr(cls, '__name__', 'None')}")
         return None
 
-    tns = {"typer": typer}
-    overload(fn, jit_options=LANE_OPTIONS)(
-        compile_source(f"def _typer({args}):\n    return typer({args})\n", tns, "_typer",
-                       f"protocol {name} typer"))
+    register_overload(fn, args, typer, f"protocol {name}")
     return fn
 
 
@@ -143,10 +138,7 @@ def implements(protocol, cls):
                 return impl
             return None
 
-        tns = {"typer": typer}
-        overload(fn, jit_options=LANE_OPTIONS)(
-            compile_source(f"def _typer({args}):\n    return typer({args})\n", tns, "_typer",
-                           f"protocol {protocol.__name__} typer for {cls.__name__}"))
+        register_overload(fn, args, typer, f"protocol {protocol.__name__} for {cls.__name__}")
         return impl
 
     return deco
