@@ -446,3 +446,57 @@ def test_a_small_heat_capacity_gives_the_same_bits_however_the_ensemble_is_split
     for name in ("omega", "gamma", "entropy"):
         np.testing.assert_array_equal(whole[name].values, parts[name].values)
     np.testing.assert_array_equal(whole["omega"].values[:64], first["omega"].values)
+
+
+# ------------------------------------------------------------------ the terms own their names
+
+#: studies whose subject is a term's physics: they set or sweep its key
+STUDIES_ABOUT_TERMS = {"coupling.py", "flat_spin.py", "viscosity_sweep.py", "long_drift.py",
+                       "stability.py"}
+
+
+def _term_names() -> set[str]:
+    from liethermo.kernels import terms
+
+    names = set()
+    for t in terms.registry():
+        names.add(t.name)
+        names.update(s.path for s in t.settings)
+        names.update(s.name for s in t.settings if len(s.name) > 1)  # not "g": a common variable
+    for m in terms._term_modules():
+        if m.__name__.endswith(".inertia"):  # the inertia slot is the model's, not a term's
+            continue
+        names.add(m.__name__.rsplit(".", 1)[1])
+        names.update(k for k, v in vars(m).items() if isinstance(v, type) and v.__module__ == m.__name__)
+    return names
+
+
+def test_no_module_outside_the_terms_names_a_term():
+    """Outside kernels/terms/, the studies about a term and the Zeitlin fluid
+    (another model, with keys of its own), no identifier or string literal of
+    the package is a term's name, scene key, module or class: the layers
+    above the terms loop over the registry."""
+    import ast
+    import io
+    import pathlib
+    import tokenize
+
+    import liethermo
+
+    names = _term_names()
+    assert {"stokes", "fluid.viscosity", "viscosity", "gravity"} <= names
+    root = pathlib.Path(liethermo.__file__).parent
+    found = []
+    for p in sorted(root.rglob("*.py")):
+        rel = p.relative_to(root).as_posix()
+        if (rel.startswith(("kernels/terms/", "zeitlin/", "studies/zeitlin_"))
+                or (rel.startswith("studies/") and p.name in STUDIES_ABOUT_TERMS)):
+            continue
+        for tok in tokenize.generate_tokens(io.StringIO(p.read_text()).readline):
+            if tok.type == tokenize.NAME and tok.string in names:
+                found.append((rel, tok.start[0], tok.string))
+            elif tok.type == tokenize.STRING and not tok.string.lower().startswith(("f", "rf", "fr", "b")):
+                value = ast.literal_eval(tok.string)
+                if value in names:
+                    found.append((rel, tok.start[0], value))
+    assert not found, found

@@ -4,29 +4,31 @@ Each finding is chosen by what the run's physics contains, never by the
 scene's name, so a scene of one's own with the same physics gets the same
 lines:
 
-* **exact solution** — a spherical top (𝕀₀ = I₀·Id), no gravity torque, no
-  thermal expansion, isotropic (or no) Stokes friction: μ ∥ Ω, so
-  (docs/model.md, "Exact solutions used in the tests")
+* **exact solution** — a spherical top (𝕀₀ = I₀·Id) whose every term keeps
+  the law ``LAW_SPHERICAL_DECAY`` (its torque is −cΩ with one c, or 0 when
+  μ ∥ Ω): μ ∥ Ω, so (docs/model.md, "Exact solutions used in the tests")
 
       Ω(t) = Ω₀ e^{−ct/I₀},   Γ(t) = Rot(Ω₀/|Ω₀|, −φ(t)) Γ₀,   φ(t) = (I₀|Ω₀|/c)(1 − e^{−ct/I₀}),
       S(t) = S₀ + c_v log(1 + I₀|Ω₀|²(1 − e^{−2ct/I₀}) / (2 c_v T₀)),
 
   and the summary gives the run's largest error against it;
-* **Ω₃ exactly** — a Lagrange top (I₁ = I₂, gravity torque along e₃, no
-  internal friction, no thermal expansion; the paper's top): the third
-  component alone is known, Ω₃(t) = Ω₃(0) e^{−C₃t/I₃} (docs/model.md), and
-  the summary gives its largest error;
-* **|μ|** — no external torque (no gravity torque, no Stokes friction):
+* **Ω₃ exactly** — a Lagrange top (I₁ = I₂) whose terms keep
+  ``LAW_LAGRANGE_OMEGA3`` (nothing acts on the third axis but −C₃Ω₃; the
+  paper's top): Ω₃(t) = Ω₃(0) e^{−C₃t/I₃} (docs/model.md), and the summary
+  gives its largest error;
+* **|μ|** — every term keeps ``LAW_MOMENTUM_NORM`` (no torque, or one ⟂ μ):
   |μ| is conserved by the continuous system, and the summary gives its drift;
-* **spin axis** — internal (double-bracket) friction without external
-  torque: the body ends spinning about its major axis (largest moment,
-  when it is unique); the summary gives the angle between Ω and that axis at
-  the start and at the end;
+* **spin axis** — a friction at constant |μ|: the body ends spinning about
+  its major axis (largest moment, when it is unique); the summary gives the
+  angle between Ω and that axis at the start and at the end;
 * **heating** — any friction: the temperature change T_end − T₀ (K);
-* **inertia** — a thermal expansion (𝕀(S) = 𝕀₀(1 + α(θ − T₀))²): the
-  change of the inertia over the run (%);
-* **Stokes friction** — the friction tensor C (N m s) and the decay times
-  I_i/C_i (s) it sets.
+* **inertia** — a term that makes the inertia depend on S: the change of the
+  inertia over the run (%);
+* **what the terms' parameters set** — each term's own lines
+  (``Term.summary_lines``), e.g. a friction tensor and its decay times.
+
+The terms say which members keep each law (``Term.keeps``); c and C₃ are
+read off the sum of the terms' torques, so nothing here names a term.
 
 :func:`chunk_findings` measures one member chunk (from its dataset and
 :class:`~liethermo.physics.Physics`) as ``{name: [min, max]}`` over its
@@ -74,6 +76,17 @@ def _equal(a: np.ndarray) -> np.ndarray:
     return np.ptp(a, axis=-1) <= _RTOL * np.max(np.abs(a), axis=-1)
 
 
+def _linear_friction(phys: ph.Physics, axis: int) -> np.ndarray:
+    """(N,) C_axis = −f_axis(Ω = e_axis, Γ = e₃): the linear friction on one
+    body axis, from every term's torque (exact for the members that keep
+    the law being checked: there the torque is −CΩ, or 0 on that axis)."""
+    e = np.zeros((phys.n, 3))
+    e[:, axis] = 1.0
+    g = np.zeros((phys.n, 3))
+    g[:, 2] = 1.0
+    return -ph.torque(phys, e, g)[:, axis]
+
+
 def _span(values) -> list[float] | None:
     v = np.asarray(values, dtype=float)
     v = v[np.isfinite(v)]
@@ -88,12 +101,11 @@ def chunk_findings(ds, phys: ph.Physics) -> dict:
     tdim = ds["omega"].dims[1]  # the time dimension, whatever its name
     t = np.asarray(ds[tdim].values, dtype=float)
     om = ds["omega"].values
-    from .kernels.terms import registry
+    from .kernels.terms import LAW_LAGRANGE_OMEGA3, LAW_MOMENTUM_NORM, LAW_SPHERICAL_DECAY, registry
 
-    # the exact solutions below hold for members on which no other term acts
+    # each exact law below holds on the members whose every term keeps it
     acting = phys.acting()
-    no_torque = phys.only("thermal_expansion", "double_bracket")  # forces ⟂ μ only: |μ| is kept
-    no_expansion = ~acting["thermal_expansion"]
+    no_torque = phys.keeps(LAW_MOMENTUM_NORM)  # forces ⟂ μ only: |μ| is kept
     out: dict = {}
 
     def put(name, sel, values):
@@ -102,13 +114,14 @@ def chunk_findings(ds, phys: ph.Physics) -> dict:
             out[name] = s
 
     # the spherical top's exact solution
-    sph = ok & _equal(phys.inertia) & phys.only("stokes", "double_bracket") & _equal(phys.friction)
+    sph = ok & _equal(phys.inertia) & phys.keeps(LAW_SPHERICAL_DECAY)
     if sph.any():
         gamma, S = ds["gamma"].values[sph], ds["entropy"].values[sph]
         om0 = ds["initial_omega"].values[sph]  # Ω(0), Γ(0) = R(0)ᵀe₃ of the initial data
         g0 = ds["initial_attitude"].values[sph, 2, :]
         T0 = ds["temperature"].values[sph, 0]  # θ(S₀) = T₀ for a constant inertia
-        e_om, e_g, e_s = exact_spherical_top(phys.inertia[sph, 0], phys.friction[sph, 0],
+        c = _linear_friction(phys, 0)  # the same on every axis for these members
+        e_om, e_g, e_s = exact_spherical_top(phys.inertia[sph, 0], c[sph],
                                              phys.heat_capacity[sph], T0, om0, g0, t)
         w0 = np.linalg.norm(om0, axis=-1)
         sig = S - S[:, :1]
@@ -120,12 +133,13 @@ def chunk_findings(ds, phys: ph.Physics) -> dict:
             produced = e_s[:, -1]
             put("exact_entropy_rel", produced > 0, d_s / np.where(produced > 0, produced, 1.0))
 
-    # the Lagrange top's Ω₃ (I₁ = I₂, gravity torque along e₃, no internal friction)
+    # the Lagrange top's Ω₃ (I₁ = I₂, no torque on the third axis but −C₃Ω₃)
     lag = (ok & ~sph & (np.abs(phys.inertia[:, 0] - phys.inertia[:, 1]) <= _RTOL * phys.inertia[:, 2])
-           & ~np.any(phys.gravity_torque[:, :2] != 0.0, axis=-1) & phys.only("stokes", "gravity"))
+           & phys.keeps(LAW_LAGRANGE_OMEGA3))
     if lag.any():
         om0 = ds["initial_omega"].values[lag]
-        exact3 = om0[:, 2:3] * np.exp(-(phys.friction[lag, 2] / phys.inertia[lag, 2])[:, None] * t[None, :])
+        c3 = _linear_friction(phys, 2)
+        exact3 = om0[:, 2:3] * np.exp(-(c3[lag] / phys.inertia[lag, 2])[:, None] * t[None, :])
         with np.errstate(invalid="ignore", divide="ignore"):
             put("exact_omega3", slice(None),
                 np.max(np.abs(om[lag, :, 2] - exact3), axis=1) / np.linalg.norm(om0, axis=-1))
@@ -137,10 +151,11 @@ def chunk_findings(ds, phys: ph.Physics) -> dict:
         with np.errstate(invalid="ignore", divide="ignore"):
             put("mu_drift", free, np.max(np.abs(mu - mu[:, :1]), axis=1) / mu[:, 0])
 
-    # the flat spin: internal friction, no external torque, a unique major axis
+    # the flat spin: a friction that keeps |μ|, a unique major axis
     srt = np.sort(phys.inertia, axis=-1)
     unique = srt[:, 2] > srt[:, 1] * (1.0 + 1e-9)
-    flat = free & acting["double_bracket"] & unique
+    frictions = np.any([acting[t.name] for t in registry() if t.friction], axis=0)
+    flat = free & frictions & unique  # dissipation at constant |μ| ends at the major axis
     if flat.any():
         major = np.argmax(phys.inertia, axis=-1)
         rows = np.arange(om.shape[0])
@@ -153,13 +168,13 @@ def chunk_findings(ds, phys: ph.Physics) -> dict:
         put("t_end", flat, np.full(om.shape[0], t[-1]))
 
     # heating and the inertia's change
-    warm = ok & np.any([acting[t.name] for t in registry() if t.friction], axis=0)
+    warm = ok & frictions
     if warm.any():
         T = ds["temperature"].values
         put("heating", warm, T[:, -1] - T[:, 0])
         put("T_start", warm, T[:, 0])
         put("T_end", warm, T[:, -1])
-    grow = warm & ~no_expansion
+    grow = warm & np.any([acting[t.name] for t in registry() if t.sets_inertia], axis=0)
     if grow.any():
         sigma = ds["entropy"].values - ds["entropy"].values[:, :1]
         s = np.broadcast_to(ph.inertia_scale(phys, sigma), sigma.shape)
@@ -191,21 +206,9 @@ def _round_off(x: float) -> str:
 
 def physics_lines(phys: ph.Physics) -> list[str]:
     """The lines that the parameters alone give (member 0's, or their range)."""
-    out = []
-    C, I0 = phys.friction, phys.inertia
-    if np.any(C != 0.0):
-        with np.errstate(divide="ignore"):
-            tau = np.where(C > 0, I0 / np.where(C > 0, C, 1.0), np.inf)
-        same = bool(np.all(C == C[0]))
-        what = "" if same else " (member 0; the members differ)"
-        if _equal(C[:1])[0]:
-            out.append(f"  Stokes friction           C = {C[0, 0]:.4g} N m s on every axis{what}; "
-                       f"decay times I_i/C_i = {', '.join(f'{x:.3g}' for x in tau[0])} s")
-        else:
-            out.append(f"  Stokes friction tensor    C = diag({', '.join(f'{x:.4g}' for x in C[0])}) N m s"
-                       f"{what} (body axes x, y, z);")
-            out.append(f"                            decay times I_i/C_i = {', '.join(f'{x:.3g}' for x in tau[0])} s")
-    return out
+    from .kernels.terms import registry
+
+    return [line for t in registry() for line in t.summary_lines(phys)]
 
 
 def finding_lines(found: dict) -> list[str]:
@@ -214,13 +217,12 @@ def finding_lines(found: dict) -> list[str]:
     if "exact_omega" in found:
         s_rel = (f" ({found['exact_entropy_rel'][1]:.2e} of the entropy produced)"
                  if "exact_entropy_rel" in found else "")
-        out += ["  exact solution            spherical top (isotropic inertia, no gravity torque, "
-                "isotropic friction);",
+        out += ["  exact solution            spherical top (isotropic inertia, torque -c Omega only);",
                 f"                            max over the run: |Omega - exact|/|Omega_0| {found['exact_omega'][1]:.2e}, "
                 f"|Gamma - exact| {found['exact_gamma'][1]:.2e},",
                 f"                            |S - exact| {found['exact_entropy'][1]:.2e} J/K{s_rel}"]
     if "exact_omega3" in found:
-        out += ["  exact Omega_3             Lagrange top (I_1 = I_2, gravity torque along z): "
+        out += ["  exact Omega_3             Lagrange top (I_1 = I_2, no torque on z but -C_3 Omega_3): "
                 "Omega_3(0) exp(-C_3 t/I_3);",
                 f"                            max over the run |Omega_3 - exact|/|Omega_0| {found['exact_omega3'][1]:.2e}"]
     if "mu_drift" in found:
@@ -237,6 +239,6 @@ def finding_lines(found: dict) -> list[str]:
         out.append(f"  heating                   T from {_range(found['T_start'], '.1f', 'K')} to "
                    f"{_range(found['T_end'], '.1f', 'K')}: T_end - T_0 = {_range(found['heating'], '.4g', 'K')}")
     if "inertia_change" in found:
-        out.append(f"  inertia (thermal expansion) I(S_end) - I(S_0) = "
+        out.append(f"  inertia I(S)              I(S_end) - I(S_0) = "
                    f"{_range(found['inertia_change'], '+.3g', '%')} of I(S_0)")
     return out

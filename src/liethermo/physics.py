@@ -79,12 +79,12 @@ class _PhysicsBase:
         """{term name: (N,) bool}: the terms acting on each member."""
         return {t.name: np.asarray(t.active(self), dtype=bool) for t in registry()}
 
-    def only(self, *names: str) -> np.ndarray:
-        """(N,) bool: the members on which no term other than ``names`` acts."""
+    def keeps(self, law: str) -> np.ndarray:
+        """(N,) bool: the members on which every term leaves the exact ``law``
+        of the motion valid (:data:`liethermo.kernels.terms.LAWS`)."""
         out = np.ones(self.n, dtype=bool)
-        for name, on in self.acting().items():
-            if name not in names:
-                out &= ~on
+        for t in registry():
+            out &= t.keeps(law, self)
         return out
 
 

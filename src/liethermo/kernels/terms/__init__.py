@@ -163,6 +163,23 @@ NONE9 = (None,) * 9
 
 # ----------------------------------------------------------------------------- what a term declares
 
+#: exact laws of the continuous motion that a run's summary checks
+#: (:mod:`liethermo.findings`); each term says on which members it leaves a
+#: law valid (:meth:`Term.keeps`), so the summary never names a term:
+#:
+#: * ``LAW_SPHERICAL_DECAY`` — for a spherical top (𝕀₀ = I₀·Id) the term's
+#:   torque at Ω is −cΩ with one c for every axis, or 0 whenever μ ∥ Ω:
+#:   then μ ∥ Ω for ever and Ω(t) = Ω₀e^{−ct/I₀};
+#: * ``LAW_LAGRANGE_OMEGA3`` — for I₁ = I₂ the term adds −C₃Ω₃ or nothing to
+#:   the third component of the torque: Ω₃(t) = Ω₃(0)e^{−C₃t/I₃};
+#: * ``LAW_MOMENTUM_NORM`` — the term's torque is ⟂ μ (or it exerts none):
+#:   |μ| is conserved.
+LAW_SPHERICAL_DECAY = "spherical_decay"
+LAW_LAGRANGE_OMEGA3 = "lagrange_omega3"
+LAW_MOMENTUM_NORM = "momentum_norm"
+LAWS = (LAW_SPHERICAL_DECAY, LAW_LAGRANGE_OMEGA3, LAW_MOMENTUM_NORM)
+
+
 @dataclass(frozen=True)
 class Setting:
     """A scene key a term owns: a number ≥ ``minimum`` (> with ``open``), or
@@ -238,6 +255,8 @@ class Term:
     #: why the term has no exact flow (None: it has one): the splitting
     #: methods, which compose exact flows, refuse it with this reason
     no_exact_flow: str | None = None
+    #: the term makes the inertia depend on the entropy where it acts
+    sets_inertia: bool = False
 
     def in_scene(self, s: dict) -> bool:
         """Whether the scene tables ``s`` switch the term on."""
@@ -294,6 +313,18 @@ class Term:
     def rate_bound(self, phys, omega_max) -> np.ndarray | float:
         """A bound (rad s⁻¹) on the rate the term adds to the motion at |Ω| ≤ ``omega_max``."""
         return 0.0
+
+    # ---- what a run's summary says
+    def keeps(self, law: str, phys) -> np.ndarray:
+        """(N,) bool: the members on which the term leaves the exact ``law``
+        (one of :data:`LAWS`) valid; by default those on which it does not act."""
+        if law not in LAWS:
+            raise ValueError(f"unknown law {law!r}: expected one of {list(LAWS)}")
+        return ~np.asarray(self.active(phys), dtype=bool)
+
+    def summary_lines(self, phys) -> list[str]:
+        """Lines of a run's summary on what the term's parameters set (member 0's)."""
+        return []
 
 
 class ScalarTerm(Term):
@@ -373,4 +404,4 @@ def registry() -> Registry:
 
 
 __all__ = ["Model", "ATTITUDE", "Attitude", "angular_acceleration", "dissipated_power",
-           "discrete_power", "linear_friction", "torque", "nonlinear_friction", "exact_flow", "implements", "types", "NONE3", "NONE9", "Term", "ScalarTerm", "Setting", "Parameter", "Registry", "registry", "bcast", "over_inertia"]
+           "discrete_power", "linear_friction", "torque", "nonlinear_friction", "exact_flow", "implements", "types", "NONE3", "NONE9", "LAWS", "LAW_SPHERICAL_DECAY", "LAW_LAGRANGE_OMEGA3", "LAW_MOMENTUM_NORM", "Term", "ScalarTerm", "Setting", "Parameter", "Registry", "registry", "bcast", "over_inertia"]

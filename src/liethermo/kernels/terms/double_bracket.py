@@ -35,7 +35,7 @@ import numpy as np
 from .._jit import fma
 from ..gen import cadd, madd
 from ..so3 import cross_lane, norm2_lane
-from . import (Parameter, ScalarTerm, Setting, angular_acceleration, bcast, discrete_power,
+from . import (LAW_MOMENTUM_NORM, LAW_SPHERICAL_DECAY, Parameter, ScalarTerm, Setting, angular_acceleration, bcast, discrete_power,
                dissipated_power, implements, nonlinear_friction)
 
 
@@ -135,6 +135,12 @@ class _DoubleBracket(ScalarTerm):
         "*Internal friction* — `body.internal_friction = λ > 0` adds the double-bracket "
         "friction λ μ×(μ×Ω), which keeps |μ|; with no other torque or friction the body "
         "ends in a flat spin (the built-in `flat_spin`).")
+
+    def keeps(self, law, phys):
+        # λ μ×(μ×Ω) is ⟂ μ, and 0 when μ ∥ Ω (a spherical top)
+        if law in (LAW_SPHERICAL_DECAY, LAW_MOMENTUM_NORM):
+            return np.ones(phys.n, dtype=bool)
+        return super().keeps(law, phys)
 
     def torque(self, phys, omega, gamma, scale):
         mu = scale[..., None] * bcast(phys.inertia, omega) * omega if np.ndim(scale) else (

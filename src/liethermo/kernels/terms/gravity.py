@@ -15,7 +15,7 @@ import numpy as np
 
 from .._jit import fma
 from ..gen import madd
-from . import Parameter, Setting, Term, angular_acceleration, bcast, exact_flow, implements, torque
+from . import LAW_LAGRANGE_OMEGA3, Parameter, Setting, Term, angular_acceleration, bcast, exact_flow, implements, torque
 
 
 class Gravity(namedtuple("Gravity", "gx gy gz gz1 gy1 gx2 gz2 gy3 gx3")):
@@ -89,6 +89,11 @@ class _Gravity(Term):
 
     def in_scene(self, s: dict) -> bool:
         return s["gravity"]["g"] > 0
+
+    def keeps(self, law, phys):
+        if law == LAW_LAGRANGE_OMEGA3:  # G on the body's z axis: Γ × g⃗ has no z component
+            return ~np.any(phys.gravity_torque[:, :2] != 0.0, axis=-1)
+        return super().keeps(law, phys)
 
     def torque(self, phys, omega, gamma, scale):
         return np.cross(gamma, bcast(phys.gravity_torque, gamma))

@@ -24,7 +24,7 @@ import numpy as np
 
 from .._jit import fma, lane
 from ..gen import none_dispatch
-from . import Parameter, ScalarTerm, Setting, bcast
+from . import LAW_MOMENTUM_NORM, Parameter, ScalarTerm, Setting, bcast
 
 
 class ConstantInertia(namedtuple("ConstantInertia",
@@ -154,6 +154,13 @@ class _ThermalExpansion(ScalarTerm):
         "and a friction it needs `integrator.start = \"legendre\"` and "
         "`integrator.friction = \"trapezoid\"`; frictions whose discrete form is nonlinear "
         "(such as the internal friction) are not available with it.")
+
+    sets_inertia = True
+
+    def keeps(self, law, phys):
+        if law == LAW_MOMENTUM_NORM:  # no torque: μ is conserved whatever 𝕀(S) does
+            return np.ones(phys.n, dtype=bool)
+        return super().keeps(law, phys)
 
     def coupled(self, phys) -> bool:
         """The inertia follows the entropy: something expands and something heats."""

@@ -24,7 +24,7 @@ from .._jit import fma, lane
 from ..lanemath import expm1_lane
 from ..gen import cadd, madd
 from ..so3 import norm2_lane
-from . import (Parameter, Setting, Term, bcast, over_inertia, angular_acceleration, discrete_power, dissipated_power,
+from . import (LAW_LAGRANGE_OMEGA3, LAW_SPHERICAL_DECAY, Parameter, Setting, Term, bcast, over_inertia, angular_acceleration, discrete_power, dissipated_power,
                exact_flow, implements, linear_friction)
 
 
@@ -236,6 +236,29 @@ class _Stokes(Term):
 
     def in_scene(self, s: dict) -> bool:
         return s["fluid"]["viscosity"] > 0
+
+    def keeps(self, law, phys):
+        if law == LAW_SPHERICAL_DECAY:  # −CΩ with C = c·Id
+            C = phys.friction
+            return np.ptp(C, axis=-1) <= 1e-12 * np.max(np.abs(C), axis=-1)
+        if law == LAW_LAGRANGE_OMEGA3:  # C is diagonal in the body axes: −C₃Ω₃
+            return np.ones(phys.n, dtype=bool)
+        return super().keeps(law, phys)
+
+    def summary_lines(self, phys) -> list[str]:
+        C, I0 = phys.friction, phys.inertia
+        if not np.any(C != 0.0):
+            return []
+        with np.errstate(divide="ignore"):
+            tau = np.where(C > 0, I0 / np.where(C > 0, C, 1.0), np.inf)
+        what = "" if bool(np.all(C == C[0])) else " (member 0; the members differ)"
+        times = ", ".join(f"{x:.3g}" for x in tau[0])
+        if np.ptp(C[0]) <= 1e-12 * np.max(np.abs(C[0])):
+            return [f"  Stokes friction           C = {C[0, 0]:.4g} N m s on every axis{what}; "
+                    f"decay times I_i/C_i = {times} s"]
+        return [f"  Stokes friction tensor    C = diag({', '.join(f'{x:.4g}' for x in C[0])}) N m s"
+                f"{what} (body axes x, y, z);",
+                f"                            decay times I_i/C_i = {times} s"]
 
     def torque(self, phys, omega, gamma, scale):
         return -bcast(phys.friction, omega) * omega
