@@ -424,3 +424,25 @@ def test_friction_keeps_its_precision_at_tiny_steps():
         exact = om[0] * np.exp(-c * h * n / I)
         assert np.abs(tr.omega[0, -1] - exact).max() <= 2e-13 * np.abs(om[0]).max(), method
 
+
+
+@pytest.mark.parametrize("name, keys", [("paper", {}), ("flat_spin", {}), ("ellipsoid", {}),
+                                        ("paper", {"fluid.quadratic_drag": 2e-4})])
+def test_newton_jacobian_is_the_derivative_of_the_newton_function(name, keys):
+    """The Jacobian the stability study conditions (vi.newton_jacobian) is
+    dF/dX of the kernels' Newton function, nonlinear frictions included:
+    central differences agree to 1e-7."""
+    from liethermo.physics import build_model, physics_of_scene
+    from liethermo.scene import load_scene
+
+    model = build_model(physics_of_scene(load_scene(name, keys), 1)).model
+    h, X = 0.1, np.array([3.0, -1.0, 20.0])
+    v = vi.vi_coefficients(model, h, 0.5, 0.5)
+
+    def F(x):
+        return np.array(vi.residual_jacobian(model, v, *x, 0.0, 0.0, 0.0)[:3])
+
+    J = vi.newton_jacobian(model, h, 0.5, 0.5, *X)
+    eps = 1e-5
+    fd = np.column_stack([(F(X + eps * e) - F(X - eps * e)) / (2 * eps) for e in np.eye(3)])
+    assert np.max(np.abs(J - fd)) <= 1e-7 * np.max(np.abs(J))

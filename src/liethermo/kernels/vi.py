@@ -56,7 +56,9 @@ from __future__ import annotations
 
 from collections import namedtuple
 
-from ._jit import fma, lane, select
+import numpy as np
+
+from ._jit import fma, jit, lane, select
 from .equations import entropy_and_omega_rates, omega_rate
 from .gen import axpy_opt, finite, madd, none_dispatch, or_zero, overload_by_capability, scale_opt
 from .lanemath import expm1_sel
@@ -140,6 +142,22 @@ def residual_jacobian(model, v, x0, x1, x2, b0, b1, b2):
             axpy_opt(w, j00, J00), axpy_opt(w, j01, J01), axpy_opt(w, j02, J02),
             axpy_opt(w, j10, J10), axpy_opt(w, j11, J11), axpy_opt(w, j12, J12),
             axpy_opt(w, j20, J20), axpy_opt(w, j21, J21), axpy_opt(w, j22, J22))
+
+
+@jit
+def newton_jacobian(model, h, wl, wr, x0, x1, x2):
+    """J(X) (3×3) of the Newton function of a step of size h, with every term
+    of ``model`` (the nonlinear frictions' D′(X) included): the matrix whose
+    conditioning the stability study maps.  For the coupled top it is the
+    block in X at the step's own inertia (its linear friction is added in the
+    Newton step, not here)."""
+    v = vi_coefficients(model, h, wl, wr)
+    r = residual_jacobian(model, v, x0, x1, x2, 0.0, 0.0, 0.0)
+    J = np.empty((3, 3))
+    J[0, 0], J[0, 1], J[0, 2] = r[3], r[4], r[5]
+    J[1, 0], J[1, 1], J[1, 2] = r[6], r[7], r[8]
+    J[2, 0], J[2, 1], J[2, 2] = r[9], r[10], r[11]
+    return J
 
 
 @lane

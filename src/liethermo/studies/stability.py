@@ -185,33 +185,27 @@ def classify(status, error_max, growth, gdef, threshold, growth_limit):
     return cls
 
 
-def newton_jacobian(I, C, X, h, wl) -> np.ndarray:
-    """The VI's Newton Jacobian of a step of size h at the step velocity X:
-    diag(𝕀 + w_L h C) + (h/2)(X̂𝕀 − (𝕀X)^) + (h²/4)(2X(𝕀X)ᵀ + (X·𝕀X) Id)."""
-    def hat(v):
-        return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
-
-    Q = I * X
-    return (np.diag(I + wl * h * C) + 0.5 * h * (hat(X) @ np.diag(I) - hat(Q))
-            + 0.25 * h * h * (2.0 * np.outer(X, Q) + (X @ Q) * np.eye(3)))
-
-
 def jacobian_condition(tr, h: float) -> np.ndarray:
     """Max over accepted steps and substep sizes f_i h of cond₂ of the VI's Newton
     Jacobian at the stored step velocity X_k (for vi4/vi6 the step's own X
-    stands for its substeps' velocities)."""
-    wl = FRICTION_WEIGHTS[tr.friction][0]
+    stands for its substeps' velocities): the kernels' own Jacobian, with every
+    term of the member's model."""
+    from ..kernels.vi import newton_jacobian
+    from ..physics import build_model
+
+    wl, wr = FRICTION_WEIGHTS[tr.friction]
     factors = METHODS[tr.method].substeps(tr.composition or "small_error")
     X = tr.omega_step
     phys = tr.physics
     out = np.full(X.shape[0], np.nan)
     for m in range(X.shape[0]):
+        model = build_model(phys.take(slice(m, m + 1))).model
         best = 0.0
         for k in range(X.shape[1] - 1):
             if not np.all(np.isfinite(X[m, k + 1])):
                 break
             for f in factors:
-                J = newton_jacobian(phys.inertia[m], phys.friction[m], X[m, k], f * h, wl)
+                J = newton_jacobian(model, f * h, wl, wr, *(float(x) for x in X[m, k]))
                 best = max(best, float(np.linalg.cond(J)))
         out[m] = best if best > 0 else np.nan
     return out
