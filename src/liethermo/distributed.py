@@ -55,7 +55,7 @@ import numpy as np
 
 from . import __version__, cf
 from .faults import Interrupted, folder_leftovers, remove_files
-from .io import ChunkedWriter
+from .io import ChunkedWriter, write_atomic
 from .runner import ChunkStats, RunSummary, _progress_bar, finish_summary, run_chunk, scene_setup
 from .scene import scene_to_toml
 
@@ -297,9 +297,8 @@ def _write_index(parts: Path, key: str, members: int, chunks, out: Path) -> None
         "files": [part_path(parts, lo, hi).name for lo, hi in chunks],
         "concat_dim": "member",
     }
-    tmp = parts / f".{INDEX_NAME}.{uuid.uuid4().hex}.tmp"
-    tmp.write_text(json.dumps(idx, indent=1))
-    os.replace(tmp, parts / INDEX_NAME)
+    text = json.dumps(idx, indent=1)
+    write_atomic(parts / INDEX_NAME, lambda tmp: tmp.write_text(text), side=f".{uuid.uuid4().hex}.new")
 
 
 def _read_part(path: Path):

@@ -343,17 +343,9 @@ class Journal:
             return None
 
     def save(self, path: Path) -> None:
-        """Write atomically (a side temporary, then rename)."""
-        new = path.with_name(path.name + ".new")
-        try:
-            new.write_text(json.dumps(self.to_dict()))
-            os.replace(new, path)
-        except OSError as exc:
-            try:
-                new.unlink()
-            except OSError:
-                pass
-            raise WriteError(self.out, _errno_text(exc)) from None
+        """Write atomically (a side temporary ``<path>.new``, then rename)."""
+        text = json.dumps(self.to_dict())
+        write_atomic(path, lambda tmp: tmp.write_text(text), side=".new", error_path=self.out)
 
     @property
     def members_done(self) -> int:
@@ -436,26 +428,37 @@ def _clean_attrs(attrs: dict) -> dict:
     return out
 
 
-def write_atomic(path: str | os.PathLike, write: Callable[[Path], None]) -> Path:
-    """``write(tmp)`` into a locked temporary next to ``path``, then rename it
-    onto ``path``: a killed process leaves no file or a complete one, and the
-    temporary is removed on any error (raised as a WriteError naming ``path``)."""
+def write_atomic(path: str | os.PathLike, write: Callable[[Path], None], *, side: str | None = None,
+                 error_path: Path | None = None) -> Path:
+    """The one atomic writer: ``write(tmp)`` into a temporary next to ``path``,
+    then rename it onto ``path``, so a killed process leaves no file or a
+    complete one; the temporary is removed on any error (raised as a
+    WriteError naming ``error_path`` or ``path``).  The temporary is created
+    exclusively and locked (a live writer's is told from a dead one's), or,
+    for a small record that only its own writer rewrites (a resume journal,
+    a parts index), ``path`` + ``side``."""
     path = Path(path)
+    err = Path(error_path) if error_path is not None else path
+    fd = None
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp, fd = create_temp(path)
+        if side is None:
+            tmp, fd = create_temp(path)
+        else:
+            tmp = path.with_name(path.name + side)
     except OSError as exc:
-        raise WriteError(path, io_cause(exc)) from None
+        raise WriteError(err, io_cause(exc)) from None
     try:
         try:
             write(tmp)
             os.replace(tmp, path)
         except (OSError, RuntimeError) as exc:
-            raise WriteError(path, io_cause(exc, tmp)) from None
+            raise WriteError(err, io_cause(exc, tmp)) from None
     finally:
         if tmp.exists():
             tmp.unlink()
-        release_temp(fd)
+        if fd is not None:
+            release_temp(fd)
     return path
 
 
