@@ -1,7 +1,9 @@
 """Importing liethermo compiles no kernel, and the kernel cache never runs stale code."""
 
+import re
 import subprocess
 import sys
+from pathlib import Path
 
 
 def test_import_compiles_nothing():
@@ -94,4 +96,14 @@ def test_generated_code_is_named_readable_and_dumpable(tmp_path):
     assert any(n.startswith("explicit_step_ClassicalRK4") for n in names), names
     assert any(n.startswith("fold_sum_angular_acceleration_over_StokesSphere_Gravity") for n in names), names
     text = next((tmp_path / "src").glob("explicit_step_ClassicalRK4*.py")).read_text()
-    assert text.startswith("# <liethermo-generated explicit_step ClassicalRK4 #") and "rk_rhs(model" in text
+    assert "# <liethermo-generated explicit_step ClassicalRK4 #" in text and "rk_rhs(model" in text
+
+    # with the dump, a traceback names the dumped file, whose line is the one that failed
+    code = ("from liethermo.kernels.gen import compile_source\n"
+            "f = compile_source('def impl(x):\\n    return 1.0 / x\\n', {}, label='demo reciprocal')\n"
+            "f(0.0)\n")
+    res = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
+    m = re.search(r'File "([^"]+demo_reciprocal-\d+\.py)", line (\d+)', res.stderr)
+    assert m, res.stderr
+    lines = Path(m.group(1)).read_text().splitlines()
+    assert lines[int(m.group(2)) - 1].strip() == "return 1.0 / x"

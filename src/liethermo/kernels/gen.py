@@ -101,17 +101,19 @@ def compile_source(src: str, ns: dict, name: str = "impl", label: str | None = N
     default ``name``): it goes into the file name that tracebacks show,
     ``<liethermo-generated LABEL #N>``, whose lines :mod:`linecache` then
     knows; with ``LIETHERMO_DUMP_SOURCE`` set to a folder the source is also
-    written there as ``LABEL-N.py``."""
+    written there as ``LABEL-N.py`` (ending in a comment with that name), and
+    that file is the code's file name."""
     ns.setdefault("fma", fma)
     label = label or name
     n = next(_GENERATED)
     filename = f"<liethermo-generated {label} #{n}>"
-    linecache.cache[filename] = (len(src), None, src.splitlines(True), filename)
     folder = os.environ.get("LIETHERMO_DUMP_SOURCE")
-    if folder:
+    if folder:  # the code's file is the dumped one: tracebacks name a file on disk
         path = Path(folder) / f"{re.sub(r'[^A-Za-z0-9_.-]+', '_', label)}-{n}.py"
         path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(f"# {filename}\n{src}")
+        path.write_text(f"{src}# {filename}\n")  # the name last: line numbers stay the code's
+        filename = str(path.resolve())
+    linecache.cache[filename] = (len(src), None, src.splitlines(True), filename)
     exec(compile(src, filename, "exec"), ns)
     return ns[name]
 
