@@ -22,6 +22,7 @@ except Exception:  # pragma: no cover - not installed
     __version__ = "0+unknown"
 
 from .api import PreflightError, SceneError, StudyResult, load_scene, open_dataset, run, study  # noqa: E402
+from .zeitlin import scene as _zeitlin_scene  # noqa: E402,F401  (registers the Zeitlin fluid's scenes)
 
 __all__ = ["run", "study", "load_scene", "open_dataset", "StudyResult", "SceneError", "PreflightError",
            "__version__"]

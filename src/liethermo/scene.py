@@ -540,18 +540,52 @@ def _overrides_as_tables(overrides) -> list[tuple[dict, str]]:
     return out
 
 
+@dataclass(frozen=True)
+class OtherModel:
+    """A model beside the top that scenes can describe, registered by its own
+    package (:func:`register_model`); this module never imports it.  A scene
+    whose tables ``marks`` is that model's: ``load(tables, origin,
+    overrides)`` validates it, ``merge(base, tables, origin)`` merges
+    unvalidated tables into a copy of ``defaults``, ``scene_class`` is its
+    validated scene, and docs/scenes.md lists ``keys`` under ``title`` after
+    ``intro``."""
+
+    name: str
+    marks: Callable[[dict], bool]
+    load: Callable
+    merge: Callable
+    defaults: dict
+    scene_class: type
+    keys: tuple
+    title: str
+    intro: str
+
+
+_OTHER_MODELS: list[OtherModel] = []
+
+
+def register_model(model: OtherModel) -> None:
+    """Let scenes describe ``model`` (called by its package on import)."""
+    _OTHER_MODELS[:] = [m for m in _OTHER_MODELS if m.name != model.name] + [model]
+
+
+def _other_model(tables) -> OtherModel | None:
+    for m in _OTHER_MODELS:
+        if isinstance(tables, m.scene_class) or (isinstance(tables, dict) and m.marks(tables)):
+            return m
+    return None
+
+
 def load_scene(source: str | Path | dict | Scene | None = "paper",
                overrides: list[str] | dict | None = None, *, validate_scene: bool = True):
     """Resolve a scene: defaults ← built-in name, TOML file, dict or Scene ← overrides.
 
     Returns a validated :class:`Scene` (or, with ``validate_scene=False``, the
     unvalidated tables as a dict)."""
-    from .zeitlin import scene as zeitlin_scene
-
-    if isinstance(source, zeitlin_scene.ZeitlinScene):
-        source = source.to_dict()
-    if isinstance(source, dict) and zeitlin_scene.is_zeitlin(source):
-        return _zeitlin(source, "the scene", overrides, validate_scene)
+    other = _other_model(source)
+    if other is not None:
+        tables = source if isinstance(source, dict) else source.to_dict()
+        return _load_other(other, tables, "the scene", overrides, validate_scene)
     scene = copy.deepcopy(DEFAULTS)
     if isinstance(source, Scene):
         source = source.to_dict()
@@ -562,8 +596,9 @@ def load_scene(source: str | Path | dict | Scene | None = "paper",
         text = builtin_scene_text(src) if "/" not in src and not src.endswith(".toml") else None
         if text is not None:
             data = tomllib.loads(text)
-            if zeitlin_scene.is_zeitlin(data):
-                return _zeitlin(data, f"built-in scene {src!r}", overrides, validate_scene)
+            other = _other_model(data)
+            if other is not None:
+                return _load_other(other, data, f"built-in scene {src!r}", overrides, validate_scene)
             _merge(scene, data, f"built-in scene {src!r}")
         else:
             path = Path(src)
@@ -576,9 +611,10 @@ def load_scene(source: str | Path | dict | Scene | None = "paper",
                 raise SceneError(str(path), f"cannot be read ({exc.strerror})", show_value=False, what="file") from None
             except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
                 raise SceneError(str(path), f"not valid TOML: {exc}", show_value=False, what="file") from None
-            if zeitlin_scene.is_zeitlin(data):
+            other = _other_model(data)
+            if other is not None:
                 data.setdefault("scene", {}).setdefault("name", path.stem)
-                return _zeitlin(data, str(path), overrides, validate_scene)
+                return _load_other(other, data, str(path), overrides, validate_scene)
             _merge(scene, data, str(path))
             if scene["scene"]["name"] == "custom":
                 scene["scene"]["name"] = path.stem
@@ -589,17 +625,15 @@ def load_scene(source: str | Path | dict | Scene | None = "paper",
     return validate(scene)
 
 
-def _zeitlin(tables: dict, origin: str, overrides, validate_scene: bool):
-    """A Zeitlin fluid's scene (:mod:`liethermo.zeitlin.scene`): its own keys and rules."""
-    from .zeitlin import scene as zeitlin_scene
-
+def _load_other(model: OtherModel, tables: dict, origin: str, overrides, validate_scene: bool):
+    """A scene of another model: its own keys and rules."""
     if not validate_scene:
-        d = copy.deepcopy(zeitlin_scene.DEFAULTS)
-        zeitlin_scene.merge(d, tables, origin)
+        d = copy.deepcopy(model.defaults)
+        model.merge(d, tables, origin)
         for table, o in _overrides_as_tables(overrides):
-            zeitlin_scene.merge(d, table, o)
+            model.merge(d, table, o)
         return d
-    return zeitlin_scene.load(tables, origin, overrides)
+    return model.load(tables, origin, overrides)
 
 
 def scene_to_toml(scene) -> str:
@@ -767,22 +801,10 @@ def scenes_markdown() -> str:
         lines.append(f"| `{name}` | {_md_cell(description)} |")
     lines += ["", "## Keys", "",
               "Units are SI; 1 marks a dimensionless number, — a key without a unit.", "",
-              keys_table(markdown=True).rstrip("\n"), "",
-              "## Keys of a Zeitlin fluid", "",
-              ZEITLIN_INTRO.rstrip("\n"), "",
-              keys_table(markdown=True, keys=_zeitlin_keys()).replace("### [", "### zeitlin scene: [").rstrip("\n")]
+              keys_table(markdown=True).rstrip("\n")]
+    for m in _OTHER_MODELS:
+        lines += ["", f"## Keys of {m.title}", "", m.intro.rstrip("\n"), "",
+                  keys_table(markdown=True, keys=m.keys).replace("### [", f"### {m.name} scene: [").rstrip("\n")]
     return "\n".join(lines) + "\n"
 
 
-ZEITLIN_INTRO = """\
-A scene with a `[zeitlin]` table is a thermodynamic Zeitlin fluid on the sphere (docs/model.md,
-"A second Lie group: the thermodynamic Zeitlin fluid"): the vorticity is a matrix W in su(N), viscosity turns its energy into heat.
-It has keys of its own, below; sections it shares with the top (`[fluid]`, `[thermo]`, `[initial]`,
-`[integrator]`, `[ensemble]`, `[output]`) hold only the keys listed here.  Its methods are `split`,
-`split4`, `split6`, `rk4` and `reference`."""
-
-
-def _zeitlin_keys():
-    from .zeitlin.scene import KEYS as ZKEYS
-
-    return ZKEYS

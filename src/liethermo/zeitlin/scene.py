@@ -15,7 +15,7 @@ from typing import Any
 import tomli_w
 
 from ..methods import COMPOSITION_KINDS
-from ..scene import Key, SceneError, boolean, choice, integer, number, string
+from ..scene import Key, OtherModel, SceneError, boolean, choice, integer, number, register_model, string
 
 #: the methods a Zeitlin scene runs (names as for the top)
 METHODS = ("split", "split4", "split6", "rk4", "reference")
@@ -195,3 +195,14 @@ def keys_table() -> str:
                 lines.append(f"  {k.path}{unit} = {k.default!r}   ({k.rule}) {k.doc}")
         lines.append("")
     return "\n".join(lines)
+
+
+INTRO = """\
+A scene with a `[zeitlin]` table is a thermodynamic Zeitlin fluid on the sphere (docs/model.md,
+"A second Lie group: the thermodynamic Zeitlin fluid"): the vorticity is a matrix W in su(N), viscosity turns its energy into heat.
+It has keys of its own, below; sections it shares with the top (`[fluid]`, `[thermo]`, `[initial]`,
+`[integrator]`, `[ensemble]`, `[output]`) hold only the keys listed here.  Its methods are `split`,
+`split4`, `split6`, `rk4` and `reference`."""
+
+register_model(OtherModel(name="zeitlin", marks=is_zeitlin, load=load, merge=merge, defaults=DEFAULTS,
+                          scene_class=ZeitlinScene, keys=KEYS, title="a Zeitlin fluid", intro=INTRO))
