@@ -34,6 +34,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from ._jit import jit, lane
 from .gen import abs_or_zero, tree_finite, unflatten
 from .layout import (FS_MAX_H_OMEGA, IS_FAIL_STEP, IS_NEWTON_MAX, IS_NEWTON_TOTAL, IS_NSUB,
@@ -89,13 +91,23 @@ def _vi_member_store(stepper, md, row, y):
 member_store = by_stepper(member_store, _vi_member_store)
 
 
-def member_step(stepper, md, y, h, w2, ISTAT, m):
-    """One step of member m from its state y: (y', w2', status), with w2' the
-    running max |Ω|² (times the squared substep factor) and y' the state at
-    the start of the step when status is not STATUS_OK.  Explicit: ``nsub``
-    substeps of the tableau (or the splitting) of size h/nsub."""
+def member_sizes(stepper, h, ISTAT, m):
+    """(h_s, n): what a step of member m is made of, worked out once per
+    member.  Explicit: ``nsub`` substeps of h/nsub (0: the member's own
+    count, ``ISTAT[m, IS_NSUB]``)."""
     ns = stepper.nsub if stepper.nsub > 0 else ISTAT[m, IS_NSUB]
-    hs = h / ns
+    return h / ns, ns
+
+
+member_sizes = by_stepper(member_sizes, lambda stepper, h, ISTAT, m: (h, np.int64(1)))
+
+
+def member_step(stepper, md, y, h, sizes, w2, ISTAT, m):
+    """One step of size h of member m from its state y: (y', w2', status),
+    with w2' the running max |Ω|² (times the squared substep factor) and y'
+    the state at the start of the step when status is not STATUS_OK.
+    Explicit: the substeps ``sizes`` of the tableau (or the splitting)."""
+    hs, ns = sizes
     w = y[0]
     ww = norm2_lane(w[0], w[1], w[2])
     w2 = ww if ww > w2 else w2
@@ -107,7 +119,7 @@ def member_step(stepper, md, y, h, w2, ISTAT, m):
     return yn, w2, STATUS_OK
 
 
-def _vi_member_step(stepper, md, y, h, w2, ISTAT, m):
+def _vi_member_step(stepper, md, y, h, sizes, w2, ISTAT, m):
     """The variational integrator: the composition of substeps of sizes
     factors[i]·h (one substep for ``vi``), each a Newton solve."""
     factors = stepper.factors
@@ -134,7 +146,7 @@ def _vi_member_step(stepper, md, y, h, w2, ISTAT, m):
     return y, w2, STATUS_OK
 
 
-member_step = by_stepper(member_step, _vi_member_step)
+member_step = by_stepper(member_step, _vi_member_step, inline_explicit="ir")
 
 
 @jit(nogil=True)
@@ -147,12 +159,13 @@ def advance_members(stepper, model, shared, Y, P, m0, m1, h, every, n_out, OUT, 
             continue
         md = member_model(shared, model, P, m)
         y = member_load(stepper, md, Y[m])
+        sizes = member_sizes(stepper, h, ISTAT, m)
         w2 = -1.0
         failed = False
         for j in range(n_out):
             for _ in range(every):
                 k = ISTAT[m, IS_STEPS]
-                yn, w2, status = member_step(stepper, md, y, h, w2, ISTAT, m)
+                yn, w2, status = member_step(stepper, md, y, h, sizes, w2, ISTAT, m)
                 if status != STATUS_OK:
                     ISTAT[m, IS_STATUS] = status
                     ISTAT[m, IS_FAIL_STEP] = k + 1
