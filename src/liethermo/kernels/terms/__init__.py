@@ -241,7 +241,7 @@ class Term:
     (:meth:`torque`, :meth:`dissipated_power`, :meth:`potential_energy`),
     used by the diagnostics and the scipy baseline."""
 
-    #: registry name (in messages and in Physics.only)
+    #: registry name (in messages and in Physics.acting)
     name: str = ""
     settings: tuple[Setting, ...] = ()
     parameters: tuple[Parameter, ...] = ()
