@@ -298,7 +298,8 @@ def _write_index(parts: Path, key: str, members: int, chunks, out: Path) -> None
         "concat_dim": "member",
     }
     text = json.dumps(idx, indent=1)
-    write_atomic(parts / INDEX_NAME, lambda tmp: tmp.write_text(text), side=f".{uuid.uuid4().hex}.new")
+    write_atomic(parts / INDEX_NAME, lambda tmp: tmp.write_text(text),
+                 temp=parts / f".{INDEX_NAME}.{uuid.uuid4().hex}.tmp")
 
 
 def _read_part(path: Path):

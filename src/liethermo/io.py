@@ -345,7 +345,8 @@ class Journal:
     def save(self, path: Path) -> None:
         """Write atomically (a side temporary ``<path>.new``, then rename)."""
         text = json.dumps(self.to_dict())
-        write_atomic(path, lambda tmp: tmp.write_text(text), side=".new", error_path=self.out)
+        write_atomic(path, lambda tmp: tmp.write_text(text), temp=path.with_name(path.name + ".new"),
+                     error_path=self.out)
 
     @property
     def members_done(self) -> int:
@@ -428,7 +429,7 @@ def _clean_attrs(attrs: dict) -> dict:
     return out
 
 
-def write_atomic(path: str | os.PathLike, write: Callable[[Path], None], *, side: str | None = None,
+def write_atomic(path: str | os.PathLike, write: Callable[[Path], None], *, temp: Path | None = None,
                  error_path: Path | None = None) -> Path:
     """The one atomic writer: ``write(tmp)`` into a temporary next to ``path``,
     then rename it onto ``path``, so a killed process leaves no file or a
@@ -436,16 +437,16 @@ def write_atomic(path: str | os.PathLike, write: Callable[[Path], None], *, side
     WriteError naming ``error_path`` or ``path``).  The temporary is created
     exclusively and locked (a live writer's is told from a dead one's), or,
     for a small record that only its own writer rewrites (a resume journal,
-    a parts index), ``path`` + ``side``."""
+    a parts index), is the given ``temp``."""
     path = Path(path)
     err = Path(error_path) if error_path is not None else path
     fd = None
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        if side is None:
+        if temp is None:
             tmp, fd = create_temp(path)
         else:
-            tmp = path.with_name(path.name + side)
+            tmp = Path(temp)
     except OSError as exc:
         raise WriteError(err, io_cause(exc)) from None
     try:
