@@ -544,17 +544,14 @@ def _overrides_as_tables(overrides) -> list[tuple[dict, str]]:
 class OtherModel:
     """A model beside the top that scenes can describe, registered by its own
     package (:func:`register_model`); this module never imports it.  A scene
-    whose tables ``marks`` is that model's: ``load(tables, origin,
-    overrides)`` validates it, ``merge(base, tables, origin)`` merges
-    unvalidated tables into a copy of ``defaults``, ``scene_class`` is its
-    validated scene, and docs/scenes.md lists ``keys`` under ``title`` after
-    ``intro``."""
+    whose tables ``marks`` is that model's: ``load(tables, origin, overrides,
+    validate)`` gives its defaults ← tables ← overrides, validated into a
+    ``scene_class`` (or, with ``validate`` False, as tables), and
+    docs/scenes.md lists ``keys`` under ``title`` after ``intro``."""
 
     name: str
     marks: Callable[[dict], bool]
     load: Callable
-    merge: Callable
-    defaults: dict
     scene_class: type
     keys: tuple
     title: str
@@ -585,7 +582,7 @@ def load_scene(source: str | Path | dict | Scene | None = "paper",
     other = _other_model(source)
     if other is not None:
         tables = source if isinstance(source, dict) else source.to_dict()
-        return _load_other(other, tables, "the scene", overrides, validate_scene)
+        return other.load(tables, "the scene", overrides, validate_scene)
     scene = copy.deepcopy(DEFAULTS)
     if isinstance(source, Scene):
         source = source.to_dict()
@@ -598,7 +595,7 @@ def load_scene(source: str | Path | dict | Scene | None = "paper",
             data = tomllib.loads(text)
             other = _other_model(data)
             if other is not None:
-                return _load_other(other, data, f"built-in scene {src!r}", overrides, validate_scene)
+                return other.load(data, f"built-in scene {src!r}", overrides, validate_scene)
             _merge(scene, data, f"built-in scene {src!r}")
         else:
             path = Path(src)
@@ -614,7 +611,7 @@ def load_scene(source: str | Path | dict | Scene | None = "paper",
             other = _other_model(data)
             if other is not None:
                 data.setdefault("scene", {}).setdefault("name", path.stem)
-                return _load_other(other, data, str(path), overrides, validate_scene)
+                return other.load(data, str(path), overrides, validate_scene)
             _merge(scene, data, str(path))
             if scene["scene"]["name"] == "custom":
                 scene["scene"]["name"] = path.stem
@@ -623,17 +620,6 @@ def load_scene(source: str | Path | dict | Scene | None = "paper",
     if not validate_scene:
         return scene
     return validate(scene)
-
-
-def _load_other(model: OtherModel, tables: dict, origin: str, overrides, validate_scene: bool):
-    """A scene of another model: its own keys and rules."""
-    if not validate_scene:
-        d = copy.deepcopy(model.defaults)
-        model.merge(d, tables, origin)
-        for table, o in _overrides_as_tables(overrides):
-            model.merge(d, table, o)
-        return d
-    return model.load(tables, origin, overrides)
 
 
 def scene_to_toml(scene) -> str:

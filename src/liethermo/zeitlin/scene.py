@@ -137,12 +137,7 @@ class ZeitlinScene:
         return tomli_w.dumps(self._t)
 
     def with_overrides(self, overrides) -> "ZeitlinScene":
-        from ..scene import _overrides_as_tables
-
-        d = self.to_dict()
-        for table, origin in _overrides_as_tables(overrides):
-            merge(d, table, origin)
-        return validate(d)
+        return load(self._t, "the scene", overrides)
 
     def __repr__(self) -> str:
         return f"ZeitlinScene({self.name!r}, N={self._t['zeitlin']['N']}, method={self._t['integrator']['method']!r})"
@@ -162,15 +157,16 @@ def merge(base: dict, new: dict, origin: str) -> None:
     _merge(base, new, origin, DEFAULTS, " of a Zeitlin scene")
 
 
-def load(tables: dict, origin: str, overrides=None) -> ZeitlinScene:
-    """Defaults ← ``tables`` ← overrides, validated."""
+def load(tables: dict, origin: str, overrides=None, validate_scene: bool = True):
+    """Defaults ← ``tables`` ← overrides, validated (or, with ``validate_scene``
+    False, the merged tables)."""
     from ..scene import _overrides_as_tables
 
     d = copy.deepcopy(DEFAULTS)
     merge(d, tables, origin)
     for table, o in _overrides_as_tables(overrides):
         merge(d, table, o)
-    return validate(d)
+    return validate(d) if validate_scene else d
 
 
 def validate(d: dict) -> ZeitlinScene:
@@ -204,5 +200,5 @@ It has keys of its own, below; sections it shares with the top (`[fluid]`, `[the
 `[integrator]`, `[ensemble]`, `[output]`) hold only the keys listed here.  Its methods are `split`,
 `split4`, `split6`, `rk4` and `reference`."""
 
-register_model(OtherModel(name="zeitlin", marks=is_zeitlin, load=load, merge=merge, defaults=DEFAULTS,
-                          scene_class=ZeitlinScene, keys=KEYS, title="a Zeitlin fluid", intro=INTRO))
+register_model(OtherModel(name="zeitlin", marks=is_zeitlin, load=load, scene_class=ZeitlinScene, keys=KEYS,
+                          title="a Zeitlin fluid", intro=INTRO))
