@@ -193,9 +193,14 @@ def overload_choice(default, choose, arg: int = 0, label: str | None = None, inl
     if isinstance(inline, str):
         register_overload(fn, args, lambda *types: choose(types[arg]), label, inline)
     else:  # one overload per inline mode, each taking the implementations of its mode
+        def typer_for(mode):
+            def typer(*types):
+                impl = choose(types[arg])
+                return impl if inline(impl) == mode else None
+            return typer
+
         for mode in ("llvm", "ir"):
-            register_overload(fn, args, lambda *types, mode=mode: (
-                choose(types[arg]) if inline(choose(types[arg])) == mode else None), label, mode)
+            register_overload(fn, args, typer_for(mode), label, mode)
     return fn
 
 

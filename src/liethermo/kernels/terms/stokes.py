@@ -237,10 +237,14 @@ class _Stokes(Term):
     def in_scene(self, s: dict) -> bool:
         return s["fluid"]["viscosity"] > 0
 
+    @staticmethod
+    def _isotropic(C: np.ndarray) -> np.ndarray:
+        """Rows of C (…, 3) whose three entries are equal (to 1e-12): C = c·Id."""
+        return np.ptp(C, axis=-1) <= 1e-12 * np.max(np.abs(C), axis=-1)
+
     def keeps(self, law, phys):
         if law == LAW_SPHERICAL_DECAY:  # −CΩ with C = c·Id
-            C = phys.friction
-            return np.ptp(C, axis=-1) <= 1e-12 * np.max(np.abs(C), axis=-1)
+            return self._isotropic(phys.friction)
         if law == LAW_LAGRANGE_OMEGA3:  # C is diagonal in the body axes: −C₃Ω₃
             return np.ones(phys.n, dtype=bool)
         return super().keeps(law, phys)
@@ -253,7 +257,7 @@ class _Stokes(Term):
             tau = np.where(C > 0, I0 / np.where(C > 0, C, 1.0), np.inf)
         what = "" if bool(np.all(C == C[0])) else " (member 0; the members differ)"
         times = ", ".join(f"{x:.3g}" for x in tau[0])
-        if np.ptp(C[0]) <= 1e-12 * np.max(np.abs(C[0])):
+        if self._isotropic(C[0]):
             return [f"  Stokes friction           C = {C[0, 0]:.4g} N m s on every axis{what}; "
                     f"decay times I_i/C_i = {times} s"]
         return [f"  Stokes friction tensor    C = diag({', '.join(f'{x:.4g}' for x in C[0])}) N m s"
