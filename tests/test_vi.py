@@ -244,6 +244,104 @@ def test_discrete_kelvin_noether_law_in_node_form(friction, body):
         assert np.abs(dJ - law(wl2, wr2)).max() / scale > 1e-3
 
 
+@jit
+def _advance_row(model, h, wl, wr, Y, out):
+    """vi_advance of the state row Y (layout ``vi``) with steps h, h: the new
+    state (X of Y kept) into ``out``."""
+    v = vi.vi_coefficients(model, h, wl, wr)
+    y = L.load_vi_state(model, Y, 0, 1)
+    G1, s1, mu1, R1, b, xp, ps, sc0, scs, ok = vi.vi_advance(model, v, v, y, h, SYMMETRIC, True)
+    L.store_vi_state(model, out, 0, 1, (y[0], G1, s1, mu1, vi.add_opt(s1, ps), R1))
+
+
+@pytest.mark.parametrize("case", ["free", "gravity", "stokes"])
+def test_momentum_update_rotates_the_newton_right_hand_side(case):
+    """The kernels' momentum update μ' = cay(−hX̂)(r − w_L h CX) − w_R h CX + (h/2)τ(Γ')
+    equals the paper's M_{−h}(X) − w_R h CX + (h/2)τ(Γ') at the Newton solution
+    (≤ 1e-15 relative), and keeps the laws for *any* X, here one 1e-3 off the
+    solution: Γ'·μ' = Γ·μ without friction and |μ'| = |μ| for the free body,
+    to round-off; with Stokes friction J' − J is the discrete law's
+    −h(w_L Γ + w_R Γ')·CX.  The paper's form misses each law by about the
+    residual (> 1e-6 here)."""
+    rng = np.random.default_rng(5)
+    I = rng.uniform(0.5e-3, 2.0e-3, 3)
+    g = {"free": np.zeros(3), "gravity": 0.02 * rng.normal(size=3), "stokes": 0.02 * rng.normal(size=3)}[case]
+    c = 2e-5 if case == "stokes" else 0.0
+    phys = make_physics(I, c, g, 1e-3 if c else 1.0, friction=(c * np.array([0.7, 1.0, 1.6]) if c else None))
+    model = build_model(phys).model
+    lay = L.state_layout(model, "vi")
+    h, (wl, wr) = 0.1, vi.FRICTION_WEIGHTS["trapezoid"]
+    C = phys.friction[0]
+    Gam = rng.normal(size=3)
+    Gam /= np.linalg.norm(Gam)
+    X = 3.0 * rng.normal(size=3)
+    tau = lambda G: np.cross(G, g) if np.any(g) else np.zeros(3)  # noqa: E731
+    # the node momentum whose Newton solution is X
+    mu = _legendre(I, X, h) + wl * h * C * X - 0.5 * h * tau(Gam)
+    sol = None
+    for Xk in (X, X * (1.0 + 1e-3) + 1e-3):
+        Y = np.zeros(lay.size)
+        Y[lay.slice("omega_step")], Y[lay.slice("gamma")], Y[lay.slice("momentum")] = Xk, Gam, mu
+        out = np.zeros(lay.size)
+        _advance_row(model, h, wl, wr, Y, out)
+        G1, mu1 = out[lay.slice("gamma")], out[lay.slice("momentum")]
+        paper = _legendre(I, Xk, -h) - wr * h * C * Xk + 0.5 * h * tau(G1)
+        J, J1 = Gam @ mu, G1 @ mu1
+        law = -h * (wl * Gam + wr * G1) @ (C * Xk)
+        if sol is None:
+            sol = np.abs(mu1 - paper).max() / np.abs(mu).max()
+            assert sol <= 1e-15
+            continue
+        scale = np.abs(mu).max() * np.abs(Gam).max()
+        assert abs((J1 - J) - law) <= 4e-16 * scale
+        assert abs(Gam @ mu - G1 @ paper - (-law)) > 1e-6 * scale  # the paper's form, off the solution
+        if case == "free":
+            assert abs(np.linalg.norm(mu1) - np.linalg.norm(mu)) <= 4e-16 * np.linalg.norm(mu)
+            assert abs(np.linalg.norm(paper) - np.linalg.norm(mu)) > 1e-6 * np.linalg.norm(mu)
+
+
+@jit
+def _solve(model, h, b, xp, scale0, tol, maxiter, out):
+    v = vi.vi_coefficients(model, h, 0.5, 0.5)
+    X, xs, code, its = vi.newton_solve(model, v, (b[0], b[1], b[2]), (xp[0], xp[1], xp[2]), None,
+                                       None, scale0, None, tol, maxiter)
+    out[0], out[1], out[2] = X
+    return code, its
+
+
+def test_newton_stop_on_predicted_convergence_is_within_tolerance():
+    """The solve stops when its correction, or a tenth of the next one as
+    quadratic convergence predicts it, is below tol·|X|∞.  Over 2 × 500
+    random solves at h = 0.1 s (|X| ~ 1.7 and 5 rad/s, predictors 1 % and
+    0.1 % off): the accepted X is within tol·|X|∞ of the solution iterated to
+    its floating-point fixed point, no solve takes more than 3 iterations,
+    and from the closer predictor the mean is ≤ 2.5 (the prediction fires);
+    a single iteration is never accepted from a correction that is not
+    itself below tol (maxiter = 1 fails)."""
+    rng = np.random.default_rng(8)
+    I = rng.uniform(0.5e-3, 2.0e-3, 3)
+    phys = make_physics(I, 2e-5, 0.02 * rng.normal(size=3), 1e-3)
+    model = build_model(phys).model
+    h, tol = 0.1, 1e-14
+    out, fp = np.empty(3), np.empty(3)
+    for spin, off in ((1.0, 1e-2), (3.0, 1e-3)):
+        its_all = []
+        for _ in range(500):
+            X = spin * rng.normal(size=3)
+            b = -(_legendre(I, X, h) + 0.5 * h * phys.friction[0] * X)
+            xp = X * (1.0 + off * rng.normal(size=3))
+            scale0 = np.abs(xp).max()
+            code, its = _solve(model, h, b, xp, scale0, tol, 30, out)
+            assert code == L.NEWTON_OK
+            _solve(model, h, b, xp, scale0, 0.0, 12, fp)  # tol 0: iterate to the fixed point
+            assert np.abs(out - fp).max() <= tol * np.abs(fp).max()
+            its_all.append(its)
+            code1, its1 = _solve(model, h, b, xp, scale0, tol, 1, out)
+            assert code1 == L.NEWTON_MAXITER and its1 == 1
+        assert max(its_all) <= 3
+    assert np.mean(its_all) <= 2.5
+
+
 # ------------------------------------------------------------------ Newton
 @jit
 def _residual_jacobian(model, v, X, b, xs, s1, F, J):

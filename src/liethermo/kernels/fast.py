@@ -60,7 +60,7 @@ from .rk import explicit_step
 from .so3 import norm2_lane
 from .steppers import by_stepper
 from .vi import (add_opt, newton_data, newton_iterate, newton_step, newton_stop, sub_select,
-                 vi_advance, vi_coefficients, vi_entropy)
+                 select_opt, vi_advance, vi_coefficients, vi_entropy, zero_like)
 
 #: members per block (lanes)
 BLOCK = 128
@@ -81,9 +81,9 @@ ROW_PARTS = (
     ("GN", 3), ("SN", 1), ("MUN", 3), ("RN", 9),  # VI: Γ', σ', μ', R' of the step
     ("X", 3), ("XS", 1), ("B", 3),  # VI: Newton iterate (X and, coupled, Δ) and the
     # constant part of its function
-    ("TN", 1),  # VI, coupled: T(σ'), the same in every Newton iteration of the step and
-    # T(σ) of the next step (σ' is its σ)
+    ("TN", 1),  # VI, coupled: T(σ'), the same in every Newton iteration of the step
     ("SC0", 1), ("SCS", 1),  # VI: |X_k|∞ (and, coupled, |σ'|): scales of the stopping rule
+    ("DP", 1), ("DPS", 1),  # VI: the last Newton correction of X (and, coupled, of Δ)
     ("RUN", 1), ("CODE", 1), ("ITS", 1),  # VI: Newton mask, outcome, iterations
     ("HW", 1), ("NTOT", 1), ("NMAX", 1), ("STEPS", 1), ("MEMBER", 1),  # statistics at entry
     ("FLAG", 1),  # per-step outcome (FLAG_*)
@@ -100,7 +100,8 @@ def _row_map(parts):
 
 
 ROWS, NROWS_FIXED = _row_map(ROW_PARTS)
-O_Y, O_YB, O_GN, O_SN, O_MUN, O_RN, O_X, O_XS, O_B, O_TN, O_SC0, O_SCS, O_RUN, O_CODE, O_ITS, \
+O_Y, O_YB, O_GN, O_SN, O_MUN, O_RN, O_X, O_XS, O_B, O_TN, O_SC0, O_SCS, O_DP, O_DPS, O_RUN, \
+    O_CODE, O_ITS, \
     O_HW, O_NTOT, O_NMAX, O_STEPS, O_MEMBER, O_FLAG, O_W2 = (ROWS[name][0] * ROW
                                                               for name, _ in ROW_PARTS)
 #: the first parameter row (rows mode)
@@ -301,9 +302,7 @@ def _vi_prepare(model, shared, S, nb, vv, vvn, h, hn, g2, wl, wr, mode, tol, fir
         y = load_vi_state(md, S, O_Y + i, ROW)
         X = y[0]
         _track_w2(S, i, g2 * norm2_lane(X[0], X[1], X[2]))
-        # T(σ) of the coupled top: row TN holds it since the previous step (or _init_tn)
-        t0 = load1_if(coupled_marker(md.inertia), S, O_TN + i)
-        G1, s1, mu1, R1, b, xp, ps, sc0, scs, ok = vi_advance(md, v, vn, y, hn, mode, False, t0)
+        G1, s1, mu1, R1, b, xp, ps, sc0, scs, ok = vi_advance(md, v, vn, y, hn, mode, False)
         tn = newton_data(md.inertia, md, s1)
         store1(tn, S, O_TN + i)
         st(S, O_GN + i, G1[0])
@@ -330,7 +329,10 @@ def _vi_prepare(model, shared, S, nb, vv, vvn, h, hn, g2, wl, wr, mode, tol, fir
         n1 = x1 - d1
         n2 = x2 - d2
         ns = sub_select(ps, True, ds)
-        step, conv = newton_stop(n0, n1, n2, ns, d0, d1, d2, ds, sc0, scs, tol)
+        step, steps, conv = newton_stop(n0, n1, n2, ns, d0, d1, d2, ds, sc0, scs, 0.0,
+                                        zero_like(ps), tol)
+        st(S, O_DP + i, step)
+        store1(steps, S, O_DPS + i)
         bad = sing | (not (step == step))
         stay = sing | (not first) | redo
         st(S, O_X + i, select(stay, x0, n0))
@@ -343,16 +345,6 @@ def _vi_prepare(model, shared, S, nb, vv, vvn, h, hn, g2, wl, wr, mode, tol, fir
         st(S, O_RUN + i, select(first & (bad | conv | redo), 0.0, 1.0))
         nredo += 1 if redo else 0
     return nexact, nredo
-
-
-@jit
-def _init_tn(model, shared, S, nb):
-    """Row TN of the coupled top at the start of a call: T(σ) of every lane
-    (afterwards each step leaves the T(σ') that is the next step's T(σ))."""
-    for i in range(nb):
-        md = lane_model(shared, model, S, i)
-        y = load_vi_state(md, S, O_Y + i, ROW)
-        store1(newton_data(md.inertia, md, y[2]), S, O_TN + i)
 
 
 @jit
@@ -392,8 +384,11 @@ def _newton_sweep(model, shared, S, nb, vvn, hn, wl, wr, tol, it):
         n0 = x0 - d0
         n1 = x1 - d1
         n2 = x2 - d2
-        step, conv = newton_stop(n0, n1, n2, sub_select(xs, True, ds), d0, d1, d2, ds,
-                                 ld(S, O_SC0 + i), load1_if(xs, S, O_SCS + i), tol)
+        prev = ld(S, O_DP + i)
+        prevs = load1_if(xs, S, O_DPS + i)
+        step, steps, conv = newton_stop(n0, n1, n2, sub_select(xs, True, ds), d0, d1, d2, ds,
+                                        ld(S, O_SC0 + i), load1_if(xs, S, O_SCS + i), prev,
+                                        prevs, tol)
         nanstep = not (step == step)
         move = run & okn & (not sing)
         # A lane that stays keeps its row values.  Written as x − (d or +0), not as
@@ -402,6 +397,11 @@ def _newton_sweep(model, shared, S, nb, vvn, hn, wl, wr, tol, it):
         st(S, O_X + ROW + i, x1 - select(move, d1, 0.0))
         st(S, O_X + 2 * ROW + i, x2 - select(move, d2, 0.0))
         store1(sub_select(xs, move, ds), S, O_XS + i)
+        # the size of the last correction for the stopping rule (a lane that stops
+        # here never reads it again; a NEWTON_REDO lane keeps the one it applied last,
+        # and okn is the constant True but for the coupled top)
+        st(S, O_DP + i, select(okn, step, prev))
+        store1(select_opt(okn, steps, prevs), S, O_DPS + i)
         bad = sing | nanstep
         code_old = ld(S, O_CODE + i)
         code = select(okn, select(bad, NEWTON_SINGULAR, select(conv, NEWTON_OK, code_old)),
@@ -416,11 +416,11 @@ def _newton_sweep(model, shared, S, nb, vvn, hn, wl, wr, tol, it):
     return nrun
 
 
-#: the rows a compacted Newton lane needs: X, XS, B, TN, SC0, SCS, RUN, CODE, ITS
-_COMPACT_ROWS = tuple(ROWS[name][0] + k for name in ("X", "XS", "B", "TN", "SC0", "SCS", "RUN",
-                                                     "CODE", "ITS")
+#: the rows a compacted Newton lane needs: X, XS, B, TN, SC0, SCS, DP, DPS, RUN, CODE, ITS
+_COMPACT_ROWS = tuple(ROWS[name][0] + k for name in ("X", "XS", "B", "TN", "SC0", "SCS", "DP",
+                                                     "DPS", "RUN", "CODE", "ITS")
                       for k in range(ROWS[name][1]))
-_BACK_ROWS = tuple(ROWS[name][0] + k for name in ("X", "XS", "RUN", "CODE", "ITS")
+_BACK_ROWS = tuple(ROWS[name][0] + k for name in ("X", "XS", "DP", "DPS", "RUN", "CODE", "ITS")
                    for k in range(ROWS[name][1]))
 
 
@@ -464,7 +464,8 @@ def _newton_redo(marker, model, shared, S, nb, vvn, hn, wl, wr, tol, maxiter):
             md, vn, (ld(S, O_B + i), ld(S, O_B + ROW + i), ld(S, O_B + 2 * ROW + i)),
             (ld(S, O_X + i), ld(S, O_X + ROW + i), ld(S, O_X + 2 * ROW + i)),
             load1_if(marker, S, O_XS + i), load1_if(marker, S, O_TN + i), ld(S, O_SC0 + i),
-            load1_if(marker, S, O_SCS + i), tol, np.int64(ld(S, O_ITS + i)), maxiter)
+            load1_if(marker, S, O_SCS + i), tol, np.int64(ld(S, O_ITS + i)), maxiter,
+            (ld(S, O_DP + i), load1_if(marker, S, O_DPS + i)))
         st(S, O_X + i, X[0])
         st(S, O_X + ROW + i, X[1])
         st(S, O_X + 2 * ROW + i, X[2])
@@ -644,18 +645,6 @@ def uses_newton(stepper):
 uses_newton = by_stepper(uses_newton, lambda stepper: True)
 
 
-def block_start(stepper, model, shared, S, nb):
-    """What a method does once per block and call before its steps."""
-    return None
-
-
-def _vi_block_start(stepper, model, shared, S, nb):
-    _init_tn(model, shared, S, nb)
-
-
-block_start = by_stepper(block_start, _vi_block_start)
-
-
 def block_step(stepper, model, shared, S, S2, idx, nb, nparam, nrows, n, cur, done, h, Y, ISTAT,
                FSTAT):
     """One step of lanes [0, nb) whose state is in the rows at ``cur``:
@@ -723,7 +712,6 @@ def advance_blocks(stepper, model, shared, Y, P, b0, b1, h, every, n_out, OUT, I
                                             uses_newton(stepper), ISTAT, FSTAT)
         if nb == 0:
             continue
-        block_start(stepper, model, shared, S, nb)
         done = np.int64(0)
         cur = O_Y
         for j in range(n_out):

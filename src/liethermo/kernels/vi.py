@@ -14,10 +14,16 @@ One step of size h from the node k, with the step velocity X = Ω_k
     solve   M_h(X) + w_L h (CX + D(X)) = μ_k + (h/2) τ(Γ_k)          (Newton)
             Γ_{k+1} = cay(−hX̂) Γ_k,   R_{k+1} = R_k cay(hX̂)
             μ_{k+1} = M_{−h}(X) − w_R h (CX + D(X)) + (h/2) τ(Γ_{k+1})
+                    = cay(−hX̂)(r − w_L h (CX + D(X))) − w_R h (CX + D(X)) + (h/2) τ(Γ_{k+1})
             S_{k+1}: explicit  S + hP/T(S_k), or symmetric U(S_{k+1}) − U(S_k) = hP
 
-with P = −⟨CX + D(X), X⟩ the power of the discrete friction.  Eliminating μ
-gives the paper's momentum equation exactly.  The kernels hold the state
+with P = −⟨CX + D(X), X⟩ the power of the discrete friction and r the
+Newton right-hand side.  Eliminating μ gives the paper's momentum equation
+exactly.  The two forms of μ_{k+1} agree at the Newton solution because
+M_{−h}(X) = cay(−hX̂) M_h(X) for every X ((Id − â)M_h = (1 + |a|²)𝕀X =
+(Id + â)M_{−h}, a = hX/2); the kernels use the second, a rotation of r by
+the matrix that turns Γ, so Kelvin–Noether and |μ| (free body) hold
+whatever X is, not only at the last digits of the Newton solve.  The kernels hold the state
 (X, Γ, σ, μ[, σ_{k+1}][, R]) in which X is the step velocity of the step that
 *starts* at the node — it is solved at the end of the previous step — so that
 a node's output carries the paper's Ω_k beside the node values, and the
@@ -41,7 +47,8 @@ Jacobian
 
 solved in closed form (Cramer), started from an explicit Euler predictor
 X + ½(h + h') Ω̇(X, Γ', σ') of the continuous equations, stopped when the
-step is below ``tol · max(|X'|∞, |X|∞)``.  A step whose iteration does not
+correction d, or the next one as quadratic convergence predicts it
+(|d|³/|d_prev|²), is below ``tol · max(|X'|∞, |X|∞)``.  A step whose iteration does not
 converge within ``maxiter`` iterations, or meets a singular or non-finite
 Jacobian, fails and is never accepted.  With D₁ = ½(I₃ − I₂) (and
 cyclically), component 1 of F reads
@@ -60,7 +67,7 @@ import numpy as np
 
 from ._jit import fma, jit, lane, select
 from .equations import entropy_and_omega_rates, omega_rate
-from .gen import axpy_opt, finite, madd, none_dispatch, or_zero, overload_by_capability, scale_opt
+from .gen import axpy_opt, finite, none_dispatch, or_zero, overload_by_capability, scale_opt
 from .lanemath import expm1_sel
 from .layout import NEWTON_MAXITER, NEWTON_OK, NEWTON_SINGULAR
 from .so3 import attitude_lane, cayley_lane, cross_lane
@@ -259,28 +266,46 @@ def newton_correction(model, v, x0, x1, x2, xs, b0, b1, b2, s1):
     return d0, d1, d2, ds, det
 
 
-def _stop3(x0, x1, x2, xs, d0, d1, d2, ds, scale0, scales, tol):
+#: the predicted next Newton correction must be below this fraction of the tolerance
+PREDICTION_MARGIN = 0.1
+
+
+@lane
+def converged(step, scale, prev, tol):
+    """Whether an iterate after a correction of size ``step`` (the one before
+    was ``prev``; 0 before the first) is within tol·scale of the solution:
+    the correction itself is that small, or quadratic convergence predicts
+    the next one below a tenth of it, step·(step/prev)² ≤ tol·scale/10 (the
+    margin: the prediction's constant is estimated from one ratio; without
+    it 1 % of random solves stopped up to 5 tol·scale away, with it none of
+    2000 beyond 0.5).  It never fires on a step that did not shrink: it
+    would then need step ≤ tol·scale anyway."""
+    lim = tol * scale
+    return (step <= lim) | ((step * step) * step <= (PREDICTION_MARGIN * lim) * (prev * prev))
+
+
+def _stop3(x0, x1, x2, xs, d0, d1, d2, ds, scale0, scales, prev, prevs, tol):
     step = max(abs(d0), abs(d1), abs(d2))
     scale = max(abs(x0), abs(x1), abs(x2), scale0)
-    return step, step <= tol * scale
+    return step, None, converged(step, scale, prev, tol)
 
 
-def newton_stop(x0, x1, x2, xs, d0, d1, d2, ds, scale0, scales, tol):
-    """(step, converged) for the new iterate (= old − d): the step
-    |d|∞ ≤ tol·max(|X|∞, |X_k|∞), and for the coupled top also
-    |d_s| ≤ tol·max(|Δ|, |σ'|).  ``step`` is NaN if any correction is.
+def newton_stop(x0, x1, x2, xs, d0, d1, d2, ds, scale0, scales, prev, prevs, tol):
+    """(step, step_s, converged) for the new iterate (= old − d), with step =
+    |d|∞ and step_s = |d_s| (None for a constant inertia): converged when
+    :func:`converged` holds for X at the scale max(|X|∞, |X_k|∞) from the
+    previous steps ``prev`` (and, for the coupled top, for Δ at the scale
+    max(|Δ|, |σ'|) from ``prevs``).  ``step`` is NaN if any correction is.
 
-    The iterate is accepted only after a correction this small, which makes
-    it the floating-point fixed point of the Newton map: the discrete laws
-    (Kelvin–Noether, |μ| under the double bracket) rest on the Newton
-    equation and hold to round-off only then.  (Stopping one iteration
-    earlier, when quadratic convergence predicts the next correction below
-    tol, saves a quarter of the iterations but lets |μ| drift to 3e-10 in
-    the flat-spin study instead of 4e-14; below 2⁻⁵² relative, to 7e-13.)"""
+    Stopping on the prediction saves the iteration that would only verify
+    it.  The discrete laws do not rest on the last digits of X: the momentum
+    update rotates the Newton right-hand side (:func:`vi_advance`), so |μ|
+    and Γ·μ are kept by construction, whatever X is."""
     step = max(abs(d0), abs(d1), abs(d2))
     scale = max(abs(x0), abs(x1), abs(x2), scale0)
-    ok = (step <= tol * scale) & (abs(ds) <= tol * max(abs(xs), scales))
-    return step + 0.0 * ds, ok
+    steps = abs(ds)
+    ok = converged(step, scale, prev, tol) & converged(steps, max(abs(xs), scales), prevs, tol)
+    return step + 0.0 * ds, steps, ok
 
 
 newton_stop = none_dispatch(newton_stop, _stop3, arg=3)
@@ -292,6 +317,14 @@ def _sub_present(x, c, d):
 
 #: x − (d if c else +0) for an optional unknown (exact: x − (+0) is x)
 sub_select = none_dispatch(_sub_present, lambda x, c, d: None)
+
+
+def _select_present(c, a, b):
+    return select(c, a, b)
+
+
+#: a if c else b for an optional unknown (None when a is None)
+select_opt = none_dispatch(_select_present, lambda c, a, b: None, arg=1)
 
 
 def _add_present(s, x):
@@ -320,19 +353,17 @@ def vi_entropy(model, v, y, mode, exact):
 
 
 @lane
-def vi_advance(model, v, vn, y, hn, mode, exact, t0=None):
+def vi_advance(model, v, vn, y, hn, mode, exact):
     """Everything of one step of the ``vi`` layout state y = (X, Γ, σ, μ, σₙ, R)
     but the Newton solve of the next step: returns
     ``(Γ', σ', μ', R', b, X₀, Δ₀, |X|∞, scale_s, ok)`` with b = −r the
     constant part of the next step's Newton function, X₀ (and, for the
     coupled top, Δ₀; else None) its predictor, and ``ok`` whether every
-    inline exp/log1p was valid (see thermo).  ``t0``: the coupled top's
-    T(σ) if the caller has it (the :func:`newton_data` of the step that
-    ended at this node: the same bits), else None."""
-    return _advance(model.inertia, model, v, vn, y, hn, mode, exact, t0)
+    inline exp/log1p was valid (see thermo)."""
+    return _advance(model.inertia, model, v, vn, y, hn, mode, exact)
 
 
-def _advance_constant(inertia, model, v, vn, y, hn, mode, exact, t0):
+def _advance_constant(inertia, model, v, vn, y, hn, mode, exact):
     X, G, s, mu, sn, R = y
     x0, x1, x2 = X
     h = v.h
@@ -340,16 +371,20 @@ def _advance_constant(inertia, model, v, vn, y, hn, mode, exact, t0):
     I = model.inertia
     s1, ok = vi_entropy(model, v, y, mode, exact)
     R1 = attitude_step(R, h * x0, h * x1, h * x2)
-    t0, t1, t2 = sum_torque(model.forces, (G0, G1, G2), NONE3)
     (f0, f1, f2), (j00, j01, j02, j10, j11, j12, j20, j21, j22) = sum_nonlinear_friction(
         model.forces, I, h, (x0, x1, x2), NONE3, NONE9)
-    h4xQ = v.h4 * fma(I.I1 * x0, x0, fma(I.I2 * x1, x1, (I.I3 * x2) * x2))
-    m0 = axpy_opt(-v.wrh, f0, fma(I.I1, x0, axpy_opt(x0, v.R1, madd(-v.hD1 * x1, x2, madd(
-        h4xQ, x0, scale_opt(v.hh, t0))))))
-    m1 = axpy_opt(-v.wrh, f1, fma(I.I2, x1, axpy_opt(x1, v.R2, madd(-v.hD2 * x2, x0, madd(
-        h4xQ, x1, scale_opt(v.hh, t1))))))
-    m2 = axpy_opt(-v.wrh, f2, fma(I.I3, x2, axpy_opt(x2, v.R3, madd(-v.hD3 * x0, x1, madd(
-        h4xQ, x2, scale_opt(v.hh, t2))))))
+    # μ' = cay(−hX̂)(r − w_L h(CX + D)) − w_R h(CX + D) + (h/2)τ(Γ'), r = μ + (h/2)τ(Γ):
+    # M_{−h}(X) = cay(−hX̂) M_h(X) for every X, so this is the paper's update at the
+    # Newton solution, and a rotation of r whatever X is (module docstring)
+    r0, r1, r2 = node_rhs(model, v, y[3], G)
+    q0, q1, q2 = cayley_lane(-(h * x0), -(h * x1), -(h * x2),
+                             axpy_opt(-v.wlh, f0, axpy_opt(-x0, v.K1, r0)),
+                             axpy_opt(-v.wlh, f1, axpy_opt(-x1, v.K2, r1)),
+                             axpy_opt(-v.wlh, f2, axpy_opt(-x2, v.K3, r2)))
+    t0, t1, t2 = sum_torque(model.forces, (G0, G1, G2), NONE3)
+    m0 = axpy_opt(-v.wrh, f0, axpy_opt(x0, v.R1, axpy_opt(v.hh, t0, q0)))
+    m1 = axpy_opt(-v.wrh, f1, axpy_opt(x1, v.R2, axpy_opt(v.hh, t1, q1)))
+    m2 = axpy_opt(-v.wrh, f2, axpy_opt(x2, v.R3, axpy_opt(v.hh, t2, q2)))
     b0 = -axpy_opt(vn.hh, t0, m0)
     b1 = -axpy_opt(vn.hh, t1, m1)
     b2 = -axpy_opt(vn.hh, t2, m2)
@@ -362,34 +397,28 @@ def _advance_constant(inertia, model, v, vn, y, hn, mode, exact, t0):
             max(abs(x0), abs(x1), abs(x2)), None, ok)
 
 
-def _advance_coupled(inertia, model, v, vn, y, hn, mode, exact, t0):
-    """The coupled top: σ' is the σ_{k+1} solved with X; μ' uses the mean
-    inertia of the step, s* 𝕀₀ with s* = ½(φ(σ)² + φ(σ')²)."""
+def _advance_coupled(inertia, model, v, vn, y, hn, mode, exact):
+    """The coupled top: σ' is the σ_{k+1} solved with X; μ' =
+    s* M⁰_{−h}(X) − w_R h CX + (h/2)τ(Γ') with the mean inertia of the step,
+    s* 𝕀₀, s* = ½(φ(σ)² + φ(σ')²), which is cay(−hX̂)(r − w_L h CX) by the
+    Newton equation."""
     X, G, s, mu, sn, R = y
     x0, x1, x2 = X
     h = v.h
     G0, G1, G2 = cayley_lane(-(h * x0), -(h * x1), -(h * x2), G[0], G[1], G[2])
-    I = model.inertia
-    th = model.thermo
     R1 = attitude_step(R, h * x0, h * x1, h * x2)
     s1 = sn
-    th0 = known_or_temperature(t0, th, s)
-    th1 = temperature(th, s1)
-    phi0 = fma(I.alpha, th0 - th.T0, 1.0)
-    phi1 = fma(I.alpha, th1 - th.T0, 1.0)
-    ss = 0.5 * fma(phi0, phi0, phi1 * phi1)
     t0, t1, t2 = sum_torque(model.forces, (G0, G1, G2), NONE3)
     c0, c1, c2 = sum_linear_friction(model.forces, NONE3)
     c0, c1, c2 = or_zero(c0), or_zero(c1), or_zero(c2)
-    q0, q1, q2 = I.I1 * x0, I.I2 * x1, I.I3 * x2
-    K2 = fma(q0, x0, fma(q1, x1, q2 * x2))
-    h4xQ = v.h4 * K2
-    m0 = axpy_opt(v.hh, t0, fma(-v.wrh * c0, x0, ss * fma(I.I1, x0, fma(-v.hD1 * x1, x2,
-                                                                             h4xQ * x0))))
-    m1 = axpy_opt(v.hh, t1, fma(-v.wrh * c1, x1, ss * fma(I.I2, x1, fma(-v.hD2 * x2, x0,
-                                                                             h4xQ * x1))))
-    m2 = axpy_opt(v.hh, t2, fma(-v.wrh * c2, x2, ss * fma(I.I3, x2, fma(-v.hD3 * x0, x1,
-                                                                             h4xQ * x2))))
+    # s* M⁰_{−h}(X) = cay(−hX̂)(r − w_L h CX), as for the constant inertia
+    r0, r1, r2 = node_rhs(model, v, y[3], G)
+    wl = v.wlh
+    q0, q1, q2 = cayley_lane(-(h * x0), -(h * x1), -(h * x2), fma(-(wl * c0), x0, r0),
+                             fma(-(wl * c1), x1, r1), fma(-(wl * c2), x2, r2))
+    m0 = axpy_opt(v.hh, t0, fma(-v.wrh * c0, x0, q0))
+    m1 = axpy_opt(v.hh, t1, fma(-v.wrh * c1, x1, q1))
+    m2 = axpy_opt(v.hh, t2, fma(-v.wrh * c2, x2, q2))
     b0 = -axpy_opt(vn.hh, t0, m0)
     b1 = -axpy_opt(vn.hh, t1, m1)
     b2 = -axpy_opt(vn.hh, t2, m2)
@@ -404,12 +433,12 @@ def _advance_coupled(inertia, model, v, vn, y, hn, mode, exact, t0):
 _advance = overload_by_capability(_advance_constant, "entropy_dependent_inertia", _advance_coupled)
 
 
-def _known(t, th, s):
-    return t
+def zero_like(x):
+    """0.0, or None when x is None."""
+    return 0.0
 
 
-#: t if given, else T(σ) = temperature(th, s)
-known_or_temperature = none_dispatch(_known, lambda t, th, s: temperature(th, s))
+zero_like = none_dispatch(zero_like, lambda x: None)
 
 
 @lane
@@ -419,17 +448,19 @@ def newton_solve(model, vn, b, xp, xs, s1, scale0, scales, tol, maxiter):
     constant inertia.  On a singular or non-finite Jacobian the iterate is
     the last one before it."""
     return newton_iterate(model, vn, b, xp, xs, newton_data(model.inertia, model, s1), scale0,
-                          scales, tol, 0, maxiter)
+                          scales, tol, 0, maxiter, (0.0, zero_like(xs)))
 
 
 @lane
-def newton_iterate(model, vn, b, xp, xs, tn, scale0, scales, tol, its, maxiter):
+def newton_iterate(model, vn, b, xp, xs, tn, scale0, scales, tol, its, maxiter, dprev):
     """Newton iterations its+1 … maxiter from the iterate (X, Δ) = (xp, xs)
-    with the exact operations (``tn`` = :func:`newton_data`): the rest of a
-    solve (the block kernel finishes here a lane whose vectorized iteration
-    was out of the small-argument range)."""
+    with the exact operations (``tn`` = :func:`newton_data`; ``dprev`` the
+    sizes of the last corrections of X and Δ, :func:`newton_stop`): the rest
+    of a solve (the block kernel finishes here a lane whose vectorized
+    iteration was out of the small-argument range)."""
     x0, x1, x2 = xp
     b0, b1, b2 = b
+    prev, prevs = dprev
     code = NEWTON_MAXITER
     run = maxiter >= 1
     while run and its < maxiter:
@@ -442,7 +473,9 @@ def newton_iterate(model, vn, b, xp, xs, tn, scale0, scales, tol, its, maxiter):
         x1 -= d1
         x2 -= d2
         xs = sub_select(xs, True, ds)
-        step, conv = newton_stop(x0, x1, x2, xs, d0, d1, d2, ds, scale0, scales, tol)
+        step, steps, conv = newton_stop(x0, x1, x2, xs, d0, d1, d2, ds, scale0, scales, prev,
+                                        prevs, tol)
+        prev, prevs = step, steps
         if not (step == step):
             code = NEWTON_SINGULAR
             break
@@ -462,6 +495,14 @@ def momentum_map(model, v, x0, x1, x2, G0, G1, G2):
     F0, F1, F2, j00, j01, j02, j10, j11, j12, j20, j21, j22 = residual_jacobian(
         model, v, x0, x1, x2, 0.0, 0.0, 0.0)
     return (axpy_opt(-v.hh, t0, F0), axpy_opt(-v.hh, t1, F1), axpy_opt(-v.hh, t2, F2))
+
+
+@lane
+def node_rhs(model, v, mu, G):
+    """r = μ + (h/2) τ(Γ): the right-hand side of the Newton equation of a
+    step of size v.h that starts from the node (Γ, μ)."""
+    t0, t1, t2 = sum_torque(model.forces, G, NONE3)
+    return axpy_opt(v.hh, t0, mu[0]), axpy_opt(v.hh, t1, mu[1]), axpy_opt(v.hh, t2, mu[2])
 
 
 @lane
