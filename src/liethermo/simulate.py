@@ -19,7 +19,7 @@ from .kernels import fast as _fast
 from .kernels import layout as _lay
 from .kernels import parallel as _par
 from .kernels import simple as _simple
-from .kernels.steppers import Explicit, Variational
+from .kernels.steppers import Explicit, Split, Variational
 from .kernels.layout import STATUS_MEANINGS, STATUS_NEWTON, STATUS_NONFINITE, STATUS_OK  # noqa: F401
 from .kernels.layout import StateLayout
 from .methods import ENTROPY_UPDATES, FRICTION, STARTS, Method, get_method
@@ -294,7 +294,8 @@ def simulate(
         if m.name == "reference":
             nsub = int(ref_substeps) if ref_substeps else 0
             IS[:, _lay.IS_NSUB] = reference_substeps(h, physics, omega0)
-        stepper = Explicit(tab, int(nsub))
+        stepper = (Split(tab, int(nsub), type(tab).factors) if m.family == "split"
+                   else Explicit(tab, int(nsub)))
     else:
         from .kernels import vi as _vi
         from .kernels.terms.thermo import EXPLICIT, SYMMETRIC

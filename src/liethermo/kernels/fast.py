@@ -49,14 +49,21 @@ How it is fast
 from __future__ import annotations
 
 import numpy as np
+from numba import literally
 
 from ._jit import jit, lane, ld, select, st
-from .gen import finite, none_dispatch, overload_by_capability, tree_finite, tree_sum_finite, unflatten
+from .gen import (finite, none_dispatch, or_zero, overload_by_capability, tree_finite,
+                  tree_sum_finite, unflatten)
 from .layout import (FS_MAX_H_OMEGA, IS_FAIL_STEP, IS_NEWTON_MAX, IS_NEWTON_TOTAL, IS_STATUS,
                      IS_STEPS, NEWTON_MAXITER, NEWTON_OK, NEWTON_SINGULAR, STATUS_NEWTON,
                      STATUS_NONFINITE, STATUS_OK, load_rk_state, load_vi_state, store_rk_state,
                      store_vi_state)
 from .rk import explicit_step
+from .split import split_begin, split_end, split_stage
+from .terms.inertia import FREE_FLOW_STAGES
+
+# the splitting sweeps below name the stages 0 … 4 of split_stage as literals
+assert FREE_FLOW_STAGES == 5
 from .so3 import norm2_lane
 from .steppers import by_stepper
 from .vi import (add_opt, newton_data, newton_iterate, newton_step, newton_stop, sub_select,
@@ -248,6 +255,106 @@ def _rk_sweep(tab, model, shared, S, nb, h, flip):
         st(S, O_FLAG + i, select(upd, FLAG_OK, FLAG_EXACT))
         nflag += 0 if upd else 1
     return nflag
+
+
+# --------------------------------------------------------------------------
+# splitting sweeps: a stage of the Strang step over all lanes at a time
+
+
+@lane
+def _load_work(md, S, off):
+    """The splitting's work state (μ, Γ, q, R) a previous stage left in the
+    rows of an ``rk`` state at ``off`` (μ in Ω's rows, q in σ's)."""
+    m, G, q, R = load_rk_state(md, S, off, ROW)
+    return m, G, or_zero(q), R
+
+
+@jit
+def _split_first(model, shared, S, nb, t, flip):
+    """Stage 0 of a step's first Strang step, from the state in one buffer;
+    the work state goes to the other (``flip`` as in :func:`_rk_buffers`,
+    compiled for each value: constant row offsets let LLVM see that the
+    buffers do not overlap)."""
+    literally(flip)
+    src, dst = _rk_buffers(flip)
+    for i in range(nb):
+        md = lane_model(shared, model, S, i)
+        y = load_rk_state(md, S, src + i, ROW)
+        w = y[0]
+        _track_w2(S, i, norm2_lane(w[0], w[1], w[2]))
+        store_rk_state(md, S, dst + i, ROW, split_stage(md, 0, t, split_begin(md, y)))
+
+
+@jit
+def _split_stage_pass(model, shared, S, nb, stage, t, flip):
+    """Stage ``stage`` of a Strang step of size t on the work states in the
+    destination buffer (both compiled for each value)."""
+    literally(stage)
+    literally(flip)
+    src, dst = _rk_buffers(flip)
+    for i in range(nb):
+        md = lane_model(shared, model, S, i)
+        store_rk_state(md, S, dst + i, ROW, split_stage(md, stage, t, _load_work(md, S, dst + i)))
+
+
+@jit
+def _split_last(model, shared, S, nb, t, flip):
+    """The last stage of a step and its end: the new state in the
+    destination buffer (as _rk_sweep: flagged FLAG_EXACT where not finite
+    or out of the inline polynomials' range).  Returns the flagged count."""
+    literally(flip)
+    src, dst = _rk_buffers(flip)
+    nflag = 0
+    for i in range(nb):
+        md = lane_model(shared, model, S, i)
+        z = split_stage(md, 4, t, _load_work(md, S, dst + i))
+        yn, small = split_end(md, load_rk_state(md, S, src + i, ROW), z, False)
+        upd = tree_sum_finite(yn) & small
+        store_rk_state(md, S, dst + i, ROW, yn)
+        st(S, O_FLAG + i, select(upd, FLAG_OK, FLAG_EXACT))
+        nflag += 0 if upd else 1
+    return nflag
+
+
+@jit
+def _split_sweep(factors, model, shared, S, nb, h, flip):
+    """One step of the splitting with these factors, for lanes [0, nb) from
+    one state buffer to the other: the stages of its Strang steps one after
+    the other, each over all lanes (the same arithmetic per lane as
+    :func:`.split.split_step`).  A step's five Cayley divisions are one
+    dependent chain: run a lane at a time, its latency sets the cost of the
+    step (the out-of-order window holds about one lane's step); a stage at
+    a time, the lanes of a stage are independent and fill the vector units.
+    ``flip`` is compiled for each value, so that the passes get constant
+    row offsets."""
+    literally(flip)
+    ns = len(factors)
+    nflag = 0
+    for k in range(ns):
+        t = factors[k] * h
+        if k == 0:
+            _split_first(model, shared, S, nb, t, flip)
+        else:
+            _split_stage_pass(model, shared, S, nb, 0, t, flip)
+        _split_stage_pass(model, shared, S, nb, 1, t, flip)
+        _split_stage_pass(model, shared, S, nb, 2, t, flip)
+        _split_stage_pass(model, shared, S, nb, 3, t, flip)
+        if k == ns - 1:
+            nflag = _split_last(model, shared, S, nb, t, flip)
+        else:
+            _split_stage_pass(model, shared, S, nb, 4, t, flip)
+    return nflag
+
+
+@jit
+def _split_step(tab, factors, model, shared, S, nb, h, par):
+    """One step of the splitting ``tab`` (substep factors ``factors``) from
+    the rows at Y (par 0) or YB (par 1); returns the number of failed lanes."""
+    if par == 0:
+        nflag = _split_sweep(factors, model, shared, S, nb, h, 0)
+        return _rk_exact(tab, model, shared, S, nb, h, 0) if nflag else 0
+    nflag = _split_sweep(factors, model, shared, S, nb, h, 1)
+    return _rk_exact(tab, model, shared, S, nb, h, 1) if nflag else 0
 
 
 @jit
@@ -656,6 +763,13 @@ def block_step(stepper, model, shared, S, S2, idx, nb, nparam, nrows, n, cur, do
     return _rk_step(stepper.tab, model, shared, S, nb, h, par), nb
 
 
+def _split_block_step(stepper, model, shared, S, S2, idx, nb, nparam, nrows, n, cur, done, h, Y,
+                      ISTAT, FSTAT):
+    """A splitting: as an explicit step, its Strang steps a stage at a time."""
+    par = 0 if cur == O_Y else 1
+    return _split_step(stepper.tab, stepper.factors, model, shared, S, nb, h, par), nb
+
+
 def _vi_block_step(stepper, model, shared, S, S2, idx, nb, nparam, nrows, n, cur, done, h, Y,
                    ISTAT, FSTAT):
     """The variational integrator: its substeps factors[s]·h, each accepted
@@ -688,7 +802,7 @@ def _vi_block_step(stepper, model, shared, S, S2, idx, nb, nparam, nrows, n, cur
 # the explicit step is pasted into the driver by numba: LLVM then compiles the
 # RK sweeps as for a loop written in place; behind an LLVM-inlined call the
 # RK4 sweep measured 7-18 % slower on Zen 5
-block_step = by_stepper(block_step, _vi_block_step, inline_explicit="ir")
+block_step = by_stepper(block_step, _vi_block_step, split=_split_block_step, inline_explicit="ir")
 
 
 def next_rows(stepper, cur):

@@ -10,7 +10,7 @@ where E runs the exact flows of the model's force terms one after the
 other in registry order (frictions first: F, the friction and its heat;
 then the conservative torques: V, the gravity kick) and back in reverse,
 and T is the free rotation T¹_{t/2} T²_{t/2} T³_t T²_{t/2} T¹_{t/2}
-(:func:`.terms.inertia.free_flow`, Cayley rotations: five divisions).  The
+(:func:`.terms.inertia.free_flow_stage`, Cayley rotations: five divisions).  The
 step of size h composes Strang steps of sizes f_k h.  Every flow is the
 exact flow of a sub-system, so the step keeps |Γ| and RᵀR = I to
 round-off, is a Poisson map without friction, and moves the heat exactly:
@@ -37,7 +37,7 @@ from numba.extending import overload
 from ._jit import LANE_OPTIONS, fma, lane
 from .gen import compile_source, has_capability
 from .terms import flow_backward, flow_forward
-from .terms.inertia import free_flow
+from .terms.inertia import FREE_FLOW_STAGES, free_flow_stage
 from .terms.thermo import SYMMETRIC, entropy_step
 
 
@@ -67,6 +67,14 @@ def splitting(factors: tuple, order: int):
     return cls(0.0)
 
 
+def splitting_class(t):
+    """The marker class of a splitting marker or of its numba type, else None."""
+    cls = getattr(t, "instance_class", None)
+    if cls is None and isinstance(t, Splitting):
+        cls = type(t)
+    return cls if isinstance(cls, type) and issubclass(cls, Splitting) and cls.factors else None
+
+
 def can_split(model) -> str | None:
     """None if every part of the model has an exact flow, else the name of
     the first kernel part that has none."""
@@ -86,52 +94,76 @@ def _quotient(m, I, iI):
     return fma(fma(-I, q, m), iI, q)
 
 
+@lane
+def split_begin(model, y):
+    """The work state z = (μ, Γ, q, R) of a step from the ``rk`` layout state
+    y = (Ω, Γ, σ, R): μ = 𝕀Ω and no heat yet."""
+    w, G, s, R = y
+    I = model.inertia
+    return (I.I1 * w[0], I.I2 * w[1], I.I3 * w[2]), G, 0.0, R
+
+
+@lane
+def split_stage(model, stage, t, z):
+    """Part ``stage`` (a literal, 0 … 4) of a Strang step of size t on the
+    work state z: stage k is flow k of the free rotation
+    (:func:`.terms.inertia.free_flow_stage`), after E_{t/2} in stage 0 and
+    before E_{t/2}ᵀ in stage 4.  The stages one after the other are the
+    Strang step; the block kernel runs each over all its lanes before the
+    next (a step's five divisions form one dependent chain; a stage at a
+    time, the lanes keep the vector units busy)."""
+    m, G, q, R = z
+    I = model.inertia
+    if stage == 0:
+        m, q = flow_forward(model.forces, I, 0.5 * t, G, m, q)
+    m0, m1, m2, G0, G1, G2, R = free_flow_stage(I, stage, t, m[0], m[1], m[2], G[0], G[1], G[2], R)
+    m, G = (m0, m1, m2), (G0, G1, G2)
+    if stage == FREE_FLOW_STAGES - 1:
+        m, q = flow_backward(model.forces, I, 0.5 * t, G, m, q)
+    return m, G, q, R
+
+
+@lane
+def split_end(model, y, z, exact):
+    """(y', ok): the ``rk`` layout state at the end of a step that started
+    at y with work state z: Ω = 𝕀⁻¹μ and U(S′) = U(S) + q; ``ok`` says
+    whether the inline polynomials of the heat-to-entropy conversion were
+    valid (always with ``exact``)."""
+    m, G, q, R = z
+    I = model.inertia
+    s1, ok = entropy_step(model.thermo, SYMMETRIC, 1.0, q, y[2], exact)
+    w = (_quotient(m[0], I.I1, I.iI1), _quotient(m[1], I.I2, I.iI2), _quotient(m[2], I.I3, I.iI3))
+    return (w, G, s1, R), ok
+
+
 def split_step(tab, model, y, h, exact):
     """(y', ok): one step of size h of the splitting ``tab`` from the ``rk``
     layout state y = (Ω, Γ, σ, R); ``ok`` says whether the inline
     polynomials of the heat-to-entropy conversion were valid (always with
     ``exact``)."""
-    w, G, s, R = y
-    I = model.inertia
-    m0, m1, m2 = I.I1 * w[0], I.I2 * w[1], I.I3 * w[2]
-    G0, G1, G2 = G
-    q = 0.0
+    z = split_begin(model, y)
     for f in type(tab).factors:
         t = f * h
-        th = 0.5 * t
-        (m0, m1, m2), q = flow_forward(model.forces, I, th, (G0, G1, G2), (m0, m1, m2), q)
-        m0, m1, m2, G0, G1, G2, R = free_flow(I, t, m0, m1, m2, G0, G1, G2, R)
-        (m0, m1, m2), q = flow_backward(model.forces, I, th, (G0, G1, G2), (m0, m1, m2), q)
-    s1, ok = entropy_step(model.thermo, SYMMETRIC, 1.0, q, s, exact)
-    w = (_quotient(m0, I.I1, I.iI1), _quotient(m1, I.I2, I.iI2), _quotient(m2, I.I3, I.iI3))
-    return (w, (G0, G1, G2), s1, R), ok
+        for stage in range(FREE_FLOW_STAGES):
+            z = split_stage(model, stage, t, z)
+    return split_end(model, y, z, exact)
 
 
 def _split_source(cls) -> str:
     lines = ["def impl(tab, model, y, h, exact):",
-             "    w, G, s, R = y",
-             "    I = model.inertia",
-             "    m0, m1, m2 = I.I1 * w[0], I.I2 * w[1], I.I3 * w[2]",
-             "    G0, G1, G2 = G",
-             "    q = 0.0"]
+             "    z = split_begin(model, y)"]
     for k, f in enumerate(cls.factors):
-        lines += [f"    t{k} = {f!r} * h",
-                  f"    th{k} = 0.5 * t{k}",
-                  f"    (m0, m1, m2), q = flow_forward(model.forces, I, th{k}, (G0, G1, G2), (m0, m1, m2), q)",
-                  f"    m0, m1, m2, G0, G1, G2, R = free_flow(I, t{k}, m0, m1, m2, G0, G1, G2, R)",
-                  f"    (m0, m1, m2), q = flow_backward(model.forces, I, th{k}, (G0, G1, G2), (m0, m1, m2), q)"]
-    lines += ["    s1, ok = entropy_step(model.thermo, SYMMETRIC, 1.0, q, s, exact)",
-              "    w = (quotient(m0, I.I1, I.iI1), quotient(m1, I.I2, I.iI2), quotient(m2, I.I3, I.iI3))",
-              "    return (w, (G0, G1, G2), s1, R), ok"]
+        lines += [f"    t{k} = {f!r} * h"]
+        lines += [f"    z = split_stage(model, {stage}, t{k}, z)" for stage in range(FREE_FLOW_STAGES)]
+    lines += ["    return split_end(model, y, z, exact)"]
     return "\n".join(lines) + "\n"
 
 
 def _explicit_step_overload(tab, model, y, h, exact):
-    cls = getattr(tab, "instance_class", None)
-    if not (isinstance(cls, type) and issubclass(cls, Splitting)) or not cls.factors:
+    cls = splitting_class(tab)
+    if cls is None:
         return None
-    ns = {"flow_forward": flow_forward, "flow_backward": flow_backward, "free_flow": free_flow,
-          "entropy_step": entropy_step, "SYMMETRIC": SYMMETRIC, "quotient": _quotient}
+    ns = {"split_begin": split_begin, "split_stage": split_stage, "split_end": split_end}
     return compile_source(_split_source(cls), ns, label=f"split_step {cls.__name__} {cls.factors}")
 
 

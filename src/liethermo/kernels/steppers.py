@@ -13,6 +13,8 @@ that the stepper's type selects when numba compiles the driver:
   straight-line step, and ``nsub`` substeps of h/nsub per step (the
   one-member layout; 0: each member's own count, ``ISTAT[m, IS_NSUB]``, as
   the reference sets it);
+* :class:`Split` — a splitting (:mod:`.split`): as :class:`Explicit`,
+  with its substep factors as data, which the block layout's sweeps take;
 * :class:`Variational` — the variational integrator in node form: the
   substep factors of a composition (one for ``vi``), the friction weights,
   the entropy update and the Newton tolerance and iteration limit.
@@ -29,30 +31,35 @@ from .gen import overload_choice
 
 #: an explicit method: its tableau (or splitting) marker and substeps per step
 Explicit = namedtuple("Explicit", "tab nsub")
+#: a splitting: an explicit method (marker, substeps) whose substep factors
+#: the block layout also takes as data, to run its Strang steps a stage at a time
+Split = namedtuple("Split", "tab nsub factors")
 #: the variational integrator: substep factors (a tuple), friction weights
 #: (wl, wr), entropy update marker, Newton tolerance and iteration limit
 Variational = namedtuple("Variational", "factors wl wr mode tol maxiter")
 
 
 def stepper_kind(stepper) -> type:
-    """:class:`Explicit` or :class:`Variational`: the kind of a stepper or of
-    its numba type."""
+    """:class:`Explicit`, :class:`Split` or :class:`Variational`: the kind of
+    a stepper or of its numba type."""
     cls = getattr(stepper, "instance_class", None) or type(stepper)
-    if cls not in (Explicit, Variational):
+    if cls not in (Explicit, Split, Variational):
         raise TypeError(f"not a stepper: {stepper!r}")
     return cls
 
 
-def by_stepper(explicit, variational, inline_explicit: str = "llvm"):
+def by_stepper(explicit, variational, split=None, inline_explicit: str = "llvm"):
     """A generic lane function that is ``explicit`` for an :class:`Explicit`
-    first argument and ``variational`` for a :class:`Variational` one (chosen
-    when numba types the call).  ``explicit`` lends its name and signature.
-    ``inline_explicit="ir"``: numba pastes the explicit implementation into
-    its caller (see :func:`.gen.register_overload`)."""
-    impls = {Explicit: explicit, Variational: variational}
+    first argument, ``variational`` for a :class:`Variational` one and
+    ``split`` (default: ``explicit``) for a :class:`Split` one (chosen when
+    numba types the call).  ``explicit`` lends its name and signature.
+    ``inline_explicit="ir"``: numba pastes the explicit (and split)
+    implementation into its caller (see :func:`.gen.register_overload`)."""
+    impls = {Explicit: explicit, Split: explicit if split is None else split,
+             Variational: variational}
     return overload_choice(explicit, lambda t: impls[stepper_kind(t)],
                            label=f"by_stepper {explicit.__name__}",
-                           inline=lambda impl: inline_explicit if impl is explicit else "llvm")
+                           inline=lambda impl: "llvm" if impl is variational else inline_explicit)
 
 
-__all__ = ["Explicit", "Variational", "by_stepper", "stepper_kind"]
+__all__ = ["Explicit", "Split", "Variational", "by_stepper", "stepper_kind"]

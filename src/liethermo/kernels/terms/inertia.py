@@ -30,7 +30,7 @@ from . import LAW_MOMENTUM_NORM, Parameter, ScalarTerm, Setting, bcast
 class ConstantInertia(namedtuple("ConstantInertia",
                                  "I1 I2 I3 iI1 iI2 iI3 A1 A2 A3 D1 D2 D3")):
     __slots__ = ()
-    #: the free rotation has an exact flow (:func:`free_flow`)
+    #: the free rotation has an exact flow (:func:`free_flow_stage`)
     CAPABILITIES = frozenset({"exact_flow"})
 
 
@@ -124,18 +124,22 @@ def _axis_flow(inertia, axis, t, m0, m1, m2, G0, G1, G2, R):
     return m0, m1, m2, G0, G1, G2, turn_rows(R, axis, c, s, r)
 
 
+#: the number of flows of :func:`free_flow_stage`
+FREE_FLOW_STAGES = 5
+
+
 @lane
-def free_flow(inertia, t, m0, m1, m2, G0, G1, G2, R):
-    """The free rigid body over a time t by the symmetric splitting
-    T¹_{t/2} T²_{t/2} T³_t T²_{t/2} T¹_{t/2} of its kinetic energy (each
-    flow exact, five divisions): a Poisson map that keeps |μ|, |Γ|, Γ·μ
-    and the orthogonality of R to round-off."""
-    h2 = 0.5 * t
-    m0, m1, m2, G0, G1, G2, R = _axis_flow(inertia, 0, h2, m0, m1, m2, G0, G1, G2, R)
-    m0, m1, m2, G0, G1, G2, R = _axis_flow(inertia, 1, h2, m0, m1, m2, G0, G1, G2, R)
-    m0, m1, m2, G0, G1, G2, R = _axis_flow(inertia, 2, t, m0, m1, m2, G0, G1, G2, R)
-    m0, m1, m2, G0, G1, G2, R = _axis_flow(inertia, 1, h2, m0, m1, m2, G0, G1, G2, R)
-    return _axis_flow(inertia, 0, h2, m0, m1, m2, G0, G1, G2, R)
+def free_flow_stage(inertia, stage, t, m0, m1, m2, G0, G1, G2, R):
+    """Flow number ``stage`` (a literal, 0 … 4) of the free rigid body over a
+    time t, the symmetric splitting T¹_{t/2} T²_{t/2} T³_t T²_{t/2} T¹_{t/2}
+    of its kinetic energy, in time order: each flow exact, one division
+    each; the five together are a Poisson map that keeps |μ|, |Γ|, Γ·μ and
+    the orthogonality of R to round-off."""
+    if stage == 0 or stage == 4:
+        return _axis_flow(inertia, 0, 0.5 * t, m0, m1, m2, G0, G1, G2, R)
+    if stage == 1 or stage == 3:
+        return _axis_flow(inertia, 1, 0.5 * t, m0, m1, m2, G0, G1, G2, R)
+    return _axis_flow(inertia, 2, t, m0, m1, m2, G0, G1, G2, R)
 
 
 class _ThermalExpansion(ScalarTerm):
