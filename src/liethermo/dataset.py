@@ -41,10 +41,11 @@ def node_energies(traj: Trajectory) -> dict:
     phys = traj.physics
     sigma = traj.sigma
     om = traj.omega
-    s = sigma if traj.layout.has("sigma") else None
+    s = sigma if traj.thermo else None
     K = ph.kinetic_energy(phys, om, s)
     V = ph.potential_energy(phys, traj.gamma)
-    dU = ph.internal_energy_change(phys, sigma)
+    heat = traj.part("heat")  # the splittings carry U − U₀ itself
+    dU = ph.internal_energy_change(phys, sigma) if heat is None else heat[..., 0]
     T = ph.temperature(phys, om, sigma)
     return {"omega": om, "K": K, "V": V, "dU": dU, "T": T}
 
@@ -55,10 +56,11 @@ def initial_energy(phys: ph.Physics, omega0: np.ndarray, R0: np.ndarray) -> tupl
 
 
 def _momentum(traj: Trajectory, omega: np.ndarray) -> np.ndarray:
-    """μ at the nodes: the variational integrators' node momentum, else 𝕀(S)Ω."""
-    if traj.family == "vi":
+    """μ at the nodes: the variational integrators' node momentum and the
+    splittings' state, else 𝕀(S)Ω."""
+    if traj.momentum is not None:
         return traj.momentum
-    scale = ph.inertia_scale(traj.physics, traj.sigma if traj.layout.has("sigma") else None)
+    scale = ph.inertia_scale(traj.physics, traj.sigma if traj.thermo else None)
     scale = scale[..., None] if isinstance(scale, np.ndarray) else scale
     return scale * traj.physics.inertia[:, None, :] * omega
 
@@ -129,7 +131,7 @@ def _trajectory_dataset(traj, omega0, R0, member_offset):
     data.update(term_variables(phys))
     if vi:
         step = traj.omega_step
-        s = traj.sigma if traj.layout.has("sigma") else None
+        s = traj.sigma if traj.thermo else None
         Kp = ph.kinetic_energy(phys, step, s)
         dEp = (Kp - K0[:, None]) + (e["V"] - V0[:, None]) + e["dU"]
         data["omega_step"] = _var(step, dims_v, "rad s-1",

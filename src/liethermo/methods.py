@@ -73,8 +73,9 @@ class Method:
     @property
     def layout(self) -> str:
         """The state layout its kernels keep: "vi" (node values and the step
-        velocity) or "rk" (the explicit methods' node values (Ω, Γ, σ, R))."""
-        return "vi" if self.family == "vi" else "rk"
+        velocity), "split" (μ, Γ, the heat q, R) or "rk" (the explicit
+        methods' node values (Ω, Γ, σ, R))."""
+        return self.family if self.family in ("vi", "split") else "rk"
 
     def substeps(self, composition: str = "small_error") -> tuple[float, ...]:
         """vi, split: the factors f_i of the substeps h_i = f_i h of one step

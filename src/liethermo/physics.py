@@ -339,6 +339,13 @@ def internal_energy_change(phys: Physics, sigma: np.ndarray) -> np.ndarray:
     return cv * bcast(phys.T0, sigma) * np.expm1(sigma / cv)
 
 
+def entropy_of_heat(phys: Physics, heat: np.ndarray) -> np.ndarray:
+    """σ = S − S₀ (J K⁻¹) of a body that absorbed ``heat`` = U − U₀ (J):
+    c_v log1p(q/(c_v T₀)), the inverse of :func:`internal_energy_change`."""
+    cv = bcast(phys.heat_capacity, heat)
+    return cv * np.log1p(heat / (cv * bcast(phys.T0, heat)))
+
+
 def temperature(phys: Physics, omega: np.ndarray, sigma: np.ndarray) -> np.ndarray:
     """T = −∂L/∂S in K: θ(S), less ½Ω·𝕀′(S)Ω = φφ′ Ω·𝕀₀Ω for an entropy-dependent inertia."""
     th = theta(phys, sigma)

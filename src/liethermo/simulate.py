@@ -23,7 +23,7 @@ from .kernels.steppers import Explicit, Split, Variational
 from .kernels.layout import STATUS_MEANINGS, STATUS_NEWTON, STATUS_NONFINITE, STATUS_OK  # noqa: F401
 from .kernels.layout import StateLayout
 from .methods import ENTROPY_UPDATES, FRICTION, STARTS, Method, get_method
-from .physics import KernelModel, Physics, build_model, node_velocity, potential_span
+from .physics import KernelModel, Physics, build_model, entropy_of_heat, node_velocity, potential_span
 
 #: Reference substep: h_ref · ω_bound ≤ this, small enough that the reference's
 #: own error stays at round-off on the built-in scenes (tests/test_convergence.py)
@@ -111,8 +111,17 @@ class Trajectory:
         return self.part("gamma")
 
     @property
+    def thermo(self) -> bool:
+        """Whether the state carries the entropy (or the heat): something dissipates."""
+        return self.layout.has("sigma") or self.layout.has("heat")
+
+    @property
     def sigma(self) -> np.ndarray:
-        """σ = S − S₀ (J K⁻¹); zeros when nothing dissipates (S stays S₀)."""
+        """σ = S − S₀ (J K⁻¹); zeros when nothing dissipates (S stays S₀).
+        The splittings carry the heat q = U − U₀ instead: σ = S(U₀ + q) − S₀."""
+        q = self.part("heat")
+        if q is not None:
+            return entropy_of_heat(self.physics, q[..., 0])
         s = self.part("sigma")
         if s is None:
             z = np.zeros(self.states.shape[:-1])
@@ -126,6 +135,8 @@ class Trajectory:
         if self.family == "vi":
             return node_velocity(self.physics, self.part("momentum"), self.part("sigma")[..., 0]
                                  if self.layout.has("sigma") else None)
+        if self.layout.has("momentum"):  # the splittings: constant inertia
+            return node_velocity(self.physics, self.part("momentum"), None)
         return self.part("omega")
 
     @property
@@ -177,10 +188,14 @@ def _ensure_compiled(fn, args) -> float:
     return time.perf_counter() - t0
 
 
-def _rk_initial(layout: StateLayout, omega0, R0) -> np.ndarray:
+def _explicit_initial(layout: StateLayout, physics: Physics, omega0, R0) -> np.ndarray:
+    """The initial state of the ``rk`` (Ω) or ``split`` (μ = 𝕀Ω, no heat yet) layout."""
     N = omega0.shape[0]
     Y = np.zeros((N, layout.size))
-    Y[:, layout.slice("omega")] = omega0
+    if layout.has("omega"):
+        Y[:, layout.slice("omega")] = omega0
+    else:
+        Y[:, layout.slice("momentum")] = physics.inertia * omega0
     Y[:, layout.slice("gamma")] = R0[:, 2, :]  # Γ = Rᵀe₃ = third row of R
     if layout.has("attitude"):
         Y[:, layout.slice("attitude")] = R0.reshape(N, 9)
@@ -287,14 +302,14 @@ def simulate(
     if threads is None and N < SMALL_ENSEMBLE:
         threads = 1  # a few members: waking threads costs more than it gains
 
-    if m.layout == "rk":
+    if m.layout in ("rk", "split"):
         tab = m.kernel_tableau(composition)
-        Y = _rk_initial(layout, omega0, R0)
+        Y = _explicit_initial(layout, physics, omega0, R0)
         nsub = 1
         if m.name == "reference":
             nsub = int(ref_substeps) if ref_substeps else 0
             IS[:, _lay.IS_NSUB] = reference_substeps(h, physics, omega0)
-        stepper = (Split(tab, int(nsub), type(tab).factors) if m.family == "split"
+        stepper = (Split(tab, int(nsub), type(tab).factors) if m.layout == "split"
                    else Explicit(tab, int(nsub)))
     else:
         from .kernels import vi as _vi

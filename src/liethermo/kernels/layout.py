@@ -5,6 +5,12 @@ State of a member, by method family (parts absent from a model are not stored):
 * ``rk`` (explicit Runge–Kutta and the reference):
   ``omega`` Ω (3, rad s⁻¹), ``gamma`` Γ (3), ``sigma`` σ = S − S₀ (1, J K⁻¹;
   only with thermodynamics), ``attitude`` R row-major (9; only if integrated);
+* ``split`` (the splitting integrators): ``momentum`` μ = 𝕀Ω, the body
+  angular momentum (3, kg m² s⁻¹), ``gamma`` Γ (3), ``heat`` q = U − U₀, the
+  heat absorbed since the start (1, J; only with thermodynamics),
+  ``attitude`` (9; only if integrated) — what its flows move, so that a step
+  neither divides by 𝕀 nor converts heat into entropy (Ω = 𝕀⁻¹μ and
+  S = S(U₀ + q) at output);
 * ``vi`` (the variational integrator in node form):
   ``omega_step`` X = Ω_k, the step velocity of the step that starts at the
   node (3), ``gamma`` Γ_k (3), ``sigma`` σ_k (1), ``momentum`` μ_k, the body
@@ -13,7 +19,7 @@ State of a member, by method family (parts absent from a model are not stored):
   together), ``attitude`` (9).
 
 In the kernels a state is a tuple of parts, ``None`` for an absent one:
-``(Ω, Γ, σ, R)`` or ``(X, Γ, σ, μ, σₙ, R)``.  :func:`state_layout` gives the
+``(Ω, Γ, σ, R)``, ``(μ, Γ, q, R)`` or ``(X, Γ, σ, μ, σₙ, R)``.  :func:`state_layout` gives the
 columns of the flat arrays the Python layer holds; the generic functions
 :func:`load_rk_state` / :func:`store_rk_state` (and the ``vi`` pair) move a
 state between those columns, strided by ``stride`` from ``base`` in a flat
@@ -71,6 +77,9 @@ def state_parts(tr: Traits, family: str) -> list[tuple[str, int]]:
     """(name, size) of the parts, in tuple order, None-parts with size 0."""
     if family == "rk":
         return [("omega", 3), ("gamma", 3), ("sigma", 1 if tr.thermo else 0),
+                ("attitude", 9 if tr.attitude else 0)]
+    if family == "split":
+        return [("momentum", 3), ("gamma", 3), ("heat", 1 if tr.thermo else 0),
                 ("attitude", 9 if tr.attitude else 0)]
     if family == "vi":
         return [("omega_step", 3), ("gamma", 3), ("sigma", 1 if tr.thermo else 0),
@@ -165,6 +174,7 @@ def _make_io(family: str):
 
 load_rk_state, store_rk_state = _make_io("rk")
 load_vi_state, store_vi_state = _make_io("vi")
+load_split_state, store_split_state = _make_io("split")
 
 
 def state_size(model, family: str) -> int:

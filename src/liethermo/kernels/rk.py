@@ -102,7 +102,7 @@ def explicit_step(tab, model, y, h, exact):
     """(y', small): one step of size h of the tableau ``tab`` from the
     ``rk``-layout state y; ``small`` says whether every stage's inline exp was
     valid (always with ``exact``).  A splitting marker (:mod:`.split`) takes
-    its own step."""
+    its own step, on the ``split``-layout state."""
     cls = type(tab)
     if isinstance(tab, Splitting):
         return split_step(tab, model, y, h, exact)

@@ -40,8 +40,10 @@ from ._jit import jit, lane
 from .gen import abs_or_zero, tree_finite, unflatten
 from .layout import (FS_MAX_H_OMEGA, IS_FAIL_STEP, IS_NEWTON_MAX, IS_NEWTON_TOTAL, IS_NSUB,
                      IS_STATUS, IS_STEPS, NEWTON_OK, STATUS_NEWTON, STATUS_NONFINITE, STATUS_OK,
-                     load_rk_state, load_vi_state, store_rk_state, store_vi_state)
+                     load_rk_state, load_split_state, load_vi_state, store_rk_state,
+                     store_split_state, store_vi_state)
 from .rk import explicit_step
+from .split import split_speed2
 from .so3 import norm2_lane
 from .steppers import by_stepper
 from .equations import omega_rate
@@ -76,7 +78,11 @@ def _vi_member_load(stepper, md, row):
     return load_vi_state(md, row, 0, 1)
 
 
-member_load = by_stepper(member_load, _vi_member_load)
+def _split_member_load(stepper, md, row):
+    return load_split_state(md, row, 0, 1)
+
+
+member_load = by_stepper(member_load, _vi_member_load, split=_split_member_load)
 
 
 def member_store(stepper, md, row, y):
@@ -88,7 +94,20 @@ def _vi_member_store(stepper, md, row, y):
     store_vi_state(md, row, 0, 1, y)
 
 
-member_store = by_stepper(member_store, _vi_member_store)
+def _split_member_store(stepper, md, row, y):
+    store_split_state(md, row, 0, 1, y)
+
+
+member_store = by_stepper(member_store, _vi_member_store, split=_split_member_store)
+
+
+def speed2(stepper, md, y):
+    """|Ω|² of an explicit method's state (the statistic max h|Ω|)."""
+    w = y[0]
+    return norm2_lane(w[0], w[1], w[2])
+
+
+speed2 = by_stepper(speed2, lambda stepper, md, y: 0.0, split=lambda stepper, md, y: split_speed2(md, y))
 
 
 def member_sizes(stepper, h, ISTAT, m):
@@ -108,8 +127,7 @@ def member_step(stepper, md, y, h, sizes, w2, ISTAT, m):
     the state at the start of the step when status is not STATUS_OK.
     Explicit: the substeps ``sizes`` of the tableau (or the splitting)."""
     hs, ns = sizes
-    w = y[0]
-    ww = norm2_lane(w[0], w[1], w[2])
+    ww = speed2(stepper, md, y)
     w2 = ww if ww > w2 else w2
     yn = y
     for _s in range(ns):

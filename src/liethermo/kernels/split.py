@@ -14,14 +14,16 @@ and T is the free rotation T¹_{t/2} T²_{t/2} T³_t T²_{t/2} T¹_{t/2}
 step of size h composes Strang steps of sizes f_k h.  Every flow is the
 exact flow of a sub-system, so the step keeps |Γ| and RᵀR = I to
 round-off, is a Poisson map without friction, and moves the heat exactly:
-the friction flow takes kinetic energy ΔK and the step adds the sum q of
-the ΔK of its flows to the internal energy, U(S′) = U(S) + q (one
-conversion per step, :func:`.terms.thermo.entropy_step`; q and σ = S − S₀
-are small numbers, never T or U, whose size would swamp them).
+the friction flow takes kinetic energy ΔK and the step adds the sum of
+the ΔK of its flows to the heat absorbed since the start, q = U − U₀ (a
+small number, never T or U, whose size would swamp it).
 
-The state is the ``rk`` layout's (Ω, Γ, σ, R): the step takes μ = 𝕀Ω at its
-start and gives Ω = 𝕀⁻¹μ at its end, so both ensemble kernels run it through
-the explicit methods' loops (:func:`.rk.explicit_step`) and agree bit for bit.
+The state is the ``split`` layout's (μ, Γ, q, R), what the flows move: a
+step neither divides by 𝕀 nor turns heat into entropy; Ω = 𝕀⁻¹μ and
+S = S(U₀ + q) are worked out at output.  The step is five stages per Strang
+step (:func:`split_stage`); the one-member kernel runs them one after the
+other (:func:`.rk.explicit_step`), the block kernel each over its lanes in
+turn, with the same bits.
 
 Terms without an exact flow (capability ``"exact_flow"``) cannot be split:
 a scene with one is refused before any work.
@@ -34,11 +36,11 @@ from collections import namedtuple
 
 from numba.extending import overload
 
-from ._jit import LANE_OPTIONS, fma, lane
-from .gen import compile_source, has_capability
+from ._jit import LANE_OPTIONS, lane
+from .gen import compile_source, has_capability, none_dispatch
+from .so3 import norm2_lane
 from .terms import flow_backward, flow_forward
 from .terms.inertia import FREE_FLOW_STAGES, free_flow_stage
-from .terms.thermo import SYMMETRIC, entropy_step
 
 
 class Splitting(tuple):
@@ -86,21 +88,19 @@ def can_split(model) -> str | None:
 
 
 @lane
-def _quotient(m, I, iI):
-    """m/I without a division: q = m·(1/I) and one correction by the exact
-    residual m − Iq.  The product alone is off by the rounding of 1/I, the same
-    sign every step, which after 10⁵ steps left an error floor near 1e-11."""
-    q = m * iI
-    return fma(fma(-I, q, m), iI, q)
+def split_begin(model, y):
+    """The work state z = (μ, Γ, q, R) of a step from the ``split`` layout
+    state y = (μ, Γ, q₀, R): the heat of the step starts at 0."""
+    m, G, q0, R = y
+    return m, G, 0.0, R
 
 
 @lane
-def split_begin(model, y):
-    """The work state z = (μ, Γ, q, R) of a step from the ``rk`` layout state
-    y = (Ω, Γ, σ, R): μ = 𝕀Ω and no heat yet."""
-    w, G, s, R = y
+def split_speed2(model, y):
+    """|Ω|² of the ``split`` layout state y (Ω = 𝕀⁻¹μ; the statistic max h|Ω|)."""
+    m = y[0]
     I = model.inertia
-    return (I.I1 * w[0], I.I2 * w[1], I.I3 * w[2]), G, 0.0, R
+    return norm2_lane(m[0] * I.iI1, m[1] * I.iI2, m[2] * I.iI3)
 
 
 @lane
@@ -123,30 +123,33 @@ def split_stage(model, stage, t, z):
     return m, G, q, R
 
 
+def _add_heat(q0, q):
+    return q0 + q
+
+
+#: q₀ + q, None without thermodynamics (no heat row)
+add_heat = none_dispatch(_add_heat, lambda q0, q: None)
+
+
 @lane
-def split_end(model, y, z, exact):
-    """(y', ok): the ``rk`` layout state at the end of a step that started
-    at y with work state z: Ω = 𝕀⁻¹μ and U(S′) = U(S) + q; ``ok`` says
-    whether the inline polynomials of the heat-to-entropy conversion were
-    valid (always with ``exact``)."""
+def split_end(model, y, z):
+    """The ``split`` layout state at the end of a step that started at y with
+    work state z: the heat of the step added to the heat absorbed so far
+    (one rounding, of a sum that only grows when the step heats)."""
     m, G, q, R = z
-    I = model.inertia
-    s1, ok = entropy_step(model.thermo, SYMMETRIC, 1.0, q, y[2], exact)
-    w = (_quotient(m[0], I.I1, I.iI1), _quotient(m[1], I.I2, I.iI2), _quotient(m[2], I.I3, I.iI3))
-    return (w, G, s1, R), ok
+    return m, G, add_heat(y[2], q), R
 
 
 def split_step(tab, model, y, h, exact):
-    """(y', ok): one step of size h of the splitting ``tab`` from the ``rk``
-    layout state y = (Ω, Γ, σ, R); ``ok`` says whether the inline
-    polynomials of the heat-to-entropy conversion were valid (always with
-    ``exact``)."""
+    """(y', True): one step of size h of the splitting ``tab`` from the
+    ``split`` layout state y = (μ, Γ, q, R) (``exact`` is not used: no
+    inline polynomial of the step has a limited range)."""
     z = split_begin(model, y)
     for f in type(tab).factors:
         t = f * h
         for stage in range(FREE_FLOW_STAGES):
             z = split_stage(model, stage, t, z)
-    return split_end(model, y, z, exact)
+    return split_end(model, y, z), True
 
 
 def _split_source(cls) -> str:
@@ -155,7 +158,7 @@ def _split_source(cls) -> str:
     for k, f in enumerate(cls.factors):
         lines += [f"    t{k} = {f!r} * h"]
         lines += [f"    z = split_stage(model, {stage}, t{k}, z)" for stage in range(FREE_FLOW_STAGES)]
-    lines += ["    return split_end(model, y, z, exact)"]
+    lines += ["    return split_end(model, y, z), True"]
     return "\n".join(lines) + "\n"
 
 

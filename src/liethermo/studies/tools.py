@@ -71,7 +71,7 @@ def energy_errors(traj: Trajectory, omega0: np.ndarray, R0: np.ndarray) -> dict:
         node = (e["K"] - K0[:, None]) + dV + e["dU"]
         paper = None
         if traj.family == "vi":
-            s = traj.sigma if traj.layout.has("sigma") else None
+            s = traj.sigma if traj.thermo else None
             paper = (kinetic_energy(phys, traj.omega_step, s) - K0[:, None]) + dV + e["dU"]
     return {"node": node, "paper": paper, "scale": mechanical_energy_scale(phys, omega0, R0[:, 2, :])}
 
