@@ -120,7 +120,8 @@ def _start(model, y_row, h):
     y = L.load_vi_state(model, y_row, 0, 1)
     X, G, s, mu, sn, R = y
     v = vi.vi_coefficients(model, h, 0.5, 0.5)
-    b = vi.newton_rhs(model, v, mu[0], mu[1], mu[2], G[0], G[1], G[2])
+    r0, r1, r2 = vi.node_rhs(model, v, mu, G)
+    b = (-r0, -r1, -r2)
     ps = vi.entropy_predictor(model.inertia, model, v, X, s)
     X1, xs, code, its = vi.newton_solve(model, v, b, X, ps, s, 1.0, abs_or_zero(s), 1e-15, 50)
     L.store_vi_state(model, y_row, 0, 1, (X1, G, s, mu, vi.add_opt(s, xs), R))

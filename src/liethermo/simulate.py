@@ -132,11 +132,9 @@ class Trajectory:
     @property
     def omega(self) -> np.ndarray:
         """The node velocity Ω(t_k) (rad s⁻¹) of every method."""
-        if self.family == "vi":
+        if self.layout.has("momentum"):  # the VI's node momentum, the splittings' state
             return node_velocity(self.physics, self.part("momentum"), self.part("sigma")[..., 0]
                                  if self.layout.has("sigma") else None)
-        if self.layout.has("momentum"):  # the splittings: constant inertia
-            return node_velocity(self.physics, self.part("momentum"), None)
         return self.part("omega")
 
     @property

@@ -60,13 +60,13 @@ from .layout import (FS_MAX_H_OMEGA, IS_FAIL_STEP, IS_NEWTON_MAX, IS_NEWTON_TOTA
 from .rk import explicit_step
 from .split import split_begin, split_end, split_speed2, split_stage
 from .terms.inertia import FREE_FLOW_STAGES
-
-# the splitting sweeps below name the stages 0 … 4 of split_stage as literals
-assert FREE_FLOW_STAGES == 5
 from .so3 import norm2_lane
 from .steppers import by_stepper
 from .vi import (add_opt, newton_data, newton_iterate, newton_step, newton_stop, sub_select,
                  select_opt, vi_advance, vi_coefficients, vi_entropy, zero_like)
+
+# the splitting sweeps below name the stages 0 … 4 of split_stage as literals
+assert FREE_FLOW_STAGES == 5
 
 #: members per block (lanes)
 BLOCK = 128

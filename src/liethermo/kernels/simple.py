@@ -47,7 +47,7 @@ from .split import split_speed2
 from .so3 import norm2_lane
 from .steppers import by_stepper
 from .equations import omega_rate
-from .vi import (add_opt, entropy_predictor, momentum_map, newton_rhs, newton_solve, vi_advance,
+from .vi import (add_opt, entropy_predictor, momentum_map, newton_solve, node_rhs, vi_advance,
                  vi_coefficients)
 
 
@@ -215,7 +215,8 @@ def vi_start_members(model, shared, Y, P, m0, m1, h0, wl, wr, legendre, tol, max
         X, G, s, mu, sn, R = load_vi_state(md, Y[m], 0, 1)
         v = vi_coefficients(md, h0, wl, wr)
         if legendre:
-            b = newton_rhs(md, v, mu[0], mu[1], mu[2], G[0], G[1], G[2])
+            r0, r1, r2 = node_rhs(md, v, mu, G)
+            b = (-r0, -r1, -r2)
             d0, d1, d2 = omega_rate(md, X[0], X[1], X[2], G[0], G[1], G[2], s, True)
             hp = 0.5 * h0
             xp = (X[0] + hp * d0, X[1] + hp * d1, X[2] + hp * d2)

@@ -70,10 +70,8 @@ def splitting(factors: tuple, order: int):
 
 
 def splitting_class(t):
-    """The marker class of a splitting marker or of its numba type, else None."""
+    """The marker class of a splitting marker's numba type, else None."""
     cls = getattr(t, "instance_class", None)
-    if cls is None and isinstance(t, Splitting):
-        cls = type(t)
     return cls if isinstance(cls, type) and issubclass(cls, Splitting) and cls.factors else None
 
 

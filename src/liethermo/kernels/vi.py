@@ -505,14 +505,6 @@ def node_rhs(model, v, mu, G):
     return axpy_opt(v.hh, t0, mu[0]), axpy_opt(v.hh, t1, mu[1]), axpy_opt(v.hh, t2, mu[2])
 
 
-@lane
-def newton_rhs(model, v, mu0, mu1, mu2, G0, G1, G2):
-    """b = −(μ + (h/2) τ(Γ)): the constant part of the Newton function of a
-    step of size v.h that starts from the node (Γ, μ)."""
-    t0, t1, t2 = sum_torque(model.forces, (G0, G1, G2), NONE3)
-    return -axpy_opt(v.hh, t0, mu0), -axpy_opt(v.hh, t1, mu1), -axpy_opt(v.hh, t2, mu2)
-
-
 def entropy_predictor(inertia, model, v, X, s):
     """Δ₀ of the coupled top's first solve (None for a constant inertia)."""
     return None
