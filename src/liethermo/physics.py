@@ -34,6 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import heat as _heat
 from .kernels import gen
 from .kernels.layout import StateLayout, state_layout
 from .kernels.terms import ATTITUDE, Model, bcast, constant_inertia_part, registry
@@ -342,8 +343,7 @@ def internal_energy_change(phys: Physics, sigma: np.ndarray) -> np.ndarray:
 def entropy_of_heat(phys: Physics, heat: np.ndarray) -> np.ndarray:
     """σ = S − S₀ (J K⁻¹) of a body that absorbed ``heat`` = U − U₀ (J):
     c_v log1p(q/(c_v T₀)), the inverse of :func:`internal_energy_change`."""
-    cv = bcast(phys.heat_capacity, heat)
-    return cv * np.log1p(heat / (cv * bcast(phys.T0, heat)))
+    return _heat.entropy_of_heat(heat, bcast(phys.heat_capacity, heat), bcast(phys.T0, heat))
 
 
 def temperature(phys: Physics, omega: np.ndarray, sigma: np.ndarray) -> np.ndarray:

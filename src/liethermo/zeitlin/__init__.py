@@ -6,6 +6,22 @@
 * :mod:`.run` — initial fields, the methods' steps over a batch, the dataset;
 * :mod:`.plotting` — the vorticity on the sphere and the run's figures.
 
+``vorticity_coefficients(ds)`` gives a run's stored vorticity as its
+spherical-harmonic coefficients ω_lm (s⁻¹); ``vorticity_on_grid(W)`` its map.
+
 The model, the scheme and what each method keeps:
 docs/model.md, "A second Lie group: the thermodynamic Zeitlin fluid".
 """
+
+
+def __getattr__(name):
+    # the readers of a run's vorticity, imported on first use (they need xarray and scipy)
+    if name == "vorticity_coefficients":
+        from .run import vorticity_coefficients
+
+        return vorticity_coefficients
+    if name == "vorticity_on_grid":
+        from .plotting import vorticity_on_grid
+
+        return vorticity_on_grid
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

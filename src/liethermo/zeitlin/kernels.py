@@ -8,11 +8,22 @@ batch ``(members, N, N)`` of complex128.  Conventions:
   It maps each diagonal d of W (entries W[i, i+d]) to itself, as a symmetric
   tridiagonal matrix: applied and inverted in O(N²);
 * ħ = 2/√(N²−1); Ẇ = (1/ħ)[P, W] + ν(Δ_N + 2)W with P = Δ_N⁻¹W;
-* ⟨A, B⟩ = −tr(AB); energy H = ½⟨W, −P⟩, enstrophy ½⟨W, W⟩;
-* the modes: diagonal d ≥ 0 of W expanded in the orthonormal eigenvectors of
-  its tridiagonal block, coefficient c[d, l] for l = d … N−1; the eigenvectors
-  are the quantized spherical harmonics T_lm (m = d), signed so that their
-  coherent-state symbol is a positive multiple of Y_lm.
+* the quantized harmonics T_lm: the orthonormal (tr T T† = 1) eigenvectors of
+  Δ_N, T_lm on diagonal m, with the phases of the spherical harmonics
+  (Condon–Shortley): T_ll = (−1)^l J_+^l/‖J_+^l‖ and
+  [J_−, T_lm] = √((l+m)(l−m+1)) T_l,m−1, so that conjugation by SU(N) acts on
+  the T_lm exactly as rotations act on the Y_lm, at every N;
+* the physical field (Berezin–Toeplitz): W = i√(N/4π) Σ_lm ω_lm T_lm is the
+  matrix of the vorticity ω = Σ ω_lm Y_lm (s⁻¹) on the unit sphere, and
+  (1/ħ)[P, W] advects it at the rate of Euler's equations (a Rossby–Haurwitz
+  wave of degree l on a solid-body rotation Ω_b turns at Ω_b(1 − 2/(l(l+1)))
+  exactly, at every N).  Traces become integrals: (4π/N) tr(f(−iW)) ≈ ∫ f(ω) dA;
+  for quadratic quantities the relation is exact (∫ω² dA = (4π/N)‖W‖²);
+* the modes: ω_lm for m ≥ 0, packed by diagonal m (``offset[m] + l − m``);
+  ω_l,−m = (−1)^m conj(ω_lm) because ω is real, so a mode with m ≥ 1 counts
+  twice in sums over all (l, m) (:func:`mode_weights`).  Energy
+  H = ½∫|u|² dA = ½ Σ |ω_lm|²/(l(l+1)), enstrophy ½∫ω² dA, in the units of a
+  layer of unit surface density on a sphere of radius 1 m (J and m² s⁻²).
 """
 
 from __future__ import annotations
@@ -80,6 +91,16 @@ class Basis:
         return int(self.offset[-1])
 
     @property
+    def alpha(self) -> float:
+        """√(N/4π): W = iα Σ ω_lm T_lm (the Berezin–Toeplitz scale)."""
+        return math.sqrt(self.N / (4.0 * math.pi))
+
+    @property
+    def area(self) -> float:
+        """4π/N = 1/α²: the area of the sphere per quantum state ((4π/N) tr ↔ ∫ dA)."""
+        return 4.0 * math.pi / self.N
+
+    @property
     def lam(self) -> np.ndarray:
         """l(l+1) of each mode."""
         return self.ell * (self.ell + 1.0)
@@ -89,9 +110,7 @@ def _block(N: int, d: int) -> tuple[np.ndarray, np.ndarray]:
     """Main and off-diagonal of −Δ_N restricted to diagonal d."""
     s = (N - 1) / 2.0
     m = s - np.arange(N)
-    c = np.zeros(N + 1)
-    for k in range(1, N):
-        c[k] = math.sqrt(s * (s + 1) - m[k] * (m[k] + 1))
+    c = _ladder_coefficients(N)
     n = N - d
     i = np.arange(n)
     a = 2.0 * (s * (s + 1) - m[i] * m[i + d])
@@ -99,14 +118,52 @@ def _block(N: int, d: int) -> tuple[np.ndarray, np.ndarray]:
     return a, b
 
 
-def _coherent(N: int, theta: float, phi: float) -> np.ndarray:
-    """Spin coherent state |θ, φ⟩ in the basis m_i = s − i (|s⟩ at the north pole)."""
+def _ladder_coefficients(N: int) -> np.ndarray:
+    """c[k] = ⟨m_{k−1}|J_+|m_k⟩ = √(s(s+1) − m_k(m_k+1)), k = 1 … N−1 (c[0] = c[N] = 0)."""
     s = (N - 1) / 2.0
     m = s - np.arange(N)
-    k = (s - m).astype(int)  # 0 … N-1
-    logc = np.array([0.5 * (math.lgamma(N) - math.lgamma(kk + 1) - math.lgamma(N - kk)) for kk in k])
-    amp = np.exp(logc) * np.cos(theta / 2) ** (N - 1 - k) * np.sin(theta / 2) ** k
-    return amp * np.exp(-1j * m * phi)
+    c = np.zeros(N + 1)
+    for k in range(1, N):
+        c[k] = math.sqrt(s * (s + 1) - m[k] * (m[k] + 1))
+    return c
+
+
+def _lower(v: np.ndarray, m: int, c: np.ndarray) -> np.ndarray:
+    """Diagonal m − 1 of [J_−, X], X holding ``v`` on diagonal m (m ≥ 1): O(N)."""
+    n = len(v)
+    u = np.zeros(n + 1)
+    u[1:] += c[1:n + 1] * v              # (J_− X)[i, i+m−1] = c_i v_{i−1}
+    u[:n] -= v * c[m:m + n]              # (X J_−)[i, i+m−1] = v_i c_{i+m}
+    return u
+
+
+def _orient(vs: list, N: int) -> None:
+    """Give each block's eigenvectors (columns of ``vs[m]``, degrees l = m … N−1)
+    the phases of the spherical harmonics, in place.
+
+    T_ll is a multiple of J_+^l (the extremal weight), whose entries on
+    diagonal l are all positive: its sign is (−1)^l, as Y_ll ∝ (−1)^l (x + iy)^l.
+    Going down, T_l,m−1 = [J_−, T_lm]/√((l+m)(l−m+1)), the lowering of the
+    Condon–Shortley harmonics.  Each rule compares whole vectors, never a single
+    entry (entries of the high degrees fall below round-off as N grows), so it
+    holds at every N; the ladder's length is checked as it goes."""
+    c = _ladder_coefficients(N)
+    if vs[0][:, 0].sum() < 0:  # T_00 ∝ the identity, as Y_00 > 0
+        vs[0][:, 0] = -vs[0][:, 0]
+    for l in range(1, N):
+        top = vs[l][:, 0]
+        if (top.sum() < 0) != (l % 2 == 1):
+            vs[l][:, 0] = -top
+        for m in range(l, 0, -1):
+            u = _lower(vs[m][:, l - m], m, c)
+            v = vs[m - 1][:, l - m + 1]
+            dot = float(u @ v)
+            want = math.sqrt((l + m) * (l - m + 1.0))
+            if abs(abs(dot) - want) > 1e-8 * want:
+                raise ArithmeticError(f"harmonic (l, m) = ({l}, {m - 1}) of N = {N}: [J_-, T_lm] has length "
+                                      f"{abs(dot)!r} along it, not {want!r}")
+            if dot < 0:
+                vs[m - 1][:, l - m + 1] = -v
 
 
 @functools.lru_cache(maxsize=16)
@@ -114,7 +171,6 @@ def basis(N: int) -> Basis:
     if not (isinstance(N, (int, np.integer)) and N >= 2):
         raise ValueError(f"N must be an integer of at least 2, not {N!r}")
     from scipy.linalg import eigh_tridiagonal
-    from scipy.special import sph_harm_y
 
     N = int(N)
     offset = np.zeros(N + 1, dtype=np.int64)
@@ -129,24 +185,22 @@ def basis(N: int) -> Basis:
     off = np.zeros(K)
     tc = np.zeros(K)
     tinv = np.zeros(K)
-    theta0, phi0 = 1.1, 0.0  # a generic point: fixes each T_lm's sign against Y_lm
-    z = _coherent(N, theta0, phi0)
+    blocks, vs = [], []
     for d in range(N):
         a, b = _block(N, d)
-        n = N - d
         w, v = eigh_tridiagonal(a, b)
         ls = np.arange(d, N)
         if not np.allclose(w, ls * (ls + 1.0), rtol=1e-9, atol=1e-9 * N * N):
             raise ArithmeticError(f"Laplacian block {d} of N = {N}: eigenvalues {w} are not l(l+1)")
-        for j, l in enumerate(ls):
-            # symbol <z|T|z> of the matrix with v[:, j] on diagonal d; positive multiple of Y_l^d
-            sym = np.sum(np.conj(z[:n]) * v[:, j] * z[d:])
-            y = sph_harm_y(l, d, theta0, phi0)
-            if (sym * np.conj(y)).real < 0:
-                v[:, j] = -v[:, j]
+        blocks.append((a, b))
+        vs.append(v)
+    _orient(vs, N)
+    for d in range(N):
+        a, b = blocks[d]
+        n = N - d
         o = offset[d]
-        ell[o:o + n] = ls
-        vecs[voff[d]:voff[d + 1]] = v.ravel()
+        ell[o:o + n] = np.arange(d, N)
+        vecs[voff[d]:voff[d + 1]] = vs[d].ravel()
         diag[o:o + n] = a
         off[o:o + n - 1] = b
         if d >= 1:  # Thomas factors (non-singular: eigenvalues ≥ 2)
@@ -209,41 +263,42 @@ def _blocks(b: Basis, R: np.ndarray, transpose: bool) -> np.ndarray:
 
 
 def to_modes(W: np.ndarray, b: Basis) -> np.ndarray:
-    """Mode coefficients c[d, l] (packed, (members, K)) of the upper diagonals of W."""
+    """The vorticity's coefficients ω_lm (m ≥ 0, packed, (members, K), s⁻¹) of
+    the field whose matrix is W: ω_lm = −i⟨T_lm, W⟩/α from W's upper diagonals."""
     W = np.ascontiguousarray(W, dtype=np.complex128)
     M = W.shape[0]
     R = np.empty((2 * M, b.modes))
     _gather_diagonals(W, b.offset, R)
     Y = _blocks(b, R, False)
-    return Y[:M] + 1j * Y[M:]
+    return (Y[M:] - 1j * Y[:M]) / b.alpha
 
 
 def from_modes(C: np.ndarray, b: Basis) -> np.ndarray:
-    """The skew-Hermitian W whose upper diagonals have the mode coefficients C
-    (the real part of block 0's coefficients is dropped: W's diagonal is imaginary)."""
+    """The matrix W = iα Σ ω_lm T_lm of the real field with coefficients C
+    (m ≥ 0; the imaginary part of the m = 0 coefficients is dropped: ω is real)."""
     C = np.asarray(C, dtype=np.complex128)
-    Y = _blocks(b, np.concatenate([C.real, C.imag]), True)
+    Y = _blocks(b, np.concatenate([-b.alpha * C.imag, b.alpha * C.real]), True)
     W = np.empty((C.shape[0], b.N, b.N), dtype=np.complex128)
     _scatter_diagonals(Y, b.offset, W)
     return W
 
 
 def mode_weights(b: Basis) -> np.ndarray:
-    """1 for block 0, 2 for d ≥ 1 (the diagonal −d mirrors d): ⟨W, W⟩ = Σ weight·|c|²."""
+    """1 for m = 0, 2 for m ≥ 1 (ω_l,−m mirrors ω_lm): ∫ω² dA = Σ weight·|ω_lm|²."""
     w = np.full(b.modes, 2.0)
     w[: b.N] = 1.0
     return w
 
 
 def energy_of_modes(C: np.ndarray, b: Basis) -> np.ndarray:
-    """H = ½⟨W, −P⟩ = ½ Σ weight |c|² / l(l+1) (the l = 0 mode carries nothing)."""
+    """H = ½∫|u|² dA = ½ Σ weight |ω_lm|² / l(l+1) in J (the l = 0 mode carries nothing)."""
     lam = b.lam
     inv = np.where(lam > 0, 1.0 / np.where(lam > 0, lam, 1.0), 0.0)
     return 0.5 * (np.abs(C) ** 2 * (mode_weights(b) * inv)).sum(axis=-1)
 
 
 def spectrum_of_modes(C: np.ndarray, b: Basis) -> np.ndarray:
-    """E_l, l = 1 … N−1: the energy of degree l (Σ_l E_l = H)."""
+    """E_l in J, l = 1 … N−1: the energy of degree l (Σ_l E_l = H)."""
     lam = b.lam
     inv = np.where(lam > 0, 1.0 / np.where(lam > 0, lam, 1.0), 0.0)
     e = 0.5 * np.abs(C) ** 2 * (mode_weights(b) * inv)
@@ -437,7 +492,8 @@ def _fixed_point_update(W, X, XA, D, Wt, change):
 
 
 def rhs(W: np.ndarray, nu: float, b: Basis) -> tuple[np.ndarray, np.ndarray]:
-    """(Ẇ, q̇): the vector field and the heat rate ν⟨(Δ+2)W, P⟩ ≥ 0."""
+    """(Ẇ, q̇): the vector field and the heat rate in W (J s⁻¹),
+    (4π/N)·ν⟨(Δ+2)W, P⟩ ≥ 0, with ⟨A, B⟩ = −tr(AB)."""
     P = laplacian_inverse(W, b)
     X = P @ W
     dW = (X - _dagger(X)) / b.hbar
@@ -445,7 +501,7 @@ def rhs(W: np.ndarray, nu: float, b: Basis) -> tuple[np.ndarray, np.ndarray]:
         return dW, np.zeros(W.shape[0])
     V = laplacian(W, b) + 2.0 * W
     dW = dW + nu * V
-    qdot = -nu * np.einsum("kij,kji->k", V, P).real  # ν⟨V, P⟩ = −ν tr(VP)
+    qdot = -(nu * b.area) * np.einsum("kij,kji->k", V, P).real  # (4π/N)ν⟨V, P⟩ = −(4π/N)ν tr(VP)
     return dW, qdot
 
 
@@ -453,8 +509,11 @@ def rhs(W: np.ndarray, nu: float, b: Basis) -> tuple[np.ndarray, np.ndarray]:
 
 
 def casimirs(W: np.ndarray, ks=(2, 3, 4)) -> np.ndarray:
-    """tr((iW)^k): the power sums of the Hermitian iW's eigenvalues, (members, len(ks))."""
-    H = 1j * W
+    """C_k = (4π/N) tr((−iW)^k) ≈ ∫ω^k dA, (members, len(ks)), in m² s⁻ᵏ: the
+    power sums of the Hermitian vorticity matrix −iW's eigenvalues, scaled to
+    integrals over the unit sphere (C_2 = ∫ω² dA exactly)."""
+    N = W.shape[-1]
+    H = -1j * W
     out = np.empty(W.shape[:-2] + (len(ks),))
     P = H
     power = 1
@@ -462,27 +521,37 @@ def casimirs(W: np.ndarray, ks=(2, 3, 4)) -> np.ndarray:
         while power < k:
             P = P @ H
             power += 1
-        out[..., j] = np.trace(P, axis1=-2, axis2=-1).real
+        out[..., j] = (4.0 * math.pi / N) * np.trace(P, axis1=-2, axis2=-1).real
     return out
 
 
-def angular_momentum(W: np.ndarray) -> np.ndarray:
-    """L_a = ⟨W, iJ_a⟩ / |iJ_a|, the l = 1 part of W, (members, 3)."""
-    N = W.shape[-1]
-    norm = math.sqrt(N * (N * N - 1) / 12.0)
-    out = np.empty(W.shape[:-2] + (3,))
-    for a, J in enumerate(spin_matrices(N)):
-        out[..., a] = (-np.einsum("...ij,ji->...", W, 1j * J)).real / norm
+def angular_momentum(W: np.ndarray, b: Basis) -> np.ndarray:
+    """L = ∫ x ω dA of the field of each W (see :func:`angular_momentum_of_modes`)."""
+    return angular_momentum_of_modes(to_modes(W, b), b)
+
+
+def angular_momentum_of_modes(C: np.ndarray, b: Basis) -> np.ndarray:
+    """L = ∫ x ω dA (m³ s⁻¹ on the unit sphere; the angular momentum σ∫x × u dA
+    of a layer of unit surface density σ), from the l = 1 coefficients
+    ω_10 and ω_11: (members, 3).  A solid-body
+    rotation Ω has ω = 2Ω·x and L = (8π/3)Ω."""
+    w10, w11 = C[..., 1].real, C[..., b.offset[1]]
+    out = np.empty(C.shape[:-1] + (3,))
+    out[..., 0] = -math.sqrt(8 * math.pi / 3) * w11.real
+    out[..., 1] = math.sqrt(8 * math.pi / 3) * w11.imag
+    out[..., 2] = math.sqrt(4 * math.pi / 3) * w10
     return out
 
 
 def enstrophy(W: np.ndarray) -> np.ndarray:
-    return 0.5 * (np.abs(W) ** 2).sum(axis=(-2, -1))
+    """Z = ½∫ω² dA = (4π/N)·½‖W‖², in m² s⁻²."""
+    return (2.0 * math.pi / W.shape[-1]) * (np.abs(W) ** 2).sum(axis=(-2, -1))
 
 
 def diagnostics(W: np.ndarray, b: Basis) -> dict:
-    """What a run records of a batch W: energy H, spectrum E_l, Casimirs
-    tr((iW)^k) for k = 2, 3, 4, angular momentum L, enstrophy Z."""
+    """What a run records of a batch W, all of the field ω that W advects:
+    energy H, spectrum E_l, Casimirs C_k for k = 2, 3, 4, angular momentum L,
+    enstrophy Z."""
     C = to_modes(W, b)
     return {"H": energy_of_modes(C, b), "spec": spectrum_of_modes(C, b), "cas": casimirs(W),
-            "L": angular_momentum(W), "Z": enstrophy(W)}
+            "L": angular_momentum_of_modes(C, b), "Z": enstrophy(W)}

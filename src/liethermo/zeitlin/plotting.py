@@ -11,22 +11,22 @@ from . import kernels as zk
 
 
 def vorticity_on_grid(W: np.ndarray, n_lat: int = 90, n_lon: int = 180):
-    """ω(θ, φ) = Σ_lm ω_lm Y_lm on a longitude–latitude grid, where ω_lm are
-    W's coefficients on the orthonormal T_lm (so ∫ω² dA = ⟨W, W⟩).  Returns
-    (lon, lat, ω) in radians, radians, s⁻¹; W is one (N, N) matrix."""
+    """ω(θ, φ) = Σ_lm ω_lm Y_lm on a longitude–latitude grid, the field whose
+    matrix is W (kernels: W = i√(N/4π) Σ ω_lm T_lm).  Returns (lon, lat, ω) in
+    radians, radians, s⁻¹; W is one (N, N) matrix."""
     b = zk.basis(W.shape[-1])
     C = zk.to_modes(W[None], b)[0]
     lat = np.linspace(-np.pi / 2, np.pi / 2, n_lat)
     lon = np.linspace(-np.pi, np.pi, n_lon)
-    Y0 = _harmonics_at_zero_longitude(b.N, n_lat)  # (modes, n_lat): Y_l^d(θ, 0), real
-    # F_d(θ) = Σ_l c_{d,l} Y_l^d(θ, 0); ω = Σ_l Im(c_{0,l}) Y_l^0 + 2 Σ_{d≥1} Im(F_d(θ) e^{idφ})
+    Y0 = _harmonics_at_zero_longitude(b.N, n_lat)  # (modes, n_lat): Y_l^m(θ, 0), real
+    # F_m(θ) = Σ_l ω_lm Y_l^m(θ, 0); ω = F_0 + 2 Σ_{m≥1} Re(F_m(θ) e^{imφ})
     F = np.zeros((b.N, n_lat), dtype=complex)
     for d in range(b.N):
         sl = slice(b.offset[d], b.offset[d + 1])
         F[d] = C[sl] @ Y0[sl]
     phase = np.exp(1j * np.outer(np.arange(b.N), lon))  # (N, n_lon)
-    om = (F[0].imag[:, None] * np.ones(n_lon)[None, :]
-          + 2.0 * (F[1:].T @ phase[1:]).imag)
+    om = (F[0].real[:, None] * np.ones(n_lon)[None, :]
+          + 2.0 * (F[1:].T @ phase[1:]).real)
     return lon, lat, om
 
 

@@ -14,6 +14,7 @@ import xarray as xr
 from .. import __version__, cf
 from ..methods import COMPOSITION_FACTORS
 from . import kernels as zk
+from .. import heat as _heat
 from .scene import ZeitlinScene
 
 #: per-member status (dataset variable ``status``)
@@ -33,12 +34,14 @@ REFERENCE_RTOL = 1e-13
 
 
 def _random_modes(b: zk.Basis, rng, lmax: int) -> np.ndarray:
+    """Random ω_lm for 1 ≤ l ≤ lmax, drawn in the order (m, l), which does not
+    depend on N: the same seed gives the same coefficients at every N."""
     C = np.zeros(b.modes, dtype=np.complex128)
     sel = (b.ell >= 1) & (b.ell <= lmax)
     n = int(sel.sum())
     re, im = rng.standard_normal(n), rng.standard_normal(n)
     C[sel] = re + 1j * im
-    C[: b.N] = 1j * C[: b.N].imag  # block 0: W's diagonal is imaginary
+    C[: b.N] = C[: b.N].real  # m = 0: ω_l0 is real
     return C
 
 
@@ -52,7 +55,10 @@ def _shape_spectrum(C: np.ndarray, b: zk.Basis, target: np.ndarray) -> np.ndarra
 
 def initial_fields(scene: ZeitlinScene, members: np.ndarray | None = None) -> np.ndarray:
     """W(0) of the given members (default: all), (members, N, N).  Member k's
-    field depends on (ensemble.seed, k) only, so any subset is reproducible."""
+    field ω = Σ ω_lm Y_lm depends on (ensemble.seed, k) only, not on N: its
+    coefficients for l ≤ initial.lmax are the same at every N, so runs at
+    different N are the same physical flow, and any subset of members is
+    reproducible."""
     z, ini, ens = scene["zeitlin"], scene["initial"], scene["ensemble"]
     b = zk.basis(z["N"])
     members = np.arange(ens["members"]) if members is None else np.asarray(members)
@@ -71,9 +77,9 @@ def initial_fields(scene: ZeitlinScene, members: np.ndarray | None = None) -> np
             C = _shape_spectrum(C, b, noise * energy * prof / prof.sum()) if noise > 0 else 0 * C
             wave = np.zeros(b.modes, dtype=np.complex128)
             m = ini["m"]
-            wave[b.offset[m] + (lmax - m)] = 1j if m == 0 else 1.0
+            wave[b.offset[m] + (lmax - m)] = 1.0  # ω ∝ Re Y_lm: a crest at φ = 0
             rot = np.zeros(b.modes, dtype=np.complex128)
-            rot[1] = 1j  # (l, m) = (1, 0): rotation about the z axis
+            rot[1] = 1.0  # (l, m) = (1, 0): ω = 2Ω_b cos θ, solid-body rotation about z (Ω_b > 0)
             modes = [rot] if (lmax, m) == (1, 0) else [rot, wave]
             for mode in modes:
                 share = (1.0 - noise) * energy / len(modes)
@@ -328,37 +334,47 @@ def trajectory_dataset(scene: ZeitlinScene, traj: Trajectory, method: str, histo
     M, T = r.q.shape
     H, spec, cas, L, ens, q = r.H, r.spec, r.cas, r.L, r.Z, r.q
     E0 = H[:, :1]
-    scale = cas[:, :1, :1] ** (np.array([2, 3, 4]) / 2.0)  # tr((iW)²)^(k/2) ≥ |tr((iW)^k)|
+    power = cas / b.area  # tr((−iW)^k), the matrix's own power sums: |tr((−iW)^k)| ≤ tr((−iW)²)^(k/2)
+    scale = power[:, :1, :1] ** (np.array([2, 3, 4]) / 2.0)
     dims_t = ("member", "t")
+    field = "of the vorticity field ω on the unit sphere (radius 1 m, unit surface density)"
     data = {
-        "energy": _var(H, dims_t, "J", "kinetic energy H = <W, -P>/2 of the fluid"),
-        "heat": _var(q, dims_t, "J", "heat absorbed q = U - U0 (the energy viscosity dissipated)"),
-        "total_energy": _var(H + q, dims_t, "J", "H + q: conserved by the model"),
-        "energy_error": _var((H + q - E0) / E0, dims_t, "1", "(H + q - H(0)) / H(0): total energy error"),
-        "entropy": _var(cv * np.log1p(q / (cv * T0)), dims_t, "J K-1",
-                        "entropy produced since t = 0, c_v log(T/T0)"),
-        "temperature": _var(T0 + q / cv, dims_t, "K", "temperature T = T0 + q/c_v"),
-        "enstrophy": _var(ens, dims_t, "s-2", "enstrophy <W, W>/2"),
-        "casimir": _var(cas, dims_t + ("k",), "1", "Casimir tr((iW)^k): power sums of W's spectrum, in s-k",
-                        comment="the unit depends on k (s-k); stored as the number of s-k, so units is 1"),
-        "casimir_drift": _var((cas - cas[:, :1]) / scale, dims_t + ("k",), "1",
-                              "(tr((iW)^k) - its value at t = 0) / tr((iW)^2)(0)^(k/2)"),
-        "angular_momentum": _var(L, dims_t + ("axis",), "s-1",
-                                 "angular momentum: the l = 1 part of W, <W, iJ_a>/|iJ_a|"),
-        "energy_spectrum": _var(spec, dims_t + ("l",), "J", "energy of degree l, E_l (sums to H)"),
-        "fixed_point_iterations": _var(traj.iterations, dims_t, "1",
-                                       "mean fixed-point iterations per step over the output interval"
-                                       " (0 for rk4 and the reference)"),
+        "energy": _var(H, dims_t, "J", "kinetic energy H",
+                       comment=f"H = ½∫|u|² dA = −½∫ψω dA {field}"),
+        "heat": _var(q, dims_t, "J", "heat absorbed q = U - U0",
+                     comment="the energy that viscosity dissipated since t = 0"),
+        "total_energy": _var(H + q, dims_t, "J", "H + q", comment="conserved by the model"),
+        "energy_error": _var((H + q - E0) / E0, dims_t, "1", "relative total energy error",
+                             comment="(H + q - H(0)) / H(0)"),
+        "entropy": _var(_heat.entropy_of_heat(q, cv, T0), dims_t, "J K-1", "entropy produced",
+                        comment="S - S0 = c_v log(T/T0) since t = 0"),
+        "temperature": _var(_heat.temperature_of_heat(q, cv, T0), dims_t, "K", "temperature",
+                            comment="T = T0 + q/c_v"),
+        "enstrophy": _var(ens, dims_t, "m2 s-2", "enstrophy Z", comment=f"Z = ½∫ω² dA {field}"),
+        "casimir": _var(cas, dims_t + ("k",), "1", "Casimir C_k",
+                        comment="C_k = (4π/N) tr((−iW)^k), which approximates ∫ω^k dA (C_2 = ∫ω² dA exactly); "
+                                "its unit depends on k (m2 s-k), so units is 1"),
+        "casimir_drift": _var((power - power[:, :1]) / scale, dims_t + ("k",), "1", "relative Casimir change",
+                              comment="(tr((−iW)^k) − its value at t = 0) / tr((−iW)²)(0)^(k/2)"),
+        "angular_momentum": _var(L, dims_t + ("axis",), "kg m2 s-1", "angular momentum L",
+                                 comment="L = σ∫x × u dA = ∫x ω dA (σ = 1 kg m-2, radius 1 m): the degree-1 "
+                                         "part of ω; a solid-body rotation Ω has L = (8π/3)Ω"),
+        "energy_spectrum": _var(spec, dims_t + ("l",), "J", "energy of degree l",
+                                comment="E_l = ½ Σ_m |ω_lm|²/(l(l+1)); Σ_l E_l = H"),
+        "fixed_point_iterations": _var(traj.iterations, dims_t, "1", "fixed-point iterations per step",
+                                       comment="mean over the output interval (0 for rk4 and the reference)"),
         "status": _var(traj.status, ("member",), "1", "member status",
                        flag_values=np.array(sorted(STATUS_MEANINGS), dtype=np.int8),
                        flag_meanings=" ".join(STATUS_MEANINGS[k] for k in sorted(STATUS_MEANINGS))),
-        "failed_step": _var(traj.failed_step, ("member",), "1",
-                            "step at which the member failed (-1: none); its later values are NaN"),
+        "failed_step": _var(traj.failed_step, ("member",), "1", "step at which the member failed",
+                            comment="-1: none; the member's later values are NaN"),
     }
     if scene["output"]["vorticity"] and r.W is not None:
         dims_w = dims_t + ("row", "col")
-        data["vorticity_real"] = _var(r.W.real, dims_w, "s-1", "real part of the vorticity matrix W")
-        data["vorticity_imag"] = _var(r.W.imag, dims_w, "s-1", "imaginary part of the vorticity matrix W")
+        how = ("W = i√(N/4π) Σ ω_lm T_lm (T_lm orthonormal quantized harmonics); "
+               "liethermo.zeitlin.vorticity_coefficients(ds) gives ω_lm in s-1")
+        data["vorticity_real"] = _var(r.W.real, dims_w, "s-1", "vorticity matrix W, real part", comment=how)
+        data["vorticity_imag"] = _var(r.W.imag, dims_w, "s-1", "vorticity matrix W, imaginary part", comment=how)
     coords = {
         "member": _var(np.arange(M), ("member",), "1", "ensemble member"),
         "t": _var(traj.times, ("t",), "s", "time since the start of the run"),
@@ -393,6 +409,26 @@ def trajectory_dataset(scene: ZeitlinScene, traj: Trajectory, method: str, histo
     return xr.Dataset(data, coords=coords, attrs=attrs)
 
 
+def vorticity_coefficients(ds: xr.Dataset) -> xr.DataArray:
+    """The coefficients ω_lm (s⁻¹, complex, m ≥ 0) of the vorticity
+    ω = Σ ω_lm Y_lm of a run that stored it (``output.vorticity = true``),
+    with dims (member, t, mode) and coordinates ``l`` and ``m`` on ``mode``
+    (orthonormal complex spherical harmonics with the Condon–Shortley phase,
+    scipy's ``sph_harm_y``; ω_l,−m = (−1)^m conj(ω_lm))."""
+    if "vorticity_real" not in ds:
+        raise ValueError("the dataset holds no vorticity: run the scene with output.vorticity = true")
+    W = ds["vorticity_real"].values + 1j * ds["vorticity_imag"].values
+    N = W.shape[-1]
+    b = zk.basis(N)
+    C = zk.to_modes(W.reshape(-1, N, N), b).reshape(W.shape[:-2] + (b.modes,))
+    m = np.repeat(np.arange(N), np.arange(N, 0, -1))
+    return xr.DataArray(C, dims=("member", "t", "mode"),
+                        coords={"member": ds["member"].values, "t": ds["t"].values,
+                                "l": ("mode", b.ell.astype(int)), "m": ("mode", m)},
+                        name="vorticity_coefficients",
+                        attrs={"units": "s-1", "long_name": "vorticity coefficient ω_lm"})
+
+
 def summary(ds: xr.Dataset) -> str:
     import warnings
 
@@ -413,7 +449,8 @@ def _summary(ds: xr.Dataset) -> str:
     import tomllib
 
     viscous = tomllib.loads(ds.attrs["scene"])["fluid"]["viscosity"] > 0
-    casimir_words = "tr W² changed by {:.2e} (viscosity dissipates it)" if viscous else "tr W² drift ≤ {:.2e}"
+    casimir_words = ("tr W² (∫ω² dA) changed by {:.2e} (viscosity dissipates it)" if viscous
+                     else "tr W² drift ≤ {:.2e} (∫ω² dA)")
     lines = [f"{ds.attrs['method']}: {M} member(s), N = {ds.attrs['N']}, h = {ds.attrs['h']:g} s, "
              f"t = {float(ds['t'][-1]):g} s, kernels {ds.attrs['kernel_seconds']:.2f} s",
              f"  |H + q − H(0)|/H(0) ≤ {err:.2e}; {casimir_words.format(cas)}; angular momentum drift ≤ "
