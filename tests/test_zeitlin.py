@@ -286,6 +286,22 @@ def test_structure_study_compares_at_equal_measured_cost(tmp_path):
     assert (report.parent / "drift.png").stat().st_size > 10_000
 
 
+def test_resolution_study_shows_one_flow_converging_in_n(tmp_path):
+    import pandas as pd
+
+    from liethermo.cf import load_dataset
+
+    report = _study("zeitlin_resolution", tmp_path)
+    df = pd.read_csv(report.parent / "resolution.csv")
+    nxt = df["Σ|ΔE_l| to the next N / H(0), t end"].values[:-1]
+    assert list(df["N"]) == [8, 16, 32] and nxt[1] < 0.5 * nxt[0]
+    ds = load_dataset(report.parent / "zeitlin_resolution.nc")
+    assert ds["energy_spectrum"].dims == ("N", "member", "t", "l") and ds.sizes["l"] == 31
+    assert 0 < ds.attrs["time_error_at_finest_N"] < 1e-3 * nxt.min()
+    assert "shrink at every N" in report.read_text()
+    assert (report.parent / "resolution.png").stat().st_size > 10_000
+
+
 def test_a_zeitlin_study_refuses_a_top_scene():
     from liethermo.studies.common import StudyError
     from liethermo.studies.runner import validate_study

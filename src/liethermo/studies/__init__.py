@@ -15,7 +15,8 @@ import importlib
 from types import ModuleType
 
 KINDS = ("paper", "convergence", "energy_drift", "work_precision", "stability", "viscosity_sweep",
-         "long_drift", "coupling", "flat_spin", "zeitlin_convergence", "zeitlin_decay", "zeitlin_structure")
+         "long_drift", "coupling", "flat_spin", "zeitlin_convergence", "zeitlin_decay", "zeitlin_structure",
+         "zeitlin_resolution")
 
 
 def get_study(kind: str) -> ModuleType:
