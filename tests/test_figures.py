@@ -90,3 +90,37 @@ def test_run_figures_are_legible(tmp_path):
                                        "r_entropy.png"]
     for f in files:  # saved through the conftest check
         assert str(f.resolve()) in SAVED_FIGURES
+
+
+@pytest.mark.parametrize("scene, over", [
+    ("paper", {"integrator.steps": 4, "output.compare": []}),
+    ("zeitlin_ideal", {"zeitlin.N": 8, "initial.lmax": 5, "integrator.steps": 4, "output.every": 2,
+                       "output.vorticity": True, "output.compare": []}),
+])
+def test_plain_xarray_labels_fit_on_one_line(scene, over):
+    """xarray's automatic axis label "long_name [units]" wraps past 30
+    characters (and a wrapped x label is cut off at the figure's edge): every
+    variable's label fits on one line, and a variable whose detail moved out
+    of its long_name keeps it in ``comment``."""
+    from xarray.plot.utils import label_from_attrs
+
+    import liethermo
+
+    ds = liethermo.run(scene, over)
+    for name, v in ds.variables.items():
+        label = label_from_attrs(v)
+        assert "\n" not in label and len(label) <= 30, (name, label)
+    assert ds["t"].attrs["long_name"] == "time t" and "since the start of the run" in ds["t"].attrs["comment"]
+    assert "t = 0" in ds["entropy" if scene == "zeitlin_ideal" else "energy_error"].attrs["comment"]
+
+
+def test_model_term_parameters_label_on_one_line():
+    """The terms' parameters become dataset variables (friction, expansion,
+    drag): their labels fit on one line too, and their formulas are kept."""
+    from liethermo.kernels.terms import registry
+
+    for term in registry():
+        for prm in term.parameters:
+            if prm.shape is not None and prm.variable_name:
+                assert len(f"{prm.long_name} [{prm.unit}]") <= 30, prm
+                assert prm.comment, prm

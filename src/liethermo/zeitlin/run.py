@@ -331,40 +331,50 @@ def trajectory_dataset(scene: ZeitlinScene, traj: Trajectory, method: str, histo
     scale = cas[:, :1, :1] ** (np.array([2, 3, 4]) / 2.0)  # tr((iW)²)^(k/2) ≥ |tr((iW)^k)|
     dims_t = ("member", "t")
     data = {
-        "energy": _var(H, dims_t, "J", "kinetic energy H = <W, -P>/2 of the fluid"),
-        "heat": _var(q, dims_t, "J", "heat absorbed q = U - U0 (the energy viscosity dissipated)"),
-        "total_energy": _var(H + q, dims_t, "J", "H + q: conserved by the model"),
-        "energy_error": _var((H + q - E0) / E0, dims_t, "1", "(H + q - H(0)) / H(0): total energy error"),
+        "energy": _var(H, dims_t, "J", "kinetic energy H", comment="H = <W, -P>/2 of the fluid"),
+        "heat": _var(q, dims_t, "J", "heat q = U - U0",
+                     comment="heat absorbed: the energy viscosity dissipated"),
+        "total_energy": _var(H + q, dims_t, "J", "total energy H + q",
+                             comment="conserved by the model"),
+        "energy_error": _var((H + q - E0) / E0, dims_t, "1", "relative energy error",
+                             comment="(H + q - H(0)) / H(0): total energy error"),
         "entropy": _var(cv * np.log1p(q / (cv * T0)), dims_t, "J K-1",
-                        "entropy produced since t = 0, c_v log(T/T0)"),
-        "temperature": _var(T0 + q / cv, dims_t, "K", "temperature T = T0 + q/c_v"),
-        "enstrophy": _var(ens, dims_t, "s-2", "enstrophy <W, W>/2"),
-        "casimir": _var(cas, dims_t + ("k",), "1", "Casimir tr((iW)^k): power sums of W's spectrum, in s-k",
-                        comment="the unit depends on k (s-k); stored as the number of s-k, so units is 1"),
+                        "entropy produced",
+                        comment="entropy produced since t = 0, c_v log(T/T0)"),
+        "temperature": _var(T0 + q / cv, dims_t, "K", "temperature T", comment="T = T0 + q/c_v"),
+        "enstrophy": _var(ens, dims_t, "s-2", "enstrophy", comment="<W, W>/2"),
+        "casimir": _var(cas, dims_t + ("k",), "1", "Casimir tr((iW)^k)",
+                        comment="power sums of W's spectrum; the unit depends on k (s-k): "
+                                "stored as the number of s-k, so units is 1"),
         "casimir_drift": _var((cas - cas[:, :1]) / scale, dims_t + ("k",), "1",
-                              "(tr((iW)^k) - its value at t = 0) / tr((iW)^2)(0)^(k/2)"),
+                              "relative Casimir drift",
+                              comment="(tr((iW)^k) - its value at t = 0) / tr((iW)^2)(0)^(k/2)"),
         "angular_momentum": _var(L, dims_t + ("axis",), "s-1",
-                                 "angular momentum: the l = 1 part of W, <W, iJ_a>/|iJ_a|"),
-        "energy_spectrum": _var(spec, dims_t + ("l",), "J", "energy of degree l, E_l (sums to H)"),
-        "fixed_point_iterations": _var(traj.iterations, dims_t, "1",
-                                       "mean fixed-point iterations per step over the output interval"
-                                       " (0 for rk4 and the reference)"),
+                                 "angular momentum",
+                                 comment="the l = 1 part of W, <W, iJ_a>/|iJ_a|"),
+        "energy_spectrum": _var(spec, dims_t + ("l",), "J", "energy spectrum E_l",
+                                comment="energy of degree l; sums to H"),
+        "fixed_point_iterations": _var(traj.iterations, dims_t, "1", "fixed-point iterations",
+                                       comment="mean fixed-point iterations per step over the output "
+                                               "interval (0 for rk4 and the reference)"),
         "status": _var(traj.status, ("member",), "1", "member status",
                        flag_values=np.array(sorted(STATUS_MEANINGS), dtype=np.int8),
                        flag_meanings=" ".join(STATUS_MEANINGS[k] for k in sorted(STATUS_MEANINGS))),
         "failed_step": _var(traj.failed_step, ("member",), "1",
-                            "step at which the member failed (-1: none); its later values are NaN"),
+                            "step that failed",
+                            comment="step at which the member failed (-1: none); its later values are NaN"),
     }
     if scene["output"]["vorticity"] and r.W is not None:
         dims_w = dims_t + ("row", "col")
-        data["vorticity_real"] = _var(r.W.real, dims_w, "s-1", "real part of the vorticity matrix W")
-        data["vorticity_imag"] = _var(r.W.imag, dims_w, "s-1", "imaginary part of the vorticity matrix W")
+        data["vorticity_real"] = _var(r.W.real, dims_w, "s-1", "vorticity W, real part")
+        data["vorticity_imag"] = _var(r.W.imag, dims_w, "s-1", "vorticity W, imag. part")
     coords = {
         "member": _var(np.arange(M), ("member",), "1", "ensemble member"),
-        "t": _var(traj.times, ("t",), "s", "time since the start of the run"),
+        "t": _var(traj.times, ("t",), "s", "time t", comment="time since the start of the run"),
         "k": _var(np.array([2, 3, 4]), ("k",), "1", "power k of the Casimir"),
         "axis": xr.Variable(("axis",), np.array(["x", "y", "z"]), {"long_name": "space axis"}),
-        "l": _var(np.arange(1, b.N), ("l",), "1", "degree l of the spherical harmonics"),
+        "l": _var(np.arange(1, b.N), ("l",), "1", "degree l",
+                  comment="degree l of the spherical harmonics"),
     }
     itg = scene["integrator"]
     created = cf.timestamp()
