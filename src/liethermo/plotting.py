@@ -201,14 +201,17 @@ def scene_figures(outputs: dict, folder, stem: str = "run", member: int = 0) -> 
     axes = axes[:, 0]
 
     def series(ax, m, t, name, values, label, member_line=True):
-        """Member ``values`` alone, or the ensemble's band and median with it as a thin line."""
+        """Member ``values`` alone, or the ensemble's band and median with it as a thin
+        line.  Returns what sets the y limits: the band and median, and the member's
+        values if it completed (a blow-up would flatten the rest)."""
+        keep = [values] if int(data[m]["status"].values) == 0 else []
         ens = ensembles.get(m)
         band = ens.bands.get(name) if ens is not None else None
         if band is None:
             if label and ens is not None:  # no member completed: member 0 alone
                 label = f"{label}: member {member} (all {ens.members} members failed)"
             ax.plot(t, values, label=label, **_style(m))
-            return [values]
+            return keep
         st = _style(m)
         draw_band(ax, t, band, color=st.get("color", "k"), label=label,
                   median_label=f"{label}: median" + _failed_words(ens) if label else None,
@@ -216,15 +219,14 @@ def scene_figures(outputs: dict, folder, stem: str = "run", member: int = 0) -> 
         if member_line:
             ax.plot(t, values, color=st.get("color", "k"), ls=st.get("ls", "-"), zorder=3,
                     label=f"{LABEL.get(m, m)}: member {member}" if label else None, **MEMBER0)
-        return [band.lo, band.hi, band.median] + ([values] if member_line else [])
+        return [band.lo, band.hi, band.median] + (keep if member_line else [])
 
     limits = {name: [] for name, _ in panels}
     for m, ds in data.items():
         t = t_of(ds).values
         for k, (name, _) in enumerate(panels):
-            drawn = series(axes[k], m, t, name, _shown(name, ds[name].values), LABEL.get(m, m) if k == 0 else None)
-            if int(ds["status"].values) == 0 or (m in ensembles and name in ensembles[m].bands):
-                limits[name].extend(drawn)
+            limits[name].extend(series(axes[k], m, t, name, _shown(name, ds[name].values),
+                                       LABEL.get(m, m) if k == 0 else None))
         _failure_note(ds, axes[0], m, who)
     for ax, (_, ylabel) in zip(axes, panels):
         ax.set_ylabel(ylabel)
@@ -232,8 +234,7 @@ def scene_figures(outputs: dict, folder, stem: str = "run", member: int = 0) -> 
     legend_beside(axes[0])
     # limits from the methods that completed, so a blow-up does not flatten the rest
     for ax, (name, _) in zip(axes, panels):
-        vals = np.concatenate(limits[name] or [_shown(name, ds[name].values) for ds in data.values()])
-        lo, hi = np.nanmin(vals), np.nanmax(vals)
+        lo, hi = _finite_range(limits[name] or [_shown(name, ds[name].values) for ds in data.values()])
         pad = 0.15 * (hi - lo) + 1e-9
         ax.set_ylim(lo - pad, hi + pad)
     fig.suptitle(f"energies — {title}", fontsize=10)
@@ -308,14 +309,12 @@ def scene_figures(outputs: dict, folder, stem: str = "run", member: int = 0) -> 
     fig, ax = plt.subplots(figsize=(7, 3.8))
     drawn = []
     for m, ds in data.items():
-        d = series(ax, m, t_of(ds).values, "entropy", _shown("entropy", ds["entropy"].values), LABEL.get(m, m))
-        if int(ds["status"].values) == 0 or (m in ensembles and "entropy" in ensembles[m].bands):
-            drawn.extend(d)
+        drawn.extend(series(ax, m, t_of(ds).values, "entropy", _shown("entropy", ds["entropy"].values),
+                            LABEL.get(m, m)))
         _failure_note(ds, ax, m, who)
     # limits from the methods that completed, as for the energies: a blow-up's entropy
     # (RK2 at the paper's h reaches ~1e9 uJ/K) would flatten the other curves
-    vals = np.concatenate(drawn or [_shown("entropy", ds["entropy"].values) for ds in data.values()])
-    lo, hi = np.nanmin(vals), np.nanmax(vals)
+    lo, hi = _finite_range(drawn or [_shown("entropy", ds["entropy"].values) for ds in data.values()])
     pad = 0.08 * (hi - lo) + 1e-9
     ax.set_ylim(lo - pad, hi + pad)
     ax.set_xlabel("time t (s)")
@@ -374,6 +373,13 @@ def _center_of_mass(data: dict, folder: Path, stem: str, h: float, member: int, 
     fig.set_size_inches(6.4, H)
     ax.set_position((0.0, below / H, 0.92, axes_h / H))
     return _save(fig, folder / f"{stem}_center_of_mass.png")
+
+
+def _finite_range(arrays) -> tuple[float, float]:
+    """Smallest and largest finite value of ``arrays`` ((0, 1) if none is finite)."""
+    v = np.concatenate([np.ravel(a) for a in arrays])
+    v = v[np.isfinite(v)]
+    return (float(v.min()), float(v.max())) if v.size else (0.0, 1.0)
 
 
 def _energy(values) -> str:
