@@ -53,7 +53,9 @@ def member_band(values: np.ndarray, of: int | None = None, why: str = "") -> Ban
     with warnings.catch_warnings():  # a time where every member is NaN: the band is NaN there
         warnings.simplefilter("ignore", RuntimeWarning)
         if v.shape[0] >= MIN_FOR_QUANTILES:
-            lo, med, hi = np.nanquantile(v, [QUANTILES[0], 0.5, QUANTILES[1]], axis=0)
+            # nanquantile goes column by column (~20x slower): only where there are NaNs
+            quantile = np.nanquantile if np.isnan(v).any() else np.quantile
+            lo, med, hi = quantile(v, [QUANTILES[0], 0.5, QUANTILES[1]], axis=0)
         else:
             lo, med, hi = np.nanmin(v, axis=0), np.nanmedian(v, axis=0), np.nanmax(v, axis=0)
     return Band(med, lo, hi, v.shape[0], band_words(v.shape[0], of, why))

@@ -120,8 +120,8 @@ def _ensemble(full) -> Ensemble:
                                f"(among the first {k})" if k < n else "") if w)
     part = full.isel(member=slice(0, k))
 
-    def get(name):
-        return np.asarray(part[name].isel(member=ok).values, dtype=np.float64)
+    def get(name):  # a contiguous read, then the members that completed
+        return np.asarray(part[name].values, dtype=np.float64)[ok]
 
     for name in SCALE:
         if name in full:
