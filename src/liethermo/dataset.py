@@ -154,15 +154,18 @@ def _trajectory_dataset(traj, omega0, R0, member_offset):
                     "Gamma_k and S_k); it mixes two instants: a first-order error of the "
                     "diagnostic itself; energy_error is the node-value error")
         steps = np.maximum(traj.steps_done, 1)
-        data["newton_iterations_mean"] = _var(traj.newton_iterations / steps, ("member",), "1", "mean Newton iterations",
+        data["newton_iterations_mean"] = _var(traj.newton_iterations / steps, ("member",), "1",
+                                              "mean Newton iterations",
                                               comment="mean Newton iterations per step, summed over the "
                                                       "step's solves (one for vi, 3 for vi4, 9 for vi6)")
-        data["newton_iterations_max"] = _var(traj.newton_max.astype(np.int64), ("member",), "1", "max Newton iterations",
+        data["newton_iterations_max"] = _var(traj.newton_max.astype(np.int64), ("member",), "1",
+                                             "max Newton iterations",
                                              comment="max Newton iterations in one solve")
     R = traj.attitude
     if R is not None:
         data["attitude"] = _var(R, ("member", "t", "row", "col"), "1", "attitude R (body to space)")
-        data["center_of_mass"] = _var(np.einsum("mtij,mj->mti", R, phys.center_of_mass), dims_v, "m", "centre of mass R G",
+        data["center_of_mass"] = _var(np.einsum("mtij,mj->mti", R, phys.center_of_mass), dims_v, "m",
+                                      "centre of mass R G",
                                       comment="centre of mass in space, relative to the fixed point")
     coords = {
         "member": _var(np.arange(member_offset, member_offset + N, dtype=np.int64), ("member",), "1",

@@ -213,7 +213,8 @@ def draw(datasets: dict, W_member0: np.ndarray | None, folder, stem: str) -> lis
         e = np.abs(d["energy_error"].values[:, 1:])
         series(axes[2], tm, e, okm, m, floor=FLOOR, **style(m))
     what = "drift" if _nu(ds) == "0" else "change (viscosity dissipates it)"
-    for ax, k, ylabel in ((axes[0], "²", "|C₂(t) − C₂(0)| / C₂(0)"), (axes[1], "⁴", "|C₄(t) − C₄(0)| / C₂(0)²")):
+    for ax, k, ylabel in ((axes[0], "²", "|C₂(t) − C₂(0)| / C₂(0)"),
+                          (axes[1], "⁴", "|C₄(t) − C₄(0)| / C₂(0)²")):
         ax.set_title(f"Casimir C{k.translate(_SUB)} = tr (iW){k}: {what}", fontsize=10)
         ax.set_ylabel(ylabel)
     axes[2].set_title("total energy error", fontsize=10)
