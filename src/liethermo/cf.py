@@ -7,7 +7,7 @@ which derives everything from names, dtypes, dims and units — never from a
 list of variables — so variables added later are encoded the same way:
 
 * the run's time is a plain coordinate ``t`` in seconds (``units = "s"``,
-  long_name "time since the start of the run"): it is not a calendar time, so
+  long_name "time t"): it is not a calendar time, so
   it carries no ``standard_name = "time"`` and plain ``xarray.open_dataset``
   reads it as float64.  A coordinate that does claim to be a calendar time
   (named ``time``, or with ``standard_name = "time"`` or ``axis = "T"``) in

@@ -92,40 +92,50 @@ def _trajectory_dataset(traj, omega0, R0, member_offset):
     node_note = ("node velocity I(S_k)^-1 mu_k from the node momentum (discrete Legendre transform)"
                  if vi else "node value Omega(t_k)")
     data = {
-        "omega": _var(e["omega"], dims_v, "rad s-1", "body angular velocity at t_k",
-                      comment=node_note),
-        "angular_momentum": _var(mom, dims_v, "kg m2 s-1",
-                                 "body angular momentum mu = I(S) Omega at t_k"),
-        "angular_momentum_norm": _var(np.linalg.norm(mom, axis=-1), dims_t, "kg m2 s-1",
-                                      "|mu|: a Casimir, kept by friction of the double-bracket form"),
-        "vertical_angular_momentum": _var(np.sum(traj.gamma * mom, axis=-1), dims_t, "kg m2 s-1",
-                                          "Gamma . mu: angular momentum about the vertical (the "
-                                          "Kelvin-Noether quantity; d/dt = -Gamma . C Omega)"),
-        "gamma": _var(traj.gamma, dims_v, "1", "direction of gravity in the body frame (R^T e3)"),
-        "entropy": _var(phys.S0[:, None] + traj.sigma, dims_t, "J K-1", "entropy S of body and fluid"),
-        "temperature": _var(e["T"], dims_t, "K", "temperature T = -dL/dS (T0 exp((S - S0)/c_v) "
-                            "for a constant inertia)", units_metadata="temperature: on_scale"),
-        "kinetic_energy": _var(e["K"], dims_t, "J", "kinetic energy 1/2 Omega . I(S) Omega"),
-        "potential_energy": _var(e["V"], dims_t, "J", "potential energy m g l Gamma . chi"),
-        "internal_energy": _var(U, dims_t, "J", "internal energy U(S) = c_v T0 exp((S - S0)/c_v)"),
+        "omega": _var(e["omega"], dims_v, "rad s-1", "angular velocity",
+                      comment=f"body angular velocity Omega at t_k: {node_note}"),
+        "angular_momentum": _var(mom, dims_v, "kg m2 s-1", "angular momentum",
+                                 comment="body angular momentum mu = I(S) Omega at t_k"),
+        "angular_momentum_norm": _var(np.linalg.norm(mom, axis=-1), dims_t, "kg m2 s-1", "|mu|, a Casimir",
+                                      comment="|mu| = |I(S) Omega|: a Casimir, kept by friction of "
+                                              "the double-bracket form"),
+        "vertical_angular_momentum": _var(np.sum(traj.gamma * mom, axis=-1), dims_t, "kg m2 s-1", "Gamma . mu",
+                                          comment="angular momentum about the vertical (the "
+                                                  "Kelvin-Noether quantity; d/dt = -Gamma . C Omega)"),
+        "gamma": _var(traj.gamma, dims_v, "1", "gravity direction (body)",
+                      comment="direction of gravity in the body frame, Gamma = R^T e3"),
+        "entropy": _var(phys.S0[:, None] + traj.sigma, dims_t, "J K-1", "entropy S",
+                        comment="entropy of body and fluid"),
+        "temperature": _var(e["T"], dims_t, "K", "temperature T",
+                            comment="T = -dL/dS (T0 exp((S - S0)/c_v) for a constant inertia)",
+                            units_metadata="temperature: on_scale"),
+        "kinetic_energy": _var(e["K"], dims_t, "J", "kinetic energy K",
+                               comment="K = 1/2 Omega . I(S) Omega"),
+        "potential_energy": _var(e["V"], dims_t, "J", "potential energy V",
+                                 comment="V = m g l Gamma . chi"),
+        "internal_energy": _var(U, dims_t, "J", "internal energy U",
+                                comment="U(S) = c_v T0 exp((S - S0)/c_v)"),
         "total_energy": _var(e["K"] + e["V"] + U, dims_t, "J", "total energy E = K + V + U"),
-        "energy_error": _var(dE, dims_t, "J", "total energy error E_k - E_0 on node values "
-                             "(computed without cancellation)",
-                             comment="E_0 is the energy of the initial data at t = 0"),
-        "mechanical_energy_initial": _var(emech0, ("member",), "J",
-                                          "initial mechanical energy above the resting state K_0 + V_0 + |m g l|"),
+        "energy_error": _var(dE, dims_t, "J", "energy error E_k - E_0",
+                             comment="total energy error on node values (computed without "
+                                     "cancellation); E_0 is the energy of the initial data at t = 0"),
+        "mechanical_energy_initial": _var(emech0, ("member",), "J", "initial mechanical energy",
+                                          comment="above the resting state: K_0 + V_0 + |m g l|"),
         "status": _var(traj.status.astype(np.int8), ("member",), "1", "member status",
                        **status_flags(np.int8)),
         "failed_at_step": _var(np.where(traj.status != 0, traj.fail_step, -1).astype(np.int64),
-                               ("member",), "1",
-                               "step k+1 whose computation failed (-1: none); values from that step on are NaN"),
+                               ("member",), "1", "step that failed",
+                               comment="step k+1 whose computation failed (-1: none); "
+                                       "values from that step on are NaN"),
         "steps_done": _var(traj.steps_done.astype(np.int64), ("member",), "1", "steps accepted"),
-        "max_h_omega": _var(traj.max_h_omega, ("member",), "rad", "max over (sub)steps of |h| |Omega|",
-                            comment="the Cayley map turns by 2 atan(h|Omega|/2): phase error ~ (h|Omega|)^3/12 per step"),
-        "initial_omega": _var(omega0, ("member", "axis"), "rad s-1", "initial body angular velocity Omega(0)"),
+        "max_h_omega": _var(traj.max_h_omega, ("member",), "rad", "max of |h| |Omega|",
+                            comment="max over (sub)steps of |h| |Omega|; the Cayley map turns by "
+                                    "2 atan(h|Omega|/2): phase error ~ (h|Omega|)^3/12 per step"),
+        "initial_omega": _var(omega0, ("member", "axis"), "rad s-1", "initial Omega(0)",
+                              comment="initial body angular velocity"),
         "initial_attitude": _var(R0, ("member", "row", "col"), "1", "initial attitude R(0)"),
-        "inertia": _var(phys.inertia, ("member", "axis"), "kg m2",
-                        "principal moments of inertia I0 about the fixed point"),
+        "inertia": _var(phys.inertia, ("member", "axis"), "kg m2", "moments of inertia I0",
+                        comment="principal moments of inertia about the fixed point"),
         "heat_capacity": _var(phys.heat_capacity, ("member",), "J K-1", "heat capacity c_v"),
     }
     data.update(term_variables(phys))
@@ -135,28 +145,33 @@ def _trajectory_dataset(traj, omega0, R0, member_offset):
         Kp = ph.kinetic_energy(phys, step, s)
         dEp = (Kp - K0[:, None]) + (e["V"] - V0[:, None]) + e["dU"]
         data["omega_step"] = _var(step, dims_v, "rad s-1",
-                                  "step velocity Omega_k = cay^-1(R_k^T R_k+1)/h of the step from t_k",
-                                  comment="approximates Omega(t_k + h/2); the paper's Omega_k")
+                                  "step velocity",
+                                  comment="step velocity Omega_k = cay^-1(R_k^T R_k+1)/h of the step "
+                                          "from t_k; approximates Omega(t_k + h/2); the paper's Omega_k")
         data["energy_error_paper"] = _var(
-            dEp, dims_t, "J", "total energy error in the paper's convention (step velocity Omega_k "
-            "with Gamma_k and S_k)",
-            comment="mixes two instants: a first-order error of the diagnostic itself; "
-                    "energy_error is the node-value error")
+            dEp, dims_t, "J", "paper's energy error",
+            comment="total energy error in the paper's convention (step velocity Omega_k with "
+                    "Gamma_k and S_k); it mixes two instants: a first-order error of the "
+                    "diagnostic itself; energy_error is the node-value error")
         steps = np.maximum(traj.steps_done, 1)
         data["newton_iterations_mean"] = _var(traj.newton_iterations / steps, ("member",), "1",
-                                              "mean Newton iterations per step, summed over the step's "
-                                              "solves (one for vi, 3 for vi4, 9 for vi6)")
+                                              "mean Newton iterations",
+                                              comment="mean Newton iterations per step, summed over the "
+                                                      "step's solves (one for vi, 3 for vi4, 9 for vi6)")
         data["newton_iterations_max"] = _var(traj.newton_max.astype(np.int64), ("member",), "1",
-                                             "max Newton iterations in one solve")
+                                             "max Newton iterations",
+                                             comment="max Newton iterations in one solve")
     R = traj.attitude
     if R is not None:
         data["attitude"] = _var(R, ("member", "t", "row", "col"), "1", "attitude R (body to space)")
         data["center_of_mass"] = _var(np.einsum("mtij,mj->mti", R, phys.center_of_mass), dims_v, "m",
-                                      "centre of mass R G in space, relative to the fixed point")
+                                      "centre of mass R G",
+                                      comment="centre of mass in space, relative to the fixed point")
     coords = {
         "member": _var(np.arange(member_offset, member_offset + N, dtype=np.int64), ("member",), "1",
                        "ensemble member"),
-        "t": _var(traj.times, ("t",), "s", "time since the start of the run, t_k = k h"),
+        "t": _var(traj.times, ("t",), "s", "time t",
+                  comment="time since the start of the run, t_k = k h"),
         "step": _var(traj.step_index.astype(np.int64), ("t",), "1", "step index k"),
         "axis": xr.Variable(("axis",), np.array(AXIS), attrs={"units": "1", "long_name": "body-frame axis"}),
     }
@@ -182,7 +197,8 @@ def term_variables(phys) -> dict:
             v = getattr(phys, prm.name)
             if prm.always or np.any(v != 0.0):
                 dims = ("member",) + (("axis",) if prm.shape == (3,) else ())
-                out[prm.variable_name] = _var(v, dims, prm.unit, prm.long_name)
+                extra = {"comment": prm.comment} if prm.comment else {}
+                out[prm.variable_name] = _var(v, dims, prm.unit, prm.long_name, **extra)
     return out
 
 

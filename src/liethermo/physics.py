@@ -108,7 +108,8 @@ def _make_physics_class():
             fields.append((prm.name, object, dataclasses.field(default=None)))
             shape = ("one value" if prm.shape is None
                      else "(" + ", ".join(["N", *map(str, prm.shape)]) + ("," if not prm.shape else "") + ")")
-            lines.append(f"* ``{prm.name}`` — {shape} {prm.unit} ({t.name}): {prm.long_name}")
+            lines.append(f"* ``{prm.name}`` — {shape} {prm.unit} ({t.name}): {prm.long_name}"
+                         + (f"; {prm.comment}" if prm.comment else ""))
     cls = dataclasses.make_dataclass("Physics", fields, bases=(_PhysicsBase,), frozen=True)
     cls.__module__ = __name__
     cls.__doc__ = ("Physical parameters of N members (SI units, a leading member axis).  "

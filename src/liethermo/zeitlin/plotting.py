@@ -1,5 +1,11 @@
 """Figures of a Zeitlin run: the vorticity on the sphere, energy into heat,
-the energy spectrum over time, the Casimirs' drift per method."""
+the energy spectrum over time, the Casimirs' drift per method.
+
+An ensemble is drawn as its median over the members and a band
+(:mod:`liethermo.bands`: 5–95 % quantiles, or the range of fewer than 20
+members) over the members that completed; one member is drawn as it is.
+Each method keeps its colour and line style (:data:`STYLE`) in every panel,
+and legends sit beside the panels, clear of the data."""
 
 from __future__ import annotations
 
@@ -7,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..bands import Band, draw_band, member_band
 from . import kernels as zk
 
 
@@ -51,17 +58,80 @@ def sample_times(n_times: int, count: int) -> np.ndarray:
     return np.unique(np.linspace(0, n_times - 1, count).round().astype(int))
 
 
-def spectrum_lines(ax, ls, t, spec, count: int) -> None:
-    """E_l (``spec``: times × degrees) at ``count`` times of the run, one
-    line each from dark to light, on log axes; degrees at round-off level are
-    left out."""
+#: Colour and line of each method in every panel; the later methods are drawn
+#: over the earlier ones, dashed and marked, so coinciding curves both show.
+STYLE = {"split": dict(color="C0", ls="-", lw=2.2),
+         "split4": dict(color="C4", ls="-", lw=1.6),
+         "split6": dict(color="C5", ls="-.", lw=1.4),
+         "rk4": dict(color="C3", ls="--", lw=1.3, marker="o", ms=3.5, markevery=0.08, mfc="none"),
+         "reference": dict(color="k", ls=":", lw=1.2)}
+_SUB = str.maketrans("²⁴", "₂₄")
+FLOOR = 1e-17  # relative drifts at or below round-off are drawn here on the log axes
+
+
+def style(method: str) -> dict:
+    return STYLE.get(method, dict(color="0.3", ls="-", lw=1.2))
+
+
+def completed(ds):
+    """Members of ``ds`` that completed, as an index array."""
+    return np.flatnonzero(ds["status"].values == 0)
+
+
+def ensemble_band(values: np.ndarray, ok: np.ndarray):
+    """The band of ``values`` (members, ...) over the members ``ok`` that
+    completed; the words say so when some did not."""
+    why = "that completed" if len(ok) < values.shape[0] else ""
+    return member_band(values[ok], of=values.shape[0], why=why)
+
+
+def series(ax, x, values: np.ndarray, ok: np.ndarray, label: str, floor: float | None = None, **line):
+    """``values`` (members, times) on ``ax``: one member as a line, an
+    ensemble as its median line and band (legend: ``label`` and the band's
+    words); ``floor``: values below it drawn at it (log axes)."""
+    def f(v):
+        return v if floor is None else np.maximum(v, floor)
+
+    if values.shape[0] == 1:
+        ax.plot(x, f(values[0]), label=label, **line)
+        return
+    band = ensemble_band(values, ok)
+    color = line.pop("color")
+    draw_band(ax, x, Band(f(band.median), f(band.lo), f(band.hi), band.members, band.label), color=color,
+              label=label, median_label=f"{label}: median", zorder=line.pop("zorder", 1.0), **line)
+
+
+def legend_beside(ax, **kwargs):
+    """The legend right of the axes (constrained layout makes room): it covers no data."""
+    kwargs.setdefault("fontsize", 8)
+    return ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0, **kwargs)
+
+
+def spectrum_lines(ax, ls, t, spec, count: int, ok: np.ndarray | None = None) -> None:
+    """E_l (``spec``: times × degrees, or members × times × degrees with
+    ``ok`` the members that completed) at ``count`` times of the run, one line
+    each from dark to light, on log axes: an ensemble's median with its band;
+    degrees at round-off level are left out."""
     import matplotlib.pyplot as plt
 
     cmap = plt.get_cmap("viridis")
-    idx = sample_times(len(t), count)
+    idx = sample_times(spec.shape[-2], count)
+    ens = spec.ndim == 3 and spec.shape[0] > 1
+    spec = spec if spec.ndim == 3 else spec[None]
+    top = np.nanmax(spec)
     for n, i in enumerate(idx):
-        e = np.where(spec[i] > 1e-14 * np.nanmax(spec), spec[i], np.nan)
-        ax.loglog(ls, e, color=cmap(n / max(len(idx) - 1, 1)), label=f"t = {t[i]:g} s")
+        c = cmap(n / max(len(idx) - 1, 1))
+        if ens:
+            band = ensemble_band(spec[:, i], np.arange(spec.shape[0]) if ok is None else ok)
+            keep = band.hi > 1e-14 * top
+            ax.fill_between(ls[keep], band.lo[keep], band.hi[keep], color=c, alpha=0.15, lw=0)
+            e = band.median
+        else:
+            e = spec[0, i]
+        e = np.where(e > 1e-14 * top, e, np.nan)
+        ax.loglog(ls, e, color=c, label=f"t = {t[i]:g} s")
+    if ens:
+        ax.fill_between([], [], [], color="0.5", alpha=0.3, lw=0, label=f"band: {band.label}")
 
 
 def save(fig, path) -> Path:
@@ -71,10 +141,6 @@ def save(fig, path) -> Path:
     fig.savefig(path, dpi=110, bbox_inches="tight")
     plt.close(fig)
     return Path(path)
-
-
-def _mean(da):
-    return np.nanmean(da.values, axis=0)
 
 
 def draw(datasets: dict, W_member0: np.ndarray | None, folder, stem: str) -> list[Path]:
@@ -109,42 +175,57 @@ def draw(datasets: dict, W_member0: np.ndarray | None, folder, stem: str) -> lis
         fig.suptitle(f"vorticity of member 0 ({first}, N = {N}), Mollweide projection", fontsize=10)
         out.append(save(fig, folder / f"{stem}_vorticity.png"))
 
-    fig, ax = plt.subplots(figsize=(6.4, 4.0), layout="constrained")
-    H, q = _mean(ds["energy"]), _mean(ds["heat"])
-    ax.plot(t, H, label="kinetic energy H")
-    ax.plot(t, q, label="heat q = U − U₀")
-    ax.plot(t, H + q, "k--", lw=1, label="H + q")
+    ok = completed(ds)
+    M = ds.sizes["member"]
+    whose = "" if M == 1 else f", median of {M} members" if len(ok) == M else f", median of {len(ok)} of {M} members"
+    fig, ax = plt.subplots(figsize=(7.6, 4.0), layout="constrained")
+    H, q = ds["energy"].values, ds["heat"].values
+    series(ax, t, H, ok, "kinetic energy H", color="C0", lw=2.2)
+    series(ax, t, q, ok, "heat q = U − U₀", color="C1", lw=2.2)
+    # H + q over the others, dashed with wide gaps: where q = 0 (no viscosity) it lies on H,
+    # which shows between the dashes; its median only (its band would cover H's)
+    tot = np.nanmedian((H + q)[ok], axis=0) if len(ok) else np.full(len(t), np.nan)
+    ax.plot(t, tot, color="k", ls=(0, (4, 4)), lw=1.2, zorder=4,
+            label="H + q (conserved)" + (": median" if M > 1 else ""))
     ax.set_xlabel("time t (s)")
-    ax.set_ylabel("energy (J), member mean")
+    ax.set_ylabel(f"energy (J){whose}")
     ax.set_title(f"energy into heat ({first}, ν = {_nu(ds)} s⁻¹, N = {N})")
-    ax.legend()
+    legend_beside(ax)
     out.append(save(fig, folder / f"{stem}_energy_heat.png"))
 
-    fig, ax = plt.subplots(figsize=(6.4, 4.0), layout="constrained")
-    spec = _mean(ds["energy_spectrum"])
+    fig, ax = plt.subplots(figsize=(7.6, 4.0), layout="constrained")
     ls = ds["l"].values
-    spectrum_lines(ax, ls, t, spec, 6)
+    spectrum_lines(ax, ls, t, ds["energy_spectrum"].values, 6, ok)
     ax.set_xlabel("degree l")
-    ax.set_ylabel("energy spectrum E_l (J), member mean")
-    ax.set_title("energy spectrum over time")
-    ax.legend(fontsize=8)
+    ax.set_ylabel(f"energy spectrum E_l (J){whose}")
+    ax.set_title(f"energy spectrum over time ({first}, N = {N})")
+    legend_beside(ax)
     out.append(save(fig, folder / f"{stem}_spectrum.png"))
 
-    fig, axes = plt.subplots(1, 2, figsize=(10.5, 3.8), layout="constrained")
+    # one panel per quantity, each method in its colour and style in every panel
+    fig, axes = plt.subplots(1, 3, figsize=(14.5, 3.9), layout="constrained", sharex=True)
     for m, d in datasets.items():
         tm = d["t"].values[1:]
-        for k, ls_ in ((2, "-"), (4, ":")):
-            v = np.nanmax(np.abs(d["casimir_drift"].sel(k=k).values[:, 1:]), axis=0)
-            axes[0].semilogy(tm, np.maximum(v, 1e-17), ls_, label=f"{m}: tr W{'²' if k == 2 else '⁴'}")
-        e = np.nanmax(np.abs(d["energy_error"].values[:, 1:]), axis=0)
-        axes[1].semilogy(tm, np.maximum(e, 1e-17), label=m)
-    axes[0].set_title("Casimir drift (max over members)" if _nu(ds) == "0"
-                      else "Casimir change (max over members): viscosity dissipates it")
-    axes[0].set_ylabel("|C_k(t) − C_k(0)| / C₂(0)^(k/2)")
-    axes[1].set_title("total energy error |H + q − H(0)| / H(0)")
+        okm = completed(d)
+        for ax, k in zip(axes[:2], (2, 4)):
+            v = np.abs(d["casimir_drift"].sel(k=k).values[:, 1:])
+            series(ax, tm, v, okm, m, floor=FLOOR, **style(m))
+        e = np.abs(d["energy_error"].values[:, 1:])
+        series(axes[2], tm, e, okm, m, floor=FLOOR, **style(m))
+    what = "drift" if _nu(ds) == "0" else "change (viscosity dissipates it)"
+    for ax, k, ylabel in ((axes[0], "²", "|C₂(t) − C₂(0)| / C₂(0)"),
+                          (axes[1], "⁴", "|C₄(t) − C₄(0)| / C₂(0)²")):
+        ax.set_title(f"Casimir C{k.translate(_SUB)} ∝ tr(−iW){k}: {what}", fontsize=10)
+        ax.set_ylabel(ylabel)
+    axes[2].set_title("total energy error", fontsize=10)
+    axes[2].set_ylabel("|H + q − H(0)| / H(0)")
     for a in axes:
+        a.set_yscale("log")
         a.set_xlabel("time t (s)")
-        a.legend(fontsize=8)
+    members = next(iter(datasets.values())).sizes["member"]
+    fig.suptitle(f"relative drifts, {'member 0' if members == 1 else f'{members} members'} "
+                 f"(values at or below {FLOOR:g} drawn at {FLOOR:g})", fontsize=10)
+    legend_beside(axes[2])
     out.append(save(fig, folder / f"{stem}_casimirs.png"))
     return out
 

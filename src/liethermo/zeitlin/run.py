@@ -344,7 +344,7 @@ def trajectory_dataset(scene: ZeitlinScene, traj: Trajectory, method: str, histo
         "heat": _var(q, dims_t, "J", "heat absorbed q = U - U0",
                      comment="the energy that viscosity dissipated since t = 0"),
         "total_energy": _var(H + q, dims_t, "J", "H + q", comment="conserved by the model"),
-        "energy_error": _var((H + q - E0) / E0, dims_t, "1", "relative total energy error",
+        "energy_error": _var((H + q - E0) / E0, dims_t, "1", "relative energy error",
                              comment="(H + q - H(0)) / H(0)"),
         "entropy": _var(_heat.entropy_of_heat(q, cv, T0), dims_t, "J K-1", "entropy produced",
                         comment="S - S0 = c_v log(T/T0) since t = 0"),
@@ -361,26 +361,27 @@ def trajectory_dataset(scene: ZeitlinScene, traj: Trajectory, method: str, histo
                                          "part of ω; a solid-body rotation Ω has L = (8π/3)Ω"),
         "energy_spectrum": _var(spec, dims_t + ("l",), "J", "energy of degree l",
                                 comment="E_l = ½ Σ_m |ω_lm|²/(l(l+1)); Σ_l E_l = H"),
-        "fixed_point_iterations": _var(traj.iterations, dims_t, "1", "fixed-point iterations per step",
-                                       comment="mean over the output interval (0 for rk4 and the reference)"),
+        "fixed_point_iterations": _var(traj.iterations, dims_t, "1", "fixed-point iterations",
+                                       comment="mean per step over the output interval (0 for rk4 and the reference)"),
         "status": _var(traj.status, ("member",), "1", "member status",
                        flag_values=np.array(sorted(STATUS_MEANINGS), dtype=np.int8),
                        flag_meanings=" ".join(STATUS_MEANINGS[k] for k in sorted(STATUS_MEANINGS))),
-        "failed_step": _var(traj.failed_step, ("member",), "1", "step at which the member failed",
-                            comment="-1: none; the member's later values are NaN"),
+        "failed_step": _var(traj.failed_step, ("member",), "1", "step that failed",
+                            comment="the step at which the member failed (-1: none); the member's later values are NaN"),
     }
     if scene["output"]["vorticity"] and r.W is not None:
         dims_w = dims_t + ("row", "col")
         how = ("W = i√(N/4π) Σ ω_lm T_lm (T_lm orthonormal quantized harmonics); "
                "liethermo.zeitlin.vorticity_coefficients(ds) gives ω_lm in s-1")
-        data["vorticity_real"] = _var(r.W.real, dims_w, "s-1", "vorticity matrix W, real part", comment=how)
-        data["vorticity_imag"] = _var(r.W.imag, dims_w, "s-1", "vorticity matrix W, imaginary part", comment=how)
+        data["vorticity_real"] = _var(r.W.real, dims_w, "s-1", "vorticity W, real part", comment=how)
+        data["vorticity_imag"] = _var(r.W.imag, dims_w, "s-1", "vorticity W, imag. part", comment=how)
     coords = {
         "member": _var(np.arange(M), ("member",), "1", "ensemble member"),
-        "t": _var(traj.times, ("t",), "s", "time since the start of the run"),
+        "t": _var(traj.times, ("t",), "s", "time t", comment="time since the start of the run"),
         "k": _var(np.array([2, 3, 4]), ("k",), "1", "power k of the Casimir"),
         "axis": xr.Variable(("axis",), np.array(["x", "y", "z"]), {"long_name": "space axis"}),
-        "l": _var(np.arange(1, b.N), ("l",), "1", "degree l of the spherical harmonics"),
+        "l": _var(np.arange(1, b.N), ("l",), "1", "degree l",
+                  comment="degree l of the spherical harmonics"),
     }
     itg = scene["integrator"]
     created = cf.timestamp()

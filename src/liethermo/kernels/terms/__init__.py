@@ -211,7 +211,9 @@ class Parameter:
     that name, zero by default), or, with ``shape=None``, one value for the
     whole ensemble (``default``).  ``variable``: the name of its dataset
     variable ("" for none); ``always``: written even when every member has
-    zero (else only when some member has it)."""
+    zero (else only when some member has it).  ``long_name``: short enough for
+    an axis label; ``comment``: its formula or detail (the variable's
+    ``comment`` attribute)."""
 
     name: str
     shape: tuple | None
@@ -220,6 +222,7 @@ class Parameter:
     variable: str | None = None
     always: bool = False
     default: Any = None
+    comment: str = ""
 
     @property
     def variable_name(self) -> str:

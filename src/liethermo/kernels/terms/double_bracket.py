@@ -125,7 +125,8 @@ class _DoubleBracket(ScalarTerm):
     settings = (Setting("body", "internal_friction", 0.0, "s kg-1 m-2",
                         "λ of the double-bracket friction λ μ×(μ×Ω), which keeps |μ| (the flat spin)"),)
     parameters = (Parameter("internal_friction", (), "s kg-1 m-2",
-                            "double-bracket friction lambda: f = lambda mu x (mu x Omega)"),)
+                            "friction lambda",
+                            comment="double-bracket friction f = lambda mu x (mu x Omega)"),)
     friction = True
     nonlinear_friction = True
     kernel_class = DoubleBracket

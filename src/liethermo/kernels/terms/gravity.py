@@ -70,7 +70,9 @@ def _kick(term, inertia, t, G, m, q):
 class _Gravity(Term):
     name = "gravity"
     settings = (Setting("gravity", "g", 9.81, "m s-2", "gravitational acceleration"),)
-    parameters = (Parameter("gravity_torque", (3,), "N m", "m g l chi", always=True),)
+    parameters = (Parameter("gravity_torque", (3,), "N m", "gravity torque m g l chi",
+                            comment="m: mass, g: gravity, l chi: fixed point to centre of mass in the body frame",
+                            always=True),)
     scene_doc = (
         "*Gravity* — `gravity.g` pulls on the centre of mass G, torque Γ×g⃗ with g⃗ = m g G "
         "and potential energy g⃗·Γ. `gravity.g = 0` (or a centre of mass at the fixed "

@@ -149,7 +149,8 @@ class _ThermalExpansion(ScalarTerm):
     settings = (Setting("body", "thermal_expansion", 0.0, "K-1",
                         "linear thermal expansion α: 𝕀(S) = 𝕀₀ (1 + α(θ − T0))², the fully coupled top"),)
     parameters = (Parameter("thermal_expansion", (), "K-1",
-                            "linear thermal expansion alpha: I(S) = I0 (1 + alpha (theta - T0))^2"),)
+                            "thermal expansion alpha",
+                            comment="linear thermal expansion: I(S) = I0 (1 + alpha (theta - T0))^2"),)
     no_exact_flow = "the entropy-dependent inertia has no exact flow"
     scene_doc = (
         "*Thermal expansion* — `body.thermal_expansion = α > 0` makes the inertia depend "

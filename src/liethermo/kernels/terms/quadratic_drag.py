@@ -89,7 +89,8 @@ class _QuadraticDrag(ScalarTerm):
                         "c₂ of the quadratic drag −c₂|Ω|Ω of a body turning at moderate Reynolds "
                         "number (≈ ρ_fluid C_D a⁵)"),)
     parameters = (Parameter("quadratic_drag", (), "kg m2",
-                            "quadratic drag c2: friction torque -c2 |Omega| Omega"),)
+                            "quadratic drag c2",
+                            comment="friction torque -c2 |Omega| Omega"),)
     friction = True
     nonlinear_friction = True
     kernel_class = QuadraticDrag

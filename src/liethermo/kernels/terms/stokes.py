@@ -187,7 +187,8 @@ class _Stokes(Term):
     settings = (Setting("fluid", "viscosity", 0.1, "kg m-1 s-1",
                         "dynamic viscosity μ of the Stokes fluid (friction torque −CΩ)"),)
     parameters = (
-        Parameter("friction", (3,), "N m s", "rotational Stokes resistance C (friction torque -C Omega)",
+        Parameter("friction", (3,), "N m s", "Stokes resistance C",
+                  comment="rotational Stokes resistance: friction torque -C Omega",
                   variable="friction_coefficients", always=True),
         Parameter("isotropic_friction", None, "",
                   "C = c Id for every member (a sphere): the kernels use the scalar form",
