@@ -177,13 +177,18 @@ def _figures(plan, stem: str) -> list[Path]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from .scene import builtin_scenes
+    from .scene_files import builtin_scene_tables
 
-    builtins = ", ".join(sorted(builtin_scenes()))
+    tables = builtin_scene_tables()
+    fluid = sorted(n for n, t in tables.items() if "zeitlin" in t)
+    top = sorted(n for n in tables if n not in fluid)
+    builtins = f"the heavy top: {', '.join(top)}; the Zeitlin fluid: {', '.join(fluid)}"
     ap = argparse.ArgumentParser(
         prog="liethermo",
-        description="Structure-preserving simulation of the heavy top in Stokes flow "
-        "(variational integrator vs Runge-Kutta), over ensembles of initial conditions.",
+        description="Structure-preserving simulation of thermodynamic systems on Lie groups, over "
+        "ensembles of initial conditions: the heavy top in Stokes flow (variational integrators, "
+        "splittings and Runge-Kutta methods) and a viscous Zeitlin fluid on the sphere that turns "
+        "its energy into heat (isospectral splitting vs RK4).",
     )
     ap.add_argument("--version", action="version", version=f"liethermo {__version__}")
     sub = ap.add_subparsers(dest="command", required=True)

@@ -22,7 +22,6 @@ import math
 import re
 import sys
 from dataclasses import dataclass
-from importlib import resources
 from pathlib import Path
 from typing import Any, Callable
 
@@ -36,6 +35,7 @@ else:  # pragma: no cover
 import tomli_w
 
 from .methods import COMPOSITION_KINDS, ENTROPY_UPDATES, FRICTION, METHODS, STARTS
+from .scene_files import builtin_scene_tables, builtin_scene_text, builtin_scenes  # noqa: F401
 
 
 class SceneError(ValueError):
@@ -440,21 +440,6 @@ def _scene_from_dict(d: dict) -> Scene:
 # ----------------------------------------------------------------------------- built-in scenes
 
 
-def builtin_scenes() -> dict[str, str]:
-    """Names of the built-in scenes → their one-line descriptions."""
-    out = {}
-    for f in sorted(resources.files("liethermo").joinpath("scenes").iterdir(), key=lambda p: p.name):
-        if f.name.endswith(".toml"):
-            data = tomllib.loads(f.read_text())
-            out[f.name[:-5]] = data.get("scene", {}).get("description", "")
-    return out
-
-
-def builtin_scene_text(name: str) -> str | None:
-    f = resources.files("liethermo").joinpath("scenes", f"{name}.toml")
-    return f.read_text() if f.is_file() else None
-
-
 # ----------------------------------------------------------------------------- loading
 
 
@@ -566,8 +551,21 @@ def register_model(model: OtherModel) -> None:
     _OTHER_MODELS[:] = [m for m in _OTHER_MODELS if m.name != model.name] + [model]
 
 
+def _other_models() -> list[OtherModel]:
+    """The registered models, once the modules the package names in
+    ``liethermo.MODEL_MODULES`` have registered theirs (imported here, on
+    first need, so that ``import liethermo`` stays light)."""
+    import importlib
+
+    import liethermo
+
+    for name in liethermo.MODEL_MODULES:
+        importlib.import_module(name)
+    return _OTHER_MODELS
+
+
 def _other_model(tables) -> OtherModel | None:
-    for m in _OTHER_MODELS:
+    for m in _other_models():
         if isinstance(tables, m.scene_class) or (isinstance(tables, dict) and m.marks(tables)):
             return m
     return None
@@ -788,7 +786,7 @@ def scenes_markdown() -> str:
     lines += ["", "## Keys", "",
               "Units are SI; 1 marks a dimensionless number, — a key without a unit.", "",
               keys_table(markdown=True).rstrip("\n")]
-    for m in _OTHER_MODELS:
+    for m in _other_models():
         lines += ["", f"## Keys of {m.title}", "", m.intro.rstrip("\n"), "",
                   keys_table(markdown=True, keys=m.keys).replace("### [", f"### {m.name} scene: [").rstrip("\n")]
     return "\n".join(lines) + "\n"
