@@ -315,7 +315,35 @@ def test_blow_up_ensemble_labels_without_warnings():
     ok = st == 0
     assert np.isfinite(ds["energy_error"].values[ok]).all()
     assert summ.first_fail_step == int(ds["failed_at_step"].values[~ok].min()) > 0
-    assert f"first failure at step {summ.first_fail_step} " in "\n".join(summ.lines())
+    text = "\n".join(summ.lines())
+    assert f"first failure at step {summ.first_fail_step} " in text
+    # completed members whose energy error passed E_mech,0 are counted beside "ok"
+    rel = np.abs(ds["energy_error"].values[ok]) / np.abs(ds["mechanical_energy_initial"].values[ok])[:, None]
+    diverged = int(np.sum(rel.max(axis=1) > 1.0))
+    assert f"ok: {int(ok.sum())} (of which {diverged} diverged: max |E_k - E_0| > 1 x E_mech,0)" in text
+    assert "newton_not_converged" not in text and "Newton" not in text  # RK2 has no Newton solve
+
+
+def test_summary_reads_at_any_scale():
+    """A blown-up ensemble's huge numbers print in exponent form, not in hundreds of
+    digits; a temperature that did not change prints once, not as a range."""
+    import re
+
+    from liethermo.findings import finding_lines
+    from liethermo.runner import RunSummary
+
+    s = RunSummary("paper", "rk2", 200000, 300, 0.1, wall_time=3.5, kernel_time=1e-4, compile_time=0.2,
+                   status_counts={"ok": 82370, "newton_not_converged": 0, "non_finite": 117630},
+                   max_abs_energy_error=1.4e240, max_rel_energy_error=7.7e241, max_gamma_defect=3.2e70,
+                   max_h_omega=1.4395e71, diverged=1040,
+                   findings={"heating": [1e-5, 2.7e240], "T_start": [300.0, 300.0],
+                             "T_end": [300.0, 300.00001]})
+    text = "\n".join(s.lines())
+    assert not re.search(r"[0-9]{9,}", text.replace("200000", "").replace("117630", "")), text
+    assert "max h|Omega|              1.44e+71 rad" in text
+    assert "ok: 82370 (of which 1040 diverged" in text and "newton_not_converged" not in text
+    heating = finding_lines(s.findings)[0]
+    assert "T_0 = 300 K; T_end = 300 K)" in heating and "2.7e+240 K over the members" in heating
 
 
 def test_summary_of_a_run_where_every_member_failed():

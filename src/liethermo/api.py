@@ -102,10 +102,12 @@ def run(scene: str | Path | dict | Scene = "paper", overrides: dict | list | Non
         msc = sc if m == method else method_scene(sc, m)
         results[m] = _run_one(msc, paths.get(m), progress=progress, force=force, resume=resume,
                               preflight=preflight, history=history)
-    if output is not None:
+    wanted = bool(sc["output"]["figures"] if figures is None else figures)
+    if not wanted:
+        line = "  figures: none asked for (figures=False or output.figures = false)"
+    elif output is not None:
         drawn = _draw_figures(paths, Path(output).stem) if draw else []
-        line = (f"  figures: {', '.join(str(f) for f in drawn)}" if drawn
-                else "  figures: none drawn (figures=False or output.figures = false)")
+        line = (f"  figures: {', '.join(str(f) for f in drawn)}" if drawn else "  figures: none drawn")
     else:
         line = "  figures: none drawn (an in-memory run; pass output= to draw them beside the file)"
     for ds in results.values():
