@@ -423,6 +423,27 @@ def test_check_estimates_the_kernel_time_of_each_method(tmp_path, capsys):
     assert not list(tmp_path.iterdir())  # a check writes nothing
 
 
+def test_check_warns_of_an_output_conflict_and_still_estimates(tmp_path, capsys):
+    """After a run, --check of another scene into the same output says the run would be
+    refused (a warning on stderr, exit 0) and still prints its estimates; the file is kept."""
+    out = tmp_path / "p.nc"
+    small = ["--set", "output.compare=[]", "--set", "output.figures=false", "--no-progress"]
+    assert main(["run", "paper", "-o", str(out), "--set", "ensemble.members=2", "--set",
+                 "integrator.steps=20", *small]) == 0
+    before = out.stat().st_mtime_ns
+    capsys.readouterr()
+    assert main(["run", "paper", "-o", str(out), "--check", "--set", "ensemble.members=1000",
+                 "--set", "integrator.steps=20", *small]) == 0
+    cap = capsys.readouterr()
+    assert (f"liethermo: warning: the run would be refused: {out} exists and holds a run of another scene, "
+            "differing in ensemble.members") in cap.err
+    assert "on disk" in cap.out and "vi: about" in cap.out and "of kernel time on this machine" in cap.out
+    assert out.stat().st_mtime_ns == before
+    assert main(["run", "paper", "-o", str(out), "--set", "ensemble.members=1000", "--set",
+                 "integrator.steps=20", *small]) == 2  # the run itself is refused
+    assert "exists and holds a run of another scene" in capsys.readouterr().err
+
+
 def test_a_long_run_says_how_long_before_it_starts(tmp_path, monkeypatch, capsys):
     from liethermo import cli
 

@@ -42,7 +42,8 @@ def cmd_run(args) -> int:
             raise PreflightError("--resume keeps what an earlier run left and --force replaces it: "
                                  "give one of them")
         plan = prepare_run(scene, args.output, force=args.force, resume=args.resume,
-                           dask=bool(args.dask), combine=not args.no_combine, clean=not args.check)
+                           dask=bool(args.dask), combine=not args.no_combine, clean=not args.check,
+                           warn_conflicts=args.check)
     except (SceneError, PreflightError) as exc:
         return _error(exc)
     try:
