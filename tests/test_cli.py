@@ -444,6 +444,33 @@ def test_check_warns_of_an_output_conflict_and_still_estimates(tmp_path, capsys)
     assert "exists and holds a run of another scene" in capsys.readouterr().err
 
 
+def test_check_of_a_fluid_scene_estimates_time_and_memory(tmp_path, capsys):
+    """--check of a Zeitlin scene gives the basis's and each method's time and memory,
+    and warns of N = 1024 (a set-up of minutes, 8.6 GB, a run of hours or more)."""
+    import re
+
+    base = ["run", "zeitlin_decay", "-o", str(tmp_path / "z.nc"), "--check"]
+    assert main(base) == 0
+    cap = capsys.readouterr()
+    assert "split: about" in cap.out and "rk4: about" in cap.out and "in all: about" in cap.out
+    assert "warning" not in cap.err
+    assert main([*base, "--set", "zeitlin.N=1024"]) == 0
+    cap = capsys.readouterr()
+    assert "basis of su(1024): about 3.0 min and 8.6 GB" in cap.out
+    assert re.search(r"liethermo: warning: this run would take about [0-9.]+ (h|days) on this machine", cap.err)
+    assert not list(tmp_path.iterdir())  # a check writes nothing
+
+
+def test_fluid_estimates_memory_of_the_basis_it_builds():
+    """The estimate's basis size is what kernels.basis holds (two copies of S numbers)."""
+    from liethermo.zeitlin import kernels as zk
+    from liethermo.zeitlin.estimate import basis_bytes, basis_numbers
+
+    b = zk.basis(24)
+    assert b.vecs.nbytes + b.vecs_t.nbytes == 16 * basis_numbers(24) == basis_bytes(24) * 2 // 3
+    assert basis_numbers(24) == sum((24 - d) ** 2 for d in range(24))
+
+
 def test_a_long_run_says_how_long_before_it_starts(tmp_path, monkeypatch, capsys):
     from liethermo import cli
 

@@ -21,6 +21,8 @@ NOT_IN_HISTORY = {"--resume", "--force", "--no-progress"}
 #: and the estimate printed when it exceeds LONG_RUN_SECONDS
 LONG_RUN_MEMBER_STEPS = 2**26
 LONG_RUN_SECONDS = 60.0
+#: a Zeitlin run of at least this N estimates its time first (its basis alone takes seconds)
+ZEITLIN_ANNOUNCE_N = 256
 
 
 def _error(msg) -> int:
@@ -133,6 +135,7 @@ def _run_zeitlin(args, scene) -> int:
         if getattr(args, flag):
             return _error(f"--{flag} is not available for a Zeitlin scene (its runs are written whole)")
     if args.check:
+        from .zeitlin.estimate import estimate
         from .zeitlin.run import check_memory
 
         try:
@@ -141,7 +144,23 @@ def _run_zeitlin(args, scene) -> int:
             return _error(exc)
         paths = output_paths(scene, args.output)
         print(f"scene {scene.name!r} is valid: outputs {', '.join(str(p) for p in paths.values())}")
+        for w in _zeitlin_output_conflicts(scene, paths, args.force):
+            print(w, file=sys.stderr)
+        est = estimate(scene, list(paths))
+        print("\n".join(est.lines()))
+        for w in est.warnings():
+            print(w, file=sys.stderr)
         return 0
+    from .zeitlin.estimate import LONG_SECONDS, build_basis, estimate
+
+    if scene["zeitlin"]["N"] >= ZEITLIN_ANNOUNCE_N and not args.no_progress:
+        est = estimate(scene, list(output_paths(scene, args.output)))  # a probe of a fraction of a second
+        if est.seconds > LONG_SECONDS / 10:
+            from .runner import human_seconds
+
+            print(f"liethermo: this run will take about {human_seconds(est.seconds)} on this machine "
+                  "(liethermo run --check says why)", file=sys.stderr, flush=True)
+    build_basis(scene["zeitlin"]["N"], progress=False if args.no_progress else None)
     try:
         results = run_outputs(scene, args.output, progress=None if not args.no_progress else False,
                               force=args.force, history=args.command_line)
@@ -152,6 +171,19 @@ def _run_zeitlin(args, scene) -> int:
     for f in next(iter(results.values())).attrs.get("figures", []):
         print(f"  figure {f}")
     return 0
+
+
+def _zeitlin_output_conflicts(scene, paths, force) -> list[str]:
+    """The outputs a Zeitlin run would refuse to replace, as warning lines."""
+    from .zeitlin.run import OutputError, _check_output
+
+    out = []
+    for p in paths.values():
+        try:
+            _check_output(p, scene, force)
+        except OutputError as exc:
+            out.append(f"liethermo: warning: the run would be refused: {exc}")
+    return out
 
 
 def _announce_long_runs(todo, args) -> None:
