@@ -258,3 +258,29 @@ def test_history_default_names_the_api_call(tmp_path):
     run_scene("paper", out, overrides=["ensemble.members=2", "integrator.steps=5"], progress=False,
               history="my_notebook: run the paper scene")
     assert _history_command(out) == "my_notebook: run the paper scene"
+
+
+def test_every_printed_time_selects_its_time(tmp_path):
+    """t holds the decimal times k h (0.3, not 3 x 0.1 = 0.30000000000000004), so
+    ``ds.sel(t=...)`` with a time as printed finds every one of the paper scene's 301
+    times, in memory and in the file, and a Zeitlin run's too."""
+    from decimal import Decimal
+
+    from liethermo.scene import load_scene
+    from liethermo.zeitlin.run import simulate
+
+    out = tmp_path / "p.nc"
+    assert main(["run", "paper", "-o", str(out), "--set", "output.compare=[]", "--set", "output.figures=false",
+                 "--no-progress"]) == 0
+    ds = cf.load_dataset(out)
+    printed = [float(Decimal(k) * Decimal("0.1")) for k in range(301)]  # 0, 0.1, ..., 30 as typed
+    assert ds.sizes["t"] == 301
+    assert [float(ds.sel(t=t)["t"]) for t in printed] == printed
+    assert ds.sel(t=0.3)["step"].item() == 3 and np.array_equal(ds["step"].values, np.arange(301))
+    assert cf.decimal_times([3, 7], 0.1).tolist() == [0.3, 0.7] and 3 * 0.1 != 0.3  # what it fixes
+    assert cf.decimal_times([3], 2.5e-05)[0] == 7.5e-05 and cf.decimal_times([2], 0.5)[0] == 1.0
+    z = simulate(load_scene("zeitlin_decay", {"zeitlin.N": 4, "initial.lmax": 3, "initial.m": 2, "ensemble.members": 1,
+                                              "integrator.steps": 60, "output.every": 3,
+                                              "integrator.method": "rk4"}), progress=False)
+    zt = [float(Decimal(j) * Decimal("0.03")) for j in range(21)]
+    assert [float(z.sel(t=t)["t"]) for t in zt] == zt

@@ -246,7 +246,9 @@ CORE_KEYS: tuple[Key, ...] = (
         "(0, 0, 3m1a/(8m) − m2a/(2m)); ellipsoid: the centre (no gravity torque). An "
         "ellipsoid's centre is at G, so a G ≠ 0 also drags its centre through the fluid",
         word_or("shape", _com_check, aliases=("hemispheres",))),
-    Key("thermo", "T0", 300.0, "K", "> 0", "initial temperature", number(0.0, lo_open=True)),
+    Key("thermo", "T0", 300.0, "K", "> 0", "reference temperature θ(S_0) of the internal energy: the initial "
+        "temperature unless body.thermal_expansion > 0, which starts T lower by φφ'Ω·𝕀₀Ω "
+        "(coupled_egg: 299.4 K)", number(0.0, lo_open=True)),
     Key("thermo", "S0", 0.0, "J K-1", "finite", "initial entropy", number()),
     Key("thermo", "heat_capacity", "material", "J K-1", '"material" | > 0',
         'heat capacity c_v of body and fluid; "material": Dulong–Petit 3 (m/M) R',
