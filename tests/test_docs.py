@@ -516,3 +516,15 @@ def test_api_md_accessor_example_prints_what_it_says():
     with contextlib.redirect_stdout(out):
         exec(compile(block, "docs/api.md", "exec"), {"liethermo": liethermo, "np": np})
     assert out.getvalue().splitlines()[-1] == str(ast.literal_eval(expected))
+
+
+def test_scene_files_the_docs_run_are_shipped():
+    """Every ``liethermo run FILE.toml`` in the README and docs/scenes.md (where a new
+    user starts) names a shipped scene file that loads: the example of a scene of one's own."""
+    named = set()
+    for doc in [README, SCENES_MD]:
+        named |= set(re.findall(r"liethermo run (\S+\.toml)", doc.read_text(encoding="utf-8")))
+    assert "examples/my_scene.toml" in named
+    for path in named:
+        assert (ROOT / path).is_file(), path
+        assert load_scene(str(ROOT / path)).name

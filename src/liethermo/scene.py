@@ -735,7 +735,7 @@ is taken as a string, also inside a list: `[rk4, vi]`), or `{"section.key": valu
 
 ```bash
 liethermo run paper --set integrator.h=0.05 --set 'initial.omega=[2,-1,0.5]'
-liethermo run my_scene.toml -o out.nc --set integrator.method=rk4
+liethermo run examples/my_scene.toml -o out.nc --set integrator.method=rk4
 ```
 
 Every rule below is checked before any work starts; a scene that breaks one is
