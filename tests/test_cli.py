@@ -423,6 +423,23 @@ def test_check_estimates_the_kernel_time_of_each_method(tmp_path, capsys):
     assert not list(tmp_path.iterdir())  # a check writes nothing
 
 
+def test_help_describes_both_models_and_lists_every_builtin_scene(capsys):
+    """``liethermo --help`` names the Zeitlin fluid beside the top, and ``run --help``
+    lists every built-in scene under its model."""
+    from liethermo.scene import builtin_scenes
+
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "heavy top" in text and "Zeitlin fluid" in text
+    with pytest.raises(SystemExit):
+        main(["run", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    fluid = text[text.index("the Zeitlin fluid:"):]
+    for name in builtin_scenes():
+        assert name in text and (name in fluid) == name.startswith("zeitlin"), name
+
+
 def test_check_warns_of_an_output_conflict_and_still_estimates(tmp_path, capsys):
     """After a run, --check of another scene into the same output says the run would be
     refused (a warning on stderr, exit 0) and still prints its estimates; the file is kept."""
