@@ -343,7 +343,7 @@ def test_summary_reads_at_any_scale():
     assert "max h|Omega|              1.44e+71 rad" in text
     assert "ok: 82370 (of which 1040 diverged" in text and "newton_not_converged" not in text
     heating = finding_lines(s.findings)[0]
-    assert "T_0 = 300 K; T_end = 300 K)" in heating and "2.7e+240 K over the members" in heating
+    assert "T(0) = 300 K; T(end) = 300 K)" in heating and "2.7e+240 K over the members" in heating
 
 
 def test_summary_of_a_run_where_every_member_failed():
