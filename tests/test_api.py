@@ -101,6 +101,8 @@ def test_run_never_drops_the_scenes_compared_methods(tmp_path, monkeypatch):
         liethermo.run("paper", small, compare=False, figures=True)
     ds = liethermo.run("paper", small, compare=False)
     assert ds.attrs["method"] == "vi" and "none drawn (an in-memory run" in ds.attrs["summary"]
+    quiet = liethermo.run("paper", {**small, "output.figures": False}, compare=False)
+    assert "figures: none asked for" in quiet.attrs["summary"] and "in-memory" not in quiet.attrs["summary"]
     runs = liethermo.run("paper", small, output="p.nc", compare=True)
     assert list(runs) == ["vi", "rk2"] and runs["rk2"].attrs["method"] == "rk2"
     names = sorted(p.name for p in tmp_path.iterdir())
@@ -111,6 +113,7 @@ def test_run_never_drops_the_scenes_compared_methods(tmp_path, monkeypatch):
         d.close()
     one = liethermo.run("paper", small, output="q.nc", compare=False, figures=False)
     assert not list(tmp_path.glob("q_*")) and one.attrs["method"] == "vi"
+    assert "figures: none asked for" in one.attrs["summary"]
     one.close()
 
 

@@ -315,7 +315,35 @@ def test_blow_up_ensemble_labels_without_warnings():
     ok = st == 0
     assert np.isfinite(ds["energy_error"].values[ok]).all()
     assert summ.first_fail_step == int(ds["failed_at_step"].values[~ok].min()) > 0
-    assert f"first failure at step {summ.first_fail_step} " in "\n".join(summ.lines())
+    text = "\n".join(summ.lines())
+    assert f"first failure at step {summ.first_fail_step} " in text
+    # completed members whose energy error passed E_mech,0 are counted beside "ok"
+    rel = np.abs(ds["energy_error"].values[ok]) / np.abs(ds["mechanical_energy_initial"].values[ok])[:, None]
+    diverged = int(np.sum(rel.max(axis=1) > 1.0))
+    assert f"ok: {int(ok.sum())} (of which {diverged} diverged: max |E_k - E_0| > 1 x E_mech,0)" in text
+    assert "newton_not_converged" not in text and "Newton" not in text  # RK2 has no Newton solve
+
+
+def test_summary_reads_at_any_scale():
+    """A blown-up ensemble's huge numbers print in exponent form, not in hundreds of
+    digits; a temperature that did not change prints once, not as a range."""
+    import re
+
+    from liethermo.findings import finding_lines
+    from liethermo.runner import RunSummary
+
+    s = RunSummary("paper", "rk2", 200000, 300, 0.1, wall_time=3.5, kernel_time=1e-4, compile_time=0.2,
+                   status_counts={"ok": 82370, "newton_not_converged": 0, "non_finite": 117630},
+                   max_abs_energy_error=1.4e240, max_rel_energy_error=7.7e241, max_gamma_defect=3.2e70,
+                   max_h_omega=1.4395e71, diverged=1040,
+                   findings={"heating": [1e-5, 2.7e240], "T_start": [300.0, 300.0],
+                             "T_end": [300.0, 300.00001]})
+    text = "\n".join(s.lines())
+    assert not re.search(r"[0-9]{9,}", text.replace("200000", "").replace("117630", "")), text
+    assert "max h|Omega|              1.44e+71 rad" in text
+    assert "ok: 82370 (of which 1040 diverged" in text and "newton_not_converged" not in text
+    heating = finding_lines(s.findings)[0]
+    assert "T(0) = 300 K; T(end) = 300 K)" in heating and "2.7e+240 K over the members" in heating
 
 
 def test_summary_of_a_run_where_every_member_failed():
@@ -393,6 +421,71 @@ def test_check_estimates_the_kernel_time_of_each_method(tmp_path, capsys):
     for m in ("vi", "rk2"):
         assert 3 < est[10000][m] / est[1000][m] < 30, est
     assert not list(tmp_path.iterdir())  # a check writes nothing
+
+
+def test_help_describes_both_models_and_lists_every_builtin_scene(capsys):
+    """``liethermo --help`` names the Zeitlin fluid beside the top, and ``run --help``
+    lists every built-in scene under its model."""
+    from liethermo.scene import builtin_scenes
+
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "heavy top" in text and "Zeitlin fluid" in text
+    with pytest.raises(SystemExit):
+        main(["run", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    fluid = text[text.index("the Zeitlin fluid:"):]
+    for name in builtin_scenes():
+        assert name in text and (name in fluid) == name.startswith("zeitlin"), name
+
+
+def test_check_warns_of_an_output_conflict_and_still_estimates(tmp_path, capsys):
+    """After a run, --check of another scene into the same output says the run would be
+    refused (a warning on stderr, exit 0) and still prints its estimates; the file is kept."""
+    out = tmp_path / "p.nc"
+    small = ["--set", "output.compare=[]", "--set", "output.figures=false", "--no-progress"]
+    assert main(["run", "paper", "-o", str(out), "--set", "ensemble.members=2", "--set",
+                 "integrator.steps=20", *small]) == 0
+    before = out.stat().st_mtime_ns
+    capsys.readouterr()
+    assert main(["run", "paper", "-o", str(out), "--check", "--set", "ensemble.members=1000",
+                 "--set", "integrator.steps=20", *small]) == 0
+    cap = capsys.readouterr()
+    assert (f"liethermo: warning: the run would be refused: {out} exists and holds a run of another scene, "
+            "differing in ensemble.members") in cap.err
+    assert "on disk" in cap.out and "vi: about" in cap.out and "of kernel time on this machine" in cap.out
+    assert out.stat().st_mtime_ns == before
+    assert main(["run", "paper", "-o", str(out), "--set", "ensemble.members=1000", "--set",
+                 "integrator.steps=20", *small]) == 2  # the run itself is refused
+    assert "exists and holds a run of another scene" in capsys.readouterr().err
+
+
+def test_check_of_a_fluid_scene_estimates_time_and_memory(tmp_path, capsys):
+    """--check of a Zeitlin scene gives the basis's and each method's time and memory,
+    and warns of N = 1024 (a set-up of minutes, 8.6 GB, a run of hours or more)."""
+    import re
+
+    base = ["run", "zeitlin_decay", "-o", str(tmp_path / "z.nc"), "--check"]
+    assert main(base) == 0
+    cap = capsys.readouterr()
+    assert "split: about" in cap.out and "rk4: about" in cap.out and "in all: about" in cap.out
+    assert "warning" not in cap.err
+    assert main([*base, "--set", "zeitlin.N=1024"]) == 0
+    cap = capsys.readouterr()
+    assert "basis of su(1024): about 3.0 min and 8.6 GB" in cap.out
+    assert re.search(r"liethermo: warning: this run would take about [0-9.]+ (h|days) on this machine", cap.err)
+    assert not list(tmp_path.iterdir())  # a check writes nothing
+
+
+def test_fluid_estimates_memory_of_the_basis_it_builds():
+    """The estimate's basis size is what kernels.basis holds (two copies of S numbers)."""
+    from liethermo.zeitlin import kernels as zk
+    from liethermo.zeitlin.estimate import basis_bytes, basis_numbers
+
+    b = zk.basis(24)
+    assert b.vecs.nbytes + b.vecs_t.nbytes == 16 * basis_numbers(24) == basis_bytes(24) * 2 // 3
+    assert basis_numbers(24) == sum((24 - d) ** 2 for d in range(24))
 
 
 def test_a_long_run_says_how_long_before_it_starts(tmp_path, monkeypatch, capsys):

@@ -476,3 +476,55 @@ def test_readme_python_lines_run(tmp_path, monkeypatch):
     for d in ns["runs"].values():
         d.close()
     ns["ds"].close()
+
+
+# ------------------------------------------------------------------ numbers of runs the docs quote
+def test_coupled_egg_heating_is_quoted_as_its_run_gives_it(model_md):
+    """coupled_egg's heating, start and end temperature and inertia growth, as its own run
+    prints them, are the one set of numbers the scene, docs/api.md, docs/model.md and
+    thermo.T0's description quote (T_0 = 300 K is not its starting temperature)."""
+    from liethermo.runner import run_scene
+
+    ds, summ = run_scene(load_scene("coupled_egg", {"output.attitude": False}), progress=False)
+    f = summ.findings
+    heating, start, end = f"{f['heating'][1]:.1f} K", f"{f['T_start'][1]:.1f} K", f"{f['T_end'][1]:.1f} K"
+    growth = f"{f['inertia_change'][1]:.3g} %"
+    assert (heating, start, end, growth) == ("19.0 K", "299.4 K", "318.4 K", "3.72 %")
+    api_md = (ROOT / "docs" / "api.md").read_text(encoding="utf-8")
+    toml = (ROOT / "src" / "liethermo" / "scenes" / "coupled_egg.toml").read_text(encoding="utf-8")
+    for doc in (api_md, model_md, toml):
+        assert _quotes(doc, heating) and _quotes(doc, growth), doc[:80]
+    for doc in (api_md, model_md, toml):
+        assert _quotes(doc, start) and _quotes(doc, end)
+    assert heating in builtin_scenes()["coupled_egg"] and growth in builtin_scenes()["coupled_egg"]
+    t0 = next(k for k in KEYS if k.section == "thermo" and k.name == "T0")
+    assert start in t0.doc and "initial temperature unless" in t0.doc
+
+
+def test_api_md_accessor_example_prints_what_it_says():
+    """The accessor example of docs/api.md, run as written: its printed sizes are the comment's."""
+    import ast
+    import contextlib
+    import io
+
+    api_md = (ROOT / "docs" / "api.md").read_text(encoding="utf-8")
+    block = next(b for b in re.findall(r"```python\n(.*?)```", api_md, re.S) if "band.sizes" in b)
+    expected = re.search(r"print\(dict\(band\.sizes\)\)\s*# (\{.*\})", block).group(1)
+    import liethermo
+
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        exec(compile(block, "docs/api.md", "exec"), {"liethermo": liethermo, "np": np})
+    assert out.getvalue().splitlines()[-1] == str(ast.literal_eval(expected))
+
+
+def test_scene_files_the_docs_run_are_shipped():
+    """Every ``liethermo run FILE.toml`` in the README and docs/scenes.md (where a new
+    user starts) names a shipped scene file that loads: the example of a scene of one's own."""
+    named = set()
+    for doc in [README, SCENES_MD]:
+        named |= set(re.findall(r"liethermo run (\S+\.toml)", doc.read_text(encoding="utf-8")))
+    assert "examples/my_scene.toml" in named
+    for path in named:
+        assert (ROOT / path).is_file(), path
+        assert load_scene(str(ROOT / path)).name

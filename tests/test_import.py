@@ -23,6 +23,30 @@ print('OK', len(jitted))
     assert p.returncode == 0 and "OK" in p.stdout, p.stdout + p.stderr
 
 
+def test_import_and_help_are_light():
+    """``import liethermo`` and ``liethermo --help`` load neither xarray nor numba (each a
+    sizeable part of a second); ``ds.liethermo`` exists as soon as xarray is imported,
+    whichever comes first, and the public names load on first use."""
+    code = """
+import sys
+import liethermo
+from liethermo.cli import build_parser
+build_parser().format_help()
+heavy = [m for m in ("xarray", "numba", "scipy", "matplotlib", "pandas") if m in sys.modules]
+assert not heavy, heavy
+import xarray as xr
+assert hasattr(xr.Dataset(), "liethermo")
+assert liethermo.run.__module__ == "liethermo.api" and "run" in dir(liethermo)
+assert callable(liethermo.load_scene) and issubclass(liethermo.SceneError, Exception)
+print('OK')
+"""
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert p.returncode == 0 and "OK" in p.stdout, p.stdout + p.stderr
+    code_after = "import xarray as xr, liethermo; assert hasattr(xr.Dataset(), 'liethermo'); print('OK')"
+    p = subprocess.run([sys.executable, "-c", code_after], capture_output=True, text=True)
+    assert p.returncode == 0 and "OK" in p.stdout, p.stdout + p.stderr
+
+
 def test_stale_kernel_cache_is_dropped(tmp_path, monkeypatch):
     """numba checks only the defining file of a cached function; liethermo stamps a hash of
     all kernel sources beside the cache and drops the cache when any source changes."""

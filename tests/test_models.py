@@ -198,10 +198,10 @@ def egg():
     return physics_of_scene(scene), om0, R
 
 
-def test_coupled_top_conserves_energy_and_heats_by_18_kelvin(egg):
+def test_coupled_top_conserves_energy_and_heats_by_19_kelvin(egg):
     """The continuous coupled model conserves E = ½Ω·𝕀(S)Ω + V + U(S) (the
     reference: ≤ 1e-12 of the mechanical energy over 30 s); the top heats
-    from 300 K to ≈ 318 K and its inertia grows by ≈ 4 %."""
+    from 299.4 K to 318.3 K (18.9 K) and its inertia grows by 3.7 %."""
     phys, om0, R = egg
     tr = simulate(phys, om0, R, 0.05, 600, "reference", every=10)
     assert tr.status[0] == STATUS_OK

@@ -258,3 +258,43 @@ def test_history_default_names_the_api_call(tmp_path):
     run_scene("paper", out, overrides=["ensemble.members=2", "integrator.steps=5"], progress=False,
               history="my_notebook: run the paper scene")
     assert _history_command(out) == "my_notebook: run the paper scene"
+
+
+def test_every_printed_time_selects_its_time(tmp_path, monkeypatch):
+    """t holds the decimal times k h (0.3, not 3 x 0.1 = 0.30000000000000004), so
+    ``ds.sel(t=...)`` with a time as printed finds every one of the paper scene's 301
+    times in its file, and a Zeitlin run's too; docs/netcdf.md's plain-xarray block runs
+    on that file and labels the relative energy error as a ratio, not in J."""
+    from decimal import Decimal
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from liethermo.scene import load_scene
+    from liethermo.zeitlin.run import simulate
+
+    monkeypatch.chdir(tmp_path)
+    out = tmp_path / "data" / "runs" / "paper_vi.nc"
+    assert main(["run", "paper", "--set", "output.compare=[]", "--set", "output.figures=false",
+                 "--no-progress"]) == 0
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "netcdf.md").read_text()
+    block = re.search(r"## Opening a file.*?```python\n(.*?)```", doc, re.S).group(1)
+    ns: dict = {}
+    exec(compile(block, "docs/netcdf.md", "exec"), ns)
+    assert plt.gca().get_ylabel() == "(E_k - E_0)/E_mech,0 [1]"
+    plt.close("all")
+    ns["ds"].close()
+    ds = cf.load_dataset(out)
+    printed = [float(Decimal(k) * Decimal("0.1")) for k in range(301)]  # 0, 0.1, ..., 30 as typed
+    assert ds.sizes["t"] == 301
+    assert [float(ds.sel(t=t)["t"]) for t in printed] == printed
+    assert ds.sel(t=0.3)["step"].item() == 3 and np.array_equal(ds["step"].values, np.arange(301))
+    assert cf.decimal_times([3, 7], 0.1).tolist() == [0.3, 0.7] and 3 * 0.1 != 0.3  # what it fixes
+    assert cf.decimal_times([3], 2.5e-05)[0] == 7.5e-05 and cf.decimal_times([2], 0.5)[0] == 1.0
+    z = simulate(load_scene("zeitlin_decay", {"zeitlin.N": 4, "initial.lmax": 3, "initial.m": 2, "ensemble.members": 1,
+                                              "integrator.steps": 60, "output.every": 3,
+                                              "integrator.method": "rk4"}), progress=False)
+    zt = [float(Decimal(j) * Decimal("0.03")) for j in range(21)]
+    assert [float(z.sel(t=t)["t"]) for t in zt] == zt

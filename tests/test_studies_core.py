@@ -156,6 +156,21 @@ def test_invalid_study_is_one_line_exit_2_and_no_output(tmp_path, capsys, text, 
     assert not out.exists()
 
 
+def test_terminal_table_is_the_markdown_table_as_plain_text(tmp_path):
+    """A report's markdown table printed on a terminal: aligned columns, escaped
+    "|" shown as "|", no markdown markers, same cells."""
+    df = pd.DataFrame({"scheme": ["vi:node", "rk4"], "max ||Gamma| - 1|": [1.5e-15, 2e-9], "order": [2.01, 4.0]})
+    md = common.markdown_table(df, "Orders of `vi`", "(CSV: `x.csv`)")
+    assert "\\|" in md  # the markdown escapes the header's bars
+    (tmp_path / "report.md").write_text("# Study\n\n" + md)
+    text = common.terminal_table(common.first_table(tmp_path / "report.md"))
+    lines = text.splitlines()
+    assert lines[0] == "Orders of vi" and "\\" not in text and "`" not in text
+    assert lines[1].split("  ")[1].strip() == "max ||Gamma| - 1|"
+    assert lines[2].startswith("-------  ") and lines[3].split()[0] == "vi:node" and len(lines) == 5
+    assert lines[1].index("max") == lines[3].index(lines[3].split()[1])  # columns aligned
+
+
 def test_cli_prints_key_table_and_resumes(convergence, capsys, monkeypatch):
     """A second run into the same folder recomputes no sweep point."""
     out, _, _ = convergence
@@ -169,7 +184,12 @@ def test_cli_prints_key_table_and_resumes(convergence, capsys, monkeypatch):
     before = sorted(p.name for p in (out / "points").iterdir())
     assert main(["study", str(STUDIES / "convergence.toml"), "--reduced", "-o", str(out), "--no-progress"]) == 0
     printed = capsys.readouterr().out
-    assert "| vi:node:explicit | node |" in printed and "report.md" in printed
+    import re
+
+    # the terminal gets plain text, the report keeps its markdown
+    assert re.search(r"^vi:node:explicit +node ", printed, re.M) and "report.md" in printed
+    assert "\\|" not in printed and "| " not in printed
+    assert "| vi:node:explicit | node |" in (out / "report.md").read_text()
     assert sorted(p.name for p in (out / "points").iterdir()) == before
 
 

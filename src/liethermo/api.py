@@ -26,10 +26,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import xarray as xr
 
 from . import cf
+from .accessor import LiethermoAccessor  # noqa: F401  (registers ds.liethermo)
 from .preflight import PreflightError  # noqa: F401  (re-exported)
 from .scene import Scene, SceneError  # noqa: F401  (re-exported)
 from .scene import load_scene as _load_scene
@@ -102,10 +102,12 @@ def run(scene: str | Path | dict | Scene = "paper", overrides: dict | list | Non
         msc = sc if m == method else method_scene(sc, m)
         results[m] = _run_one(msc, paths.get(m), progress=progress, force=force, resume=resume,
                               preflight=preflight, history=history)
-    if output is not None:
+    wanted = bool(sc["output"]["figures"] if figures is None else figures)
+    if not wanted:
+        line = "  figures: none asked for (figures=False or output.figures = false)"
+    elif output is not None:
         drawn = _draw_figures(paths, Path(output).stem) if draw else []
-        line = (f"  figures: {', '.join(str(f) for f in drawn)}" if drawn
-                else "  figures: none drawn (figures=False or output.figures = false)")
+        line = (f"  figures: {', '.join(str(f) for f in drawn)}" if drawn else "  figures: none drawn")
     else:
         line = "  figures: none drawn (an in-memory run; pass output= to draw them beside the file)"
     for ds in results.values():
@@ -268,54 +270,3 @@ def open_dataset(path: str | Path, **kwargs) -> xr.Dataset:
     dimensions.  Keywords go to ``xarray.open_dataset`` (e.g. ``chunks={}``
     for a lazy, chunked read of a large ensemble)."""
     return cf.open_dataset(path, **kwargs)
-
-
-@xr.register_dataset_accessor("liethermo")
-class LiethermoAccessor:
-    """``ds.liethermo``: the quantities analysts of a run dataset compute again and again."""
-
-    def __init__(self, ds: xr.Dataset):
-        self._ds = ds
-
-    @property
-    def ok(self) -> xr.DataArray:
-        """Members that completed every step (status ok)."""
-        return self._ds["status"] == 0
-
-    @property
-    def failed(self) -> xr.DataArray:
-        """Members that failed (Newton did not converge, or the state overflowed)."""
-        return self._ds["status"] != 0
-
-    def status_counts(self) -> dict[str, int]:
-        """Members per status meaning."""
-        st = self._ds["status"]
-        meanings = str(st.attrs.get("flag_meanings", "ok newton_not_converged non_finite")).split()
-        values = np.asarray(st.attrs.get("flag_values", range(len(meanings)))).tolist()
-        return {m: int((st == v).sum()) for m, v in zip(meanings, values)}
-
-    def relative_energy_error(self, convention: str = "node") -> xr.DataArray:
-        """(E_k − E₀)/E_mech,0 (dimensionless) with E_mech,0 = K₀ + V₀ + |m g ℓ|, the
-        energy friction can turn into heat.  ``convention="node"``: node values
-        (every method); ``"paper"``: the variational integrators' step velocity
-        with the node values (the paper's figure)."""
-        name = {"node": "energy_error", "paper": "energy_error_paper"}.get(convention)
-        if name is None:
-            raise ValueError(f"convention must be 'node' or 'paper', got {convention!r}")
-        if name not in self._ds:
-            raise KeyError(f"{name}: this dataset has no energy error in the {convention} convention "
-                           "(it exists for the variational integrators only)")
-        rel = self._ds[name] / self._ds["mechanical_energy_initial"]
-        rel.attrs = {"units": "1", "long_name": f"relative total energy error ({convention} values)"}
-        return rel
-
-    def quantiles(self, variable: str | xr.DataArray, q=(0.05, 0.5, 0.95), *,
-                  only_ok: bool = False) -> xr.DataArray:
-        """Quantiles over the members (e.g. the 5–95 % band and the median of an
-        energy error over time); ``only_ok``: over the members that completed.
-        A failed member's NaN values count as +inf (they are above every band)."""
-        da = self._ds[variable] if isinstance(variable, str) else variable
-        if only_ok:
-            da = da.where(self.ok, drop=True)
-        da = da.fillna(np.inf)
-        return da.quantile(list(q), dim="member", method="inverted_cdf")

@@ -54,6 +54,34 @@ _SECONDS = {"s", "sec", "secs", "second", "seconds"}
 _TEMPERATURE_UNIT = re.compile(r"^(K|kelvin|degC|degree_C|degree_Celsius|celsius|Celsius|degF)(\^?-?\d+)?$")
 
 
+# ----------------------------------------------------------------------------- time values
+
+def decimal_times(steps, h: float) -> np.ndarray:
+    """The times t_k = k h (s) of step indexes ``steps``, each the float nearest the
+    decimal number k × h as h is written (``repr(h)``): 0.3, not 3 × 0.1 =
+    0.30000000000000004, so that ``ds.sel(t=0.3)`` finds it.
+
+    With h = m / 10^e written with e decimals, t_k = (k m) / 10^e: when k m < 2^53
+    and e ≤ 22 both operands are exact doubles and IEEE division rounds the
+    quotient correctly; otherwise Python's correctly rounded integer division
+    does.  A step that has no short decimal (h = 1/3) keeps its 17 digits, and
+    t_k then differs from k h in the last bit at most."""
+    from decimal import Decimal
+
+    k = np.asarray(steps, dtype=np.int64)
+    d = Decimal(repr(float(h)))
+    if not d.is_finite():
+        return k * float(h)
+    sign, digits, exp = d.as_tuple()
+    m = int("".join(map(str, digits)) or "0") * (-1 if sign else 1)
+    if exp >= 0:  # an integral h: k h is exact below 2^53
+        return k * float(h)
+    scale = 10 ** (-exp)
+    if -exp <= 22 and k.size and int(np.abs(k).max()) * abs(m) < 2**53:
+        return (k * m).astype(np.float64) / float(scale)
+    return np.array([(int(j) * m) / scale for j in k.ravel()], dtype=np.float64).reshape(k.shape)
+
+
 # ----------------------------------------------------------------------------- history
 
 def timestamp(when: _dt.datetime | None = None) -> str:

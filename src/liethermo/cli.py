@@ -21,6 +21,8 @@ NOT_IN_HISTORY = {"--resume", "--force", "--no-progress"}
 #: and the estimate printed when it exceeds LONG_RUN_SECONDS
 LONG_RUN_MEMBER_STEPS = 2**26
 LONG_RUN_SECONDS = 60.0
+#: a Zeitlin run of at least this N estimates its time first (its basis alone takes seconds)
+ZEITLIN_ANNOUNCE_N = 256
 
 
 def _error(msg) -> int:
@@ -42,7 +44,8 @@ def cmd_run(args) -> int:
             raise PreflightError("--resume keeps what an earlier run left and --force replaces it: "
                                  "give one of them")
         plan = prepare_run(scene, args.output, force=args.force, resume=args.resume,
-                           dask=bool(args.dask), combine=not args.no_combine, clean=not args.check)
+                           dask=bool(args.dask), combine=not args.no_combine, clean=not args.check,
+                           warn_conflicts=args.check)
     except (SceneError, PreflightError) as exc:
         return _error(exc)
     try:
@@ -132,6 +135,7 @@ def _run_zeitlin(args, scene) -> int:
         if getattr(args, flag):
             return _error(f"--{flag} is not available for a Zeitlin scene (its runs are written whole)")
     if args.check:
+        from .zeitlin.estimate import estimate
         from .zeitlin.run import check_memory
 
         try:
@@ -140,7 +144,23 @@ def _run_zeitlin(args, scene) -> int:
             return _error(exc)
         paths = output_paths(scene, args.output)
         print(f"scene {scene.name!r} is valid: outputs {', '.join(str(p) for p in paths.values())}")
+        for w in _zeitlin_output_conflicts(scene, paths, args.force):
+            print(w, file=sys.stderr)
+        est = estimate(scene, list(paths))
+        print("\n".join(est.lines()))
+        for w in est.warnings():
+            print(w, file=sys.stderr)
         return 0
+    from .zeitlin.estimate import LONG_SECONDS, build_basis, estimate
+
+    if scene["zeitlin"]["N"] >= ZEITLIN_ANNOUNCE_N and not args.no_progress:
+        est = estimate(scene, list(output_paths(scene, args.output)))  # a probe of a fraction of a second
+        if est.seconds > LONG_SECONDS / 10:
+            from .runner import human_seconds
+
+            print(f"liethermo: this run will take about {human_seconds(est.seconds)} on this machine "
+                  "(liethermo run --check says why)", file=sys.stderr, flush=True)
+    build_basis(scene["zeitlin"]["N"], progress=False if args.no_progress else None)
     try:
         results = run_outputs(scene, args.output, progress=None if not args.no_progress else False,
                               force=args.force, history=args.command_line)
@@ -151,6 +171,19 @@ def _run_zeitlin(args, scene) -> int:
     for f in next(iter(results.values())).attrs.get("figures", []):
         print(f"  figure {f}")
     return 0
+
+
+def _zeitlin_output_conflicts(scene, paths, force) -> list[str]:
+    """The outputs a Zeitlin run would refuse to replace, as warning lines."""
+    from .zeitlin.run import OutputError, _check_output
+
+    out = []
+    for p in paths.values():
+        try:
+            _check_output(p, scene, force)
+        except OutputError as exc:
+            out.append(f"liethermo: warning: the run would be refused: {exc}")
+    return out
 
 
 def _announce_long_runs(todo, args) -> None:
@@ -177,13 +210,18 @@ def _figures(plan, stem: str) -> list[Path]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from .scene import builtin_scenes
+    from .scene_files import builtin_scene_tables
 
-    builtins = ", ".join(sorted(builtin_scenes()))
+    tables = builtin_scene_tables()
+    fluid = sorted(n for n, t in tables.items() if "zeitlin" in t)
+    top = sorted(n for n in tables if n not in fluid)
+    builtins = f"the heavy top: {', '.join(top)}; the Zeitlin fluid: {', '.join(fluid)}"
     ap = argparse.ArgumentParser(
         prog="liethermo",
-        description="Structure-preserving simulation of the heavy top in Stokes flow "
-        "(variational integrator vs Runge-Kutta), over ensembles of initial conditions.",
+        description="Structure-preserving simulation of thermodynamic systems on Lie groups, over "
+        "ensembles of initial conditions: the heavy top in Stokes flow (variational integrators, "
+        "splittings and Runge-Kutta methods) and a viscous Zeitlin fluid on the sphere that turns "
+        "its energy into heat (isospectral splitting vs RK4).",
     )
     ap.add_argument("--version", action="version", version=f"liethermo {__version__}")
     sub = ap.add_subparsers(dest="command", required=True)

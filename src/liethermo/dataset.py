@@ -170,8 +170,8 @@ def _trajectory_dataset(traj, omega0, R0, member_offset):
     coords = {
         "member": _var(np.arange(member_offset, member_offset + N, dtype=np.int64), ("member",), "1",
                        "ensemble member"),
-        "t": _var(traj.times, ("t",), "s", "time t",
-                  comment="time since the start of the run, t_k = k h"),
+        "t": _var(cf.decimal_times(traj.step_index, traj.h), ("t",), "s", "time t",
+                  comment="time since the start of the run, t_k = k h (the decimal value of k h)"),
         "step": _var(traj.step_index.astype(np.int64), ("t",), "1", "step index k"),
         "axis": xr.Variable(("axis",), np.array(AXIS), attrs={"units": "1", "long_name": "body-frame axis"}),
     }

@@ -21,7 +21,8 @@ lines:
 * **spin axis** — a friction at constant |μ|: the body ends spinning about
   its major axis (largest moment, when it is unique); the summary gives the
   angle between Ω and that axis at the start and at the end;
-* **heating** — any friction: the temperature change T_end − T₀ (K);
+* **heating** — any friction: the temperature change T(end) − T(0) (K), from the
+  temperature at t = 0 (not the key thermo.T0 when the inertia depends on S);
 * **inertia** — a term that makes the inertia depend on S: the change of the
   inertia over the run (%);
 * **what the terms' parameters set** — each term's own lines
@@ -193,11 +194,13 @@ def merge_findings(a: dict, b: dict) -> dict:
 
 
 def _range(span, fmt: str, unit: str = "") -> str:
+    """``x unit``, or ``lo to hi unit over the members`` when they differ as printed."""
     lo, hi = span
     u = f" {unit}" if unit else ""
-    if lo == hi or abs(hi - lo) <= 1e-9 * max(abs(lo), abs(hi)):
-        return f"{hi:{fmt}}{u}"
-    return f"{lo:{fmt}} to {hi:{fmt}}{u} over the members"
+    a, b = f"{lo:{fmt}}", f"{hi:{fmt}}"
+    if a == b:
+        return f"{b}{u}"
+    return f"{a} to {b}{u} over the members"
 
 
 def _round_off(x: float) -> str:
@@ -236,8 +239,8 @@ def finding_lines(found: dict) -> list[str]:
                 f"                            {_range(found['spin_axis_end'], '.3g', 'deg')} at t = "
                 f"{found['t_end'][1]:g} s (internal friction turns it to the major axis)"]
     if "heating" in found:
-        out.append(f"  heating                   T from {_range(found['T_start'], '.1f', 'K')} to "
-                   f"{_range(found['T_end'], '.1f', 'K')}: T_end - T_0 = {_range(found['heating'], '.4g', 'K')}")
+        out.append(f"  heating                   T(end) - T(0) = {_range(found['heating'], '.4g', 'K')} "
+                   f"(T(0) = {_range(found['T_start'], '.5g', 'K')}; T(end) = {_range(found['T_end'], '.5g', 'K')})")
     if "inertia_change" in found:
         out.append(f"  inertia I(S)              I(S_end) - I(S_0) = "
                    f"{_range(found['inertia_change'], '+.3g', '%')} of I(S_0)")

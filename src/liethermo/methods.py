@@ -133,7 +133,7 @@ class Method:
 
 def _rk_method(name: str, tableau: str, description: str) -> Method:
     """An explicit Runge–Kutta method: its order and stages are its tableau's."""
-    from .kernels.rk import TABLEAUS
+    from .kernels.tableaus import TABLEAUS
 
     cls = TABLEAUS[tableau]
     return Method(name, "rk", description, cls.order, False, cls.stages, (), tableau=tableau)

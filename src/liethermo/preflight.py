@@ -406,10 +406,14 @@ def _check_folder(path: Path, created: list[Path]) -> None:
 
 
 def prepare_run(scene: dict, output=None, *, force: bool = False, resume: bool = False,
-                dask: bool = False, combine: bool = True, check_memory: bool = True, clean: bool = True) -> RunPlan:
+                dask: bool = False, combine: bool = True, check_memory: bool = True, clean: bool = True,
+                warn_conflicts: bool = False) -> RunPlan:
     """Every check before a run; returns the plan (holding the output locks:
     call ``plan.release()`` when done).  Raises :class:`PreflightError`.
-    ``clean=False``: leave what earlier runs left (a check only)."""
+    ``clean=False``: leave what earlier runs left (a check only).
+    ``warn_conflicts``: an existing output that the run would refuse to
+    replace is a warning in ``plan.notes`` instead of an error (a check
+    that still estimates the run)."""
     from .distributed import parts_dir
     from .io import journal_path, partial_path, resume_sources
     from .scene import scene_to_toml
@@ -446,7 +450,10 @@ def prepare_run(scene: dict, output=None, *, force: bool = False, resume: bool =
                 continue
             what = ("is not a liethermo output" if old is None
                     else f"holds a run of another scene, differing in {scene_difference(old, toml)}")
-            raise PreflightError.remedy(f"{o.path} exists and {what}", "force", "elsewhere")
+            refusal = PreflightError.remedy(f"{o.path} exists and {what}", "force", "elsewhere")
+            if not warn_conflicts:
+                raise refusal
+            plan.notes.append(f"liethermo: warning: the run would be refused: {refusal}")
         chosen = {}
         if resume and not dask:
             for o in outs:

@@ -26,6 +26,11 @@ from .scene import Scene, load_scene, scene_to_toml
 from .simulate import STATUS_MEANINGS, simulate
 
 
+#: a member that completed (status ok) counts as diverged when its largest
+#: |E_k - E_0| exceeds this multiple of its initial mechanical energy E_mech,0
+DIVERGED_REL_ENERGY = 1.0
+
+
 @dataclass
 class RunSummary:
     """What a run did, for the one-screen report."""
@@ -47,6 +52,7 @@ class RunSummary:
     newton_max: int = 0
     max_h_omega: float = float("nan")
     first_fail_step: int = 0  # earliest step at which a member failed (0: none failed)
+    diverged: int = 0  # completed members whose energy error exceeds DIVERGED_REL_ENERGY
     path: Path | None = None
     resumed_members: int = 0  # members taken over from an interrupted run
     solves_per_step: int = 0  # Newton solves per step of a variational integrator
@@ -62,37 +68,48 @@ class RunSummary:
         return n * self.steps / self.kernel_time if self.kernel_time > 0 else float("nan")
 
     def lines(self) -> list[str]:
-        st = ", ".join(f"{k}: {v}" for k, v in self.status_counts.items())
+        m = get_method(self.method)
+        counts = dict(self.status_counts)
+        if m.family != "vi":  # no Newton solve: the status cannot occur
+            counts.pop("newton_not_converged", None)
+        n_ok = counts.get("ok", 0)
+        st = ", ".join(f"{k}: {v}" + (f" (of which {self.diverged} diverged: max |E_k - E_0| > "
+                                       f"{DIVERGED_REL_ENERGY:g} x E_mech,0)" if k == "ok" and v else "")
+                       for k, v in counts.items())
         out = [
             f"scene {self.scene_name!r}, method {self.method}: {self.members} member(s) x {self.steps} steps, h = {self.h:g} s",
-            f"  wall time {self.wall_time:.2f} s (kernels {self.kernel_time:.2f} s, compiling or "
-            f"loading them {self.compile_time:.2f} s), throughput {self.throughput:,.0f} member-steps/s",
+            f"  wall time {self.wall_time:.3g} s (simulating and writing; not the command's start-up or figures)",
+            f"  kernels  compiled or loaded in {self.compile_time:.3g} s, ran {self.kernel_time:.3g} s "
+            f"({self.throughput:.3g} member-steps/s)",
             f"  status   {st}",
         ]
         if self.first_fail_step:
             out.append(f"  first failure at step {self.first_fail_step} "
                        f"(t = {self.first_fail_step * self.h:g} s)")
-        n_ok = self.status_counts.get("ok", 0)
         if n_ok:
+            paper = self.max_rel_energy_error_paper
             out += [
                 f"  over the {n_ok} member(s) that completed:",
-                f"  max |E_k - E_0|           {self.max_abs_energy_error:.3e} J "
-                f"({self.max_rel_energy_error:.3e} of the initial mechanical energy; node values)",
-                f"  max ||Gamma| - 1|         {self.max_gamma_defect:.3e}",
-                f"  max h|Omega|              {self.max_h_omega:.3f} rad",
+                f"  max |E_k - E_0|           {self.max_abs_energy_error:.3e} J = "
+                f"{self.max_rel_energy_error:.3e} x E_mech,0 (node values)",
             ]
-            if self.max_rel_energy_error_paper == self.max_rel_energy_error_paper:
-                out.append(f"  (paper convention, step velocity with node values: "
-                           f"{self.max_rel_energy_error_paper:.3e})")
+            if paper == paper:
+                out.append(f"                            {paper:.3e} x E_mech,0 in the paper's convention "
+                           "(step velocity with node values)")
+            out += [
+                f"  max ||Gamma| - 1|         {self.max_gamma_defect:.3e}",
+                f"  max h|Omega|              {self.max_h_omega:.3g} rad (the largest angle turned in one step)",
+                "  E_mech,0                  initial mechanical energy K_0 + V_0 + |m g l| (gravity's V_0 from "
+                "its lowest value)",
+            ]
             out += finding_lines(self.findings)
         else:
             out.append("  no member completed: no accuracy figures")
         out += self.physics_notes
-        m = get_method(self.method)
         if m.family == "vi":
             n = self.solves_per_step or m.evaluations_per_step
-            per_solve = (f"mean {self.newton_mean / n:.2f} per solve ({self.newton_mean:.2f} per step "
-                         f"of {n} solves)" if n > 1 else f"mean {self.newton_mean:.2f} per solve (one per step)")
+            per_solve = (f"mean {self.newton_mean / n:.3g} per solve ({self.newton_mean:.3g} per step "
+                         f"of {n} solves)" if n > 1 else f"mean {self.newton_mean:.3g} per solve (one per step)")
             out.append(f"  Newton iterations         {per_solve}, max {self.newton_max} in one solve")
         if self.resumed_members:
             out.append(f"  resumed: members 0-{self.resumed_members - 1} came from the interrupted run "
@@ -130,6 +147,7 @@ class ChunkStats:
     nsteps_total: int = 0
     nmax: int = 0
     first_fail: int = 0  # earliest failing step over the chunk's members (0: none)
+    diverged: int = 0  # completed members with max |E_k - E_0| > DIVERGED_REL_ENERGY x E_mech,0
     findings: dict = field(default_factory=dict)  # liethermo.findings: {name: [min, max]}
 
     def merge(self, other: "ChunkStats") -> "ChunkStats":
@@ -147,6 +165,7 @@ class ChunkStats:
         self.nmax = max(self.nmax, other.nmax)
         fails = [f for f in (self.first_fail, other.first_fail) if f]
         self.first_fail = min(fails) if fails else 0
+        self.diverged += other.diverged
         merge_findings(self.findings, other.findings)
         return self
 
@@ -267,7 +286,10 @@ def run_chunk(scene: dict, lo: int, hi: int, *, progress_cb=None, kernel: str | 
     st.e_abs = max(st.e_abs, _nanmax(ee))
     em = np.abs(ds["mechanical_energy_initial"].values[ok])[:, None]
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        st.e_rel = max(st.e_rel, _nanmax(ee / em))
+        rel = ee / em
+        st.e_rel = max(st.e_rel, _nanmax(rel))
+        worst = np.max(np.where(np.isnan(rel), 0.0, rel), axis=1, initial=0.0)  # 0/0: no energy to lose
+        st.diverged = int(np.count_nonzero(worst > DIVERGED_REL_ENERGY))
         if "energy_error_paper" in ds:
             st.e_rel_paper = max(st.e_rel_paper,
                                  _nanmax(np.abs(ds["energy_error_paper"].values[ok]) / em))
@@ -297,6 +319,7 @@ def finish_summary(summ: RunSummary, st: ChunkStats) -> RunSummary:
                         if (get_method(summ.method).family == "vi" and st.nsteps_total) else nan)
     summ.newton_max = st.nmax
     summ.first_fail_step = st.first_fail
+    summ.diverged = st.diverged
     summ.findings = dict(st.findings)
     return summ
 

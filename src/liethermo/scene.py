@@ -22,7 +22,6 @@ import math
 import re
 import sys
 from dataclasses import dataclass
-from importlib import resources
 from pathlib import Path
 from typing import Any, Callable
 
@@ -36,6 +35,7 @@ else:  # pragma: no cover
 import tomli_w
 
 from .methods import COMPOSITION_KINDS, ENTROPY_UPDATES, FRICTION, METHODS, STARTS
+from .scene_files import builtin_scene_tables, builtin_scene_text, builtin_scenes  # noqa: F401
 
 
 class SceneError(ValueError):
@@ -246,7 +246,9 @@ CORE_KEYS: tuple[Key, ...] = (
         "(0, 0, 3m1a/(8m) − m2a/(2m)); ellipsoid: the centre (no gravity torque). An "
         "ellipsoid's centre is at G, so a G ≠ 0 also drags its centre through the fluid",
         word_or("shape", _com_check, aliases=("hemispheres",))),
-    Key("thermo", "T0", 300.0, "K", "> 0", "initial temperature", number(0.0, lo_open=True)),
+    Key("thermo", "T0", 300.0, "K", "> 0", "reference temperature θ(S_0) of the internal energy: the initial "
+        "temperature unless body.thermal_expansion > 0, which starts T lower by φφ'Ω·𝕀₀Ω "
+        "(coupled_egg: 299.4 K)", number(0.0, lo_open=True)),
     Key("thermo", "S0", 0.0, "J K-1", "finite", "initial entropy", number()),
     Key("thermo", "heat_capacity", "material", "J K-1", '"material" | > 0',
         'heat capacity c_v of body and fluid; "material": Dulong–Petit 3 (m/M) R',
@@ -440,21 +442,6 @@ def _scene_from_dict(d: dict) -> Scene:
 # ----------------------------------------------------------------------------- built-in scenes
 
 
-def builtin_scenes() -> dict[str, str]:
-    """Names of the built-in scenes → their one-line descriptions."""
-    out = {}
-    for f in sorted(resources.files("liethermo").joinpath("scenes").iterdir(), key=lambda p: p.name):
-        if f.name.endswith(".toml"):
-            data = tomllib.loads(f.read_text())
-            out[f.name[:-5]] = data.get("scene", {}).get("description", "")
-    return out
-
-
-def builtin_scene_text(name: str) -> str | None:
-    f = resources.files("liethermo").joinpath("scenes", f"{name}.toml")
-    return f.read_text() if f.is_file() else None
-
-
 # ----------------------------------------------------------------------------- loading
 
 
@@ -566,8 +553,21 @@ def register_model(model: OtherModel) -> None:
     _OTHER_MODELS[:] = [m for m in _OTHER_MODELS if m.name != model.name] + [model]
 
 
+def _other_models() -> list[OtherModel]:
+    """The registered models, once the modules the package names in
+    ``liethermo.MODEL_MODULES`` have registered theirs (imported here, on
+    first need, so that ``import liethermo`` stays light)."""
+    import importlib
+
+    import liethermo
+
+    for name in liethermo.MODEL_MODULES:
+        importlib.import_module(name)
+    return _OTHER_MODELS
+
+
 def _other_model(tables) -> OtherModel | None:
-    for m in _OTHER_MODELS:
+    for m in _other_models():
         if isinstance(tables, m.scene_class) or (isinstance(tables, dict) and m.marks(tables)):
             return m
     return None
@@ -735,7 +735,7 @@ is taken as a string, also inside a list: `[rk4, vi]`), or `{"section.key": valu
 
 ```bash
 liethermo run paper --set integrator.h=0.05 --set 'initial.omega=[2,-1,0.5]'
-liethermo run my_scene.toml -o out.nc --set integrator.method=rk4
+liethermo run examples/my_scene.toml -o out.nc --set integrator.method=rk4
 ```
 
 Every rule below is checked before any work starts; a scene that breaks one is
@@ -788,7 +788,7 @@ def scenes_markdown() -> str:
     lines += ["", "## Keys", "",
               "Units are SI; 1 marks a dimensionless number, — a key without a unit.", "",
               keys_table(markdown=True).rstrip("\n")]
-    for m in _OTHER_MODELS:
+    for m in _other_models():
         lines += ["", f"## Keys of {m.title}", "", m.intro.rstrip("\n"), "",
                   keys_table(markdown=True, keys=m.keys).replace("### [", f"### {m.name} scene: [").rstrip("\n")]
     return "\n".join(lines) + "\n"

@@ -290,6 +290,36 @@ def first_table(report: str | os.PathLike) -> str:
     return "\n".join(lines[head:end])
 
 
+def terminal_table(markdown: str) -> str:
+    """A markdown table (with its ``### heading``) as plain text for a terminal:
+    columns aligned, no ``\\|`` escapes, backticks or bold markers."""
+    import re
+
+    def clean(cell: str) -> str:
+        return cell.strip().replace("\\|", "|").replace("**", "").replace("`", "")
+
+    out, rows = [], []
+    for ln in markdown.splitlines():
+        if ln.startswith("|"):
+            cells = [clean(c) for c in re.split(r"(?<!\\)\|", ln.strip())[1:-1]]
+            if all(set(c) <= set("-: ") for c in cells):
+                rows.append(None)  # the header's rule
+            else:
+                rows.append(cells)
+        elif ln.startswith("#"):
+            out.append(clean(ln.lstrip("#")))
+        elif ln.strip():
+            out.append(clean(ln))
+    widths = [max(len(r[i]) for r in rows if r is not None and i < len(r))
+              for i in range(max((len(r) for r in rows if r is not None), default=0))]
+    for r in rows:
+        if r is None:
+            out.append("  ".join("-" * w for w in widths))
+        else:
+            out.append("  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip())
+    return "\n".join(out)
+
+
 def progress_bar(total: int, progress: bool | None, desc: str):
     """A tqdm bar over sweep points (``progress=None``: only on a terminal)."""
     from tqdm.auto import tqdm

@@ -13,7 +13,8 @@ from pathlib import Path
 
 from ..scene import SceneError
 from . import KINDS, get_study
-from .common import BASE_KEYS, STUDY_KEYS, StudyError, expand_sweep, first_table, parse_method, resolve_study, study_scene
+from .common import (BASE_KEYS, STUDY_KEYS, StudyError, expand_sweep, first_table, parse_method, resolve_study,
+                     study_scene, terminal_table)
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -147,7 +148,7 @@ def main_study(args) -> int:
     wall = time.perf_counter() - t0
     table = first_table(report)
     if table:
-        print(table)
+        print(terminal_table(table))  # the report keeps its markdown
     print(f"study {study['study'].get('name', study['study']['kind'])!r}"
           f"{' (reduced)' if reduced else ''}: {wall:.1f} s, report {report}")
     return 0

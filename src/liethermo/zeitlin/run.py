@@ -375,9 +375,11 @@ def trajectory_dataset(scene: ZeitlinScene, traj: Trajectory, method: str, histo
                "liethermo.zeitlin.vorticity_coefficients(ds) gives ω_lm in s-1")
         data["vorticity_real"] = _var(r.W.real, dims_w, "s-1", "vorticity W, real part", comment=how)
         data["vorticity_imag"] = _var(r.W.imag, dims_w, "s-1", "vorticity W, imag. part", comment=how)
+    steps = np.arange(traj.times.size) * int(scene["output"]["every"])  # t_j = j every h
     coords = {
         "member": _var(np.arange(M), ("member",), "1", "ensemble member"),
-        "t": _var(traj.times, ("t",), "s", "time t", comment="time since the start of the run"),
+        "t": _var(cf.decimal_times(steps, scene["integrator"]["h"]), ("t",), "s", "time t",
+                  comment="time since the start of the run (the decimal value of k h)"),
         "k": _var(np.array([2, 3, 4]), ("k",), "1", "power k of the Casimir"),
         "axis": xr.Variable(("axis",), np.array(["x", "y", "z"]), {"long_name": "space axis"}),
         "l": _var(np.arange(1, b.N), ("l",), "1", "degree l",

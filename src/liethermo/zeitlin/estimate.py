@@ -1,0 +1,188 @@
+"""What a Zeitlin fluid's run will cost, said before it starts (``liethermo run --check``).
+
+* **Set-up**: the basis of su(N) (:func:`liethermo.zeitlin.kernels.basis`, built
+  once per N) takes about ``BASIS_SECONDS_PER_N3`` · N³ seconds, a constant
+  measured on a 2-core AMD EPYC Zen 4 (family 25 model 17): 1.0 s at N = 192,
+  3.2 s at 256, 11.5 s at 384, 23 s at 512.  It holds the eigenvectors of the N
+  blocks of the Laplacian and their transposes, S = Σ_{d<N} (N−d)² =
+  N(N+1)(2N+1)/6 float64 numbers each, 24·S bytes at the peak of the build
+  (1.1 GB at N = 512, 8.6 GB at N = 1024).
+* **Steps**: a step costs about c·N³ per member (dense complex N×N products:
+  per fixed-point iteration of each isospectral substep, or per RK4 stage).
+  c is measured by a short probe of the scene's own method, initial field and
+  step at N = min(N, PROBE_N) and scaled by (N/N_probe)³ and the members.
+* **Memory** of the steps: about ``STATE_COPIES`` working copies of W for the
+  whole ensemble (16 bytes per complex entry), the splitting's predictor of
+  the next fixed point (at most 512 MiB), and what is kept for the output.
+
+This module is the fluid's preflight until the run layer gives every model
+one; it is called where ``--check`` is handled and before a long run.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+from dataclasses import dataclass, field
+
+#: seconds per N³ to build the basis of su(N) (measured: 23 s at N = 512, Zen 4)
+BASIS_SECONDS_PER_N3 = 1.7e-7
+#: the probe's matrix size (a step there takes a few hundredths of a second)
+PROBE_N = 96
+PROBE_STEPS = 5
+#: working copies of W per member while stepping (W, the guess, the fixed point's
+#: D, X, A, XA and W̃, the active members' copies, the new W)
+STATE_COPIES = 12
+#: a run estimated longer than this, or needing more than half the memory, is warned of
+LONG_SECONDS = 600.0
+
+
+def basis_numbers(N: int) -> int:
+    """S = Σ_{d<N} (N−d)²: the entries of one copy of the basis's eigenvectors."""
+    return N * (N + 1) * (2 * N + 1) // 6
+
+
+def basis_seconds(N: int) -> float:
+    """About how long building the basis of su(N) takes (s)."""
+    return BASIS_SECONDS_PER_N3 * float(N) ** 3
+
+
+def basis_bytes(N: int) -> int:
+    """Peak memory of building the basis of su(N) (bytes)."""
+    return 24 * basis_numbers(N)
+
+
+def run_bytes(scene, method: str | None = None) -> int:
+    """Memory of the steps and outputs of one method's run (bytes), beside the basis."""
+    from .run import factors
+
+    M, N = int(scene["ensemble"]["members"]), int(scene["zeitlin"]["N"])
+    T = int(scene["integrator"]["steps"]) // int(scene["output"]["every"]) + 1
+    method = method or scene["integrator"]["method"]
+    W = 16 * M * N * N
+    need = STATE_COPIES * W
+    if method not in ("rk4", "reference"):
+        need += min(4 * len(factors(method, scene["integrator"]["composition"])) * W, 2**29)
+    need += 16 * T * N * N  # member 0's W at every output, for the figures
+    if scene["output"]["vorticity"]:
+        need += W * T
+    need += 8 * M * T * (N + 12)  # the diagnostics
+    return need
+
+
+def _available_bytes() -> int | None:
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_AVPHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def probe_step_seconds(scene, method: str) -> tuple[float, int, int]:
+    """Seconds per step of ``method`` on the scene's first members, measured at
+    N_probe = min(N, PROBE_N): ``(seconds, N_probe, members_probe)``, the faster
+    of three timed runs after one untimed step (kernels compiled or loaded)."""
+    from ..scene import load_scene
+    from .run import initial_fields, integrate
+
+    N = int(scene["zeitlin"]["N"])
+    Np = min(N, PROBE_N)
+    Mp = min(int(scene["ensemble"]["members"]), 2)
+    lmax = min(int(scene["initial"]["lmax"]), Np - 1)
+    over = {"zeitlin.N": Np, "ensemble.members": Mp, "integrator.steps": PROBE_STEPS, "output.every": 1,
+            "output.vorticity": False, "output.compare": [], "initial.lmax": lmax,
+            "initial.m": min(int(scene["initial"]["m"]), lmax)}
+    sc = load_scene(scene.to_dict(), over)
+    W0 = initial_fields(sc)
+    integrate(sc.with_overrides({"integrator.steps": 1}), W0, method=method, progress=False)
+    best = float("inf")
+    for _ in range(3):
+        t0 = time.perf_counter()
+        integrate(sc, W0, method=method, progress=False)
+        best = min(best, (time.perf_counter() - t0) / PROBE_STEPS)
+    return best, Np, Mp
+
+
+@dataclass
+class Estimate:
+    """A Zeitlin run's time and memory on this machine, per method."""
+
+    N: int
+    members: int
+    steps: int
+    basis_seconds: float
+    basis_bytes: int
+    methods: dict = field(default_factory=dict)  # method -> (seconds, bytes, probe N)
+    available: int | None = None
+
+    @property
+    def seconds(self) -> float:
+        return self.basis_seconds + sum(s for s, _, _ in self.methods.values())
+
+    @property
+    def peak_bytes(self) -> int:
+        return self.basis_bytes + max((b for _, b, _ in self.methods.values()), default=0)
+
+    def lines(self) -> list[str]:
+        from ..faults import human_bytes
+        from ..runner import human_seconds
+
+        out = [f"  basis of su({self.N}): about {human_seconds(self.basis_seconds)} and "
+               f"{human_bytes(self.basis_bytes)} to build (once per N; ~N³)"]
+        for m, (s, b, Np) in self.methods.items():
+            scaled = f", scaled by (N/{Np})³ from a timed probe at N = {Np}" if Np != self.N else " from a timed probe"
+            out.append(f"  {m}: about {human_seconds(s)} for {self.members} member(s) x {self.steps} steps"
+                       f"{scaled}; about {human_bytes(b)} of memory beside the basis")
+        avail = f", {human_bytes(self.available)} available" if self.available else ""
+        out.append(f"  in all: about {human_seconds(self.seconds)} and at most about "
+                   f"{human_bytes(self.peak_bytes)} of memory{avail}")
+        return out
+
+    def warnings(self) -> list[str]:
+        from ..faults import human_bytes
+        from ..runner import human_seconds
+
+        out = []
+        if self.seconds > LONG_SECONDS:
+            out.append(f"liethermo: warning: this run would take about {human_seconds(self.seconds)} "
+                       f"on this machine (N = {self.N}: a step costs ~N³ per member); a smaller zeitlin.N, "
+                       "fewer steps or members run sooner")
+        if self.available and self.peak_bytes > self.available / 2:
+            out.append(f"liethermo: warning: this run needs about {human_bytes(self.peak_bytes)} of memory, "
+                       f"more than half of the {human_bytes(self.available)} available")
+        return out
+
+
+def estimate(scene, methods: list[str] | None = None) -> Estimate:
+    """Time and memory of running ``methods`` (default: the scene's method and
+    its output.compare) on this machine; probes each method at a small N."""
+    N, M = int(scene["zeitlin"]["N"]), int(scene["ensemble"]["members"])
+    steps = int(scene["integrator"]["steps"])
+    if methods is None:
+        methods = list(dict.fromkeys([scene["integrator"]["method"], *scene["output"]["compare"]]))
+    est = Estimate(N, M, steps, basis_seconds(N), basis_bytes(N), available=_available_bytes())
+    for m in methods:
+        if m == "reference":  # scipy's DOP853 per member: not probed (a study's reference, not a run's)
+            continue
+        s, Np, Mp = probe_step_seconds(scene, m)
+        est.methods[m] = (s * (N / Np) ** 3 * (M / Mp) * steps, run_bytes(scene, m), Np)
+    return est
+
+
+def build_basis(N: int, progress: bool | None = None) -> None:
+    """Build (and cache) the basis of su(N), saying so on stderr first when it
+    takes more than two seconds (unless ``progress`` is False)."""
+    from . import kernels as zk
+
+    seconds = basis_seconds(N)
+    loud = progress is not False and seconds > 2.0
+    if loud:
+        from ..faults import human_bytes
+        from ..runner import human_seconds
+
+        print(f"liethermo: building the basis of su({N}): about {human_seconds(seconds)} and "
+              f"{human_bytes(basis_bytes(N))} of memory ...", file=sys.stderr, flush=True)
+    t0 = time.perf_counter()
+    zk.basis(N)
+    if loud:
+        print(f"liethermo: basis of su({N}) built in {time.perf_counter() - t0:.3g} s", file=sys.stderr, flush=True)
