@@ -42,22 +42,23 @@ KAPPAS = (0.05, 0.3, 1.0, 2.0, 3.0, 4.7, 7.0, 8.0, 9.0, 10.0, 11.0, 12.0, 13.0, 
 STEPS = (0.01, 0.05, 0.1, 0.2)
 
 
-def merged_friction_durations(method: str) -> list[float]:
+def merged_friction_durations(method: str, composition: str = "small_error") -> list[float]:
     """The durations (in units of h) of the friction flows of one step after
     merging the adjacent half-flows of consecutive Strang steps
     (F_{f_i h/2} F_{f_{i+1} h/2} = F_{(f_i + f_{i+1}) h/2})."""
-    f = METHODS[method].substeps()
+    f = METHODS[method].substeps(composition)
     return [f[0] / 2] + [(a + b) / 2 for a, b in zip(f[:-1], f[1:])] + [f[-1] / 2]
 
 
-def measure(method: str, kappa: float, h: float, members: int, steps: int, seed: int):
+def measure(method: str, kappa: float, h: float, members: int, steps: int, seed: int,
+            composition: str = "small_error"):
     sc = load_scene("paper", {"ensemble.members": members, "ensemble.seed": seed})
     phys = physics_of_scene(sc, members)
     w0, R0 = initial_conditions(sc)
     w0 = w0 * np.sqrt(2.0)
     rate = float(np.max(phys.friction / phys.inertia))  # maxᵢ Cᵢ/Iᵢ of the scene, s⁻¹
     phys = replace(phys, friction=phys.friction * (kappa / (h * rate)))
-    tr = simulate(phys, w0, R0, h, steps, method)
+    tr = simulate(phys, w0, R0, h, steps, method, composition=composition)
     ok = tr.status == STATUS_OK  # a variational integrator's Newton solve may fail near its singular κ
     s = tr.sigma[ok]  # (members, steps + 1), J K⁻¹
     ds = np.diff(s, axis=1)
@@ -80,12 +81,14 @@ def main(argv=None):
     ap.add_argument("--members", type=int, default=64)
     ap.add_argument("--steps", type=int, default=200)
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--methods", nargs="+", default=["split", "split4", "split6"])
+    ap.add_argument("--methods", nargs="+", default=["split", "split4", "split6"],
+                    help="also vi, vi4, vi6 (their substeps are not merged: one entropy update each)")
+    ap.add_argument("--composition", default="small_error", choices=["small_error", "triple_jump"])
     args = ap.parse_args(argv)
-    for m in args.methods:
-        d = merged_friction_durations(m)
+    for m in (m for m in args.methods if METHODS[m].family == "split"):
+        d = merged_friction_durations(m, args.composition)
         print(f"{m}: friction flows of one step (× h): " + ", ".join(f"{x:+.4f}" for x in d))
-    print(f"{args.members} members × {args.steps} steps at h = {', '.join(map(str, STEPS))} s per κ")
+    print(f"composition {args.composition}; {args.members} members × {args.steps} steps at h = {', '.join(map(str, STEPS))} s per κ")
     print("method   κ      decreasing steps   max decrease·T₀/E_mech,0   max decrease (J/K)   max gain of K+V / E_mech,0")
     for m in args.methods:
         for kappa in KAPPAS:
@@ -93,7 +96,7 @@ def main(argv=None):
             rel = absd = grow = 0.0
             failed, where = 0, []
             for h in STEPS:
-                a, b, r, d, g, f = measure(m, kappa, h, args.members, args.steps, args.seed)
+                a, b, r, d, g, f = measure(m, kappa, h, args.members, args.steps, args.seed, args.composition)
                 n_dec, n_all, failed = n_dec + a, n_all + b, failed + f
                 rel, absd, grow = max(rel, r), max(absd, d), max(grow, g)
                 where += [h] if a else []
