@@ -2,7 +2,9 @@
 
 A method is data plus the one step of its family: an explicit Runge–Kutta
 method is its Butcher tableau (:mod:`liethermo.kernels.rk`), a composition
-of the variational integrator its substep factors (:data:`COMPOSITIONS`).
+of the variational integrator or of the splitting its substep factors
+(:data:`COMPOSITION_FACTORS`: by default Suzuki's and Kahan and Li's,
+"small_error"; Yoshida's triple jump as "triple_jump").
 Each method states here, and only here, its family, its order on node
 values (by start and friction; an RK method's is its tableau's), whether it
 is implicit, how much a step costs, and which discrete laws hold for its
@@ -171,8 +173,8 @@ def _vi_method(name: str, description: str, order: int, laws, composed: bool = F
 
 
 def _split_method(name: str, description: str, order: int) -> Method:
-    """The explicit thermodynamic splitting (Strang step of the terms' exact
-    flows) or a composition of it."""
+    """The explicit thermodynamic splitting (Strang step of the exact flows of
+    friction and gravity and Cayley free rotations) or a composition of it."""
     n = len(COMPOSITION_FACTORS[("small_error", order)]) if order > 2 else 1
     return Method(name, "split", description, order, False, n, _SPLIT_LAWS if order > 2 else _STRANG_LAWS,
                   composed=order if order > 2 else None)
@@ -186,8 +188,8 @@ METHODS: dict[str, Method] = {
                       composed=True),
     "vi6": _vi_method("vi6", "variational integrator composed to order 6 (Kahan and Li's 9 substeps; "
                       "\"triple_jump\": two triple jumps, 9)", 6, _COMPOSED_LAWS, composed=True),
-    "split": _split_method("split", "explicit thermodynamic splitting: Strang step of the terms' exact "
-                           "flows (friction and heat, gravity kick, Cayley free rotations)", 2),
+    "split": _split_method("split", "explicit thermodynamic splitting: Strang step of the terms' "
+                           "flows (exact friction and heat, gravity kick; Cayley free rotations)", 2),
     "split4": _split_method("split4", "the splitting composed to order 4 (Suzuki's 5 Strang steps)", 4),
     "split6": _split_method("split6", "the splitting composed to order 6 (Kahan and Li's 9 Strang steps)", 6),
     "rk2": _rk_method("rk2", "midpoint", "explicit midpoint Runge-Kutta (order 2)"),
