@@ -439,6 +439,57 @@ def test_model_md_links_and_citations_resolve(model_md):
     assert cited >= 5
 
 
+def _math_spans(text: str) -> list[str]:
+    """The TeX of a markdown page: ```math blocks, $$ … $$ blocks, then $ … $ spans."""
+    spans = re.findall(r"```math\n(.*?)```", text, re.S)
+    text = re.sub(r"```.*?```", " ", text, flags=re.S)
+    spans += re.findall(r"\$\$(.*?)\$\$", text, re.S)
+    text = re.sub(r"\$\$.*?\$\$", " ", text, flags=re.S)
+    return spans + re.findall(r"\$([^$\n]+)\$", text)
+
+
+@pytest.mark.parametrize("page", ["README.md", *sorted(p.name for p in ROOT.glob("docs/*.md"))])
+def test_markdown_math_is_intact(page):
+    """No control character in a page, and no TeX command that lost its
+    backslash escape: a \\r, \\t, \\f, \\v, \\b or \\n read as a control
+    character turns \\rvert, \\rangle, \\rho, \\times, \\frac, \\vec into a line
+    break or garbage and a bare "vert", "angle", "ho", "imes", "rac" or "ec";
+    every \\lvert and \\langle has its \\rvert and \\rangle in the same span."""
+    path = ROOT / page if page == "README.md" else ROOT / "docs" / page
+    text = path.read_text(encoding="utf-8")
+    bad = [(i + 1, line) for i, line in enumerate(text.splitlines())
+           if re.search(r"[\x00-\x08\x0b-\x1f\x7f]", line)]
+    assert not bad, f"{page}: control characters on lines {bad[:5]}"
+    for span in _math_spans(text):
+        bare = re.findall(r"(?<![\\\w])(vert|Vert|angle|ho|imes|heta|au|rac|frac|ec|abla)(?![a-zA-Z])", span)
+        assert not bare, f"{page}: a TeX command lost its backslash in ${span}$: {bare}"
+        for left, right in (("\\lvert", "\\rvert"), ("\\langle", "\\rangle"), ("\\lVert", "\\rVert")):
+            assert span.count(left) == span.count(right), f"{page}: unbalanced {left} … {right} in ${span}$"
+
+
+def test_model_md_citations_are_in_its_references(model_md):
+    """Every citation [Author Year] (or [A Year; B Year]) in docs/model.md names an
+    entry of its References section, each entry gives authors, a title and the
+    year of its key, and each key has a link definition (so a citation links to
+    the list); a DOI, where given, has the form 10.NNNN/…."""
+    body, refs = model_md.split("\n## References\n")
+    entries = dict(re.findall(r"^\* \*\*\[([^\]]+)\]\*\* (.+?)(?=^\* |^\[|\Z)", refs, re.M | re.S))
+    assert len(entries) >= 15, sorted(entries)
+    cited = set()
+    for group in re.findall(r"\[([A-Z][^\]\[]*?\b(?:19|20)\d\d)\]", body):
+        for key in group.split("; "):
+            assert key in entries, f"cited but not in References: [{key}]"
+            cited.add(key)
+    assert {"Couéraud & Gay-Balmaz 2020", "Suzuki 1990", "Kahan & Li 1997", "Yoshida 1990"} <= cited
+    for key, text in entries.items():
+        year = key.rsplit(" ", 1)[1]
+        assert f"({year})" in text or f"{year})" in text, (key, text)
+        assert re.search(r"[\"*].+[\"*]", text, re.S), f"{key}: no title"
+        assert f"[{key}]: #references" in refs, f"{key}: no link definition"
+        for doi in re.findall(r"doi:(\S+)", text):
+            assert re.fullmatch(r"10\.\d{4,5}/\S+", doi), doi
+
+
 # ------------------------------------------------------------------ README.md
 README = ROOT / "README.md"
 

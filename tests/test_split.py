@@ -87,18 +87,46 @@ def test_unit_gamma_rotation_and_vertical_momentum_over_1e5_steps(method):
     assert (np.abs(gm - gm[:, :1]) / np.linalg.norm(mu[:, 0], axis=-1)[:, None]).max() <= 3e-11
 
 
-@pytest.mark.parametrize("scale", [1.0, 10.0, 100.0])
-@pytest.mark.parametrize("method", ["split", "split4", "split6"])
-def test_entropy_never_decreases(method, scale):
-    """Every member, every step, at the paper's viscosity times 1, 10 and 100
-    (κ = c h/I_min up to 4.7 at h = 0.1 s): the friction flows of the negative
-    substeps give heat back exactly, but never more than the step made."""
+def _scaled_to_kappa(phys, kappa, h):
+    """The members with the Stokes resistance scaled to a friction per step
+    κ = h·maxᵢ Cᵢ/Iᵢ."""
+    return replace(phys, friction=phys.friction * (kappa / (h * np.max(phys.friction / phys.inertia))))
+
+
+@pytest.mark.parametrize("kappa", [0.05, 4.7, 30.0])
+def test_strang_entropy_never_decreases(kappa):
+    """split: every member, every step, S_{k+1} ≥ S_k, as declared — its two
+    friction flows run forward and the step adds their non-negative heat once."""
+    from liethermo.methods import LAW_ENTROPY_MONOTONE, METHODS
+
+    assert LAW_ENTROPY_MONOTONE in METHODS["split"].laws
     phys, w0, R0 = _members(64)
-    phys = replace(phys, friction=phys.friction * scale)
-    for h in (0.01, 0.1):
-        tr = simulate(phys, w0, R0, h, 200, method)
+    for h in (0.01, 0.1, 0.2):
+        tr = simulate(_scaled_to_kappa(phys, kappa, h), w0 * np.sqrt(2.0), R0, h, 200, "split")
         assert np.all(tr.status == STATUS_OK)
         assert np.all(np.diff(tr.sigma, axis=1) >= 0.0)
+
+
+@pytest.mark.parametrize("method, kappa_ok, kappa_falls", [("split4", 12.0, 13.0), ("split6", 8.0, 10.0)])
+def test_composed_entropy_is_monotone_only_up_to_the_measured_kappa(method, kappa_ok, kappa_falls):
+    """split4, split6: the merged friction flows of negative duration give heat
+    back inside a step, so a monotone entropy is not declared.  As measured
+    by benchmarks/split_entropy.py and quoted in docs/model.md: on 64 members
+    (|Ω₀| up to 1.5·√2 rad/s) × 200 steps at h = 0.01, 0.1 and 0.2 s no step
+    decreases S up to κ = 12 (split4) and 8 (split6); at κ = 13 and 10, h = 0.2 s,
+    some steps do (by more than the member's whole E_mech,0/T₀: not round-off)."""
+    from liethermo.methods import LAW_ENTROPY_MONOTONE, METHODS
+
+    assert LAW_ENTROPY_MONOTONE not in METHODS[method].laws
+    phys, w0, R0 = _members(64)
+    w0 = w0 * np.sqrt(2.0)
+    for kappa in (0.05, 1.0, 4.7, kappa_ok):
+        for h in (0.01, 0.1, 0.2):
+            tr = simulate(_scaled_to_kappa(phys, kappa, h), w0, R0, h, 200, method)
+            assert np.all(tr.status == STATUS_OK)
+            assert np.all(np.diff(tr.sigma, axis=1) >= 0.0), (kappa, h)
+    tr = simulate(_scaled_to_kappa(phys, kappa_falls, 0.2), w0, R0, 0.2, 200, method)
+    assert np.any(np.diff(tr.sigma, axis=1) < 0.0)
 
 
 def test_frictionless_energy_error_does_not_drift():

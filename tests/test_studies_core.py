@@ -422,6 +422,10 @@ def test_kept_laws_are_the_declared_ones():
     assert common.kept_laws("vi:node:explicit") == "|Γ| = 1, Kelvin–Noether, entropy monotone"
     assert common.kept_laws("vi6") == "|Γ| = 1, Kelvin–Noether"
     assert LAW_ENTROPY_MONOTONE not in METHODS["vi6"].laws
+    # the splitting: |Γ| = 1 always, no Kelvin–Noether law; monotone entropy for the
+    # Strang step only (its compositions run friction backwards inside a step)
+    assert common.kept_laws("split") == "|Γ| = 1, entropy monotone"
+    assert common.kept_laws("split4") == common.kept_laws("split6") == "|Γ| = 1"
     assert common.kept_laws("rk4") == common.kept_laws("scipy DOP853") == "none of these"
 
 

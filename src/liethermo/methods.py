@@ -2,7 +2,9 @@
 
 A method is data plus the one step of its family: an explicit Runge–Kutta
 method is its Butcher tableau (:mod:`liethermo.kernels.rk`), a composition
-of the variational integrator its substep factors (:data:`COMPOSITIONS`).
+of the variational integrator or of the splitting its substep factors
+(:data:`COMPOSITION_FACTORS`: by default Suzuki's and Kahan and Li's,
+"small_error"; Yoshida's triple jump as "triple_jump").
 Each method states here, and only here, its family, its order on node
 values (by start and friction; an RK method's is its tableau's), whether it
 is implicit, how much a step costs, and which discrete laws hold for its
@@ -139,15 +141,24 @@ def _rk_method(name: str, tableau: str, description: str) -> Method:
     return Method(name, "rk", description, cls.order, False, cls.stages, (), tableau=tableau)
 
 
+#: vi: a step of positive size adds hP/T or c_v log1p(hP/(c_v T)) ≥ 0 to σ, P ≥ 0 being
+#: the power of the discrete friction: S_{k+1} ≥ S_k in floating point too
 _VI_LAWS = (LAW_UNIT_GAMMA, LAW_ROTATION, LAW_ENTROPY_MONOTONE, LAW_KELVIN_NOETHER, LAW_CASIMIR,
             LAW_VERTICAL_MOMENTUM)
 #: the compositions take negative substeps, on which friction gives heat back:
-#: their entropy can decrease over a whole step when c h / I_min is near 1 (docs/model.md)
+#: their entropy can decrease over a whole step (a last-digit change even at small
+#: friction per step κ; docs/model.md "Negative substeps")
 _COMPOSED_LAWS = tuple(x for x in _VI_LAWS if x != LAW_ENTROPY_MONOTONE)
-#: the splitting keeps |Γ| and RᵀR = I (every flow is a rotation or leaves Γ),
-#: Γ·μ without friction (the rotations turn Γ and μ together, the kick is ⟂ Γ),
-#: and its heat is the kinetic energy its friction flows take
-_SPLIT_LAWS = (LAW_UNIT_GAMMA, LAW_ROTATION, LAW_ENTROPY_MONOTONE, LAW_VERTICAL_MOMENTUM)
+#: the splittings keep |Γ| and RᵀR = I (every flow is a rotation or leaves Γ) and
+#: Γ·μ without friction (the rotations turn Γ and μ together, the kick is ⟂ Γ)
+_SPLIT_LAWS = (LAW_UNIT_GAMMA, LAW_ROTATION, LAW_VERTICAL_MOMENTUM)
+#: split: its two friction flows run forward (h/2 each) and the step adds the kinetic
+#: energy they take, a sum of non-negative terms, to the heat once: S_{k+1} ≥ S_k.
+#: split4 and split6 merge adjacent half-flows into friction flows of negative
+#: duration (Suzuki: −0.12 h twice; Kahan–Li: −0.19 h and −0.31 h twice each), which
+#: give heat back inside the step: their monotone entropy is measured up to a friction
+#: per step κ (benchmarks/split_entropy.py, docs/model.md), not a law
+_STRANG_LAWS = _SPLIT_LAWS + (LAW_ENTROPY_MONOTONE,)
 
 
 def _vi_method(name: str, description: str, order: int, laws, composed: bool = False) -> Method:
@@ -162,10 +173,10 @@ def _vi_method(name: str, description: str, order: int, laws, composed: bool = F
 
 
 def _split_method(name: str, description: str, order: int) -> Method:
-    """The explicit thermodynamic splitting (Strang step of the terms' exact
-    flows) or a composition of it."""
+    """The explicit thermodynamic splitting (Strang step of the exact flows of
+    friction and gravity and Cayley free rotations) or a composition of it."""
     n = len(COMPOSITION_FACTORS[("small_error", order)]) if order > 2 else 1
-    return Method(name, "split", description, order, False, n, _SPLIT_LAWS,
+    return Method(name, "split", description, order, False, n, _SPLIT_LAWS if order > 2 else _STRANG_LAWS,
                   composed=order if order > 2 else None)
 
 
@@ -177,8 +188,8 @@ METHODS: dict[str, Method] = {
                       composed=True),
     "vi6": _vi_method("vi6", "variational integrator composed to order 6 (Kahan and Li's 9 substeps; "
                       "\"triple_jump\": two triple jumps, 9)", 6, _COMPOSED_LAWS, composed=True),
-    "split": _split_method("split", "explicit thermodynamic splitting: Strang step of the terms' exact "
-                           "flows (friction and heat, gravity kick, Cayley free rotations)", 2),
+    "split": _split_method("split", "explicit thermodynamic splitting: Strang step of the terms' "
+                           "flows (exact friction and heat, gravity kick; Cayley free rotations)", 2),
     "split4": _split_method("split4", "the splitting composed to order 4 (Suzuki's 5 Strang steps)", 4),
     "split6": _split_method("split6", "the splitting composed to order 6 (Kahan and Li's 9 Strang steps)", 6),
     "rk2": _rk_method("rk2", "midpoint", "explicit midpoint Runge-Kutta (order 2)"),

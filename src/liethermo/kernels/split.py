@@ -1,4 +1,4 @@
-"""Explicit thermodynamic splitting: a step is the composition of the terms' exact flows.
+"""Explicit thermodynamic splitting: a step is the composition of the terms' flows.
 
 A splitting method is data (like an RK tableau, :mod:`.rk`): the factors
 f_k of its symmetric composition, held on a marker class whose *type* the
@@ -11,9 +11,13 @@ other in registry order (frictions first: F, the friction and its heat;
 then the conservative torques: V, the gravity kick) and back in reverse,
 and T is the free rotation T¹_{t/2} T²_{t/2} T³_t T²_{t/2} T¹_{t/2}
 (:func:`.terms.inertia.free_flow_stage`, Cayley rotations: five divisions).  The
-step of size h composes Strang steps of sizes f_k h.  Every flow is the
-exact flow of a sub-system, so the step keeps |Γ| and RᵀR = I to
-round-off, is a Poisson map without friction, and moves the heat exactly:
+step of size h composes Strang steps of sizes f_k h.  The force flows are the
+exact flows of their sub-systems; the free rotations are the implicit
+midpoint rule on theirs (a Cayley rotation, the exact flow of a modified
+kinetic energy), symmetric like the exact flows, so the Strang step is
+symmetric and its compositions reach orders 4 and 6.  The step keeps |Γ|
+and RᵀR = I to round-off, is a Poisson map without friction, and moves the
+heat exactly:
 the friction flow takes kinetic energy ΔK and the step adds the sum of
 the ΔK of its flows to the heat absorbed since the start, q = U − U₀ (a
 small number, never T or U, whose size would swamp it).
@@ -25,7 +29,7 @@ step (:func:`split_stage`); the one-member kernel runs them one after the
 other (:func:`.rk.explicit_step`), the block kernel each over its lanes in
 turn, with the same bits.
 
-Terms without an exact flow (capability ``"exact_flow"``) cannot be split:
+Terms without such a flow (capability ``"exact_flow"``) cannot be split:
 a scene with one is refused before any work.
 """
 

@@ -22,8 +22,9 @@ Newton right-hand side.  Eliminating μ gives the paper's momentum equation
 exactly.  The two forms of μ_{k+1} agree at the Newton solution because
 M_{−h}(X) = cay(−hX̂) M_h(X) for every X ((Id − â)M_h = (1 + |a|²)𝕀X =
 (Id + â)M_{−h}, a = hX/2); the kernels use the second, a rotation of r by
-the matrix that turns Γ, so Kelvin–Noether and |μ| (free body) hold
-whatever X is, not only at the last digits of the Newton solve.  The kernels hold the state
+the matrix that turns Γ, so Kelvin–Noether, and |μ| of a body without
+torques and friction, hold whatever X is, not only at the last digits of the
+Newton solve (|μ| under the double bracket holds at the solution only).  The kernels hold the state
 (X, Γ, σ, μ[, σ_{k+1}][, R]) in which X is the step velocity of the step that
 *starts* at the node — it is solved at the end of the previous step — so that
 a node's output carries the paper's Ω_k beside the node values, and the
@@ -36,9 +37,10 @@ Newton solve of a step uses the torque of the node it starts from:
 
 The map is symmetric (Φ_{−h} ∘ Φ_h = id for trapezoid friction and the
 symmetric entropy update), so symmetric compositions raise its order:
-:data:`liethermo.methods.COMPOSITIONS` holds the substep factors of
-Yoshida's triple jump (order 4) and of its triple jump again (order 6); the
-kernels take them as data.
+:data:`liethermo.methods.COMPOSITION_FACTORS` holds the substep factors, by
+default ("small_error") Suzuki's five (order 4) and Kahan and Li's nine
+(order 6), and Yoshida's triple jump (order 4) and its triple jump again
+(order 6) as "triple_jump"; the kernels take them as data.
 
 Newton: F(X) = M_h(X) + w_L h CX − r (+ w_L h D(X)), with the analytic
 Jacobian
@@ -299,8 +301,10 @@ def newton_stop(x0, x1, x2, xs, d0, d1, d2, ds, scale0, scales, prev, prevs, tol
 
     Stopping on the prediction saves the iteration that would only verify
     it.  The discrete laws do not rest on the last digits of X: the momentum
-    update rotates the Newton right-hand side (:func:`vi_advance`), so |μ|
-    and Γ·μ are kept by construction, whatever X is."""
+    update rotates the Newton right-hand side (:func:`vi_advance`), so the
+    Kelvin–Noether law, and |μ| without torques and friction, are kept by
+    construction whatever X is; the double bracket's |μ| moves by its
+    friction times the Newton error."""
     step = max(abs(d0), abs(d1), abs(d2))
     scale = max(abs(x0), abs(x1), abs(x2), scale0)
     steps = abs(ds)

@@ -30,7 +30,8 @@ from . import LAW_MOMENTUM_NORM, Parameter, ScalarTerm, Setting, bcast
 class ConstantInertia(namedtuple("ConstantInertia",
                                  "I1 I2 I3 iI1 iI2 iI3 A1 A2 A3 D1 D2 D3")):
     __slots__ = ()
-    #: the free rotation has an exact flow (:func:`free_flow_stage`)
+    #: the free rotation has a flow the splitting runs (:func:`free_flow_stage`: Cayley
+    #: rotations, not the exact ones, but symmetric, so the compositions keep their order)
     CAPABILITIES = frozenset({"exact_flow"})
 
 
@@ -62,7 +63,7 @@ def thermal_coefficients(inertia0: np.ndarray, alpha: np.ndarray) -> np.ndarray:
     return np.hstack([_base(inertia0), np.asarray(alpha, dtype=np.float64).reshape(-1, 1)])
 
 
-# ----------------------------------------------------------------------------- exact free rotation
+# ----------------------------------------------------------------------------- free rotation (Cayley)
 
 
 @lane
@@ -83,7 +84,7 @@ def _turn(c, s, r, aj, ak):
 
 
 def _turn_rows(R, axis, c, s, r):
-    """R ← R exp(θ ê_axis) for R a row-major 9-tuple: each row turns as a body vector."""
+    """R ← R cay(θ′ ê_axis) for R a row-major 9-tuple: each row turns as a body vector."""
     if axis == 0:
         r01, r02 = _turn(c, s, r, R[1], R[2])
         r11, r12 = _turn(c, s, r, R[4], R[5])
@@ -105,9 +106,11 @@ turn_rows = none_dispatch(_turn_rows, lambda R, axis, c, s, r: None)
 
 @lane
 def _axis_flow(inertia, axis, t, m0, m1, m2, G0, G1, G2, R):
-    """Tⁱ_t: the exact flow of the kinetic energy about body axis ``axis``
-    alone (Cayley variant): μ_i and so ω = μ_i/I_i are fixed, μ and Γ (and
-    the rows of R) turn together by θ′ = 2 atan(tω/2) about e_i."""
+    """Tⁱ_t: the flow of the kinetic energy about body axis ``axis`` alone,
+    by the implicit midpoint rule on that linear sub-flow (a Cayley
+    rotation): μ_i and so ω = μ_i/I_i are fixed, μ and Γ (and the rows of R)
+    turn together by θ′ = 2 atan(tω/2) about e_i, not by the exact tω (a lag
+    of (tω)³/12 per flow); symmetric, T_{−t} = T_t⁻¹."""
     I = inertia
     if axis == 0:
         c, s, r = _cayley(m0 * ((0.5 * t) * I.iI1))
@@ -132,9 +135,9 @@ FREE_FLOW_STAGES = 5
 def free_flow_stage(inertia, stage, t, m0, m1, m2, G0, G1, G2, R):
     """Flow number ``stage`` (a literal, 0 … 4) of the free rigid body over a
     time t, the symmetric splitting T¹_{t/2} T²_{t/2} T³_t T²_{t/2} T¹_{t/2}
-    of its kinetic energy, in time order: each flow exact, one division
-    each; the five together are a Poisson map that keeps |μ|, |Γ|, Γ·μ and
-    the orthogonality of R to round-off."""
+    of its kinetic energy, in time order: each flow a Cayley rotation, one
+    division each; the five together are a symmetric Poisson map that keeps
+    |μ|, |Γ|, Γ·μ and the orthogonality of R to round-off."""
     if stage == 0 or stage == 4:
         return _axis_flow(inertia, 0, 0.5 * t, m0, m1, m2, G0, G1, G2, R)
     if stage == 1 or stage == 3:
