@@ -7,7 +7,7 @@ import time
 import numpy as np
 
 from ..zeitlin import run as zr
-from ..zeitlin.scene import METHODS
+from ..zeitlin.scene import DEFAULTS, METHODS
 from .common import StudyError, study_scene
 
 #: what a Zeitlin study compares (the reference is what they measure against)
@@ -31,7 +31,7 @@ def check_methods(s: dict) -> list[str]:
 
 
 def advance(method: str, W, q, h: float, steps: int, nu: float, b, composition="small_error",
-            tol=1e-14, max_iter=100, state: dict | None = None):
+            tol=DEFAULTS["integrator"]["tol"], max_iter=100, state: dict | None = None):
     """``steps`` steps of ``method`` on a batch; returns W, q and the fixed-point
     iterations per step (mean over members), raising if a member fails.
     ``state``: a dict carried from one call to the next (the fixed point's

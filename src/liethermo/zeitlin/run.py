@@ -12,7 +12,7 @@ import numpy as np
 import xarray as xr
 
 from .. import __version__, cf
-from ..methods import COMPOSITION_FACTORS
+from ..methods import COMPOSITION_FACTORS, LAW_ENTROPY_MONOTONE
 from . import kernels as zk
 from .. import heat as _heat
 from .scene import ZeitlinScene
@@ -28,6 +28,22 @@ METHOD_DESCRIPTION = {
     "reference": "DOP853 (scipy) at rtol 1e-13 on the vorticity equation and the heat",
 }
 REFERENCE_RTOL = 1e-13
+
+#: what each method keeps to round-off, for every field and step (the laws of
+#: docs/model.md, "What each method keeps"): ``isospectral`` — W's spectrum
+#: (every Casimir) at ν = 0; ``angular_momentum`` — the l = 1 modes;
+#: ``entropy_monotone`` — the heat never falls in a step.  The compositions'
+#: merged viscous flows of negative duration return heat inside a step, so a
+#: monotone entropy is measured for them, not declared.
+LAW_ISOSPECTRAL = "isospectral"
+LAW_ANGULAR_MOMENTUM = "angular_momentum"
+METHOD_LAWS = {
+    "split": (LAW_ISOSPECTRAL, LAW_ANGULAR_MOMENTUM, LAW_ENTROPY_MONOTONE),
+    "split4": (LAW_ISOSPECTRAL, LAW_ANGULAR_MOMENTUM),
+    "split6": (LAW_ISOSPECTRAL, LAW_ANGULAR_MOMENTUM),
+    "rk4": (LAW_ANGULAR_MOMENTUM,),
+    "reference": (),
+}
 
 
 # ----------------------------------------------------------------------------- initial fields

@@ -67,7 +67,9 @@ KEYS: tuple[Key, ...] = (
     Key("initial", "lmax", 6, "1", "integer in [1, zeitlin.N − 1]", "highest degree of the initial field",
         _lmax_check),
     Key("initial", "m", 4, "1", "integer in [0, initial.lmax]", "rossby_haurwitz: the wave's order m", _m_check),
-    Key("initial", "energy", 1.0, "J", "> 0", "initial energy H(0) of every member", number(0.0, lo_open=True)),
+    Key("initial", "energy", 1.0, "J", "> 0",
+        "initial kinetic energy H(0) = ½∫|u|² dA of every member (a layer of unit surface density on a "
+        "sphere of radius 1 m); the same field at every zeitlin.N", number(0.0, lo_open=True)),
     Key("initial", "slope", 0.0, "1", "finite", "random: energy spectrum E_l ∝ l^(−slope) for l ≤ lmax",
         number()),
     Key("initial", "noise", 1e-3, "1", "in [0, 1)", "rossby_haurwitz: fraction of the energy in the random field",
@@ -80,7 +82,7 @@ KEYS: tuple[Key, ...] = (
     Key("integrator", "composition", "small_error", "", " | ".join(f'"{c}"' for c in COMPOSITION_KINDS),
         "split4, split6: Suzuki's (order 4) and Kahan and Li's (order 6) compositions, or Yoshida's "
         "triple jumps", choice(*COMPOSITION_KINDS)),
-    Key("integrator", "tol", 1e-14, "1", "in (0, 1e-3)",
+    Key("integrator", "tol", 1e-15, "1", "in (0, 1e-3)",
         "split: the fixed-point iteration stops when its correction is below tol × max|W| "
         "(or stalls at round-off below 100 × that)", number(0.0, 1e-3, lo_open=True, hi_open=True)),
     Key("integrator", "max_iter", 100, "1", "integer in [1, 1000]",
@@ -90,7 +92,9 @@ KEYS: tuple[Key, ...] = (
         integer()),
     Key("ensemble", "seed", 0, "1", "integer ≥ 0", "seed of the random initial conditions", integer(0)),
     Key("output", "every", 10, "1", "integer ≥ 1 dividing integrator.steps", "keep every k-th step", integer()),
-    Key("output", "vorticity", False, "", "true | false", "also store W (vorticity_real, vorticity_imag)",
+    Key("output", "vorticity", False, "", "true | false",
+        "also store the vorticity matrix W (vorticity_real, vorticity_imag; "
+        "liethermo.zeitlin.vorticity_coefficients(ds) gives its ω_lm)",
         boolean),
     Key("output", "compare", [], "", "list of methods",
         "further methods run on the same scene (files <OUT>_<method>.nc)", _compare_check),
