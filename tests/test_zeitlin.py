@@ -379,6 +379,13 @@ def test_python_api_runs_a_zeitlin_scene(tmp_path):
     assert set(out) == {"split", "rk4"} and out["split"]["energy"].dims == ("member", "t")
     ds = liethermo.run("zeitlin_ideal", over, compare=False, output=tmp_path / "z.nc", figures=False)
     assert (tmp_path / "z.nc").exists() and "tr W²" in ds.attrs["summary"]
+    from liethermo.zeitlin import vorticity_coefficients
+
+    w = vorticity_coefficients(liethermo.open_dataset(tmp_path / "z.nc"))  # as docs/api.md shows
+    assert w.dims == ("member", "t", "mode") and w.attrs["units"] == "s-1"
+    L = liethermo.open_dataset(tmp_path / "z.nc")["angular_momentum"].isel(t=0).sel(axis="z").values
+    w10 = w.isel(t=0, mode=int(np.flatnonzero((w["l"].values == 1) & (w["m"].values == 0))[0])).values.real
+    assert np.allclose(L, np.sqrt(4 * np.pi / 3) * w10, rtol=1e-13)  # L_z = ∫ z ω dA
 
 
 def test_a_vorticity_that_would_not_fit_in_memory_is_refused_before_any_work(tmp_path, capsys):
