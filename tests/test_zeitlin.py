@@ -388,7 +388,11 @@ def test_python_api_runs_a_zeitlin_scene(tmp_path):
     assert np.allclose(L, np.sqrt(4 * np.pi / 3) * w10, rtol=1e-13)  # L_z = ∫ z ω dA
 
 
-def test_a_vorticity_that_would_not_fit_in_memory_is_refused_before_any_work(tmp_path, capsys):
+def test_a_vorticity_that_would_not_fit_in_memory_is_refused_before_any_work(tmp_path, capsys, monkeypatch):
+    def no_basis(N, *a, **k):  # the basis of su(1024) takes about a minute: it must not be built
+        raise AssertionError(f"the basis of su({N}) was built before the run was refused")
+
+    monkeypatch.setattr("liethermo.zeitlin.estimate.build_basis", no_basis)
     out = tmp_path / "big.nc"
     args = ["run", "zeitlin_decay", "-o", str(out), "--set", "zeitlin.N=1024", "--set", "ensemble.members=4096",
             "--set", "output.vorticity=true"]

@@ -152,7 +152,14 @@ def _run_zeitlin(args, scene) -> int:
             print(w, file=sys.stderr)
         return 0
     from .zeitlin.estimate import LONG_SECONDS, build_basis, estimate
+    from .zeitlin.run import _check_output, check_memory
 
+    try:  # what would refuse the run is said before any work (the basis of a large N takes minutes)
+        check_memory(scene)
+        for p in output_paths(scene, args.output).values():
+            _check_output(p, scene, args.force)
+    except (OutputError, SceneError) as exc:
+        return _error(exc)
     if scene["zeitlin"]["N"] >= ZEITLIN_ANNOUNCE_N and not args.no_progress:
         est = estimate(scene, list(output_paths(scene, args.output)))  # a probe of a fraction of a second
         if est.seconds > LONG_SECONDS / 10:
