@@ -35,6 +35,7 @@ import re
 import signal
 import socket
 import threading
+import time
 from pathlib import Path
 
 try:
@@ -342,6 +343,24 @@ def _close_inherited_locks() -> None:
     _HELD_LOCKS.clear()
 
 
+#: seconds a lock held only through a dead holder's forked child is waited for
+DEAD_HOLDER_WAIT = 2.0
+
+
+def _holder_is_dead(holder: str) -> bool:
+    """Whether a lock file's ``pid N on HOST`` names a process of this host that no longer runs."""
+    parts = holder.split()
+    if len(parts) != 4 or parts[0] != "pid" or parts[2] != "on" or parts[3] != socket.gethostname():
+        return False
+    try:
+        os.kill(int(parts[1]), 0)
+    except ProcessLookupError:
+        return True
+    except (OSError, ValueError):
+        return False
+    return False
+
+
 if hasattr(os, "register_at_fork"):
     os.register_at_fork(after_in_child=_close_inherited_locks)
 
@@ -365,7 +384,8 @@ class OutputLock:
     def acquire(self) -> "OutputLock":
         if fcntl is None:  # pragma: no cover
             return self
-        for _ in range(10):
+        deadline = None
+        for _ in range(10_000):
             fd = os.open(self.path, os.O_CREAT | os.O_RDWR, 0o666)
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -374,6 +394,13 @@ class OutputLock:
                     holder = os.read(fd, 200).decode(errors="replace").strip() or "unknown"
                 finally:
                     os.close(fd)
+                # a holder on this host that has died: a child forked just before its death
+                # still shares the lock until it has run its fork handler (closing it), which
+                # a loaded machine may delay; wait for that briefly, not for a live holder
+                deadline = deadline or time.monotonic() + DEAD_HOLDER_WAIT
+                if _holder_is_dead(holder) and time.monotonic() < deadline:
+                    time.sleep(0.02)
+                    continue
                 raise Busy(self.target, holder) from None
             except OSError:
                 os.close(fd)  # no locks on this filesystem
