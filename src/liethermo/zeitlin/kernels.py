@@ -44,11 +44,8 @@ def hbar(N: int) -> float:
 
 def spin_matrices(N: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Hermitian J_x, J_y, J_z of spin (N−1)/2, [J_x, J_y] = i J_z."""
-    s = (N - 1) / 2.0
-    m = s - np.arange(N)
-    jp = np.zeros((N, N))
-    for i in range(1, N):  # J+ |m_i> = c |m_i + 1> = c |m_{i-1}>
-        jp[i - 1, i] = math.sqrt(s * (s + 1) - m[i] * (m[i] + 1))
+    m = (N - 1) / 2.0 - np.arange(N)
+    jp = np.diag(_ladder_coefficients(N)[1:N], 1)  # J+ |m_i> = c_i |m_i + 1> = c_i |m_{i-1}>
     jx = (jp + jp.T) / 2.0
     jy = (jp - jp.T) / 2.0j
     return jx.astype(complex), jy, np.diag(m).astype(complex)
@@ -99,6 +96,11 @@ class Basis:
     def area(self) -> float:
         """4π/N = 1/α²: the area of the sphere per quantum state ((4π/N) tr ↔ ∫ dA)."""
         return 4.0 * math.pi / self.N
+
+    @property
+    def order(self) -> np.ndarray:
+        """The order m ≥ 0 of each mode (its diagonal of W)."""
+        return np.repeat(np.arange(self.N), np.arange(self.N, 0, -1))
 
     @property
     def lam(self) -> np.ndarray:
@@ -523,6 +525,14 @@ def casimirs(W: np.ndarray, ks=(2, 3, 4)) -> np.ndarray:
             power += 1
         out[..., j] = (4.0 * math.pi / N) * np.trace(P, axis1=-2, axis2=-1).real
     return out
+
+
+def casimir_change(C: np.ndarray, C0: np.ndarray, b: Basis) -> np.ndarray:
+    """The relative change of the matrix's power sums, k = 2, 3, 4 on the last
+    axis of the Casimirs C and C0 (:func:`casimirs`):
+    (tr((−iW)^k) − tr((−iW₀)^k)) / tr((−iW₀)²)^(k/2), which bounds it by 1 in size."""
+    p, p0 = C / b.area, C0 / b.area
+    return (p - p0) / p0[..., :1] ** (np.array([2, 3, 4]) / 2.0)
 
 
 def angular_momentum(W: np.ndarray, b: Basis) -> np.ndarray:

@@ -47,9 +47,7 @@ def _harmonics_at_zero_longitude(N: int, n_lat: int) -> np.ndarray:
     if key not in _Y0_CACHE:
         b = zk.basis(N)
         theta = np.pi / 2 - np.linspace(-np.pi / 2, np.pi / 2, n_lat)
-        ls = b.ell.astype(int)
-        ds = np.repeat(np.arange(N), np.arange(N, 0, -1))
-        _Y0_CACHE[key] = sph_harm_y(ls[:, None], ds[:, None], theta[None, :], 0.0).real
+        _Y0_CACHE[key] = sph_harm_y(b.ell.astype(int)[:, None], b.order[:, None], theta[None, :], 0.0).real
     return _Y0_CACHE[key]
 
 

@@ -350,8 +350,6 @@ def trajectory_dataset(scene: ZeitlinScene, traj: Trajectory, method: str, histo
     M, T = r.q.shape
     H, spec, cas, L, ens, q = r.H, r.spec, r.cas, r.L, r.Z, r.q
     E0 = H[:, :1]
-    power = cas / b.area  # tr((−iW)^k), the matrix's own power sums: |tr((−iW)^k)| ≤ tr((−iW)²)^(k/2)
-    scale = power[:, :1, :1] ** (np.array([2, 3, 4]) / 2.0)
     dims_t = ("member", "t")
     field = "of the vorticity field ω on the unit sphere (radius 1 m, unit surface density)"
     data = {
@@ -370,7 +368,7 @@ def trajectory_dataset(scene: ZeitlinScene, traj: Trajectory, method: str, histo
         "casimir": _var(cas, dims_t + ("k",), "1", "Casimir C_k",
                         comment="C_k = (4π/N) tr((−iW)^k), which approximates ∫ω^k dA (C_2 = ∫ω² dA exactly); "
                                 "its unit depends on k (m2 s-k), so units is 1"),
-        "casimir_drift": _var((power - power[:, :1]) / scale, dims_t + ("k",), "1", "relative Casimir change",
+        "casimir_drift": _var(zk.casimir_change(cas, cas[:, :1], b), dims_t + ("k",), "1", "relative Casimir change",
                               comment="(tr((−iW)^k) − its value at t = 0) / tr((−iW)²)(0)^(k/2)"),
         "angular_momentum": _var(L, dims_t + ("axis",), "kg m2 s-1", "angular momentum L",
                                  comment="L = σ∫x × u dA = ∫x ω dA (σ = 1 kg m-2, radius 1 m): the degree-1 "
@@ -440,10 +438,9 @@ def vorticity_coefficients(ds: xr.Dataset) -> xr.DataArray:
     N = W.shape[-1]
     b = zk.basis(N)
     C = zk.to_modes(W.reshape(-1, N, N), b).reshape(W.shape[:-2] + (b.modes,))
-    m = np.repeat(np.arange(N), np.arange(N, 0, -1))
     return xr.DataArray(C, dims=("member", "t", "mode"),
                         coords={"member": ds["member"].values, "t": ds["t"].values,
-                                "l": ("mode", b.ell.astype(int)), "m": ("mode", m)},
+                                "l": ("mode", b.ell.astype(int)), "m": ("mode", b.order)},
                         name="vorticity_coefficients",
                         attrs={"units": "s-1", "long_name": "vorticity coefficient ω_lm"})
 
