@@ -243,10 +243,17 @@ class Trajectory:
 
 
 def integrate(scene: ZeitlinScene, W0: np.ndarray, *, method: str | None = None, progress=None,
-              keep_vorticity: bool | None = None) -> Trajectory:
+              keep_vorticity: bool | None = None, backend: str = "cpu") -> Trajectory:
     """Integrate the members W0 with the scene's method; outputs every
     output.every steps.  ``keep_vorticity``: keep W of every member at every
-    output (default: the scene's output.vorticity)."""
+    output (default: the scene's output.vorticity).  ``backend``: "cpu" (the
+    numba kernels), or the steps over an array namespace (:mod:`.xpstep`):
+    "gpu" (CuPy), "cpu-xp" (numpy)."""
+    if backend != "cpu":
+        from . import xpstep
+
+        return xpstep.integrate_xp(xpstep.namespace(backend), scene, W0, method=method, progress=progress,
+                                   keep_vorticity=keep_vorticity)
     z, itg, out = scene["zeitlin"], scene["integrator"], scene["output"]
     method = method or itg["method"]
     b = zk.basis(z["N"])
@@ -498,12 +505,14 @@ def check_memory(scene: ZeitlinScene) -> None:
                          f"store fewer outputs (output.every) or members, or leave the vorticity out", True)
 
 
-def simulate(scene: ZeitlinScene, *, method: str | None = None, progress=None, history=None) -> xr.Dataset:
-    """Run the scene's ensemble with its method (or ``method``) into an in-memory dataset."""
+def simulate(scene: ZeitlinScene, *, method: str | None = None, progress=None, history=None,
+             backend: str = "cpu") -> xr.Dataset:
+    """Run the scene's ensemble with its method (or ``method``) into an in-memory
+    dataset; ``backend`` as in :func:`integrate`."""
     check_memory(scene)
     W0 = initial_fields(scene)
     method = method or scene["integrator"]["method"]
-    traj = integrate(scene, W0, method=method, progress=progress)
+    traj = integrate(scene, W0, method=method, progress=progress, backend=backend)
     ds = trajectory_dataset(scene, traj, method, history)
     ds.attrs["summary"] = summary(ds)
     return ds

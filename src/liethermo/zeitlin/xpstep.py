@@ -1,0 +1,592 @@
+"""The fluid's steps written once over an array namespace ``xp`` (numpy, or
+CuPy on a GPU): every member of a batch at once, no numba, no Python loop
+over members.
+
+The arithmetic mirrors :mod:`.kernels` and :func:`.run.split_step` /
+:func:`.run.rk4_step` operation by operation, so that with ``xp = numpy``
+the steps agree with the CPU kernels to round-off (only sums are taken in
+another order), with the same fixed-point rule, the same per-member
+failures and the same heat:
+
+* W's upper diagonals are gathered into a skewed array ``G[k, i, d] =
+  W[k, i, (i + d) mod N]`` (entries with i ≥ N − d are padding, set to 0);
+  a skew-Hermitian W is rebuilt from such an array by one gather;
+* Δ_N⁻¹ on the blocks d ≥ 1: the Thomas recurrences with the stored
+  factors, one row i at a time for all members and diagonals at once
+  (N vector operations); block 0 through its stored inverse g0;
+* the modes: each diagonal's real and imaginary rows times its block of
+  eigenvectors, one batched product over the diagonals (blocks padded to
+  N × N with zeros) or, where those would take too much memory, one
+  product per diagonal;
+* the products of the fixed point and of the vector field: batched
+  complex ``matmul``.
+
+Only what the run keeps goes back to the host (:func:`integrate_xp`).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import time as _time
+
+import numpy as np
+
+from . import kernels as zk
+
+#: padded eigenvector blocks (two N³ float64 arrays) are used up to this many bytes
+BATCHED_BLOCKS_BYTES = 2**31
+
+BACKENDS = ("cpu", "cpu-xp", "gpu")
+
+
+def namespace(backend: str):
+    """The array module of a backend: numpy for ``cpu-xp``, CuPy for ``gpu``
+    (refused in one line where CuPy or a CUDA device is missing)."""
+    if backend == "cpu-xp":
+        return np
+    if backend == "gpu":
+        try:
+            import cupy
+        except ImportError as e:
+            raise RuntimeError(f"backend 'gpu' needs CuPy, which does not import here ({e})") from None
+        try:
+            n = cupy.cuda.runtime.getDeviceCount()
+        except Exception as e:  # no driver, no runtime
+            raise RuntimeError(f"backend 'gpu': no usable CUDA device ({e})") from None
+        if n < 1:
+            raise RuntimeError("backend 'gpu': no CUDA device on this machine")
+        return cupy
+    raise ValueError(f"backend must be one of {', '.join(BACKENDS[1:])} for the array-namespace steps, "
+                     f"not {backend!r}")
+
+
+def to_host(a) -> np.ndarray:
+    """A numpy copy (or view) of an xp array."""
+    get = getattr(a, "get", None)
+    return get() if callable(get) else np.asarray(a)
+
+
+def synchronize(xp) -> None:
+    """Wait for the device (nothing to wait for with numpy)."""
+    cuda = getattr(xp, "cuda", None)
+    if cuda is not None:
+        cuda.Device().synchronize()
+
+
+# ----------------------------------------------------------------------------- the basis on xp
+
+
+class XpBasis:
+    """What the steps need of :func:`kernels.basis` (N), laid out for
+    vector operations and moved to ``xp`` once."""
+
+    def __init__(self, xp, N: int, batched: bool | None = None):
+        b = zk.basis(N)
+        self.xp, self.N, self.hbar, self.alpha, self.area = xp, N, b.hbar, b.alpha, b.area
+        i = np.arange(N)[:, None]
+        d = np.arange(N)[None, :]
+        valid = i < N - d                                    # [i, d]
+        # gather: G[k, i, d] = W[k, i, (i + d) mod N]
+        self.gather_id = xp.asarray(i * N + (i + d) % N)
+        self.valid_id = xp.asarray(valid)
+        # rebuild W from upper values U (layout [i, d] or [d, i], flattened) and lower ones L = −conj(U)
+        r = np.arange(N)[:, None]
+        c = np.arange(N)[None, :]
+        up = c >= r
+        self.scatter_id = xp.asarray(np.where(up, r * N + (c - r), c * N + (r - c) + N * N).ravel())
+        self.scatter_di = xp.asarray(np.where(up, (c - r) * N + r, (r - c) * N + c + N * N).ravel())
+        # Thomas factors and the off-diagonals of −Δ's blocks, padded: [i, d], zero outside a block
+        tinv = np.zeros((N, N))
+        tc = np.zeros((N, N))
+        offp = np.zeros((N, N))   # off[o + i − 1]: couples rows i − 1 and i (0 for i = 0)
+        offn = np.zeros((N, N))   # off[o + i]: couples rows i and i + 1 (0 on a block's last row)
+        diag = np.zeros((N, N))
+        for dd in range(N):
+            n, o = N - dd, b.offset[dd]
+            diag[:n, dd] = b.diag[o:o + n]
+            offn[:n, dd] = b.off[o:o + n]
+            offp[1:n, dd] = b.off[o:o + n - 1]
+            if dd >= 1:
+                tinv[:n, dd] = b.tinv[o:o + n]
+                tc[:n, dd] = b.tc[o:o + n]
+        self.tinv, self.tc = xp.asarray(tinv), xp.asarray(tc)
+        self.offp, self.offn, self.diag = xp.asarray(offp), xp.asarray(offn), xp.asarray(diag)
+        self.g0t = xp.asarray(np.ascontiguousarray(b.g0.T))
+        # modes, layout [d, j] (degree l = d + j): the exact viscous flow's rates and heat weights
+        dj = np.arange(N)[:, None]
+        jj = np.arange(N)[None, :]
+        ell = (dj + jj).astype(float)
+        inside = jj < N - dj
+        self.ell = ell
+        self.inside = inside
+        self.modes_inside = xp.asarray(inside)
+        self.weight = np.where(dj == 0, 1.0, 2.0)          # mode_weights, [d, 1]
+        # eigenvector blocks, padded to N × N: V[d, i, j] (column j: degree d + j)
+        nbytes = 2 * 8 * N ** 3
+        self.batched = (nbytes <= BATCHED_BLOCKS_BYTES) if batched is None else bool(batched)
+        blocks = [b.vecs[b.voff[dd]:b.voff[dd + 1]].reshape(N - dd, N - dd) for dd in range(N)]
+        if self.batched:
+            V = np.zeros((N, N, N))
+            for dd, B in enumerate(blocks):
+                V[dd, :N - dd, :N - dd] = B
+            self.V = xp.asarray(V)
+            self.Vt = xp.asarray(np.ascontiguousarray(np.swapaxes(V, 1, 2)))
+        else:
+            self.Vb = [xp.asarray(B) for B in blocks]
+            self.Vbt = [xp.asarray(np.ascontiguousarray(B.T)) for B in blocks]
+
+    # ---------------------------------------------------------------- gather / rebuild
+
+    def diagonals(self, W):
+        """G[k, i, d] = W[k, i, i + d] for i < N − d, 0 elsewhere: (M, N, N)."""
+        xp, N = self.xp, self.N
+        G = W.reshape(W.shape[0], N * N)[:, self.gather_id]
+        return xp.where(self.valid_id, G, 0)
+
+    def rebuild(self, U, layout: str = "id"):
+        """The matrix with upper diagonals U ([k, i, d] or, layout "di",
+        [k, d, i]) and lower ones −conj(U)."""
+        xp, N = self.xp, self.N
+        M = U.shape[0]
+        U = U.reshape(M, N * N)
+        UL = xp.concatenate([U, -xp.conj(U)], axis=1)
+        idx = self.scatter_id if layout == "id" else self.scatter_di
+        return UL[:, idx].reshape(M, N, N)
+
+
+@functools.lru_cache(maxsize=8)
+def _xp_basis(xp, N: int, batched):
+    return XpBasis(xp, N, batched)
+
+
+def xp_basis(xp, N: int, batched: bool | None = None) -> XpBasis:
+    """The basis of N on ``xp``, built once per (xp, N)."""
+    return _xp_basis(xp, int(N), batched)
+
+
+def _cplx(re, im):
+    """re + i·im (exact for finite parts)."""
+    return re + 1j * im
+
+
+def dagger(X):
+    return X.conj().swapaxes(-1, -2)
+
+
+# ----------------------------------------------------------------------------- Laplacian
+
+
+def laplacian_inverse(W, xb: XpBasis, scale: float = 1.0):
+    """scale · Δ_N⁻¹ W on the traceless part, as :func:`kernels.laplacian_inverse`."""
+    xp, N = xb.xp, xb.N
+    M = W.shape[0]
+    s = -scale
+    G = xb.diagonals(W)                                       # (M, N_i, N_d)
+    r = xp.concatenate([G.real, G.imag], axis=0)              # (2M, N_i, N_d)
+    r = xp.ascontiguousarray(xp.moveaxis(r, 1, 0))            # (N_i, 2M, N_d)
+    y = xp.empty_like(r)
+    y[0] = (s * r[0]) * xb.tinv[0]
+    for i in range(1, N):
+        y[i] = (s * r[i] - xb.offp[i] * y[i - 1]) * xb.tinv[i]
+    y = xp.where(xb.valid_id[:, None, :], y, 0.0)  # the padding stays 0 even after a non-finite entry
+    for i in range(N - 2, -1, -1):
+        y[i] -= xb.tc[i] * y[i + 1]
+    yr = xp.moveaxis(y[:, :M], 1, 0)                          # (M, N_i, N_d)
+    yi = xp.moveaxis(y[:, M:], 1, 0)
+    # block 0 (its l = 0 mode dropped): −g0 w₀ on the imaginary diagonal
+    y0 = s * (W.imag.reshape(M, N * N)[:, :: N + 1] @ xb.g0t)  # (M, N)
+    yr = xp.ascontiguousarray(yr)
+    yi = xp.ascontiguousarray(yi)
+    yr[:, :, 0] = 0.0
+    yi[:, :, 0] = y0
+    return xb.rebuild(_cplx(yr, yi), "id")
+
+
+def laplacian(W, xb: XpBasis):
+    """Δ_N W (W skew-Hermitian), as :func:`kernels.laplacian`."""
+    xp = xb.xp
+    G = xb.diagonals(W)                                       # (M, N_i, N_d)
+    z = xp.zeros_like(G[:, :1])
+    prev = xp.concatenate([z, G[:, :-1]], axis=1)
+    nxt = xp.concatenate([G[:, 1:], z], axis=1)
+    acc = xb.diag * G
+    acc = acc + xb.offp * prev
+    acc = acc + xb.offn * nxt
+    return xb.rebuild(-acc, "id")
+
+
+# ----------------------------------------------------------------------------- modes and the viscous flow
+
+
+def _blocks(R, xb: XpBasis, transpose: bool):
+    """R[d] (rows × N, block d's columns) times block d's eigenvectors (or their transpose)."""
+    xp = xb.xp
+    if xb.batched:
+        return xp.matmul(R, xb.Vt if transpose else xb.V)
+    Y = xp.zeros_like(R)
+    for d in range(xb.N):
+        n = xb.N - d
+        B = xb.Vbt[d] if transpose else xb.Vb[d]
+        Y[d, :, :n] = xp.matmul(R[d, :, :n], B)
+    return Y
+
+
+def to_modes(W, xb: XpBasis):
+    """ω_lm of W, laid out [d, k, j] (degree l = d + j; zero outside the blocks)."""
+    xp = xb.xp
+    M = W.shape[0]
+    G = xb.diagonals(W)                                       # (M, N_i, N_d)
+    R = xp.concatenate([G.real, G.imag], axis=0)              # (2M, N_i, N_d)
+    R = xp.ascontiguousarray(xp.transpose(R, (2, 0, 1)))      # (N_d, 2M, N_i)
+    Y = _blocks(R, xb, False)
+    return (Y[:, M:] - 1j * Y[:, :M]) / xb.alpha
+
+
+def from_modes(C, xb: XpBasis):
+    """W = iα Σ ω_lm T_lm from modes laid out [d, k, j] (m = 0: real part only)."""
+    xp = xb.xp
+    M = C.shape[1]
+    R = xp.concatenate([-xb.alpha * C.imag, xb.alpha * C.real], axis=1)   # (N_d, 2M, N_j)
+    Y = _blocks(R, xb, True)                                  # (N_d, 2M, N_i)
+    re, im = Y[:, :M], Y[:, M:]
+    re = xp.concatenate([xp.zeros_like(re[:1]), re[1:]], axis=0)  # the diagonal is imaginary
+    U = _cplx(re, im)                                         # [d, k, i]
+    return xb.rebuild(xp.ascontiguousarray(xp.moveaxis(U, 1, 0)), "di")
+
+
+@functools.lru_cache(maxsize=64)
+def _flow_factors(xp, xb: XpBasis, t: float, nu: float):
+    lam = xb.ell * (xb.ell + 1.0)
+    rate = np.where((xb.ell >= 1) & xb.inside, nu * (lam - 2.0), 0.0)
+    lamp = np.where(lam > 0, lam, 1.0)
+    keep = np.exp(-t * rate)
+    lost = -np.expm1(-2.0 * t * rate)
+    heat = np.where((xb.ell >= 1) & xb.inside, lost / lamp, 0.0) * xb.weight
+    return xp.asarray(keep[:, None, :]), xp.asarray(heat[:, None, :])
+
+
+def viscous_flow(W, t: float, nu: float, xb: XpBasis):
+    """The exact flow of Ẇ = ν(Δ_N + 2)W for a time t and the heat it releases,
+    as :func:`kernels.viscous_flow`."""
+    xp = xb.xp
+    if nu == 0.0 or t == 0.0:
+        return W, xp.zeros(W.shape[0])
+    keep, hw = _flow_factors(xp, xb, float(t), float(nu))
+    C = to_modes(W, xb)
+    heat = 0.5 * (xp.abs(C) ** 2 * hw).sum(axis=(0, 2))
+    return from_modes(C * keep, xb), heat
+
+
+# ----------------------------------------------------------------------------- isospectral midpoint
+
+
+def _change(xp, Dn, D):
+    """Per member, the largest change max(|Δre|, |Δim|) of D's entries, with
+    the scan of :func:`kernels._fixed_point_update` (entries in row-major
+    order, ``if not e <= ch: ch = e`` from 0, ``max(a, b)`` = b only where
+    b > a): a NaN is the result only where it is the last entry."""
+    M = Dn.shape[0]
+    diff = Dn - D
+    a = xp.abs(diff.real).reshape(M, -1)
+    b = xp.abs(diff.imag).reshape(M, -1)
+    e = xp.where(b > a, b, a)
+    nan = xp.isnan(e)
+    n = e.shape[1]
+    last = (n - 1) - xp.argmax(nan[:, ::-1], axis=1)          # the last NaN (where there is one)
+    after = xp.arange(n)[None, :] > last[:, None]
+    tail = xp.max(xp.where(after, e, 0.0), axis=1)
+    return xp.where(nan.any(axis=1), xp.where(last == n - 1, xp.nan, tail), xp.max(e, axis=1))
+
+
+def isomp(W, h: float, xb: XpBasis, tol: float, max_iter: int, guess=None):
+    """One isospectral midpoint step of every member, as :func:`kernels.isomp`:
+    returns W', iterations, failed and the fixed point D (members that stop
+    leave the batch, as there)."""
+    xp = xb.xp
+    M = W.shape[0]
+    scale = h / (2.0 * xb.hbar)
+    D = xp.zeros_like(W) if guess is None else xp.array(guess, dtype=xp.complex128)
+    its = xp.zeros(M, dtype=xp.int64)
+    failed = xp.zeros(M, dtype=bool)
+    wmax = xp.maximum(xp.abs(W.real), xp.abs(W.imag)).reshape(M, -1).max(axis=1)
+    thresh = tol * xp.where(wmax > 0, wmax, 1.0)
+    X = xp.empty_like(W)
+    active = xp.arange(M)
+    Wa, Da, tha, lasta = W, D, thresh, xp.full(M, xp.inf)
+    Wt = W + D
+    whole = True
+    while True:
+        A = laplacian_inverse(Wt, xb, scale)
+        Xa = xp.matmul(A, Wt)
+        XA = xp.matmul(Xa, A)
+        Dn = (Xa - dagger(Xa)) + XA
+        ch = _change(xp, Dn, Da)
+        Da = Dn
+        Wt = Wa + Da
+        its[active] += 1
+        done = (ch <= tha) | ((ch >= lasta) & (ch <= 100.0 * tha))
+        bad = ~xp.isfinite(ch)
+        out = its[active] >= max_iter
+        failed[active[bad | (out & ~done)]] = True
+        stop = done | out | bad
+        if bool(stop.all()):
+            if whole:
+                D, X = Da, Xa
+            else:
+                D[active], X[active] = Da, Xa
+            break
+        lasta = ch
+        if bool(stop.any()):
+            if whole:
+                D, X = Da.copy(), Xa.copy()
+                whole = False
+            else:
+                D[active[stop]], X[active[stop]] = Da[stop], Xa[stop]
+            keep = ~stop
+            active = active[keep]
+            Wa, Da, Wt = Wa[keep], Da[keep], Wt[keep]
+            tha, lasta = tha[keep], lasta[keep]
+    return W + 2.0 * (X - dagger(X)), its, failed, D
+
+
+# ----------------------------------------------------------------------------- the vector field and the steps
+
+
+def rhs(W, nu: float, xb: XpBasis):
+    """(Ẇ, q̇), as :func:`kernels.rhs`."""
+    xp = xb.xp
+    P = laplacian_inverse(W, xb)
+    X = xp.matmul(P, W)
+    dW = (X - dagger(X)) / xb.hbar
+    if nu == 0.0:
+        return dW, xp.zeros(W.shape[0])
+    V = laplacian(W, xb) + 2.0 * W
+    dW = dW + nu * V
+    qdot = -(nu * xb.area) * xp.einsum("kij,kji->k", V, P).real
+    return dW, qdot
+
+
+def rk4_step(W, q, h: float, nu: float, xb: XpBasis):
+    k1, r1 = rhs(W, nu, xb)
+    k2, r2 = rhs(W + 0.5 * h * k1, nu, xb)
+    k3, r3 = rhs(W + 0.5 * h * k2, nu, xb)
+    k4, r4 = rhs(W + h * k3, nu, xb)
+    return (W + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4),
+            q + (h / 6.0) * (r1 + 2.0 * r2 + 2.0 * r3 + r4))
+
+
+class Predictor:
+    """:class:`.run.Predictor` on ``xp`` (the same orders, memory budget and coefficients)."""
+
+    def __init__(self, xp, substeps: int, M: int, N: int, order: int = 4, budget: int = 2**29):
+        from .run import Predictor as _P
+
+        self.xp = xp
+        self.COEF = _P.COEF
+        per = substeps * M * N * N * 16
+        self.order = min(order, budget // per) if per else order
+        self.shape = (M, N, N)
+        self.hist: list[list] = [[] for _ in range(substeps)]
+
+    def guess(self, i: int, active):
+        H = self.hist[i]
+        p = min(self.order, len(H))
+        if p == 0:
+            return None
+        c = self.COEF[p]
+        g = c[0] * H[-1][active]
+        for j in range(1, p):
+            g += c[j] * H[-1 - j][active]
+        return g
+
+    def remember(self, i: int, active, D) -> None:
+        if self.order == 0:
+            return
+        H = self.hist[i]
+        arr = H.pop(0) if len(H) == self.order else self.xp.zeros(self.shape, dtype=self.xp.complex128)
+        arr[active] = D
+        H.append(arr)
+
+
+def split_step(W, q, h, nu, xb: XpBasis, fac, tol, max_iter, guess=None, predictor: Predictor | None = None,
+               active=None):
+    """One step of the split family, as :func:`.run.split_step`."""
+    xp = xb.xp
+    its = xp.zeros(W.shape[0], dtype=xp.int64)
+    failed = xp.zeros(W.shape[0], dtype=bool)
+    pending = fac[0] * h / 2.0
+    D = guess
+    for i, f in enumerate(fac):
+        W, dq = viscous_flow(W, pending, nu, xb)
+        q = q + dq
+        g = predictor.guess(i, active) if predictor is not None else None
+        if g is None and D is not None:
+            g = D * f
+        W, it, fl, Df = isomp(W, f * h, xb, tol, max_iter, g)
+        if predictor is not None:
+            predictor.remember(i, active, Df)
+        D = Df / f
+        its += it
+        failed |= fl
+        pending = f * h / 2.0 + (fac[i + 1] * h / 2.0 if i + 1 < len(fac) else 0.0)
+    W, dq = viscous_flow(W, pending, nu, xb)
+    return W, q + dq, its, failed, D
+
+
+#: the methods these steps run; the reference (DOP853, scipy) runs on the CPU only
+METHODS = ("split", "split4", "split6", "rk4")
+
+
+def check_method(method: str) -> None:
+    if method not in METHODS:
+        raise ValueError(f"method {method!r} does not run on the array-namespace backends "
+                         f"(they run {', '.join(METHODS)}; the reference runs on the CPU)")
+
+
+# ----------------------------------------------------------------------------- a run
+
+
+def integrate_xp(xp, scene, W0: np.ndarray, *, method: str | None = None, progress=None,
+                 keep_vorticity: bool | None = None):
+    """:func:`.run.integrate` with the steps on ``xp``: the same
+    :class:`.run.Trajectory` (diagnostics recorded on the host from the
+    kept steps' W, the same status, failed_step and iterations)."""
+    from tqdm.auto import tqdm
+
+    from .run import Recorder, Trajectory, factors
+
+    z, itg, out = scene["zeitlin"], scene["integrator"], scene["output"]
+    method = method or itg["method"]
+    check_method(method)
+    b = zk.basis(z["N"])
+    xb = xp_basis(xp, z["N"])
+    nu = float(scene["fluid"]["viscosity"])
+    h, steps, every = float(itg["h"]), int(itg["steps"]), int(out["every"])
+    M = W0.shape[0]
+    n_out = steps // every + 1
+    times = np.arange(n_out) * every * h
+    rec = Recorder(M, n_out, b, bool(out["vorticity"] if keep_vorticity is None else keep_vorticity))
+    its = np.zeros((M, n_out))
+    status = np.zeros(M, dtype=np.int8)
+    failed_step = np.full(M, -1, dtype=np.int64)
+    rec.record(0, np.arange(M), W0, np.zeros(M))
+    t0 = _time.perf_counter()
+    fac = factors(method, itg["composition"]) if method != "rk4" else ()
+    W = xp.asarray(np.ascontiguousarray(W0, dtype=np.complex128))
+    q = xp.zeros(M)
+    active = np.arange(M)
+    acc_its = np.zeros(M)
+    guess = xp.zeros_like(W)
+    predictor = Predictor(xp, len(fac), M, b.N) if method != "rk4" else None
+    bar = tqdm(total=steps, desc=f"{scene.name} {method}", unit="step", leave=False,
+               disable=None if progress is None else not progress)
+    for k in range(1, steps + 1):
+        if active.size == 0:
+            break
+        act = xp.asarray(active)
+        Wa, qa = W[act], q[act]
+        if method == "rk4":
+            Wa, qa = rk4_step(Wa, qa, h, nu, xb)
+            bad = np.zeros(active.size, dtype=bool)
+        else:
+            Wa, qa, it, bad, Da = split_step(Wa, qa, h, nu, xb, fac, itg["tol"], itg["max_iter"],
+                                             None if k == 1 else guess[act], predictor, act)
+            guess[act] = Da
+            acc_its[active] += to_host(it)
+            bad = to_host(bad)
+        finite = to_host(xp.isfinite(Wa).all(axis=(1, 2)) & xp.isfinite(qa))
+        status[active[bad]] = 1
+        status[active[~finite & ~bad]] = 2
+        failed_step[active[bad | ~finite]] = k
+        W[act], q[act] = Wa, qa
+        active = active[~(bad | ~finite)]
+        if k % every == 0:
+            j = k // every
+            act = xp.asarray(active)
+            rec.record(j, active, to_host(W[act]), to_host(q[act]))
+            its[active, j] = acc_its[active] / every
+            acc_its[:] = 0.0
+        bar.update(1)
+    bar.close()
+    synchronize(xp)
+    return Trajectory(times, rec, its, status, failed_step, _time.perf_counter() - t0)
+
+
+# ----------------------------------------------------------------------------- timing
+
+
+def _members(N: int, M: int, seed: int = 0) -> np.ndarray:
+    """Random fields of unit energy, l ≤ min(8, N − 1)."""
+    b = zk.basis(N)
+    rng = np.random.default_rng(seed)
+    sel = (b.ell >= 1) & (b.ell <= min(8, N - 1))
+    C = np.zeros((M, b.modes), complex)
+    C[:, sel] = rng.standard_normal((M, sel.sum())) + 1j * rng.standard_normal((M, sel.sum()))
+    C[:, : N] = C[:, : N].real
+    W = zk.from_modes(C, b)
+    return W / np.sqrt(zk.energy_of_modes(zk.to_modes(W, b), b))[:, None, None]
+
+
+def time_fluid_xp(xp, N: int, members: int, steps: int, method: str = "split", *, h: float = 0.01,
+                  nu: float = 1e-3, tol: float = 1e-15, max_iter: int = 100, composition: str = "small_error",
+                  warmup: int = 2) -> float:
+    """Seconds per member-step of ``method`` on ``xp`` (warm: ``warmup``
+    steps first; the fixed point started from the predictor, as in a run;
+    the device synchronized before the clock is read)."""
+    from .run import factors
+
+    check_method(method)
+    xb = xp_basis(xp, N)
+    W = xp.asarray(_members(N, members))
+    q = xp.zeros(members)
+    fac = factors(method, composition) if method != "rk4" else ()
+    pred = Predictor(xp, len(fac), members, N) if fac else None
+    act = xp.arange(members)
+    D = None
+
+    def step(W, q, D):
+        if method == "rk4":
+            W, q = rk4_step(W, q, h, nu, xb)
+            return W, q, None
+        W, q, _, _, D = split_step(W, q, h, nu, xb, fac, tol, max_iter, D, pred, act)
+        return W, q, D
+
+    for _ in range(warmup):
+        W, q, D = step(W, q, D)
+    synchronize(xp)
+    t0 = _time.perf_counter()
+    for _ in range(steps):
+        W, q, D = step(W, q, D)
+    synchronize(xp)
+    return (_time.perf_counter() - t0) / (members * steps)
+
+
+def time_fluid_cpu(N: int, members: int, steps: int, method: str = "split", *, h: float = 0.01,
+                   nu: float = 1e-3, tol: float = 1e-15, max_iter: int = 100, composition: str = "small_error",
+                   warmup: int = 2) -> float:
+    """The same figure for the numba kernels (:func:`.run.split_step`, :func:`.run.rk4_step`)."""
+    from . import run as zr
+
+    check_method(method)
+    b = zk.basis(N)
+    W = _members(N, members)
+    q = np.zeros(members)
+    fac = zr.factors(method, composition) if method != "rk4" else ()
+    pred = zr.Predictor(len(fac), members, N) if fac else None
+    act = np.arange(members)
+    D = None
+
+    def step(W, q, D):
+        if method == "rk4":
+            W, q = zr.rk4_step(W, q, h, nu, b)
+            return W, q, None
+        W, q, _, _, D = zr.split_step(W, q, h, nu, b, fac, tol, max_iter, D, pred, act)
+        return W, q, D
+
+    for _ in range(warmup):
+        W, q, D = step(W, q, D)
+    t0 = _time.perf_counter()
+    for _ in range(steps):
+        W, q, D = step(W, q, D)
+    return (_time.perf_counter() - t0) / (members * steps)

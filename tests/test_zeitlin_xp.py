@@ -1,0 +1,139 @@
+"""The fluid's steps over an array namespace (zeitlin/xpstep.py), run with
+numpy against the numba kernels: round-off agreement, the same fixed-point
+iterations, the same status of every member."""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+import pytest
+
+from liethermo.scene import load_scene
+from liethermo.zeitlin import kernels as zk
+from liethermo.zeitlin import run as zr
+from liethermo.zeitlin import xpstep as xs
+
+
+def _rel(a, c):
+    """max|a − c| / max|c| (max|a − c| where c is 0: N = 2 has no heat)."""
+    scale = np.abs(c).max()
+    return np.abs(a - c).max() / (scale if scale > 0 else 1.0)
+
+
+def _fields(N, M, seed):
+    return xs._members(N, M, seed)
+
+
+@pytest.mark.parametrize("N", [2, 5, 12])
+def test_operators_agree_with_the_kernels(N):
+    b, xb = zk.basis(N), xs.xp_basis(np, N)
+    W = _fields(N, 3, N)
+    assert _rel(xs.laplacian_inverse(W, xb, 0.7), zk.laplacian_inverse(W, b, 0.7)) < 1e-14
+    assert _rel(xs.laplacian(W, xb), zk.laplacian(W, b)) < 1e-15
+    W1, q1 = zk.viscous_flow(W, 0.3, 0.02, b)
+    for batched in (True, False):  # padded blocks in one product, or one product per diagonal
+        W2, q2 = xs.viscous_flow(W, 0.3, 0.02, xs.XpBasis(np, N, batched=batched))
+        assert _rel(W2, W1) < 1e-14 and _rel(q2, q1) < 1e-14
+    r1, r2 = zk.isomp(W, 0.05, b, 1e-15, 100), xs.isomp(W, 0.05, xb, 1e-15, 100)
+    assert _rel(r2[0], r1[0]) < 1e-14 and _rel(r2[3], r1[3]) < 1e-14
+    assert np.array_equal(r2[1], r1[1]) and np.array_equal(r2[2], r1[2])
+    (d1, s1), (d2, s2) = zk.rhs(W, 0.02, b), xs.rhs(W, 0.02, xb)
+    assert _rel(d2, d1) < 1e-14 and _rel(s2, s1) < 1e-14
+
+
+def test_the_change_of_the_fixed_point_scans_like_the_kernel():
+    """A NaN among the entries decides the change only where it is the last
+    entry scanned; before it, the later entries overwrite it."""
+    rng = np.random.default_rng(1)
+    M, N = 5, 4
+    D = rng.normal(size=(M, N, N)) + 1j * rng.normal(size=(M, N, N))
+    Dn = D + 1e-3 * (rng.normal(size=(M, N, N)) + 1j * rng.normal(size=(M, N, N)))
+    Dn[1, 1, 2] = complex(np.nan, 0.0)   # in the middle
+    Dn[2, N - 1, N - 1] = complex(np.nan, 1.0)  # last
+    Dn[3, 0, 1] = complex(0.0, np.nan)   # imaginary part only: max(a, nan) = a
+    Dn[4, 2, 2] = complex(np.inf, 0.0)
+    # the kernel forms D_new = X − X† + XA: X = Dn/2 on a skew-Hermitian part is awkward, so feed
+    # X = 0 and XA = Dn, which gives D_new = Dn exactly
+    X = np.zeros_like(Dn)
+    change = np.empty(M)
+    Dk, Wt = D.copy(), np.empty_like(D)
+    zk._fixed_point_update(np.zeros_like(D), X, Dn, Dk, Wt, change)
+    ours = xs._change(np, Dn, D)
+    assert np.array_equal(np.isnan(ours), np.isnan(change)) and np.isnan(ours).tolist() == [0, 0, 1, 0, 0]
+    assert np.array_equal(ours[~np.isnan(ours)], change[~np.isnan(change)])
+
+
+def _scene(method, nu, **more):
+    over = {"zeitlin.N": 8, "initial.lmax": 4, "ensemble.members": 3, "integrator.steps": 50,
+            "output.every": 10, "integrator.method": method, "fluid.viscosity": nu, **more}
+    return load_scene("zeitlin_decay", over)
+
+
+def _both(sc, W0):
+    cpu = zr.integrate(sc, W0, progress=False, keep_vorticity=True)
+    xp = zr.integrate(sc, W0, progress=False, keep_vorticity=True, backend="cpu-xp")
+    return cpu, xp
+
+
+@pytest.mark.parametrize("nu", [1e-3, 0.0])
+@pytest.mark.parametrize("method", xs.METHODS)
+def test_fifty_steps_agree_with_the_kernels_to_round_off(method, nu):
+    sc = _scene(method, nu)
+    cpu, xp = _both(sc, zr.initial_fields(sc))
+    assert (cpu.status == 0).all() and np.array_equal(xp.status, cpu.status)
+    assert np.array_equal(xp.failed_step, cpu.failed_step)
+    assert _rel(xp.W, cpu.W) < 1e-12
+    assert np.array_equal(xp.iterations, cpu.iterations)  # the same fixed-point iterations, step by step
+    if nu > 0:
+        assert (cpu.q[:, -1] > 0).all() and _rel(xp.q, cpu.q) < 1e-12
+    else:
+        assert (xp.q == 0).all() and (cpu.q == 0).all()
+    for name in ("H", "cas", "L", "Z"):
+        assert _rel(getattr(xp.out, name), getattr(cpu.out, name)) < 1e-12
+
+
+@pytest.mark.filterwarnings("ignore::RuntimeWarning")
+@pytest.mark.parametrize("method, status, step", [("rk4", 2, 3), ("split", 1, 1), ("split4", 1, 1)])
+def test_a_member_that_blows_up_is_retired_as_on_the_cpu(method, status, step):
+    sc = _scene(method, 1e-3)
+    W0 = zr.initial_fields(sc)
+    W0[1] *= 1000.0  # rk4 overflows; the fixed point of the midpoint diverges
+    cpu, xp = _both(sc, W0)
+    assert cpu.status.tolist() == [0, status, 0] and cpu.failed_step.tolist() == [-1, step, -1]
+    assert np.array_equal(xp.status, cpu.status) and np.array_equal(xp.failed_step, cpu.failed_step)
+    assert np.isnan(xp.W[1, 1:]).all() and np.isnan(xp.q[1, 1:]).all()
+    keep = [0, 2]
+    assert _rel(xp.W[keep], cpu.W[keep]) < 1e-12 and np.array_equal(xp.iterations, cpu.iterations)
+
+
+def test_a_fixed_point_out_of_iterations_is_flagged_as_on_the_cpu():
+    sc = _scene("split", 0.0, **{"integrator.max_iter": 2})
+    cpu, xp = _both(sc, zr.initial_fields(sc))
+    assert (cpu.status == 1).all() and (cpu.failed_step == 1).all()
+    assert np.array_equal(xp.status, cpu.status) and np.array_equal(xp.failed_step, cpu.failed_step)
+
+
+def test_a_dataset_through_the_xp_backend_matches_the_cpu():
+    sc = _scene("split4", 1e-3)
+    a, c = zr.simulate(sc, progress=False), zr.simulate(sc, progress=False, backend="cpu-xp")
+    for v in ("energy", "heat", "entropy", "casimir", "angular_momentum", "energy_spectrum"):
+        assert np.allclose(c[v].values, a[v].values, rtol=1e-12, atol=1e-14 * np.abs(a[v].values).max()), v
+    assert (c["status"].values == a["status"].values).all()
+    assert (c["fixed_point_iterations"].values == a["fixed_point_iterations"].values).all()
+
+
+def test_backends_refuse_what_they_cannot_run(monkeypatch):
+    sc = _scene("reference", 1e-3)
+    with pytest.raises(ValueError, match="'reference' does not run on the array-namespace"):
+        zr.integrate(sc, zr.initial_fields(sc), progress=False, backend="cpu-xp")
+    with pytest.raises(ValueError, match="'tpu'"):
+        xs.namespace("tpu")
+    monkeypatch.setitem(sys.modules, "cupy", None)  # as where CuPy is not installed
+    with pytest.raises(RuntimeError, match="backend 'gpu' needs CuPy"):
+        xs.namespace("gpu")
+
+
+def test_timing_returns_seconds_per_member_step():
+    t = xs.time_fluid_xp(np, 6, 2, 2, "split")
+    assert 0 < t < 10
