@@ -137,3 +137,19 @@ def test_backends_refuse_what_they_cannot_run(monkeypatch):
 def test_timing_returns_seconds_per_member_step():
     t = xs.time_fluid_xp(np, 6, 2, 2, "split")
     assert 0 < t < 10
+
+
+def test_a_thomas_kernel_that_fails_falls_back_to_the_vector_sweeps():
+    """Where the namespace offers RawKernel (CuPy) but the kernel does not
+    compile or disagrees, the sweeps run as vector operations, and say why."""
+    import types
+
+    def broken(*a, **k):
+        raise OSError("no compiler")
+
+    ns = types.SimpleNamespace(**{k: getattr(np, k) for k in dir(np) if not k.startswith("__")}, RawKernel=broken)
+    xb = xs.XpBasis(ns, 6)
+    assert xb.thomas_backend == "xp (OSError: no compiler)"
+    W = _fields(6, 2, 0)
+    assert _rel(xs.laplacian_inverse(W, xb), zk.laplacian_inverse(W, zk.basis(6))) < 1e-14
+    assert xs.xp_basis(np, 6).thomas_backend == "xp"

@@ -122,6 +122,7 @@ class XpBasis:
         self.inside = inside
         self.modes_inside = xp.asarray(inside)
         self.weight = np.where(dj == 0, 1.0, 2.0)          # mode_weights, [d, 1]
+        self._use_kernel()
         # eigenvector blocks, padded to N × N: V[d, i, j] (column j: degree d + j)
         nbytes = 2 * 8 * N ** 3
         self.batched = (nbytes <= BATCHED_BLOCKS_BYTES) if batched is None else bool(batched)
@@ -135,6 +136,58 @@ class XpBasis:
         else:
             self.Vb = [xp.asarray(B) for B in blocks]
             self.Vbt = [xp.asarray(np.ascontiguousarray(B.T)) for B in blocks]
+
+    # ---------------------------------------------------------------- Thomas
+
+    def thomas_xp(self, r, s: float):
+        """y = s·T_d⁻¹ r for every column (member row, diagonal d) of r
+        (N_i, rows, N_d): the stored Thomas factors, one row i at a time."""
+        xp, N = self.xp, self.N
+        y = xp.empty_like(r)
+        y[0] = (s * r[0]) * self.tinv[0]
+        for i in range(1, N):
+            y[i] = (s * r[i] - self.offp[i] * y[i - 1]) * self.tinv[i]
+        y = xp.where(self.valid_id[:, None, :], y, 0.0)  # the padding stays 0 even after a non-finite entry
+        for i in range(N - 2, -1, -1):
+            y[i] -= self.tc[i] * y[i + 1]
+        return y
+
+    def thomas(self, r, s: float):
+        if self._kernel is not None:
+            return self._thomas_kernel(r, s)
+        return self.thomas_xp(r, s)
+
+    def _thomas_kernel(self, r, s: float):
+        xp, N = self.xp, self.N
+        r = xp.ascontiguousarray(r)
+        y = xp.empty_like(r)
+        cols = r.shape[1] * N
+        threads = 128
+        self._kernel(((cols + threads - 1) // threads,), (threads,),
+                     (r, self.tinv, self.offp, self.tc, xp.float64(s), y, xp.int32(N), xp.int32(r.shape[1])))
+        return y
+
+    def _use_kernel(self) -> None:
+        """On CuPy, the Thomas sweeps as one CUDA kernel (a thread per column,
+        the rows in order: N launches fewer), kept only where it agrees with
+        :meth:`thomas_xp` on a test input; ``thomas_backend`` says which runs."""
+        self._kernel = None
+        self.thomas_backend = "xp"
+        xp = self.xp
+        if getattr(xp, "RawKernel", None) is None:
+            return
+        try:
+            self._kernel = xp.RawKernel(_THOMAS_CUDA, "thomas_sweeps", options=("--fmad=false",))
+            rng = np.random.default_rng(0)
+            r = xp.asarray(rng.standard_normal((self.N, 6, self.N)))
+            a, b = self._thomas_kernel(r, -0.3), self.thomas_xp(r, -0.3)
+            err = float(xp.abs(a - b).max()) / max(float(xp.abs(b).max()), 1e-300)
+            if not err <= 1e-13:
+                raise ArithmeticError(f"the Thomas kernel differs from the vector sweeps by {err:.2e}")
+            self.thomas_backend = "kernel"
+        except Exception as e:  # noqa: BLE001 (fall back to the vector sweeps, and say why)
+            self._kernel = None
+            self.thomas_backend = f"xp ({type(e).__name__}: {e})"
 
     # ---------------------------------------------------------------- gather / rebuild
 
@@ -153,6 +206,34 @@ class XpBasis:
         UL = xp.concatenate([U, -xp.conj(U)], axis=1)
         idx = self.scatter_id if layout == "id" else self.scatter_di
         return UL[:, idx].reshape(M, N, N)
+
+
+_THOMAS_CUDA = r"""
+extern "C" __global__ void thomas_sweeps(const double* r, const double* tinv, const double* offp,
+                                         const double* tc, const double s, double* y,
+                                         const int N, const int rows)
+{
+    // column c = (row k, diagonal d) of the (N_i, rows, N_d) arrays; factors are (N_i, N_d)
+    const long c = (long)blockIdx.x * blockDim.x + threadIdx.x;
+    if (c >= (long)rows * N) return;
+    const int d = (int)(c % N);
+    const int n = N - d;
+    const long stride = (long)rows * N;
+    double prev = (s * r[c]) * tinv[d];
+    y[c] = prev;
+    for (int i = 1; i < n; i++) {
+        const double v = (s * r[i * stride + c] - offp[i * N + d] * prev) * tinv[i * N + d];
+        y[i * stride + c] = v;
+        prev = v;
+    }
+    for (int i = n; i < N; i++) y[i * stride + c] = 0.0;
+    for (int i = n - 2; i >= 0; i--) {
+        const double v = y[i * stride + c] - tc[i * N + d] * prev;
+        y[i * stride + c] = v;
+        prev = v;
+    }
+}
+"""
 
 
 @functools.lru_cache(maxsize=8)
@@ -185,13 +266,7 @@ def laplacian_inverse(W, xb: XpBasis, scale: float = 1.0):
     G = xb.diagonals(W)                                       # (M, N_i, N_d)
     r = xp.concatenate([G.real, G.imag], axis=0)              # (2M, N_i, N_d)
     r = xp.ascontiguousarray(xp.moveaxis(r, 1, 0))            # (N_i, 2M, N_d)
-    y = xp.empty_like(r)
-    y[0] = (s * r[0]) * xb.tinv[0]
-    for i in range(1, N):
-        y[i] = (s * r[i] - xb.offp[i] * y[i - 1]) * xb.tinv[i]
-    y = xp.where(xb.valid_id[:, None, :], y, 0.0)  # the padding stays 0 even after a non-finite entry
-    for i in range(N - 2, -1, -1):
-        y[i] -= xb.tc[i] * y[i + 1]
+    y = xb.thomas(r, s)
     yr = xp.moveaxis(y[:, :M], 1, 0)                          # (M, N_i, N_d)
     yi = xp.moveaxis(y[:, M:], 1, 0)
     # block 0 (its l = 0 mode dropped): −g0 w₀ on the imaginary diagonal
@@ -293,10 +368,10 @@ def _change(xp, Dn, D):
     e = xp.where(b > a, b, a)
     nan = xp.isnan(e)
     n = e.shape[1]
-    last = (n - 1) - xp.argmax(nan[:, ::-1], axis=1)          # the last NaN (where there is one)
-    after = xp.arange(n)[None, :] > last[:, None]
-    tail = xp.max(xp.where(after, e, 0.0), axis=1)
-    return xp.where(nan.any(axis=1), xp.where(last == n - 1, xp.nan, tail), xp.max(e, axis=1))
+    pos = xp.arange(n)
+    last = xp.max(xp.where(nan, pos, -1), axis=1)             # the last NaN, −1 if none
+    tail = xp.max(xp.where(pos > last[:, None], e, 0.0), axis=1)
+    return xp.where(last == n - 1, xp.nan, tail)
 
 
 def isomp(W, h: float, xb: XpBasis, tol: float, max_iter: int, guess=None):
