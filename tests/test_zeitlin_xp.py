@@ -153,3 +153,66 @@ def test_a_thomas_kernel_that_fails_falls_back_to_the_vector_sweeps():
     W = _fields(6, 2, 0)
     assert _rel(xs.laplacian_inverse(W, xb), zk.laplacian_inverse(W, zk.basis(6))) < 1e-14
     assert xs.xp_basis(np, 6).thomas_backend == "xp"
+
+
+@pytest.mark.parametrize("method", xs.METHODS)
+def test_the_memory_estimate_bounds_what_numpy_allocates(method):
+    import tracemalloc
+
+    N, M = 24, 8
+    fac = zr.factors(method, "small_error") if method != "rk4" else ()
+    tracemalloc.start()
+    try:
+        xb = xs.XpBasis(np, N)
+        W = np.array(_fields(N, M, 2))
+        q, act, D = np.zeros(M), np.arange(M), None
+        pred = xs.Predictor(np, len(fac), M, N) if fac else None
+        guess = np.zeros_like(W)  # the run's own arrays besides W: the guess and the active members' copies
+        for _ in range(6):
+            Wa = W[act]
+            if fac:
+                Wa, q, _, _, D = xs.split_step(Wa, q, 0.01, 1e-3, xb, fac, 1e-15, 100, D, pred, act)
+                guess[act] = D
+            else:
+                Wa, q = xs.rk4_step(Wa, q, 0.01, 1e-3, xb)
+            W[act] = Wa
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    est = xs.memory_bytes(N, M, method)
+    assert peak <= est <= 1.6 * peak, (peak, est)
+
+
+def test_the_thomas_kernel_source_does_what_the_vector_sweeps_do(tmp_path):
+    """The CUDA source of the Thomas sweeps, compiled here as C++ with one
+    loop over the threads, gives the vector sweeps' bits."""
+    import ctypes
+    import shutil
+    import subprocess
+
+    cxx = shutil.which("g++") or shutil.which("c++")
+    if cxx is None:
+        pytest.skip("no C++ compiler to run the CUDA source on the host")
+    (tmp_path / "k.cu").write_text(xs._THOMAS_CUDA)
+    (tmp_path / "h.cpp").write_text(
+        "struct D3 { long x; };\nstatic D3 blockIdx, blockDim, threadIdx;\n#define __global__\n#include \"k.cu\"\n"
+        "extern \"C\" void run(const double* r, const double* a, const double* b, const double* c, double s,\n"
+        "                      double* y, int N, int rows) {\n"
+        "  long cols = (long)rows * N; blockDim.x = 32;\n"
+        "  for (long i = 0; i < (cols + 31) / 32; i++) for (long t = 0; t < 32; t++) {\n"
+        "    blockIdx.x = i; threadIdx.x = t; thomas_sweeps(r, a, b, c, s, y, N, rows); } }\n")
+    lib = tmp_path / "k.so"
+    subprocess.run([cxx, "-O1", "-ffp-contract=off", "-shared", "-fPIC", "-o", str(lib), str(tmp_path / "h.cpp")],
+                   check=True, capture_output=True)
+    run = ctypes.CDLL(str(lib)).run
+    ptr = ctypes.POINTER(ctypes.c_double)
+    for N in (2, 7, 20):
+        xb = xs.XpBasis(np, N)
+        r = np.random.default_rng(N).standard_normal((N, 6, N))
+        r[(N - 2) // 2, 2, 1] = np.inf  # a non-finite entry stays in its own column, as in the kernels
+        y = np.empty_like(r)
+        run(*(a.ctypes.data_as(ptr) for a in (r, xb.tinv, xb.offp, xb.tc)), ctypes.c_double(-0.3),
+            y.ctypes.data_as(ptr), N, 6)
+        with np.errstate(invalid="ignore"):
+            want = xb.thomas_xp(r, -0.3)
+        assert np.array_equal(y, want, equal_nan=True)

@@ -588,6 +588,34 @@ def integrate_xp(xp, scene, W0: np.ndarray, *, method: str | None = None, progre
     return Trajectory(times, rec, its, status, failed_step, _time.perf_counter() - t0)
 
 
+# ----------------------------------------------------------------------------- memory
+
+
+def memory_bytes(N: int, members: int, method: str, composition: str = "small_error",
+                 budget: int = 2**29) -> int:
+    """An upper estimate of the device memory a run of ``members`` members
+    takes (the basis, the run's arrays and the peak of a step's temporaries),
+    measured with numpy's allocations: a step holds at most about 22 arrays
+    of the batch's size at once (16 for rk4), the predictor its history and
+    the run 4 more (W, the guess, the active members' copies)."""
+    from .run import factors
+
+    check_method(method)
+    unit = members * N * N * 16
+    if method == "rk4":
+        arrays = 16 + 4
+    else:
+        s = len(factors(method, composition))
+        per = s * unit
+        order = min(4, budget // per) if per else 4
+        arrays = 22 + order * s + 4
+    blocks = 2 * 8 * N ** 3
+    if blocks > BATCHED_BLOCKS_BYTES:
+        blocks = 2 * 8 * sum((N - d) ** 2 for d in range(N))
+    tables = 16 * 8 * N * N
+    return int(1.1 * (arrays * unit + blocks + tables))
+
+
 # ----------------------------------------------------------------------------- timing
 
 
