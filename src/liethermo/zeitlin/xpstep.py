@@ -27,7 +27,6 @@ Only what the run keeps goes back to the host (:func:`integrate_xp`).
 from __future__ import annotations
 
 import functools
-import math
 import time as _time
 
 import numpy as np
@@ -120,7 +119,6 @@ class XpBasis:
         inside = jj < N - dj
         self.ell = ell
         self.inside = inside
-        self.modes_inside = xp.asarray(inside)
         self.weight = np.where(dj == 0, 1.0, 2.0)          # mode_weights, [d, 1]
         self._use_kernel()
         # eigenvector blocks, padded to N × N: V[d, i, j] (column j: degree d + j)
