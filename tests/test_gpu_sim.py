@@ -89,6 +89,10 @@ def _run_cases(out: Path) -> None:
 
 @pytest.fixture(scope="module")
 def results(tmp_path_factory):
+    import importlib.util
+
+    if importlib.util.find_spec("numba_cuda") is None:
+        pytest.skip("numba-cuda is not installed (it is in the test extra: pip install -e '.[test]')")
     out = tmp_path_factory.mktemp("gpu_sim") / "cases.npz"
     env = {**os.environ, "NUMBA_ENABLE_CUDASIM": "1",
            "PYTHONPATH": os.pathsep.join([str(ROOT / "src"), str(HERE), os.environ.get("PYTHONPATH", "")])}

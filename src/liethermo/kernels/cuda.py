@@ -23,6 +23,15 @@ Status, failing step, Newton statistics, steps done and max |h|·|Ω| have the
 meaning they have on the CPU; a failed member stops, its state stays at the
 start of the failing step and its later outputs are left untouched.
 
+Arithmetic: NVVM fuses a multiply and an add into one FMA on its own unless
+told not to (its ``-fma=1`` default, which numba-cuda keeps with ``fastmath``
+off); :func:`exact_arithmetic` switches that off while the kernel compiles,
+so that the device rounds where the CPU kernels round and fuses only where
+they call :func:`._jit.fma` (``llvm.fma.f64``, one ``fma.rn.f64``).  The
+device's ``sqrt`` and division are IEEE (``sqrt.rn``, ``div.rn``); its
+transcendental functions are libdevice's, within an ulp or two of the CPU's,
+so results agree to round-off rather than bitwise.
+
 The kernel takes the stepper and the model's type as compile-time constants:
 :func:`kernel_for` compiles (and keeps) one kernel per stepper and model type.
 The reference (DOP853) method stays on the CPU.
@@ -33,6 +42,7 @@ device can run it, without raising.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import time
 
@@ -148,6 +158,32 @@ if numba.config.ENABLE_CUDASIM:
     _member_body = jit(nogil=True)(run_member.py_func)
 
 
+@contextlib.contextmanager
+def exact_arithmetic():
+    """While this context is active, NVVM compiles without contracting
+    ``a·b + c`` into FMAs (``-fma=0``); explicit ``llvm.fma.f64`` calls stay
+    fused.  A numba-cuda without the hook compiles as it does by default."""
+    try:
+        from numba.cuda.cudadrv import nvvm
+    except ImportError:
+        yield
+        return
+    original = getattr(nvvm, "compile_ir", None)
+    if original is None:
+        yield
+        return
+
+    def compile_ir(llvmir, **options):
+        options.setdefault("fma", False)
+        return original(llvmir, **options)
+
+    nvvm.compile_ir = compile_ir
+    try:
+        yield
+    finally:
+        nvvm.compile_ir = original
+
+
 def make_kernel(stepper, template):
     """The device kernel for a stepper and a model type: ``kernel[blocks,
     threads](Y, P, pmember, pstride, N, n, h, every, n_out, OUT, ISTAT, FSTAT)``
@@ -227,7 +263,8 @@ def advance_on_device(stepper, model, shared, Y, P, h, every, n_out, states, IST
 
     t0 = time.perf_counter()
     if hasattr(kern, "compile"):  # not in the simulator
-        kern.compile(tuple(numba.typeof(a) for a in args(cap)))
+        with exact_arithmetic():
+            kern.compile(tuple(numba.typeof(a) for a in args(cap)))
     compile_seconds = time.perf_counter() - t0
     if compile_only:
         return 0.0, compile_seconds
@@ -264,5 +301,5 @@ def advance_on_device(stepper, model, shared, Y, P, h, every, n_out, states, IST
     return kernel_seconds, compile_seconds
 
 
-__all__ = ["OUT_BYTES", "THREADS_PER_BLOCK", "advance_on_device", "kernel_for", "outputs_per_call", "make_kernel", "run_member", "strided_load",
+__all__ = ["OUT_BYTES", "THREADS_PER_BLOCK", "advance_on_device", "exact_arithmetic", "kernel_for", "outputs_per_call", "make_kernel", "run_member", "strided_load",
            "strided_store"]
