@@ -276,7 +276,8 @@ def simulate(
     ``kernel`` and ``threads`` only concern the variational integrators'
     start, which stays on the CPU.  Without ``chunk_steps``, a kernel call
     makes as many outputs as fit in
-    :data:`liethermo.kernels.cuda.OUT_BYTES` of device memory.
+    :data:`liethermo.kernels.cuda.OUT_BYTES` of device memory and
+    :data:`liethermo.kernels.cuda.CALL_MEMBER_STEPS`.
     """
     m: Method = get_method(method)
     kernel_for(m.name, 0, 0, kernel)  # rejects an unknown kernel before any work
@@ -360,7 +361,7 @@ def simulate(
     if gpu:
         from .kernels import cuda as _cuda
 
-        out_per_chunk = (_cuda.outputs_per_call(N, layout.size, n_out) if adapt
+        out_per_chunk = (_cuda.outputs_per_call(N, layout.size, n_out, every) if adapt
                          else max(1, chunk_steps // every))
         traj = dict(method=m.name, family=m.family, friction=eff_friction, start=eff_start,
                     composition=m.effective_composition(composition), entropy=eff_entropy,

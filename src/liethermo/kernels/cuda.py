@@ -21,23 +21,31 @@ touch consecutive addresses):
 
 Status, failing step, Newton statistics, steps done and max |h|·|Ω| have the
 meaning they have on the CPU; a failed member stops, its state stays at the
-start of the failing step and its later outputs are left untouched.
+start of the failing step and the outputs it did not reach are NaN (the CPU
+layer's pre-filled NaN).
 
 Arithmetic: NVVM fuses a multiply and an add into one FMA on its own unless
 told not to (its ``-fma=1`` default, which numba-cuda keeps with ``fastmath``
-off); :func:`exact_arithmetic` switches that off while the kernel compiles,
-so that the device rounds where the CPU kernels round and fuses only where
-they call :func:`._jit.fma` (``llvm.fma.f64``, one ``fma.rn.f64``).  The
-device's ``sqrt`` and division are IEEE (``sqrt.rn``, ``div.rn``); its
-transcendental functions are libdevice's, within an ulp or two of the CPU's,
-so results agree to round-off rather than bitwise.
+off: it emits ``mul.f64``/``add.f64``, which the assembler may fuse);
+:func:`exact_arithmetic` switches that off while the kernel compiles (PTX
+``mul.rn``/``add.rn``), so that the device rounds where the CPU kernels round
+and fuses only where they call :func:`._jit.fma` (``llvm.fma.f64``, one
+``fma.rn.f64``).  Division and ``sqrt`` are IEEE on both (``div.rn``,
+``sqrt.rn``); the few calls of ``math.exp``/``math.log1p`` (the internal
+energy beyond its polynomials' range) are libdevice's on the device, within
+an ulp of the C library's.  So the device should reproduce the CPU's
+straightforward kernel bit for bit except where those calls differ; the
+tests (numba-cuda's simulator, which runs the CPU-compiled functions) ask
+for agreement to 1e-12.
 
-The kernel takes the stepper and the model's type as compile-time constants:
-:func:`kernel_for` compiles (and keeps) one kernel per stepper and model type.
-The reference (DOP853) method stays on the CPU.
+The kernel closes over the stepper and the model (whose values it does not
+use: the parameters come from ``P``): :func:`kernel_for` makes and keeps one
+kernel per stepper and model type.  :data:`THREADS_PER_BLOCK` is read at each
+launch (a benchmark may change it).  The reference (DOP853) method stays on
+the CPU.
 
-Importing this module needs numba-cuda; :func:`gpu_available` says whether a
-device can run it, without raising.
+Importing this module needs numba-cuda; :func:`liethermo.gpu.gpu_available`
+says whether a device can run it, without raising.
 """
 
 from __future__ import annotations
@@ -212,14 +220,19 @@ def kernel_for(stepper, template):
     return kern
 
 
-#: the device buffer of a chunk's outputs holds at most this many bytes
+#: the device buffer of a chunk's outputs holds at most this many bytes ...
 OUT_BYTES = 256 * 2**20
+#: ... and a kernel call takes at most this many member-steps (seconds on an
+#: H100), so that progress is reported and a stop acted on between calls
+CALL_MEMBER_STEPS = 2**34
 
 
-def outputs_per_call(N: int, n: int, n_out: int) -> int:
+def outputs_per_call(N: int, n: int, n_out: int, every: int = 1) -> int:
     """Outputs per kernel call when the caller does not say: as many as fit
-    in :data:`OUT_BYTES` (at least one)."""
-    return max(1, min(n_out, OUT_BYTES // max(1, 8 * n * N)))
+    in :data:`OUT_BYTES` and :data:`CALL_MEMBER_STEPS` (at least one)."""
+    N = max(1, N)
+    return max(1, min(n_out, OUT_BYTES // max(1, 8 * n * N),
+                      CALL_MEMBER_STEPS // (N * max(1, every))))
 
 
 def _event():
@@ -301,5 +314,5 @@ def advance_on_device(stepper, model, shared, Y, P, h, every, n_out, states, IST
     return kernel_seconds, compile_seconds
 
 
-__all__ = ["OUT_BYTES", "THREADS_PER_BLOCK", "advance_on_device", "exact_arithmetic", "kernel_for", "outputs_per_call", "make_kernel", "run_member", "strided_load",
+__all__ = ["CALL_MEMBER_STEPS", "OUT_BYTES", "THREADS_PER_BLOCK", "advance_on_device", "exact_arithmetic", "kernel_for", "outputs_per_call", "make_kernel", "run_member", "strided_load",
            "strided_store"]
