@@ -153,6 +153,21 @@ def test_gpu_refused_without_device(paper):
     assert "\n" not in msg and msg.startswith("device='gpu' cannot run here: ") and why in msg
 
 
+def test_gpu_refused_without_numba_cuda(paper, monkeypatch):
+    import importlib.util
+
+    import liethermo.gpu as gpu
+    from liethermo.simulate import simulate
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(gpu.importlib.util, "find_spec",
+                        lambda name, *a: None if name == "numba_cuda" else real(name, *a))
+    assert gpu.gpu_available() == (False, "numba-cuda is not installed (pip install 'liethermo[gpu]')")
+    phys, om, R = paper
+    with pytest.raises(RuntimeError, match=r"^device='gpu' cannot run here: numba-cuda is not installed"):
+        simulate(phys, om, R, 0.1, 10, "vi", device="gpu")
+
+
 def test_gpu_rejects_reference_and_unknown_device(paper):
     from liethermo.simulate import simulate
 
