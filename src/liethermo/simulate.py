@@ -93,6 +93,11 @@ class Trajectory:
     reference_substeps: int = 0
     #: vi4, vi6, split4, split6: the composition they ran ("small_error" | "triple_jump")
     composition: str | None = None
+    #: where the steps ran: "cpu" or "gpu"
+    device: str = "cpu"
+    #: the time of the stepping kernels alone, s: on the GPU the kernel launches
+    #: (CUDA events, summed), without the copies; on the CPU the same as ``wall_time``
+    kernel_seconds: float = 0.0
 
     @property
     def step_index(self) -> np.ndarray:
@@ -229,6 +234,7 @@ def simulate(
     threads: int | None = None,
     kernel: str = "auto",
     compile_only: bool | str = False,
+    device: str = "cpu",
 ) -> Trajectory | None:
     """Integrate an ensemble.
 
@@ -259,9 +265,32 @@ def simulate(
     polynomial and keeps the vectorized path (runs pass their scene's,
     :func:`liethermo.initial.heat_bound`, the same for every member chunk);
     left out, the cubic, with the exact fallback beyond its range.
+    ``device``: "cpu", or "gpu": the steps run on a CUDA device through
+    numba-cuda, one thread per member (:mod:`liethermo.kernels.cuda`; every
+    method but the reference); the state goes to the device once, each
+    kernel call's outputs come back after it, and the results agree with
+    the CPU's to round-off, with the same status flags and statistics.  A
+    machine without a usable device (:func:`liethermo.gpu.gpu_available`)
+    is refused before any work.  ``Trajectory.kernel_seconds`` is then the
+    kernels' own time (``wall_time``: the chunk loop with its copies);
+    ``kernel`` and ``threads`` only concern the variational integrators'
+    start, which stays on the CPU.  Without ``chunk_steps``, a kernel call
+    makes as many outputs as fit in
+    :data:`liethermo.kernels.cuda.OUT_BYTES` of device memory and
+    :data:`liethermo.kernels.cuda.CALL_MEMBER_STEPS`.
     """
     m: Method = get_method(method)
     kernel_for(m.name, 0, 0, kernel)  # rejects an unknown kernel before any work
+    if device not in ("cpu", "gpu"):
+        raise ValueError(f"unknown device {device!r}: expected 'cpu' or 'gpu'")
+    gpu = device == "gpu"
+    if gpu and m.name == "reference":
+        raise ValueError("method 'reference' runs on the CPU only (device='gpu' runs "
+                         "vi, vi4, vi6, split, split4, split6, rk2 and rk4)")
+    if gpu:
+        from .gpu import require_gpu
+
+        require_gpu()
     if friction not in FRICTION:
         raise ValueError(f"unknown integrator.friction {friction!r}: expected one of {list(FRICTION)}")
     if start not in STARTS:
@@ -329,6 +358,18 @@ def simulate(
 
     states = np.full((N, n_out + 1, layout.size), np.nan)
     adapt = chunk_steps is None
+    if gpu:
+        from .kernels import cuda as _cuda
+
+        out_per_chunk = (_cuda.outputs_per_call(N, layout.size, n_out, every) if adapt
+                         else max(1, chunk_steps // every))
+        traj = dict(method=m.name, family=m.family, friction=eff_friction, start=eff_start,
+                    composition=m.effective_composition(composition), entropy=eff_entropy,
+                    h=float(h), steps=int(steps), every=int(every), physics=physics, layout=layout,
+                    terms=tuple(km.terms()))
+        return _simulate_gpu(m, km, stepper, Y, IS, FS, states,
+                             start_args if m.family == "vi" else None, float(h), int(every), n_out,
+                             out_per_chunk, progress, threads, compile_only, traj)
     if adapt:
         chunk_steps = max(every, min(steps, CHUNK_MEMBER_STEPS // max(N, 1)))
     out_per_chunk = max(1, chunk_steps // every)
@@ -380,7 +421,43 @@ def simulate(
         newton_iterations=IS[:, _lay.IS_NEWTON_TOTAL].copy(),
         newton_max=IS[:, _lay.IS_NEWTON_MAX].copy(),
         steps_done=IS[:, _lay.IS_STEPS].copy(), max_h_omega=FS[:, _lay.FS_MAX_H_OMEGA].copy(),
-        wall_time=wall, compile_time=compile_time,
+        wall_time=wall, compile_time=compile_time, kernel_seconds=wall,
         reference_substeps=((int(nsub) if nsub else int(IS[:, _lay.IS_NSUB].max(initial=0)))
                             if m.name == "reference" else 0),
+    )
+
+
+def _simulate_gpu(m: Method, km: KernelModel, stepper, Y, IS, FS, states, start_args, h: float,
+                  every: int, n_out: int, out_per_chunk: int, progress, threads, compile_only,
+                  traj: dict) -> Trajectory | None:
+    """The chunk loop of :func:`simulate` on the device
+    (:func:`liethermo.kernels.cuda.advance_on_device`), after the variational
+    integrators' start on the CPU; ``traj``: the Trajectory's other fields."""
+    from .kernels import cuda as _cuda
+
+    N = Y.shape[0]
+    compile_time = 0.0
+    if m.family == "vi" and N:
+        compile_time += _ensure_compiled(_simple.vi_start_members, start_args)
+        if not compile_only:
+            _par.run_ranges(_simple.vi_start_members, N, start_args[:4], start_args[6:], threads)
+    run_args = (stepper, km.model, km.shared, Y, km.P, h, every, n_out, states, IS, FS, out_per_chunk)
+    if compile_only:
+        if n_out and N and compile_only != "start":
+            compile_time += _cuda.advance_on_device(*run_args, compile_only=True)[1]
+        return None
+    states[:, 0] = Y
+    kernel_seconds = wall = 0.0
+    if n_out and N:
+        t0 = time.perf_counter()
+        kernel_seconds, ct = _cuda.advance_on_device(*run_args, progress=progress)
+        compile_time += ct
+        wall = time.perf_counter() - t0 - ct
+    return Trajectory(
+        **traj, states=states,
+        status=IS[:, _lay.IS_STATUS].astype(np.int8), fail_step=IS[:, _lay.IS_FAIL_STEP].copy(),
+        newton_iterations=IS[:, _lay.IS_NEWTON_TOTAL].copy(),
+        newton_max=IS[:, _lay.IS_NEWTON_MAX].copy(),
+        steps_done=IS[:, _lay.IS_STEPS].copy(), max_h_omega=FS[:, _lay.FS_MAX_H_OMEGA].copy(),
+        wall_time=wall, compile_time=compile_time, device="gpu", kernel_seconds=kernel_seconds,
     )

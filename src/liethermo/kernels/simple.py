@@ -164,6 +164,9 @@ def _vi_member_step(stepper, md, y, h, sizes, w2, ISTAT, m):
     return y, w2, STATUS_OK
 
 
+#: the two implementations, for a layout that composes them differently
+#: (:mod:`.cuda` calls them as device functions, without numba's IR inlining)
+member_step_impls = (member_step, _vi_member_step)
 member_step = by_stepper(member_step, _vi_member_step, inline_explicit="ir")
 
 
