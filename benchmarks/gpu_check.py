@@ -141,7 +141,7 @@ def method_worker(method, args, barrier, lock, queue):
                     t0 = time.perf_counter()
                     tr = _simulate(method, phys, om0, R0, args.h, args.steps, "gpu")
                     best_w = min(best_w, time.perf_counter() - t0)
-                    best_k = min(best_k, tr.wall_time)
+                    best_k = min(best_k, getattr(tr, "kernel_seconds", None) or tr.wall_time)
                 ms = args.members * args.steps
                 out["ns_kernel"] = best_k / ms * 1e9
                 out["ns_whole"] = best_w / ms * 1e9
