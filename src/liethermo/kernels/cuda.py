@@ -56,7 +56,13 @@ import time
 
 import numba
 import numpy as np
-from numba import cuda
+
+if not hasattr(np, "row_stack"):
+    # numba-cuda (0.30) registers an overload of np.row_stack when it first
+    # compiles, which NumPy 2.5 removed (it was an alias of vstack)
+    np.row_stack = np.vstack
+
+from numba import cuda  # noqa: E402
 
 from ._jit import lane
 from .gen import unflatten
