@@ -287,11 +287,23 @@ def advance_on_device(stepper, model, shared, Y, P, h, every, n_out, states, IST
     compile_seconds = time.perf_counter() - t0
     if compile_only:
         return 0.0, compile_seconds
-    blocks = -(-N // THREADS_PER_BLOCK)
+    tpb = int(THREADS_PER_BLOCK)
     try:
         host = cuda.pinned_array(cap * n * N)
     except Exception:  # noqa: BLE001 - the simulator
         host = np.empty(cap * n * N)
+    with exact_arithmetic():  # should a launch compile again (another signature)
+        kernel_seconds = _launch_calls(kern, tpb, args, cap, n, N, n_out, every, dOUT, host,
+                                       states, progress)
+    Y[:] = dY.copy_to_host().reshape(n, N).T
+    ISTAT[:] = dIS.copy_to_host()
+    FSTAT[:] = dFS.copy_to_host()
+    return kernel_seconds, compile_seconds
+
+
+def _launch_calls(kern, tpb, args, cap, n, N, n_out, every, dOUT, host, states, progress):
+    """The kernel calls of :func:`advance_on_device`; their kernel seconds."""
+    blocks = -(-N // tpb)
     kernel_seconds = 0.0
     j = 0
     while j < n_out:
@@ -300,7 +312,7 @@ def advance_on_device(stepper, model, shared, Y, P, h, every, n_out, states, IST
         tc = time.perf_counter()
         if start is not None:
             start.record()
-        kern[blocks, THREADS_PER_BLOCK](*args(nj))
+        kern[blocks, tpb](*args(nj))
         if end is not None:
             end.record()
             end.synchronize()
@@ -314,11 +326,9 @@ def advance_on_device(stepper, model, shared, Y, P, h, every, n_out, states, IST
         j += nj
         if progress is not None:
             progress(nj * every)
-    Y[:] = dY.copy_to_host().reshape(n, N).T
-    ISTAT[:] = dIS.copy_to_host()
-    FSTAT[:] = dFS.copy_to_host()
-    return kernel_seconds, compile_seconds
+    return kernel_seconds
 
 
-__all__ = ["CALL_MEMBER_STEPS", "OUT_BYTES", "THREADS_PER_BLOCK", "advance_on_device", "exact_arithmetic", "kernel_for", "outputs_per_call", "make_kernel", "run_member", "strided_load",
-           "strided_store"]
+__all__ = ["CALL_MEMBER_STEPS", "OUT_BYTES", "THREADS_PER_BLOCK", "advance_on_device",
+           "exact_arithmetic", "kernel_for", "make_kernel", "outputs_per_call", "run_member",
+           "strided_load", "strided_store"]
