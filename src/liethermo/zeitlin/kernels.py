@@ -473,7 +473,9 @@ def isomp(W: np.ndarray, h: float, b: Basis, tol: float, max_iter: int,
 @numba.njit(cache=CACHE, error_model="numpy")
 def _fixed_point_update(W, X, XA, D, Wt, change):
     """D = X − X† + XA, W̃ = W + D and the largest change of D (the largest
-    real or imaginary part of D_new − D_old), per member, in one pass."""
+    real or imaginary part of D_new − D_old), per member, in one pass; NaN
+    where any part of the change is NaN, so that such a member never counts
+    as converged."""
     M, N = X.shape[0], X.shape[1]
     for k in range(M):
         ch = 0.0
@@ -484,8 +486,11 @@ def _fixed_point_update(W, X, XA, D, Wt, change):
                 re = (x.real - y.real) + xa.real
                 im = (x.imag + y.imag) + xa.imag
                 old = D[k, i, j]
-                e = max(abs(re - old.real), abs(im - old.imag))
-                if not e <= ch:  # also a NaN
+                e = abs(re - old.real)
+                f = abs(im - old.imag)
+                if f > e or f != f:  # a NaN in either part is the change
+                    e = f
+                if e > ch or e != e:  # and stays the member's change
                     ch = e
                 D[k, i, j] = complex(re, im)
                 w = W[k, i, j]

@@ -355,21 +355,12 @@ def viscous_flow(W, t: float, nu: float, xb: XpBasis):
 
 
 def _change(xp, Dn, D):
-    """Per member, the largest change max(|Δre|, |Δim|) of D's entries, with
-    the scan of :func:`kernels._fixed_point_update` (entries in row-major
-    order, ``if not e <= ch: ch = e`` from 0, ``max(a, b)`` = b only where
-    b > a): a NaN is the result only where it is the last entry."""
+    """Per member, the largest change max(|Δre|, |Δim|) of D's entries, NaN
+    where any part is NaN (as :func:`kernels._fixed_point_update`)."""
     M = Dn.shape[0]
     diff = Dn - D
-    a = xp.abs(diff.real).reshape(M, -1)
-    b = xp.abs(diff.imag).reshape(M, -1)
-    e = xp.where(b > a, b, a)
-    nan = xp.isnan(e)
-    n = e.shape[1]
-    pos = xp.arange(n)
-    last = xp.max(xp.where(nan, pos, -1), axis=1)             # the last NaN, −1 if none
-    tail = xp.max(xp.where(pos > last[:, None], e, 0.0), axis=1)
-    return xp.where(last == n - 1, xp.nan, tail)
+    e = xp.maximum(xp.abs(diff.real), xp.abs(diff.imag)).reshape(M, -1)
+    return xp.max(e, axis=1)
 
 
 def isomp(W, h: float, xb: XpBasis, tol: float, max_iter: int, guess=None):
