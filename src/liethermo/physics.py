@@ -231,13 +231,32 @@ class KernelModel:
         return out
 
 
+def _members_alike(phys: Physics) -> bool:
+    """Do all members share every per-member parameter, bit for bit?"""
+    N = phys.n
+    for f in dataclasses.fields(phys):
+        v = getattr(phys, f.name)
+        if isinstance(v, np.ndarray) and v.ndim >= 1 and v.shape[0] == N:
+            b = np.ascontiguousarray(v).reshape(N, -1).view(np.uint8)
+            if not (b == b[0]).all():
+                return False
+    return True
+
+
 def build_model(phys: Physics, attitude: bool = False, heat=None) -> KernelModel:
     """The kernels' model of an ensemble: only the terms some member needs,
     in registry order.  ``heat``: an upper bound of the heat any member can
     produce (J; its initial mechanical energy above rest): where it could
     take σ/c_v beyond the cubic's range of 1/T, the ideal solid is evaluated
-    with its wider polynomial (same physics, and still vectorized)."""
+    with its wider polynomial (same physics, and still vectorized).
+
+    Members that share every parameter bitwise (a scene's ensemble) get their
+    model from one member, repeated: every coefficient is computed member by
+    member, so the rows are the same bits, without the passes over N."""
     N = phys.n
+    if N > 1 and _members_alike(phys):
+        one = build_model(phys.take(slice(0, 1)), attitude, heat)
+        return KernelModel(one.model, np.repeat(one.P, N, axis=0), one.model)
     inertia = constant_inertia_part(phys)
     forces: list[tuple[type, np.ndarray]] = []
     for t in registry():
