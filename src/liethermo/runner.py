@@ -267,7 +267,7 @@ def run_chunk(scene: dict, lo: int, hi: int, *, progress_cb=None, kernel: str | 
     :mod:`liethermo.distributed`; member i's result depends only on (scene, i).
     ``progress_cb(n)`` gets the number of member-steps just done.
     """
-    check_stop()  # a stop signal whose exception a library swallowed still stops the run
+    check_stop()
     integ = scene["integrator"]
     method, h, steps = integ["method"], float(integ["h"]), int(integ["steps"])
     every = int(scene["output"]["every"])
@@ -401,6 +401,7 @@ def _run_to_file(scene, attrs, out: Path, summ: RunSummary, total: ChunkStats, b
             if all([r["lo"], r["hi"]] == list(plan[k]) for k, r in enumerate(recs)):
                 writer.define_like(source.data)  # the layout the earlier run wrote
                 for rec, arrays in source.read_chunks(writer.member_vars):
+                    check_stop()
                     with critical():
                         crc = writer.write_arrays(arrays, rec["lo"])
                         journal.chunks.append({"lo": rec["lo"], "hi": rec["hi"], "crc": crc, "stats": rec["stats"]})

@@ -15,6 +15,7 @@ from typing import Callable
 import numba
 import numpy as np
 
+from .faults import check_stop
 from .kernels import fast as _fast
 from .kernels import layout as _lay
 from .kernels import parallel as _par
@@ -357,6 +358,7 @@ def simulate(
     t0 = time.perf_counter()
     j = 0
     while j < n_out:
+        check_stop()  # a stop signal is acted on between kernel calls
         nj = min(out_per_chunk, n_out - j)
         OUT = states[:, 1 + j: 1 + j + nj]  # strided view, written in place
         a, b = args_for(OUT, nj)
