@@ -365,8 +365,7 @@ def _check_start(scene: dict, phys) -> None:
 
         kin2, what = float(phys.inertia[0].max()) * max_spin(scene) ** 2, "I_max (spin_range[1] |Ω(0)|)²"
     for t in registry():
-        check = getattr(t, "start_problem", None)
-        problem = None if check is None else check(scene, phys, kin2, what)
+        problem = t.start_problem(scene, phys, kin2, what)
         if problem is not None:
             key, why = problem
             raise PreflightError(f"scene key '{key}': {why}")

@@ -286,9 +286,14 @@ def simulate(
             raise ValueError(f"method {m.name!r} needs the exact flow of every term; {part} has none "
                              f"(the vi and rk methods run it)")
     layout = km.layout(m.layout)
-    if m.family == "vi" and layout.has("sigma_next") and m.effective_start(start) != "legendre":
-        raise ValueError("the coupled top (thermal expansion) starts from its node momentum: "
-                         "use start='legendre'")
+    if m.family == "vi" and layout.has("sigma_next"):  # the entropy joins the Newton unknowns
+        from .kernels.terms import registry
+
+        for t in registry():
+            problem = t.vi_refusal(m.effective_start(start), m.effective_friction(friction))
+            if problem is not None:
+                eff = m.effective_start(start) if problem[0].endswith("start") else m.effective_friction(friction)
+                raise ValueError(f"{problem[1]} (got {problem[0].split('.')[1]}={eff!r})")
     eff_start = m.effective_start(start)
     eff_entropy = m.effective_entropy(entropy)
     eff_friction = m.effective_friction(friction)
