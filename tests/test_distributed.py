@@ -43,7 +43,9 @@ PROVENANCE = {"created", "history"}
 def client():
     from distributed import Client, LocalCluster
 
-    cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
+    # the scheduler's HTTP server on a port of its own: without a dashboard it still tries
+    # :8787 first, and failed to start when another process on the machine took that port
+    cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address="127.0.0.1:0",
                            env={"NUMBA_NUM_THREADS": "1"})
     c = Client(cluster)
     c.wait_for_workers(2)
