@@ -21,7 +21,7 @@ import numpy as np
 from ..dataset import node_energies
 from ..physics import Physics, kinetic_energy, mechanical_energy_scale, potential_energy
 from ..simulate import Trajectory, simulate
-from .common import method_kwargs
+from .common import method_choice
 
 #: the sentence every report uses to say what node values are
 NODE_VALUES_NOTE = (
@@ -33,8 +33,8 @@ NODE_VALUES_NOTE = (
 
 
 def run_spec(phys: Physics, omega0, R0, h: float, steps: int, spec: dict, **kw) -> Trajectory:
-    """:func:`simulate` with the method, start, friction and entropy of a parsed spec."""
-    return simulate(phys, omega0, R0, h, steps, spec["method"], **method_kwargs(spec), **kw)
+    """:func:`simulate` with the method choice of a parsed spec."""
+    return simulate(phys, omega0, R0, h, steps, method_choice(spec), **kw)
 
 
 def repeat_timing(fn, min_time: float, measure=None, max_repeats: int = 1000) -> np.ndarray:
