@@ -53,7 +53,7 @@ def rk4_peer(phys, omega0, gamma0, h: float, steps: int, repeat: int = 1):
     n = omega0.shape[0]
     y0 = (jnp.asarray(omega0), jnp.asarray(gamma0), jnp.zeros(n))
     p = (jnp.asarray(phys.inertia), jnp.asarray(phys.gravity_torque),
-         jnp.asarray(np.broadcast_to(phys.friction, (n, 3))), jnp.asarray(phys.T0),
+         jnp.asarray(np.broadcast_to(phys.stokes_resistance, (n, 3))), jnp.asarray(phys.T0),
          jnp.asarray(phys.heat_capacity))
     out = run(y0, p)
     jax.block_until_ready(out)

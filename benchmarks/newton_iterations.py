@@ -93,7 +93,7 @@ def stop_accuracy():
             phys = make_physics(I, 2e-5, 0.02 * rng.normal(size=3), 1e-3)
             model = build_model(phys).model
             X = spin * rng.normal(size=3)
-            b = -(_legendre(I, X, h) + 0.5 * h * phys.friction[0] * X)
+            b = -(_legendre(I, X, h) + 0.5 * h * phys.stokes_resistance[0] * X)
             xp = X * (1.0 + off * rng.normal(size=3))
             scale0 = np.abs(xp).max()
             code, its = _solve(model, h, b, xp, scale0, tol, 30, out)

@@ -56,8 +56,8 @@ def measure(method: str, kappa: float, h: float, members: int, steps: int, seed:
     phys = physics_of_scene(sc, members)
     w0, R0 = initial_conditions(sc)
     w0 = w0 * np.sqrt(2.0)
-    rate = float(np.max(phys.friction / phys.inertia))  # maxᵢ Cᵢ/Iᵢ of the scene, s⁻¹
-    phys = replace(phys, friction=phys.friction * (kappa / (h * rate)))
+    rate = float(np.max(phys.stokes_resistance / phys.inertia))  # maxᵢ Cᵢ/Iᵢ of the scene, s⁻¹
+    phys = replace(phys, stokes_resistance=phys.stokes_resistance * (kappa / (h * rate)))
     tr = simulate(phys, w0, R0, h, steps, method, composition=composition)
     ok = tr.status == STATUS_OK  # a variational integrator's Newton solve may fail near its singular κ
     s = tr.sigma[ok]  # (members, steps + 1), J K⁻¹

@@ -87,9 +87,9 @@ def make_physics(inertia, c, gvec, cv, T0_=T0, n=1, *, friction=None, alpha=0.0,
     C = np.array([c, c, c], dtype=float) if friction is None else np.asarray(friction, float)
     one = Physics(inertia=np.asarray(inertia, float)[None], center_of_mass=(
         np.zeros((1, 3)) if G is None else np.asarray(G, float)[None]), mass=np.array([mass]),
-        friction=C[None], gravity_torque=np.asarray(gvec, float)[None], heat_capacity=np.array([cv]),
+        stokes_resistance=C[None], gravity_torque=np.asarray(gvec, float)[None], heat_capacity=np.array([cv]),
         T0=np.array([T0_]), S0=np.array([0.0]), thermal_expansion=np.array([alpha]),
-        internal_friction=np.array([lam]), isotropic_friction=friction is None)
+        internal_friction=np.array([lam]), isotropic_resistance=friction is None)
     return one.repeat(n) if n != 1 else one
 
 

@@ -135,8 +135,8 @@ def test_paper_scene_derived_values():
     b = physics_of_scene(load_scene("paper"))
     assert b.mass[0] == pytest.approx(1.4137166941154071, rel=1e-15)
     np.testing.assert_allclose(b.center_of_mass[0], [0.0, 0.0, 0.00125], rtol=1e-12)
-    np.testing.assert_allclose(b.friction[0], 3.1415926535897936e-4, rtol=1e-15)
-    assert b.isotropic_friction
+    np.testing.assert_allclose(b.stokes_resistance[0], 3.1415926535897936e-4, rtol=1e-15)
+    assert b.isotropic_resistance
     assert b.heat_capacity[0] == pytest.approx(1306.9263327416309, rel=1e-15)
     np.testing.assert_allclose(b.inertia[0], [6.6783e-4, 6.6783e-4, 1.31947e-3], rtol=1e-4)
     np.testing.assert_allclose(b.gravity_torque[0], b.mass[0] * 9.81 * b.center_of_mass[0], rtol=1e-15)

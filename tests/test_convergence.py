@@ -36,7 +36,7 @@ def test_reference_on_lagrange_top(paper):
     the mechanical energy."""
     phys, om0, R = paper
     tr = simulate(phys, om0, R, 0.1, 300, "reference")
-    c, I3 = phys.friction[0, 2], phys.inertia[0, 2]
+    c, I3 = phys.stokes_resistance[0, 2], phys.inertia[0, 2]
     np.testing.assert_allclose(tr.omega[0, :, 2], om0[0, 2] * np.exp(-c * tr.times / I3), rtol=0, atol=1e-14)
     e = node_energies(tr)
     K0, V0 = initial_energy(phys, om0, R)

@@ -128,8 +128,8 @@ def test_paper_scene_numbers_are_the_codes(model_md):
     assert p.mass[0] == pytest.approx(_number_in(model_md, "1.4137166941154071"), rel=1e-16)
     assert _quotes(model_md, "| $G_z = \\ell$ | 0.00125 m")
     np.testing.assert_allclose(p.center_of_mass[0], [0.0, 0.0, 0.00125], rtol=1e-12, atol=0)
-    assert p.friction[0, 0] == pytest.approx(_number_in(model_md, "3.1415926535897936·10⁻⁴"), rel=1e-16)
-    assert np.all(p.friction[0] == p.friction[0, 0])
+    assert p.stokes_resistance[0, 0] == pytest.approx(_number_in(model_md, "3.1415926535897936·10⁻⁴"), rel=1e-16)
+    assert np.all(p.stokes_resistance[0] == p.stokes_resistance[0, 0])
     assert p.heat_capacity[0] == pytest.approx(_number_in(model_md, "1306.9263327416309"), rel=1e-16)
     I = p.inertia[0]
     np.testing.assert_allclose(I, [_number_in(model_md, "6.6783·10⁻⁴")] * 2
@@ -208,7 +208,7 @@ def test_negative_substep_limits_are_the_documented_ones(model_md):
         assert lim["kappa_singular"] == pytest.approx(sing, abs=5e-5)
         assert lim["growth_band"] == pytest.approx(band, abs=1e-3)
     p = paper_physics()
-    kappa = p.friction[0].max() * 0.1 / p.inertia[0].min()
+    kappa = p.stokes_resistance[0].max() * 0.1 / p.inertia[0].min()
     assert _quotes(model_md, f"$\\kappa = {kappa:.3f}$")
 
 
@@ -255,7 +255,7 @@ def test_errata_e3_printed_law_is_the_endpoint_law(model_md):
     assert _quotes(model_md, "0.090 with trapezoid friction, 1.1·10⁻¹⁴ with endpoint friction")
     phys = paper_physics()
     h = 0.1
-    I, c = phys.inertia[0], phys.friction[0, 0]
+    I, c = phys.inertia[0], phys.stokes_resistance[0, 0]
 
     def legendre(X):
         IX = I * X
@@ -320,7 +320,7 @@ def test_kelvin_noether_law_in_its_documented_general_form(case):
     tr = simulate(phys, 3.0 * OMEGA0[None], R0[None], h, 500, "vi", friction=friction)
     assert tr.status[0] == STATUS_OK
     X, G, mu = tr.omega_step[0], tr.gamma[0], tr.momentum[0]
-    I, C, lam = phys.inertia[0], phys.friction[0], phys.internal_friction[0]
+    I, C, lam = phys.inertia[0], phys.stokes_resistance[0], phys.internal_friction[0]
     wl, wr = FRICTION_WEIGHTS[friction]
     F = C * X[:-1] + np.array([_D(I, lam, h, x) for x in X[:-1]])
     dJ = np.diff(np.einsum("ki,ki->k", G, mu))
@@ -337,7 +337,7 @@ def test_coupled_top_node_form_as_documented():
     h = 0.05
     tr = simulate(phys, 3.0 * OMEGA0[None], R0[None], h, 200, "vi")
     assert tr.status[0] == STATUS_OK
-    I0, C, g = phys.inertia[0], phys.friction[0], phys.gravity_torque[0]
+    I0, C, g = phys.inertia[0], phys.stokes_resistance[0], phys.gravity_torque[0]
     cv, T0, al = phys.heat_capacity[0], phys.T0[0], phys.thermal_expansion[0]
     X, G, s, mu = tr.omega_step[0], tr.gamma[0], tr.sigma[0], tr.momentum[0]
 

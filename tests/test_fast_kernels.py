@@ -50,13 +50,13 @@ def mixed(n_paper=2 * F.BLOCK + 10, n_random=40, seed=0, variant="paper"):
     if variant == "no_gravity":
         phys = replace(phys, gravity_torque=np.zeros((n_paper, 3)))
     elif variant == "no_friction":
-        phys = replace(phys, friction=np.zeros((n_paper, 3)))
+        phys = replace(phys, stokes_resistance=np.zeros((n_paper, 3)))
     elif variant == "coupled":
         phys = replace(phys, heat_capacity=np.full(n_paper, 1e-3), thermal_expansion=np.full(n_paper, 1e-3))
     elif variant == "double_bracket":
         phys = replace(phys, internal_friction=np.full(n_paper, 5.0))
     elif variant == "diagonal":
-        phys = replace(phys, friction=phys.friction * np.array([0.5, 1.0, 2.0]), isotropic_friction=False)
+        phys = replace(phys, stokes_resistance=phys.stokes_resistance * np.array([0.5, 1.0, 2.0]), isotropic_resistance=False)
     om, R = random_ensemble(n_paper, seed)
     if n_random == 0:
         return phys, om, R
@@ -68,7 +68,7 @@ def mixed(n_paper=2 * F.BLOCK + 10, n_random=40, seed=0, variant="paper"):
     if variant == "no_gravity":
         extra = [replace(e, gravity_torque=np.zeros((1, 3))) for e in extra]
     if variant == "no_friction":
-        extra = [replace(e, friction=np.zeros((1, 3))) for e in extra]
+        extra = [replace(e, stokes_resistance=np.zeros((1, 3))) for e in extra]
     return (stack([phys] + extra), np.vstack([om] + [b[1] for b in bodies]),
             np.vstack([R] + [b[2] for b in bodies]))
 
@@ -191,7 +191,7 @@ def test_composition_failure_mid_step_restores_the_step_start():
     phys, om, R = mixed(n_paper=40, n_random=0, seed=6)
     # the negative substep takes back more heat than a small heat capacity holds:
     # U(σ') − U(σ) = hP < −U(σ), no σ' exists (log1p of less than −1)
-    hv = replace(phys, friction=phys.friction * 10.0, heat_capacity=np.full(len(om), 1e-7))
+    hv = replace(phys, stokes_resistance=phys.stokes_resistance * 10.0, heat_capacity=np.full(len(om), 1e-7))
     fast = run("fast", "vi4", hv, om, R, 0.1, 20, 1, composition="triple_jump")
     simple_ = run("simple", "vi4", hv, om, R, 0.1, 20, 1, composition="triple_jump")
     assert_same(fast, simple_)

@@ -85,7 +85,7 @@ def _run_cases(out: Path) -> None:
         phys = run.physics_for(N)
         if per_member:  # every member its own parameters: the kernels read them from rows
             phys = replace(phys, gravity_torque=phys.gravity_torque * np.linspace(0.5, 1.5, N)[:, None],
-                           friction=phys.friction * np.linspace(0.8, 1.2, N)[:, None])
+                           stokes_resistance=phys.stokes_resistance * np.linspace(0.8, 1.2, N)[:, None])
         om, R = initial_conditions(sc, 0, N)
         opts = {**run.simulate_options("simple"), **kw}
         h = float(sc["integrator"]["h"])

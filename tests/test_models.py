@@ -67,9 +67,9 @@ def test_no_gravity_no_friction_leave_only_the_inertia():
 def test_per_member_parameters_are_rows_shared_ones_are_not():
     phys = paper_physics(4)
     assert build_model(phys).shared is not None
-    C = phys.friction.copy()
+    C = phys.stokes_resistance.copy()
     C[2] *= 2.0
-    km = build_model(replace(phys, friction=C))
+    km = build_model(replace(phys, stokes_resistance=C))
     assert km.shared is None and km.P.shape[0] == 4
     assert np.array_equal(km.P[0], build_model(phys).P[0]) and not np.array_equal(km.P[2], km.P[0])
 
@@ -140,14 +140,14 @@ def test_the_ellipsoids_friction_about_its_pivot_and_the_papers_unchanged():
     s = load_scene("ellipsoid")
     mu, ax, d = s.fluid.viscosity, np.array(s.body.semi_axes), np.array(s.body.center_of_mass)
     K = oberbeck_resistance(ax, mu)[0]
-    C = physics_of_scene(s).friction[0]
+    C = physics_of_scene(s).stokes_resistance[0]
     np.testing.assert_allclose(C, jeffery_resistance(ax, mu)[0] + d[2] ** 2 * np.array([K[1], K[0], 0.0]),
                                rtol=1e-14)
     assert np.all(C[:2] > jeffery_resistance(ax, mu)[0, :2])
-    free = physics_of_scene(load_scene("free_ellipsoid")).friction[0]
+    free = physics_of_scene(load_scene("free_ellipsoid")).stokes_resistance[0]
     np.testing.assert_array_equal(free, jeffery_resistance(ax, mu)[0])  # about its centre: no drag
     paper = load_scene("paper")
-    np.testing.assert_allclose(physics_of_scene(paper).friction[0],
+    np.testing.assert_allclose(physics_of_scene(paper).stokes_resistance[0],
                                8 * math.pi * paper.fluid.viscosity * paper.body.radius**3, rtol=1e-15)
     with pytest.raises(SceneError) as exc:  # off an axis in a fluid: the drag would not be diagonal
         load_scene("free_ellipsoid", {"body.center_of_mass": [0.01, 0.0, 0.01], "body.inertia": [1e-3, 1e-3, 1e-3]})

@@ -22,7 +22,7 @@ C2 = 3e-4  # kg m²: c₂|Ω|/I ≈ 0.6 s⁻¹ at the paper's spin
 def _drag_physics(n=1, viscosity=True):
     phys = paper_physics(n)
     phys = replace(phys, quadratic_drag=np.full(n, C2))
-    return phys if viscosity else replace(phys, friction=np.zeros((n, 3)))
+    return phys if viscosity else replace(phys, stokes_resistance=np.zeros((n, 3)))
 
 
 def test_the_scene_key_reaches_the_physics_and_the_dataset():
@@ -127,7 +127,7 @@ def test_energy_balance_against_the_reference(drag_reference):
     w[1:-1:2], w[2:-1:2] = 4 * h_ref, 2 * h_ref
     integral = float(np.sum(w * P) / 3.0)
     assert integral == pytest.approx(heat, rel=1e-9)
-    drag_only = replace(phys, friction=np.zeros((1, 3)))
+    drag_only = replace(phys, stokes_resistance=np.zeros((1, 3)))
     assert float(np.sum(w * ph.dissipated_power(drag_only, tr.omega, tr.sigma)[0]) / 3.0) > 0.2 * heat
 
 

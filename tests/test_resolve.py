@@ -41,3 +41,46 @@ def test_the_resolved_physics_is_the_scenes_for_any_number_of_members():
             assert np.array_equal(getattr(five, name), v), name
     assert run.terms == tuple(physics.build_model(ref).terms())
     assert run.simulate_options()["heat_bound"] == run.heat_bound > 0
+
+
+def test_one_method_choice_from_a_scene_a_label_or_keywords():
+    """A study label, the scene it makes and simulate's keywords give one
+    MethodChoice, the effective variants worked out once: vi4 ignores the
+    start it is asked for, an explicit method has none of the VI's, and the
+    resolved run and its trajectory carry the same choice."""
+    import pytest
+
+    from liethermo.methods import MethodChoice
+    from liethermo.simulate import simulate
+    from liethermo.studies.common import StudyError, method_overrides, parse_method
+
+    for label, want in [("vi:node:explicit", ("vi", "node", "trapezoid", "explicit", None)),
+                        ("vi4:staggered:triple_jump", ("vi4", "legendre", "trapezoid", "symmetric", "triple_jump")),
+                        ("rk4", ("rk4", "node", None, None, None))]:
+        c = MethodChoice.parse(label)
+        assert (c.name, c.start, c.friction, c.entropy, c.composition) == want and c.label == label
+        spec = parse_method(label)
+        assert spec["start"] == (c.start if c.family == "vi" else None) and spec["composition"] == c.composition
+        sc = load_scene("paper", {**method_overrides(spec), "integrator.steps": 4, "output.compare": []})
+        run = resolve(sc)
+        assert run.choice == MethodChoice.from_scene(sc) and (run.choice.name, run.choice.start,
+                                                              run.choice.friction, run.choice.entropy,
+                                                              run.choice.composition) == want
+        om0, R0 = liethermo.initial.initial_conditions(sc, 0, 1)
+        assert run.simulate(om0, R0).choice == run.choice
+    with pytest.raises(StudyError, match="unknown variant 'fast'"):
+        parse_method("vi:fast")
+    with pytest.raises(ValueError, match="fixes them"):
+        simulate(resolve(load_scene("paper")).physics, np.ones((1, 3)), np.eye(3)[None], 0.1, 1,
+                 MethodChoice.parse("vi"), start="node")
+    with pytest.raises(ValueError, match="unknown integrator.start 'nodes'"):
+        MethodChoice.of("vi", start="nodes")
+    egg = resolve(load_scene("coupled_egg"))  # the coupled top's rule, the one its scene keys obey
+    om0, R0 = liethermo.initial.initial_conditions(egg.scene, 0, 1)
+    for kw, needle in ((dict(start="node"), "starts from its node momentum"),
+                       (dict(friction="endpoint"), "trapezoid friction only")):
+        with pytest.raises(ValueError, match=needle):
+            simulate(egg.physics, om0, R0, 0.01, 1, "vi", **kw)
+        key = "integrator." + next(iter(kw))
+        with pytest.raises(liethermo.SceneError, match=needle):
+            load_scene("coupled_egg", {key: next(iter(kw.values()))})

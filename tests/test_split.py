@@ -90,7 +90,7 @@ def test_unit_gamma_rotation_and_vertical_momentum_over_1e5_steps(method):
 def _scaled_to_kappa(phys, kappa, h):
     """The members with the Stokes resistance scaled to a friction per step
     κ = h·maxᵢ Cᵢ/Iᵢ."""
-    return replace(phys, friction=phys.friction * (kappa / (h * np.max(phys.friction / phys.inertia))))
+    return replace(phys, stokes_resistance=phys.stokes_resistance * (kappa / (h * np.max(phys.stokes_resistance / phys.inertia))))
 
 
 @pytest.mark.parametrize("kappa", [0.05, 4.7, 30.0])

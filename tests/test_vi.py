@@ -71,7 +71,7 @@ def test_vi_steps_solve_the_node_form_equations(friction, entropy):
     wl, wr = vi.FRICTION_WEIGHTS[friction]
     tr = simulate(phys, om0, R, h, 200, "vi", friction=friction, entropy=entropy, attitude=True)
     assert tr.status[0] == STATUS_OK
-    I, C, g = phys.inertia[0], phys.friction[0], phys.gravity_torque[0]
+    I, C, g = phys.inertia[0], phys.stokes_resistance[0], phys.gravity_torque[0]
     cv, T0 = phys.heat_capacity[0], phys.T0[0]
     X, G, s, mu, Rk = tr.omega_step[0], tr.gamma[0], tr.sigma[0], tr.momentum[0], tr.attitude[0]
     worst = dict(newton=0.0, gamma=0.0, R=0.0, mu=0.0, sigma=0.0)
@@ -203,7 +203,7 @@ def test_no_viscosity_no_entropy_and_no_thermodynamics(paper):
     friction term (so no entropy is integrated), S stays S₀ exactly, and the
     mechanical energy is all that moves."""
     phys, om0, R = paper
-    free = replace(phys, friction=np.zeros((1, 3)))
+    free = replace(phys, stokes_resistance=np.zeros((1, 3)))
     km = build_model(free)
     assert km.model.thermo is None and [type(t).__name__ for t in km.model.forces] == ["Gravity"]
     tr = simulate(free, om0, R, H_PAPER, 2000, "vi")
@@ -229,7 +229,7 @@ def test_discrete_kelvin_noether_law_in_node_form(friction, body):
     tr = simulate(phys, om0, R, h, 2000, "vi", friction=friction)
     assert tr.status[0] == STATUS_OK
     X, G, mu = tr.omega_step[0], tr.gamma[0], tr.momentum[0]
-    C = phys.friction[0]
+    C = phys.stokes_resistance[0]
     J = np.einsum("ki,ki->k", G, mu)
     dJ = np.diff(J)
     scale = np.abs(dJ).max()
@@ -272,7 +272,7 @@ def test_momentum_update_rotates_the_newton_right_hand_side(case):
     model = build_model(phys).model
     lay = L.state_layout(model, "vi")
     h, (wl, wr) = 0.1, vi.FRICTION_WEIGHTS["trapezoid"]
-    C = phys.friction[0]
+    C = phys.stokes_resistance[0]
     Gam = rng.normal(size=3)
     Gam /= np.linalg.norm(Gam)
     X = 3.0 * rng.normal(size=3)
@@ -363,7 +363,7 @@ def test_newton_stop_on_predicted_convergence_is_within_tolerance():
         its_all = []
         for _ in range(500):
             X = spin * rng.normal(size=3)
-            b = -(_legendre(I, X, h) + 0.5 * h * phys.friction[0] * X)
+            b = -(_legendre(I, X, h) + 0.5 * h * phys.stokes_resistance[0] * X)
             xp = X * (1.0 + off * rng.normal(size=3))
             scale0 = np.abs(xp).max()
             code, its = _solve(model, h, b, xp, scale0, tol, 30, out)
@@ -379,8 +379,17 @@ def test_newton_stop_on_predicted_convergence_is_within_tolerance():
 
 # ------------------------------------------------------------------ Newton
 @jit
+def _newton_correction(model, v, x0, x1, x2, xs, b0, b1, b2, s1):
+    """(d₀, d₁, d₂, d_s, det J): vi.newton_step at σ' = s1 with the exact
+    operations (what the straightforward kernel computes)."""
+    d0, d1, d2, ds, det, ok = vi.newton_step(model, v, x0, x1, x2, xs, b0, b1, b2,
+                                             vi.newton_data(model.inertia, model, s1), True)
+    return d0, d1, d2, ds, det
+
+
+@jit
 def _residual_jacobian(model, v, X, b, xs, s1, F, J):
-    d0, d1, d2, ds, det = vi.newton_correction(model, v, X[0], X[1], X[2], xs, b[0], b[1], b[2], s1)
+    d0, d1, d2, ds, det = _newton_correction(model, v, X[0], X[1], X[2], xs, b[0], b[1], b[2], s1)
     r = vi.residual_jacobian(model, v, X[0], X[1], X[2], b[0], b[1], b[2])
     for i in range(3):
         F[i] = r[i]
@@ -425,13 +434,13 @@ def test_jacobian_matches_central_differences(body, h):
 @jit
 def _coupled_F(model, v, X, xs, b, s1):
     """The coupled top's 4-vector F(X, Δ) = (F₁, F₂) and its Newton correction."""
-    d0, d1, d2, ds, det = vi.newton_correction(model, v, X[0], X[1], X[2], xs, b[0], b[1], b[2], s1)
+    d0, d1, d2, ds, det = _newton_correction(model, v, X[0], X[1], X[2], xs, b[0], b[1], b[2], s1)
     return d0, d1, d2, ds, det
 
 
 def _coupled_residual_np(phys, h, X, D, b, s1):
     """F(X, Δ) of the coupled top, written from docs/model.md independently of the kernels."""
-    I, C, cv, T0, al = (phys.inertia[0], phys.friction[0], phys.heat_capacity[0], phys.T0[0],
+    I, C, cv, T0, al = (phys.inertia[0], phys.stokes_resistance[0], phys.heat_capacity[0], phys.T0[0],
                         phys.thermal_expansion[0])
 
     def phi(s):
@@ -525,7 +534,7 @@ def test_paper_numbers_match_the_scene_code():
     d = paper_numbers()
     p = physics_of_scene(load_scene("paper"))
     np.testing.assert_allclose(p.inertia[0], d["inertia"], rtol=1e-15)
-    np.testing.assert_allclose(p.friction[0], [d["c"]] * 3, rtol=1e-15)
+    np.testing.assert_allclose(p.stokes_resistance[0], [d["c"]] * 3, rtol=1e-15)
     np.testing.assert_allclose(p.gravity_torque[0], d["gvec"], rtol=1e-15)
     assert p.heat_capacity[0] == pytest.approx(d["cv"], rel=1e-15)
     assert d["m"] == pytest.approx(1.4137166941154071, rel=1e-15)
@@ -551,7 +560,7 @@ def test_friction_keeps_its_precision_at_tiny_steps():
     sc = load_scene("spherical_top")
     phys = physics_of_scene(sc, 1)
     om, R = initial_conditions(sc)
-    I, c = phys.inertia[0, 0], phys.friction[0, 0]
+    I, c = phys.inertia[0, 0], phys.stokes_resistance[0, 0]
     for method, h, n in (("vi4", 2e-5, 25000), ("vi6", 5e-5, 10000)):
         tr = simulate(phys, om, R, h, n, method, every=n)
         exact = om[0] * np.exp(-c * h * n / I)

@@ -70,7 +70,7 @@ def cmd_run(args) -> int:
 
 def _run_outputs(args, scene, plan) -> int:
     from . import api
-    from .faults import Interrupted
+    from .faults import Interrupted, join_checking
     from .io import WriteError
     from .warmup import start_warming
 
@@ -84,7 +84,7 @@ def _run_outputs(args, scene, plan) -> int:
         _announce_long_runs(todo, args)
         for i, o in enumerate(todo):
             if i == 1 and warming is not None:
-                warming.join()  # its kernels are in the cache now
+                join_checking(warming)  # its kernels are in the cache now
             if args.dask:
                 from .distributed import run_scene_dask
 
@@ -315,17 +315,24 @@ def main(argv=None) -> int:
         return args.func(args)
     import signal
 
-    from .faults import Interrupted, stop_on_signals
+    from .faults import Interrupted, stop_on_signals, stop_received, stopping
 
     if hasattr(signal, "SIGXFSZ"):
         # past a file-size limit, writes fail with EFBIG (reported) instead of killing the process
         signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
     with stop_on_signals():
         try:
-            return args.func(args)
+            rc = args.func(args)
         except Interrupted as exc:  # before any output was started
             print(f"liethermo: interrupted by {exc.name}: nothing written", file=sys.stderr)
             return exc.exit_code
+        late = stop_received()
+        if late is not None and not stopping():  # after the last check: the work is complete
+            exc = Interrupted(late)
+            print(f"liethermo: interrupted by {exc.name} as the command finished (its outputs are "
+                  "complete)", file=sys.stderr)
+            return exc.exit_code
+        return rc
 
 
 def entry() -> None:

@@ -54,7 +54,7 @@ from typing import Any, Callable, Iterable
 import numpy as np
 
 from . import __version__, cf
-from .faults import Interrupted, folder_leftovers, remove_files
+from .faults import POLL_SECONDS, Interrupted, check_stop, folder_leftovers, remove_files
 from .io import ChunkedWriter, write_atomic
 from .runner import ChunkStats, RunSummary, _progress_bar, finish_summary, run_chunk, scene_setup
 from .scene import scene_to_toml
@@ -324,6 +324,7 @@ def combine_parts(parts: Path, chunks, out: Path, members: int, attrs: dict) -> 
     w = ChunkedWriter(out, members, attrs)
     with w:
         for lo, hi in chunks:
+            check_stop()
             w.write(_read_part(part_path(parts, lo, hi)), lo)
     return out
 
@@ -388,19 +389,30 @@ def _wait_all(client, futures, bar, done: Callable, error_step: int = 0) -> None
     takes each successful task and returns how far it moves ``bar`` (a failed
     one moves it by ``error_step``).  A stop
     signal cancels the tasks; afterwards the first failed task's error is
-    raised here."""
-    from distributed import as_completed
+    raised here.  The wait polls the tasks, checking for a stop signal
+    between polls (:func:`liethermo.faults.check_stop`)."""
+    from distributed import wait
 
     first_error = None
+    pending = list(futures)
     try:
-        for fut in as_completed(futures):
-            if fut.status == "error":
-                first_error = first_error or fut
-                step = error_step
-            else:
-                step = done(fut)
-            if bar:
-                bar.update(step)
+        while pending:
+            check_stop()
+            try:
+                wait(pending, timeout=POLL_SECONDS, return_when="FIRST_COMPLETED")
+            except TimeoutError:  # none finished within the poll
+                pass
+            is_done = [f.done() for f in pending]
+            finished = [f for f, d in zip(pending, is_done) if d]
+            pending = [f for f, d in zip(pending, is_done) if not d]
+            for fut in finished:
+                if fut.status == "error":
+                    first_error = first_error or fut
+                    step = error_step
+                else:
+                    step = done(fut)
+                if bar:
+                    bar.update(step)
     except Interrupted:
         _cancel(client, futures)
         raise

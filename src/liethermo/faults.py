@@ -1,13 +1,19 @@
 """Stopping cleanly: signals, output locks and temporary files.
 
 Signals
-    Inside :func:`stop_on_signals`, SIGINT, SIGTERM and SIGHUP raise
-    :class:`Interrupted` in the main thread at the next Python instruction,
-    so the current member chunk is abandoned within one kernel call
-    (~0.1 s).  Code that must not be cut in half (writing a chunk, renaming a
-    file) runs inside :func:`critical`: a signal arriving there is held and
-    raised when the section ends.  Once raised, further signals are ignored
-    while the program cleans up; a third one ends the process at once.
+    Inside :func:`stop_on_signals`, SIGINT, SIGTERM and SIGHUP are only
+    recorded by their handler; every loop and wait of a run checks the
+    record (:func:`check_stop`: between kernel calls, member chunks, sweep
+    points, chunk reads, and while waiting for Dask tasks or another
+    process) and raises :class:`Interrupted` there, in the main thread.  A
+    handler that raised would drop its exception wherever it lands in code
+    that ignores exceptions (a garbage-collector callback, a library's
+    compiled code); a record cannot be lost.  The current member chunk is
+    abandoned within one kernel call (~0.1 s).  Code that must not be cut in
+    half (writing a chunk, renaming a file) runs inside :func:`critical`: a
+    stop is not raised there, and is raised when the section ends.  Once
+    raised, further signals are ignored while the program cleans up; a third
+    one ends the process at once.
 
 Temporaries
     Every file is written to a temporary ``.<name>.<pid>.tmp`` next to its
@@ -73,9 +79,8 @@ class Interrupted(BaseException):
 class _State:
     active = False
     depth = 0  # nesting of critical sections
-    pending: int | None = None  # signal held by a critical section
-    raised = False
-    signum: int | None = None  # the signal raised
+    signum: int | None = None  # the first stop signal received
+    raised = False  # Interrupted was raised for it at least once
     count = 0
 
 
@@ -83,22 +88,19 @@ _state = _State()
 
 
 def _handler(signum, frame):
+    """Record the signal; the next :func:`check_stop` raises it."""
     st = _state
     st.count += 1
     if st.count >= 3:  # the user insists: leave now, whatever is left behind
         os._exit(128 + signum)
-    if st.raised or st.pending is not None:
-        return  # already stopping: let the clean-up finish
-    if st.depth > 0:
-        st.pending = signum
-        return
-    st.raised, st.signum = True, signum
-    raise Interrupted(signum)
+    if st.signum is None:
+        st.signum = signum
 
 
 @contextlib.contextmanager
 def stop_on_signals():
-    """Turn SIGINT, SIGTERM and SIGHUP into :class:`Interrupted` within the block.
+    """Record SIGINT, SIGTERM and SIGHUP within the block, for :func:`check_stop`
+    to raise as :class:`Interrupted`.
 
     Only in the main thread (signal handlers live there); elsewhere a no-op.
     The previous handlers are restored on exit.
@@ -107,8 +109,7 @@ def stop_on_signals():
         yield
         return
     old = {s: signal.getsignal(s) for s in SIGNALS}
-    _state.active, _state.depth, _state.pending, _state.raised, _state.count = True, 0, None, False, 0
-    _state.signum = None
+    _state.active, _state.depth, _state.raised, _state.count, _state.signum = True, 0, False, 0, None
     for s in SIGNALS:
         signal.signal(s, _handler)
     try:
@@ -128,10 +129,8 @@ class critical:
 
     def __exit__(self, exc_type, exc, tb):
         _state.depth -= 1
-        if _state.depth == 0 and _state.pending is not None and not _state.raised and exc_type is None:
-            signum, _state.pending = _state.pending, None
-            _state.raised, _state.signum = True, signum
-            raise Interrupted(signum)
+        if exc_type is None and not _state.raised:
+            check_stop()
         return False
 
 
@@ -140,15 +139,48 @@ def stopping() -> bool:
     return _state.raised
 
 
+def stop_received() -> int | None:
+    """The stop signal received within :func:`stop_on_signals` (None: none),
+    raised or not yet."""
+    return _state.signum if _state.active else None
+
+
 def check_stop() -> None:
-    """Raise :class:`Interrupted` again if a stop signal was raised and the
-    work goes on regardless.  The handler raises at whatever Python
-    instruction runs when the signal lands; when that is inside a library's
-    compiled code (netCDF4 reading a file) the exception can be lost there,
-    so loops call this between units of work (member chunks, sweep points):
-    a stop is never forgotten."""
-    if _state.active and _state.raised and _state.signum is not None and _state.depth == 0:
-        raise Interrupted(_state.signum)
+    """Raise :class:`Interrupted` if a stop signal was received (outside a
+    critical section, in the main thread).  The signal handler only records
+    the signal, so every loop of a run and every wait calls this between
+    units of work (kernel calls, member chunks, sweep points, chunk reads,
+    polls of Dask tasks); after the first raise it raises again, so work
+    that goes on regardless (an exception swallowed on the way up) still
+    stops at its next check."""
+    st = _state
+    if (st.active and st.signum is not None and st.depth == 0
+            and threading.current_thread() is threading.main_thread()):
+        st.raised = True
+        raise Interrupted(st.signum)
+
+
+#: seconds between checks of a stop signal while waiting for other work
+POLL_SECONDS = 0.05
+
+
+def wait_checking(done, poll: float = POLL_SECONDS) -> None:
+    """Wait until ``done(timeout)`` returns true, calling it with ``poll``
+    seconds at a time and checking for a stop signal between the calls
+    (``done`` waits at most its timeout: e.g. ``lambda t: not p.join(t) and
+    not p.is_alive()`` for a process)."""
+    while True:
+        check_stop()
+        if done(poll):
+            return
+
+
+def join_checking(process) -> None:
+    """``process.join()`` (a thread or a process) with stop checks."""
+    def done(t):
+        process.join(t)
+        return not process.is_alive()
+    wait_checking(done)
 
 
 # ---------------------------------------------------------------- temporaries

@@ -379,6 +379,7 @@ class ResumeSource:
         try:
             nc.set_auto_mask(False)
             for rec in self.journal.chunks:
+                check_stop()
                 lo, hi = int(rec["lo"]), int(rec["hi"])
                 arrays = {}
                 try:

@@ -231,3 +231,114 @@ def get_method(name: str) -> Method:
         raise ValueError(
             f"unknown integrator.method {name!r}: expected one of {sorted(METHODS)}"
         ) from None
+
+
+# ----------------------------------------------------------------------------- a method choice
+
+
+@dataclass(frozen=True)
+class MethodChoice:
+    """A method with the variants it really runs, worked out once: from a
+    scene (:meth:`from_scene`), a study's label such as ``"vi:node:explicit"``
+    (:meth:`parse`) or keywords (:meth:`of`).  Everything that runs or
+    describes a run (:func:`liethermo.simulate.simulate`, the dataset's
+    attributes, preflight, the studies) reads these fields.
+
+    ``start``: the first step of the variational integrators ("node" for
+    the others, whose state starts at the nodes); ``friction``, ``entropy``:
+    the variational integrators' (None for the others); ``composition``: the
+    composed methods' (None for the others).  ``label``: how it was asked for
+    (a study's label, or the method's name)."""
+
+    name: str
+    start: str
+    friction: str | None
+    entropy: str | None
+    composition: str | None
+    label: str = ""
+
+    @property
+    def method(self) -> Method:
+        return METHODS[self.name]
+
+    @property
+    def family(self) -> str:
+        return self.method.family
+
+    @classmethod
+    def of(cls, method: str, *, start: str = "legendre", friction: str = "trapezoid",
+           entropy: str = "symmetric", composition: str = "small_error", label: str | None = None
+           ) -> "MethodChoice":
+        """The choice that ``method`` with these asked-for variants runs; an
+        unknown name or variant raises ValueError naming it."""
+        m = get_method(method)
+        for what, value, allowed in (("friction", friction, FRICTION), ("start", start, STARTS),
+                                     ("entropy", entropy, ENTROPY_UPDATES),
+                                     ("composition", composition, COMPOSITION_KINDS)):
+            if value not in allowed:
+                raise ValueError(f"unknown integrator.{what} {value!r}: expected one of {list(allowed)}")
+        return cls(m.name, m.effective_start(start), m.effective_friction(friction),
+                   m.effective_entropy(entropy), m.effective_composition(composition),
+                   m.name if label is None else label)
+
+    @classmethod
+    def from_scene(cls, scene) -> "MethodChoice":
+        """The choice of a scene's ``[integrator]`` table."""
+        integ = scene["integrator"]
+        return cls.of(integ["method"], start=integ["start"], friction=integ["friction"],
+                      entropy=integ["entropy"], composition=integ["composition"])
+
+    @classmethod
+    def parse(cls, label: str) -> "MethodChoice":
+        """A study's method label: a method's name, then variants after colons,
+        in any order, each changing one choice — starts ``legendre``, ``node``
+        (the paper's Ω₀ := Ω(0)), ``staggered``; friction ``trapezoid``,
+        ``endpoint``; entropy ``symmetric``, ``explicit`` (e.g.
+        ``"vi:node:explicit"``, the paper's choices); a composed method's
+        ``small_error`` or ``triple_jump`` (``"vi4:triple_jump"``).  ``vi4`` and
+        ``vi6`` accept and ignore the variational integrator's variants;
+        explicit methods take none.  ValueError names what is wrong."""
+        parts = label.split(":") if isinstance(label, str) else [label]
+        name = parts[0]
+        if name not in METHODS:
+            raise ValueError(f"unknown method {label!r}; known methods: {', '.join(sorted(METHODS))}")
+        m = METHODS[name]
+        chosen = {"start": "legendre", "friction": "trapezoid", "entropy": "symmetric",
+                  "composition": "small_error"}
+        seen: set[str] = set()
+        for p in parts[1:]:
+            what = ("start" if p in STARTS else "friction" if p in FRICTION
+                    else "entropy" if p in ENTROPY_UPDATES else "composition" if p in COMPOSITION_KINDS
+                    else None)
+            if what is None:
+                raise ValueError(f"{label!r}: unknown variant {p!r} (starts: {', '.join(STARTS)}; "
+                                 f"friction: {', '.join(FRICTION)}; entropy: {', '.join(ENTROPY_UPDATES)}; "
+                                 f"composition: {', '.join(COMPOSITION_KINDS)})")
+            if what == "composition" and not m.composed:
+                raise ValueError(f"{label!r}: {name} is not composed and takes no composition")
+            if what != "composition" and m.family != "vi":
+                raise ValueError(f"{label!r}: {name} is explicit and takes no variant")
+            if what in seen:
+                raise ValueError(f"{label!r}: more than one {what} variant")
+            seen.add(what)
+            chosen[what] = p
+        return cls.of(name, label=label, **chosen)
+
+    def asked(self) -> dict:
+        """Values for every variant key, the effective one where it applies
+        and the scene default elsewhere: what a scene must say to run this
+        choice (:meth:`overrides`), or ``simulate``'s keywords."""
+        return {"start": self.start if self.family == "vi" else "legendre",
+                "friction": self.friction or "trapezoid", "entropy": self.entropy or "symmetric",
+                "composition": self.composition or "small_error"}
+
+    def overrides(self) -> dict:
+        """Scene overrides that make a scene run this choice."""
+        a = self.asked()
+        return {"integrator.method": self.name, "integrator.start": a["start"],
+                "integrator.friction": a["friction"], "integrator.entropy": a["entropy"],
+                "integrator.composition": a["composition"]}
+
+    def order(self) -> int:
+        """The observed order on node values this choice declares (:meth:`Method.order`)."""
+        return self.method.order(self.start, self.friction or "trapezoid")

@@ -316,8 +316,7 @@ def theta(phys: Physics, sigma: np.ndarray) -> np.ndarray:
 def _expansion(phys: Physics, th: np.ndarray):
     """(φ, φ′) with 𝕀(S) = φ²𝕀₀ from the term that makes the inertia depend on S, or None."""
     for t in registry():
-        f = getattr(t, "expansion", None)
-        out = None if f is None else f(phys, th)
+        out = t.expansion(phys, th)
         if out is not None:
             return out
     return None
@@ -412,19 +411,3 @@ def mechanical_energy_scale(phys: Physics, omega0: np.ndarray, gamma0: np.ndarra
     K0 = kinetic_energy(phys, omega0, None)
     V0 = potential_energy(phys, gamma0)
     return K0 + V0 + 0.5 * potential_span(phys)
-
-
-def continuous_rhs_numpy(phys: Physics, omega: np.ndarray, gamma: np.ndarray, sigma: np.ndarray):
-    """(Ω̇, Γ̇, σ̇) of the continuous equations in plain numpy, every term
-    included (shapes (N, ..., 3), (N, ..., 3), (N, ...)): with 𝕀(S) = φ²𝕀₀
-    (φ = 1: Euler's equations), 𝕀₀Ω̇ = (𝕀₀Ω×Ω + Σf)/φ² − 2(φ′/φ)σ̇ 𝕀₀Ω,
-    Γ̇ = Γ×Ω, σ̇ = P/T."""
-    I = bcast(phys.inertia, omega)
-    sd = dissipated_power(phys, omega, sigma) / temperature(phys, omega, sigma)
-    wd = np.cross(I * omega, omega) / I + torque(phys, omega, gamma, sigma) / I
-    e = _expansion(phys, theta(phys, sigma))
-    if e is not None:
-        phi, dphi = e
-        wd = (np.cross(I * omega, omega) + torque(phys, omega, gamma, sigma) / (phi * phi)[..., None]) / I
-        wd = wd - (2.0 * dphi / phi * sd)[..., None] * omega
-    return wd, np.cross(gamma, omega), sd

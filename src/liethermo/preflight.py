@@ -201,7 +201,6 @@ def estimate(scene: dict) -> Estimate:
     one-member, two-time dataset labelled like a run's (no kernel runs)."""
     from .dataset import trajectory_dataset
     from .io import disk_chunk_members
-    from .physics import build_model
     from .resolve import resolve
     from .simulate import Trajectory
 
@@ -209,14 +208,12 @@ def estimate(scene: dict) -> Estimate:
     steps, every = int(integ["steps"]), int(outp["every"])
     n_t = steps // every + 1
     run = resolve(scene)
-    method, phys = run.method, run.physics
-    km = build_model(phys, bool(outp["attitude"]))
-    layout = km.layout(method.layout)
+    phys = run.physics
+    layout = run.model.layout(run.method.layout)
     width = layout.size
     one = lambda dt: np.zeros(1, dtype=dt)  # noqa: E731
-    traj = Trajectory(method=method.name, family=method.family, friction=integ["friction"],
-                      start=integ["start"], entropy=integ["entropy"], h=float(integ["h"]), steps=every,
-                      every=every, physics=phys, layout=layout, terms=tuple(km.terms()),
+    traj = Trajectory(choice=run.choice, h=run.h, steps=every,
+                      every=every, physics=phys, layout=layout, terms=run.terms,
                       states=np.zeros((1, 2, width)), status=one(np.int8), fail_step=one(np.int64),
                       newton_iterations=one(np.int64), newton_max=one(np.int64), steps_done=one(np.int64),
                       max_h_omega=one(np.float64))
@@ -325,7 +322,6 @@ def check_parameters(scene: dict) -> None:
     finite parameters (every key may be valid on its own and the derived mass,
     moments, friction, heat capacity or gravity torque still overflow or
     vanish: a radius of 1e-300 m)."""
-    from .physics import build_model
     from .resolve import resolve
 
     for key in INT64_KEYS:
@@ -337,8 +333,8 @@ def check_parameters(scene: dict) -> None:
 
     try:
         with np.errstate(all="ignore"):
-            phys = resolve(scene).physics
-            p = build_model(phys, bool(scene["output"]["attitude"])).P
+            run = resolve(scene)
+            phys, p = run.physics, run.model.P
         bad = not all(np.all(np.isfinite(v)) for v in vars(phys).values() if isinstance(v, np.ndarray))
         bad = bad or not np.all(np.isfinite(p))
         why = "not finite numbers"
@@ -365,8 +361,7 @@ def _check_start(scene: dict, phys) -> None:
 
         kin2, what = float(phys.inertia[0].max()) * max_spin(scene) ** 2, "I_max (spin_range[1] |Ω(0)|)²"
     for t in registry():
-        check = getattr(t, "start_problem", None)
-        problem = None if check is None else check(scene, phys, kin2, what)
+        problem = t.start_problem(scene, phys, kin2, what)
         if problem is not None:
             key, why = problem
             raise PreflightError(f"scene key '{key}': {why}")

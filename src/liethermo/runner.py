@@ -23,7 +23,7 @@ from .initial import initial_conditions
 from .methods import get_method
 from .resolve import resolve
 from .scene import Scene, load_scene, scene_to_toml
-from .simulate import STATUS_MEANINGS, simulate
+from .simulate import STATUS_MEANINGS
 
 
 #: a member that completed (status ok) counts as diverged when its largest
@@ -185,20 +185,14 @@ def scene_setup(scene, overrides=None, history: str | None = None) -> tuple[Scen
     ``history`` is the command line or API call stored in the attributes."""
     if not isinstance(scene, Scene) or overrides:
         scene = load_scene(scene, overrides)
-    integ = scene["integrator"]
-    method, h, steps = integ["method"], float(integ["h"]), int(integ["steps"])
-    members = int(scene["ensemble"]["members"])
     run = resolve(scene)
-    m, phys, terms = run.method, run.physics, list(run.terms)
-    attrs = global_attrs(scene_to_toml(scene), method=method, h=h,
-                         friction=m.effective_friction(integ["friction"]),
-                         start=m.effective_start(integ["start"]),
-                         entropy=m.effective_entropy(integ["entropy"]),
-                         composition=m.effective_composition(integ["composition"]), terms=terms,
+    c = run.choice
+    attrs = global_attrs(scene_to_toml(scene), method=c.name, h=run.h, friction=c.friction, start=c.start,
+                         entropy=c.entropy, composition=c.composition, terms=list(run.terms),
                          history=history)
-    summ = RunSummary(scene["scene"]["name"], method, members, steps, h)
-    summ.solves_per_step = len(m.substeps(integ["composition"])) if m.family == "vi" else 0
-    summ.physics_notes = physics_lines(phys)
+    summ = RunSummary(scene["scene"]["name"], c.name, run.members, run.steps, run.h)
+    summ.solves_per_step = len(c.method.substeps(c.composition or "small_error")) if c.family == "vi" else 0
+    summ.physics_notes = physics_lines(run.physics)
     return scene, attrs, summ
 
 
@@ -243,20 +237,16 @@ def estimate_time(scene: Scene) -> TimeEstimate:
     full run will use (compiled first, then the faster of two runs) and scale
     it to the run's member-steps.  Members that fail stop early in the probe as
     in the run, so the figure is the run's, not a healthy ensemble's."""
-    integ = scene["integrator"]
-    method, h, steps = integ["method"], float(integ["h"]), int(integ["steps"])
-    members = int(scene["ensemble"]["members"])
-    pm, ps = min(members, PROBE_MEMBERS), min(steps, PROBE_STEPS)
     run = resolve(scene)
-    phys = run.physics_for(pm)
+    members, steps = run.members, run.steps
+    pm, ps = min(members, PROBE_MEMBERS), min(steps, PROBE_STEPS)
     om0, R0 = initial_conditions(scene, 0, pm)
-    options = run.simulate_options()
     best, compile_s = np.inf, 0.0
     for _ in range(2):
-        traj = simulate(phys, om0, R0, h, ps, method, every=ps, **options)
+        traj = run.simulate(om0, R0, steps=ps, every=ps)
         best = min(best, traj.wall_time)
         compile_s += traj.compile_time
-    return TimeEstimate(method, best * (members * steps) / (pm * ps), pm, ps, best, compile_s)
+    return TimeEstimate(run.choice.name, best * (members * steps) / (pm * ps), pm, ps, best, compile_s)
 
 
 def run_chunk(scene: dict, lo: int, hi: int, *, progress_cb=None, kernel: str | None = None,
@@ -267,16 +257,11 @@ def run_chunk(scene: dict, lo: int, hi: int, *, progress_cb=None, kernel: str | 
     :mod:`liethermo.distributed`; member i's result depends only on (scene, i).
     ``progress_cb(n)`` gets the number of member-steps just done.
     """
-    check_stop()  # a stop signal whose exception a library swallowed still stops the run
-    integ = scene["integrator"]
-    method, h, steps = integ["method"], float(integ["h"]), int(integ["steps"])
-    every = int(scene["output"]["every"])
+    check_stop()
     run = resolve(scene)
-    phys = run.physics_for(hi - lo)
     om0, R0 = initial_conditions(scene, lo, hi)
-    traj = simulate(phys, om0, R0, h, steps, method, every=every,
-                    progress=(lambda n, k=hi - lo: progress_cb(n * k)) if progress_cb else None,
-                    threads=threads, **run.simulate_options(kernel or "auto"))
+    traj = run.simulate(om0, R0, kernel=kernel or "auto", threads=threads,
+                        progress=(lambda n, k=hi - lo: progress_cb(n * k)) if progress_cb else None)
     ds = trajectory_dataset(traj, omega0=om0, R0=R0, member_offset=lo)
     st = ChunkStats(members=hi - lo, kernel_time=traj.wall_time, compile_time=traj.compile_time)
     ncounts = len(STATUS_MEANINGS)
@@ -300,7 +285,7 @@ def run_chunk(scene: dict, lo: int, hi: int, *, progress_cb=None, kernel: str | 
     st.nmax = int(traj.newton_max.max(initial=0))
     st.first_fail = int(traj.fail_step[~ok].min()) if not ok.all() else 0
     with np.errstate(over="ignore", invalid="ignore"):
-        st.findings = chunk_findings(ds, phys)
+        st.findings = chunk_findings(ds, traj.physics)
     return ds, st
 
 
@@ -401,6 +386,7 @@ def _run_to_file(scene, attrs, out: Path, summ: RunSummary, total: ChunkStats, b
             if all([r["lo"], r["hi"]] == list(plan[k]) for k, r in enumerate(recs)):
                 writer.define_like(source.data)  # the layout the earlier run wrote
                 for rec, arrays in source.read_chunks(writer.member_vars):
+                    check_stop()
                     with critical():
                         crc = writer.write_arrays(arrays, rec["lo"])
                         journal.chunks.append({"lo": rec["lo"], "hi": rec["hi"], "crc": crc, "stats": rec["stats"]})

@@ -15,6 +15,7 @@ from typing import Callable
 import numba
 import numpy as np
 
+from .faults import check_stop
 from .kernels import fast as _fast
 from .kernels import layout as _lay
 from .kernels import parallel as _par
@@ -22,7 +23,7 @@ from .kernels import simple as _simple
 from .kernels.steppers import Explicit, Split, Variational
 from .kernels.layout import STATUS_MEANINGS, STATUS_NEWTON, STATUS_NONFINITE, STATUS_OK  # noqa: F401
 from .kernels.layout import StateLayout
-from .methods import ENTROPY_UPDATES, FRICTION, STARTS, Method, get_method
+from .methods import Method, MethodChoice
 from .physics import KernelModel, Physics, build_model, entropy_of_heat, node_velocity, potential_span
 
 #: Reference substep: h_ref · ω_bound ≤ this, small enough that the reference's
@@ -67,14 +68,12 @@ class Trajectory:
     after a member's failure are NaN.  For the variational integrators the
     state holds the node values (Γ_k, σ_k, the node momentum μ_k) and the
     step velocity Ω_k of the step that starts at t_k; :attr:`omega` is the
-    node velocity Ω(t_k) = 𝕀(S_k)⁻¹μ_k for every method.
+    node velocity Ω(t_k) = 𝕀(S_k)⁻¹μ_k for every method.  ``choice``: the
+    method and the variants it ran (also read as ``method``, ``family``,
+    ``start``, ``friction``, ``entropy`` and ``composition``).
     """
 
-    method: str
-    family: str
-    friction: str | None
-    start: str
-    entropy: str | None
+    choice: MethodChoice
     h: float
     steps: int
     every: int
@@ -91,13 +90,36 @@ class Trajectory:
     wall_time: float = 0.0  # kernel time, s (compilation excluded)
     compile_time: float = 0.0  # compiling the kernels or loading them from the cache, s
     reference_substeps: int = 0
-    #: vi4, vi6, split4, split6: the composition they ran ("small_error" | "triple_jump")
-    composition: str | None = None
     #: where the steps ran: "cpu" or "gpu"
     device: str = "cpu"
     #: the time of the stepping kernels alone, s: on the GPU the kernel launches
     #: (CUDA events, summed), without the copies; on the CPU the same as ``wall_time``
     kernel_seconds: float = 0.0
+
+    @property
+    def method(self) -> str:
+        return self.choice.name
+
+    @property
+    def family(self) -> str:
+        return self.choice.family
+
+    @property
+    def start(self) -> str:
+        return self.choice.start
+
+    @property
+    def friction(self) -> str | None:
+        return self.choice.friction
+
+    @property
+    def entropy(self) -> str | None:
+        return self.choice.entropy
+
+    @property
+    def composition(self) -> str | None:
+        """vi4, vi6, split4, split6: the composition they ran ("small_error" | "triple_jump")."""
+        return self.choice.composition
 
     @property
     def step_index(self) -> np.ndarray:
@@ -217,12 +239,12 @@ def simulate(
     R0: np.ndarray,
     h: float,
     steps: int,
-    method: str = "vi",
+    method: str | MethodChoice = "vi",
     *,
-    friction: str = "trapezoid",
-    start: str = "legendre",
-    entropy: str = "symmetric",
-    composition: str = "small_error",
+    friction: str | None = None,
+    start: str | None = None,
+    entropy: str | None = None,
+    composition: str | None = None,
     attitude: bool = False,
     every: int = 1,
     newton_tol: float = DEFAULT_NEWTON_TOL,
@@ -240,15 +262,18 @@ def simulate(
 
     ``physics`` (N members), initial body angular velocities ``omega0``
     (N, 3, rad s⁻¹) and attitudes ``R0`` (N, 3, 3; Γ₀ = R₀ᵀe₃), S = S₀;
-    ``steps`` steps of size h (s), keeping every ``every``-th.  For the
-    variational integrators: ``friction`` ("trapezoid" | "endpoint"),
-    ``start`` ("legendre": μ₀ = 𝕀Ω(0); "node": the paper's Ω₀ := Ω(0) as
-    first step velocity; "staggered": Ω₀ := Ω(h/2) from the reference) and
-    ``entropy`` ("symmetric" | "explicit") — vi4 and vi6 always use the
-    legendre start, trapezoid friction and the symmetric update.  For the
-    composed methods (vi4, vi6, split4, split6): ``composition``
-    ("small_error": Suzuki's order 4, Kahan and Li's order 6; "triple_jump":
-    Yoshida's).
+    ``steps`` steps of size h (s), keeping every ``every``-th.  ``method``:
+    a :class:`~liethermo.methods.MethodChoice` (a run's, a study's), or a
+    method's name with the variants it is asked for (the choice is then
+    :meth:`MethodChoice.of` them): for the variational integrators
+    ``friction`` ("trapezoid" | "endpoint"), ``start`` ("legendre": μ₀ =
+    𝕀Ω(0); "node": the paper's Ω₀ := Ω(0) as first step velocity;
+    "staggered": Ω₀ := Ω(h/2) from the reference) and ``entropy``
+    ("symmetric" | "explicit") — vi4 and vi6 always use the legendre start,
+    trapezoid friction and the symmetric update; for the composed methods
+    (vi4, vi6, split4, split6) ``composition`` ("small_error": Suzuki's order
+    4, Kahan and Li's order 6; "triple_jump": Yoshida's).  Left out, the
+    package defaults (legendre, trapezoid, symmetric, small_error).
     ``progress(n)`` is called with the number of steps just advanced.
     ``chunk_steps``: steps per kernel call; by default the first call covers
     CHUNK_MEMBER_STEPS member-steps and later calls grow towards CALL_SECONDS
@@ -279,8 +304,18 @@ def simulate(
     :data:`liethermo.kernels.cuda.OUT_BYTES` of device memory and
     :data:`liethermo.kernels.cuda.CALL_MEMBER_STEPS`.
     """
-    m: Method = get_method(method)
-    kernel_for(m.name, 0, 0, kernel)  # rejects an unknown kernel before any work
+    if isinstance(method, MethodChoice):
+        given = [k for k, v in (("friction", friction), ("start", start), ("entropy", entropy),
+                                ("composition", composition)) if v is not None]
+        if given:
+            raise ValueError(f"{', '.join(given)}: the method choice {method.label!r} fixes them")
+        choice = method
+    else:
+        kernel_for(str(method), 0, 0, kernel)  # rejects an unknown kernel before any work
+        choice = MethodChoice.of(method, start=start or "legendre", friction=friction or "trapezoid",
+                                 entropy=entropy or "symmetric", composition=composition or "small_error")
+    m: Method = choice.method
+    kernel_for(m.name, 0, 0, kernel)
     if device not in ("cpu", "gpu"):
         raise ValueError(f"unknown device {device!r}: expected 'cpu' or 'gpu'")
     gpu = device == "gpu"
@@ -291,12 +326,6 @@ def simulate(
         from .gpu import require_gpu
 
         require_gpu()
-    if friction not in FRICTION:
-        raise ValueError(f"unknown integrator.friction {friction!r}: expected one of {list(FRICTION)}")
-    if start not in STARTS:
-        raise ValueError(f"unknown integrator.start {start!r}: expected one of {list(STARTS)}")
-    if entropy not in ENTROPY_UPDATES:
-        raise ValueError(f"unknown integrator.entropy {entropy!r}: expected one of {list(ENTROPY_UPDATES)}")
     if steps % every:
         raise ValueError(f"steps ({steps}) must be a multiple of every ({every})")
     omega0 = np.array(omega0, dtype=np.float64, ndmin=2)
@@ -314,12 +343,16 @@ def simulate(
             raise ValueError(f"method {m.name!r} needs the exact flow of every term; {part} has none "
                              f"(the vi and rk methods run it)")
     layout = km.layout(m.layout)
-    if m.family == "vi" and layout.has("sigma_next") and m.effective_start(start) != "legendre":
-        raise ValueError("the coupled top (thermal expansion) starts from its node momentum: "
-                         "use start='legendre'")
-    eff_start = m.effective_start(start)
-    eff_entropy = m.effective_entropy(entropy)
-    eff_friction = m.effective_friction(friction)
+    eff_start, eff_entropy, eff_friction = choice.start, choice.entropy, choice.friction
+    composition = choice.composition or "small_error"
+    if m.family == "vi" and layout.has("sigma_next"):  # the entropy joins the Newton unknowns
+        from .kernels.terms import registry
+
+        for t in registry():
+            problem = t.vi_refusal(eff_start, eff_friction)
+            if problem is not None:
+                raise ValueError(f"{problem[1]} (got {problem[0].split('.')[1]}="
+                                 f"{eff_start if problem[0].endswith('start') else eff_friction!r})")
     fast = kernel_for(m.name, N, steps, kernel) == "fast"
     n_out = steps // every
     IS = np.zeros((N, _lay.NISTAT), np.int64)
@@ -363,9 +396,8 @@ def simulate(
 
         out_per_chunk = (_cuda.outputs_per_call(N, layout.size, n_out, every) if adapt
                          else max(1, chunk_steps // every))
-        traj = dict(method=m.name, family=m.family, friction=eff_friction, start=eff_start,
-                    composition=m.effective_composition(composition), entropy=eff_entropy,
-                    h=float(h), steps=int(steps), every=int(every), physics=physics, layout=layout,
+        traj = dict(choice=choice, h=float(h), steps=int(steps), every=int(every), physics=physics,
+                    layout=layout,
                     terms=tuple(km.terms()))
         return _simulate_gpu(m, km, stepper, Y, IS, FS, states,
                              start_args if m.family == "vi" else None, float(h), int(every), n_out,
@@ -398,6 +430,7 @@ def simulate(
     t0 = time.perf_counter()
     j = 0
     while j < n_out:
+        check_stop()  # a stop signal is acted on between kernel calls
         nj = min(out_per_chunk, n_out - j)
         OUT = states[:, 1 + j: 1 + j + nj]  # strided view, written in place
         a, b = args_for(OUT, nj)
@@ -413,9 +446,7 @@ def simulate(
     # a member that failed keeps NaN from its failing step on (the kernels
     # leave its later outputs untouched), and its initial row if it could not start
     return Trajectory(
-        method=m.name, family=m.family, friction=eff_friction, start=eff_start,
-        composition=m.effective_composition(composition),
-        entropy=eff_entropy, h=float(h), steps=int(steps), every=int(every), physics=physics,
+        choice=choice, h=float(h), steps=int(steps), every=int(every), physics=physics,
         layout=layout, terms=tuple(km.terms()), states=states,
         status=IS[:, _lay.IS_STATUS].astype(np.int8), fail_step=IS[:, _lay.IS_FAIL_STEP].copy(),
         newton_iterations=IS[:, _lay.IS_NEWTON_TOTAL].copy(),

@@ -39,17 +39,14 @@ def _warm(scene_toml: str, jobs: list[tuple[str, str]]) -> None:
     from .initial import initial_conditions
     from .resolve import resolve
     from .scene import load_scene
-    from .simulate import simulate
 
     scene = load_scene(tomllib.loads(scene_toml))
     for method, part in jobs:
         sc = scene.with_overrides({"integrator.method": method})
         om0, R0 = initial_conditions(sc, 0, 1)
-        every = int(sc.output.every)
         run = resolve(sc)
         # the kernels the run's member chunks use, compiled on one member
-        simulate(run.physics, om0, R0, float(sc.integrator.h), every, method, every=every,
-                 compile_only="start" if part == "start" else True, **run.simulate_options())
+        run.simulate(om0, R0, steps=run.every, compile_only="start" if part == "start" else True)
 
 
 def start_warming(scene, methods: list[str]):

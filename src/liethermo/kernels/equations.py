@@ -8,9 +8,11 @@ energy U(S):
 
 For a constant inertia, Ω̇ takes Euler's form, Ω̇₁ = A₁Ω₂Ω₃ + (𝕀⁻¹Σf)₁
 (and cyclically; A from :mod:`.terms.inertia`), T = U′(S) and
-Ṡ = P/T(S).  For the entropy-dependent inertia 𝕀(S) = s(S)𝕀₀ (s = φ²,
-φ = 1 + α(θ − T₀), θ = U′(S)), the temperature is T = −∂L/∂S =
-θ − ½Ω·𝕀′(S)Ω = θ − φφ′ Ω·𝕀₀Ω with φ′ = αθ/c_v, and
+Ṡ = P/T(S).  For an entropy-dependent inertia 𝕀(S) = s(S)𝕀₀ (s = φ²,
+φ(S) and φ′ = dφ/dS the inertia part's own, :func:`.terms.inertia_scale`
+and :func:`.terms.inertia_scale_rate`; the coupled top's φ = 1 + α(θ − T₀),
+θ = U′(S)), the temperature is T = −∂L/∂S = θ − ½Ω·𝕀′(S)Ω = θ − φφ′ Ω·𝕀₀Ω
+(:func:`.terms.temperature_correction`), and
 
     Ω̇ = A(Ω) + 𝕀₀⁻¹Σf / s − 2(φ′/φ) Ṡ Ω,
 
@@ -26,7 +28,8 @@ from numba.extending import overload
 from ._jit import LANE_OPTIONS, fma, lane
 from .gen import has_capability, madd, or_zero
 from .so3 import attitude_rate_lane, cross_lane
-from .terms import NONE3, sum_angular_acceleration, sum_dissipated_power
+from .terms import (NONE3, inertia_scale, inertia_scale_rate, sum_angular_acceleration, sum_dissipated_power,
+                    temperature_correction)
 from .terms.thermo import entropy_rate, temperature
 
 
@@ -60,11 +63,11 @@ def _thermal_rates(model, w0, w1, w2, G0, G1, G2, s):
     theta = temperature(th, s)
     # φ, Ω·𝕀₀Ω and T written as the variational integrator writes them, so that
     # where both run on the same (Ω, σ) (its predictor) LLVM computes them once
-    phi = fma(I.alpha, theta - th.T0, 1.0)
+    phi = inertia_scale(I, th, theta)
     sc = phi * phi
-    dphi = (I.alpha * theta) * th.icv
+    dphi = inertia_scale_rate(I, th, theta)
     K2 = fma(I.I1 * w0, w0, fma(I.I2 * w1, w1, (I.I3 * w2) * w2))
-    T = theta - (phi * dphi) * K2
+    T = theta - temperature_correction(I, th, theta, K2)
     P = sum_dissipated_power(model.forces, I, sc, (w0, w1, w2), None)
     sd = or_zero(P) / T
     a0, a1, a2 = sum_angular_acceleration(model.forces, I, sc, (w0, w1, w2), (G0, G1, G2), NONE3)

@@ -175,12 +175,3 @@ def _make_io(family: str):
 load_rk_state, store_rk_state = _make_io("rk")
 load_vi_state, store_vi_state = _make_io("vi")
 load_split_state, store_split_state = _make_io("split")
-
-
-def state_size(model, family: str) -> int:
-    return state_layout(model, family).size
-
-
-def state_size_of_type(model_type, family: str) -> int:
-    return sum(size for _, size in state_parts(traits(model_type), family))
-

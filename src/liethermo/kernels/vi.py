@@ -73,7 +73,8 @@ from .gen import axpy_opt, finite, none_dispatch, or_zero, overload_by_capabilit
 from .lanemath import expm1_sel
 from .layout import NEWTON_MAXITER, NEWTON_OK, NEWTON_SINGULAR
 from .so3 import attitude_lane, cayley_lane, cross_lane
-from .terms import NONE3, NONE9, sum_discrete_power, sum_linear_friction, sum_nonlinear_friction, sum_torque
+from .terms import (NONE3, NONE9, inertia_scale, inertia_scale_rate, scale_square_change, sum_discrete_power,
+                    sum_linear_friction, sum_nonlinear_friction, sum_torque, temperature_correction)
 from .terms.thermo import entropy_step, temperature
 
 #: friction weights (w_L, w_R): on the Newton side and on the update side
@@ -215,17 +216,17 @@ def _coupled_step(model, v, x0, x1, x2, xs, b0, b1, b2, tn, exact):
 
     (M_h⁰: the discrete Legendre transform of 𝕀₀), solved by block
     elimination of the 3×3 Jacobian of F₁ in X (det is that of the 4×4).
-    θ(σ') = ``tn``; θ(σ'+Δ) = θ(σ')(1 + expm1(Δ/c_v))."""
+    θ(σ') = ``tn``; θ(σ'+Δ) = θ(σ')(1 + expm1(Δ/c_v)); φ, φ′ and the change
+    of φ² are the inertia part's (:func:`.terms.inertia_scale` …)."""
     th = model.thermo
     I = model.inertia
-    al = I.alpha
     thp = tn
     e, ok = expm1_sel(xs * th.icv, exact)
     thn = fma(thp, e, thp)
-    phip = fma(al, thp - th.T0, 1.0)
-    phin = fma(al, thn - th.T0, 1.0)
-    dphin = (al * thn) * th.icv
-    dphi2 = (al * (thp * e)) * (phin + phip)  # φ(σ'+Δ)² − φ(σ')²
+    phip = inertia_scale(I, th, thp)
+    phin = inertia_scale(I, th, thn)
+    dphin = inertia_scale_rate(I, th, thn)
+    dphi2 = scale_square_change(I, th, thp, e)  # φ(σ'+Δ)² − φ(σ')²
     ss = 0.5 * fma(phip, phip, phin * phin)
     a0, a1, a2, A00, A01, A02, A10, A11, A12, A20, A21, A22 = residual_jacobian(
         model, v, x0, x1, x2, 0.0, 0.0, 0.0)
@@ -257,15 +258,6 @@ def _coupled_step(model, v, x0, x1, x2, xs, b0, b1, b2, tn, exact):
 
 newton_step = none_dispatch(_coupled_step, newton_step, arg=5)
 newton_step.__doc__ = _coupled_step.__doc__
-
-
-@lane
-def newton_correction(model, v, x0, x1, x2, xs, b0, b1, b2, s1):
-    """(d₀, d₁, d₂, d_s, det J): :func:`newton_step` at σ' = s1 with the
-    exact operations (what the straightforward kernel computes)."""
-    d0, d1, d2, ds, det, ok = newton_step(model, v, x0, x1, x2, xs, b0, b1, b2,
-                                          newton_data(model.inertia, model, s1), True)
-    return d0, d1, d2, ds, det
 
 
 #: the predicted next Newton correction must be below this fraction of the tolerance
@@ -521,9 +513,8 @@ def _entropy_predictor_coupled(inertia, model, v, X, s):
     x0, x1, x2 = X
     P = fma(or_zero(c0) * x0, x0, fma(or_zero(c1) * x1, x1, (or_zero(c2) * x2) * x2))
     th0 = temperature(th, s)
-    phi = fma(I.alpha, th0 - th.T0, 1.0)
     K2 = fma(I.I1 * x0, x0, fma(I.I2 * x1, x1, (I.I3 * x2) * x2))
-    return v.h * P / (th0 - phi * ((I.alpha * th0) * th.icv) * K2)
+    return v.h * P / (th0 - temperature_correction(I, th, th0, K2))
 
 
 entropy_predictor = overload_by_capability(entropy_predictor, "entropy_dependent_inertia", _entropy_predictor_coupled)

@@ -40,6 +40,7 @@ Study TOML layout::
 from __future__ import annotations
 
 import copy
+import functools
 import hashlib
 import itertools
 import json
@@ -358,65 +359,45 @@ def stack_points(datasets: list[xr.Dataset], points: list[dict], keys: list[str]
 # ----------------------------------------------------------------------------- method variants
 
 def parse_method(spec: str) -> dict:
-    """A method spec → ``{"label", "method", "family", "start", "friction", "entropy"}``.
+    """A method spec → ``{"label", "method", "family", "start", "friction",
+    "entropy", "composition"}`` (what the studies key their cached points on).
 
-    ``"vi"`` is the variational integrator with the package defaults (legendre
-    start, trapezoid friction, symmetric entropy update); variants after colons,
-    in any order and combination, change one choice each: starts ``legendre``,
-    ``node`` (the paper's Ω₀ := Ω(0)), ``staggered``; friction ``trapezoid``,
-    ``endpoint``; entropy ``symmetric``, ``explicit`` — e.g. ``"vi:node:explicit"``
-    for the paper's choices.  ``vi4`` and ``vi6`` accept and ignore variants
-    (they always use legendre, trapezoid, symmetric); explicit methods take
-    none.  The composed methods (vi4, vi6, split4, split6) take a composition,
-    ``small_error`` (the default) or ``triple_jump`` — e.g. ``"vi4:triple_jump"``.
-    The values are the effective ones (None where a choice does not apply), so
-    the dict says what really ran."""
-    from ..methods import COMPOSITION_KINDS, ENTROPY_UPDATES, FRICTION, METHODS, STARTS
+    The spec is a :class:`liethermo.methods.MethodChoice` label (``"vi"``,
+    ``"vi:node:explicit"``, ``"vi4:triple_jump"``; :meth:`MethodChoice.parse`
+    says what it takes); the values are its effective ones (None where a
+    choice does not apply: an explicit method has no start), so the dict
+    says what really ran.  :func:`method_choice` gives the choice itself."""
+    choice = method_choice(spec)
+    return {"label": spec, "method": choice.name, "family": choice.family,
+            "start": choice.start if choice.family == "vi" else None, "friction": choice.friction,
+            "entropy": choice.entropy, "composition": choice.composition}
 
-    parts = spec.split(":") if isinstance(spec, str) else [spec]
-    name = parts[0]
-    if name not in METHODS:
-        raise StudyError(f"methods: unknown method {spec!r}; known methods: {', '.join(sorted(METHODS))}")
-    m = METHODS[name]
-    chosen = {"start": "legendre", "friction": "trapezoid", "entropy": "symmetric",
-              "composition": "small_error"}
-    seen: set[str] = set()
-    for p in parts[1:]:
-        what = ("start" if p in STARTS else "friction" if p in FRICTION
-                else "entropy" if p in ENTROPY_UPDATES else "composition" if p in COMPOSITION_KINDS
-                else None)
-        if what is None:
-            raise StudyError(f"methods: {spec!r}: unknown variant {p!r} (starts: {', '.join(STARTS)}; "
-                             f"friction: {', '.join(FRICTION)}; entropy: {', '.join(ENTROPY_UPDATES)}; "
-                             f"composition: {', '.join(COMPOSITION_KINDS)})")
-        if what == "composition" and not m.composed:
-            raise StudyError(f"methods: {spec!r}: {name} is not composed and takes no composition")
-        if what != "composition" and m.family != "vi":
-            raise StudyError(f"methods: {spec!r}: {name} is explicit and takes no variant")
-        if what in seen:
-            raise StudyError(f"methods: {spec!r}: more than one {what} variant")
-        seen.add(what)
-        chosen[what] = p
-    start = m.effective_start(chosen["start"]) if m.family == "vi" else None
-    return {"label": spec, "method": name, "family": m.family, "start": start,
-            "friction": m.effective_friction(chosen["friction"]),
-            "entropy": m.effective_entropy(chosen["entropy"]),
-            "composition": m.effective_composition(chosen["composition"])}
+
+@functools.lru_cache(maxsize=256)
+def _parse_choice(label):
+    from ..methods import MethodChoice
+
+    try:
+        return MethodChoice.parse(label)
+    except ValueError as exc:
+        raise StudyError(f"methods: {exc}") from None
+
+
+def method_choice(spec) -> "MethodChoice":
+    """The :class:`liethermo.methods.MethodChoice` of a method label or of a
+    parsed spec (:func:`parse_method`)."""
+    return _parse_choice(spec["label"] if isinstance(spec, dict) else spec)
 
 
 def method_kwargs(spec: dict) -> dict:
-    """The ``simulate`` keywords of a parsed method spec."""
-    return {"friction": spec["friction"] or "trapezoid", "start": spec["start"] or "legendre",
-            "entropy": spec["entropy"] or "symmetric",
-            "composition": spec.get("composition") or "small_error"}
+    """The ``simulate`` keywords of a parsed method spec (passing
+    :func:`method_choice` as the method, :func:`simulate` needs none)."""
+    return method_choice(spec).asked()
 
 
 def method_overrides(spec: dict) -> dict:
     """Scene overrides that make a scene run a parsed method spec."""
-    kw = method_kwargs(spec)
-    return {"integrator.method": spec["method"], "integrator.start": kw["start"],
-            "integrator.friction": kw["friction"], "integrator.entropy": kw["entropy"],
-            "integrator.composition": kw["composition"]}
+    return method_choice(spec).overrides()
 
 
 # ----------------------------------------------------------------------------- closing table

@@ -524,7 +524,7 @@ def _report(s, outdir, opt, reduced, ds, oset, dset, specs, labels, scene0, nc, 
         _finding(kdf, mdf, odf, ddf, opt, labels, ref_lab),
         f"Scene `{scene0['scene']['name']}`: the paper's top (principal moments 𝕀₀ = "
         f"{', '.join(f'{x:.4g}' for x in phys0.inertia[0])} kg m², Stokes friction c = "
-        f"{float(phys0.friction[0, 0]):.4g} N m s, |g⃗| = m g ℓ = {float(np.linalg.norm(phys0.gravity_torque[0])):.4g} "
+        f"{float(phys0.stokes_resistance[0, 0]):.4g} N m s, |g⃗| = m g ℓ = {float(np.linalg.norm(phys0.gravity_torque[0])):.4g} "
         f"N m) with heat capacity c_v = {float(phys0.heat_capacity[0]):.4g} J/K and 𝕀(S) = 𝕀₀(1 + α(θ − T₀))², "
         f"T₀ = {float(phys0.T0[0]):g} K. {members} members, random attitudes and spins (|Ω₀| in "
         f"{scene0['ensemble']['spin_range']} × {np.linalg.norm(scene0['initial']['omega']):.4g} rad/s, seed "

@@ -214,10 +214,10 @@ def jacobian_condition(tr, h: float) -> np.ndarray:
 def _map_physics(scene, N: int, kappa: np.ndarray, h: float) -> Physics:
     """The scene's physics for N members with the friction scaled to κ = c_max h / I_min."""
     phys = physics_of_scene(scene, N)
-    C = phys.friction[0]
+    C = phys.stokes_resistance[0]
     shape = C / C.max() if C.max() > 0 else np.ones(3)
     c = kappa * phys.inertia.min(axis=1) / h
-    return dataclasses.replace(phys, friction=c[:, None] * shape[None, :])
+    return dataclasses.replace(phys, stokes_resistance=c[:, None] * shape[None, :])
 
 
 def map_point(scene, opt: dict, method: str) -> xr.Dataset:
@@ -241,7 +241,7 @@ def map_point(scene, opt: dict, method: str) -> xr.Dataset:
     fail = np.where(tr.status != 0, tr.fail_step, -1)
     dims = ("h_omega", "kappa")
     visc = float(scene["fluid"]["viscosity"])
-    c_scene = float(physics_of_scene(scene).friction.max())
+    c_scene = float(physics_of_scene(scene).stokes_resistance.max())
     return xr.Dataset({
         "regime": (dims, cls.reshape(shape)),
         "status": (dims, tr.status.reshape(shape)),
@@ -253,7 +253,7 @@ def map_point(scene, opt: dict, method: str) -> xr.Dataset:
         "newton_mean": (dims, (tr.newton_iterations / np.maximum(tr.steps_done, 1)).reshape(shape)),
         "failed_at_step": (dims, fail.reshape(shape)),
         "max_h_omega": (dims, tr.max_h_omega.reshape(shape)),
-        "viscosity_equivalent": (dims, (phys.friction.max(axis=1) * (visc / c_scene if c_scene > 0 else np.nan))
+        "viscosity_equivalent": (dims, (phys.stokes_resistance.max(axis=1) * (visc / c_scene if c_scene > 0 else np.nan))
                                  .reshape(shape)),
     }, coords={"h_omega": hw, "kappa": ka})
 
@@ -275,7 +275,7 @@ def case_point(scene, case: dict, method: str) -> xr.Dataset:
         "newton_max": tr.newton_max[0], "newton_mean": tr.newton_iterations[0] / max(tr.steps_done[0], 1),
         "jacobian_cond_max": cond, "error_max": dg["error_max"][0], "error_end": dg["error_end"][0],
         "energy_growth": dg["energy_growth"][0], "gamma_defect": dg["gamma_defect"][0],
-        "kappa": phys.friction[0].max() * h / phys.inertia[0].min(), "wall": wall,
+        "kappa": phys.stokes_resistance[0].max() * h / phys.inertia[0].min(), "wall": wall,
     }.items()})
 
 

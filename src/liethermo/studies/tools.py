@@ -21,7 +21,7 @@ import numpy as np
 from ..dataset import node_energies
 from ..physics import Physics, kinetic_energy, mechanical_energy_scale, potential_energy
 from ..simulate import Trajectory, simulate
-from .common import method_kwargs
+from .common import method_choice
 
 #: the sentence every report uses to say what node values are
 NODE_VALUES_NOTE = (
@@ -33,8 +33,8 @@ NODE_VALUES_NOTE = (
 
 
 def run_spec(phys: Physics, omega0, R0, h: float, steps: int, spec: dict, **kw) -> Trajectory:
-    """:func:`simulate` with the method, start, friction and entropy of a parsed spec."""
-    return simulate(phys, omega0, R0, h, steps, spec["method"], **method_kwargs(spec), **kw)
+    """:func:`simulate` with the method choice of a parsed spec."""
+    return simulate(phys, omega0, R0, h, steps, method_choice(spec), **kw)
 
 
 def repeat_timing(fn, min_time: float, measure=None, max_repeats: int = 1000) -> np.ndarray:
@@ -86,7 +86,7 @@ def kelvin_noether_residual(traj: Trajectory) -> np.ndarray:
     substep; the stored steps are whole steps, so with friction it is checked
     only for ``vi`` (NaN for the others); without friction it reads
     J_{k+1} = J_k for every variational method."""
-    frictionless = not np.any(traj.physics.friction != 0.0)
+    frictionless = not np.any(traj.physics.stokes_resistance != 0.0)
     if traj.family != "vi" or traj.every != 1 or (traj.method != "vi" and not frictionless):
         return np.full(traj.states.shape[0], np.nan)
     from ..kernels.vi import FRICTION_WEIGHTS
@@ -95,7 +95,7 @@ def kelvin_noether_residual(traj: Trajectory) -> np.ndarray:
     G = traj.gamma
     mu = traj.momentum
     X = traj.omega_step
-    C = traj.physics.friction[:, None, :]
+    C = traj.physics.stokes_resistance[:, None, :]
     J = np.sum(G * mu, axis=-1)
     CX = C * X[:, :-1]
     res = J[:, 1:] - J[:, :-1] + traj.h * np.sum((wl * G[:, :-1] + wr * G[:, 1:]) * CX, axis=-1)
@@ -114,7 +114,7 @@ def continuous_kelvin_noether_residual(traj: Trajectory) -> np.ndarray:
     G = traj.gamma
     mu = phys.inertia[:, None, :] * om if traj.family != "vi" else traj.momentum
     J = np.sum(G * mu, axis=-1)
-    f = np.sum(G * phys.friction[:, None, :] * om, axis=-1)
+    f = np.sum(G * phys.stokes_resistance[:, None, :] * om, axis=-1)
     dt = traj.h * traj.every
     res = J[:, 1:] - J[:, :-1] + 0.5 * dt * (f[:, 1:] + f[:, :-1])
     scale = np.nanmax(np.linalg.norm(mu, axis=-1), axis=1)

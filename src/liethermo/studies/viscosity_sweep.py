@@ -81,7 +81,7 @@ def validate(study: dict) -> None:
 
 def run_length(phys: Physics, opt: dict) -> float:
     """t_end = factor × max(I_max/c, c/mgℓ) of member 0, clipped (c: the largest Stokes coefficient)."""
-    c = float(phys.friction[0].max())
+    c = float(phys.stokes_resistance[0].max())
     Imax = float(phys.inertia[0].max())
     g = float(np.linalg.norm(phys.gravity_torque[0]))
     tau = Imax / c
@@ -143,7 +143,7 @@ def sweep_point(scene, opt: dict) -> xr.Dataset:
         "mech_energy_final": ("member", E[:, -1]),
         # heat check: U(S) - U(S0) against the mechanical energy lost
         "heat_ratio": ("member", e["dU"][:, -1] / (E0 - E[:, -1])),
-        "entropy_rate_initial": ("member", np.sum(phys.friction * om * om, axis=1) / T0),
+        "entropy_rate_initial": ("member", np.sum(phys.stokes_resistance * om * om, axis=1) / T0),
         "status": ("member", tr.status.astype(np.int8)),
     }
     for ti in opt["entropy_times"]:

@@ -15,6 +15,7 @@ from .. import __version__, cf
 from ..methods import COMPOSITION_FACTORS, LAW_ENTROPY_MONOTONE
 from . import kernels as zk
 from .. import heat as _heat
+from ..faults import check_stop
 from .scene import ZeitlinScene
 
 #: per-member status (dataset variable ``status``)
@@ -291,6 +292,7 @@ def integrate(scene: ZeitlinScene, W0: np.ndarray, *, method: str | None = None,
     bar = tqdm(total=steps, desc=f"{scene.name} {method}", unit="step", leave=False,
                disable=None if progress is None else not progress)
     for k in range(1, steps + 1):
+        check_stop()
         if active.size == 0:
             break
         Wa, qa = W[active], q[active]
@@ -332,6 +334,7 @@ def reference_run(W0, times, nu, b, Ws, qs, status, progress):
 
     for k in tqdm(range(W0.shape[0]), desc="reference", unit="member", leave=False,
                   disable=None if progress is None else not progress):
+        check_stop()
         y0 = np.concatenate([np.ascontiguousarray(W0[k]).ravel().view(np.float64), [0.0]])
         atol = REFERENCE_RTOL * np.abs(W0[k]).max()
         sol = solve_ivp(f, (0.0, times[-1]), y0, method="DOP853", t_eval=times, rtol=REFERENCE_RTOL, atol=atol)

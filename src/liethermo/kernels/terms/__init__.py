@@ -61,6 +61,21 @@ Protocol (lane functions; vectors are 3-tuples, ``w`` = (Ω₁, Ω₂, Ω₃), `
     fixed): the new body momentum μ and the heat q (J) with the kinetic
     energy the flow dissipated added (the splitting integrators; a term
     with this flow declares the capability ``"exact_flow"``).
+
+The inertia slot, when its part declares ``"entropy_dependent_inertia"``
+(𝕀(S) = φ(S)² 𝕀₀), tells the solvers its law through these (``thermo`` the
+model's internal energy, ``theta`` = θ(S) = U′(S)); the solvers never spell
+φ out, so another law is another inertia part:
+
+``inertia_scale(inertia, thermo, theta) -> φ``
+    the factor φ(S) of the moments (1 for a constant inertia);
+``inertia_scale_rate(inertia, thermo, theta) -> φ′``
+    its derivative dφ/dS (1/(J K⁻¹));
+``scale_square_change(inertia, thermo, theta, e) -> φ(S')² − φ(S)²``
+    over a step from θ(S) to θ(S') = θ(S)(1 + e), without cancellation;
+``temperature_correction(inertia, thermo, theta, K2) -> φφ′ K2``
+    what the temperature T = −∂L/∂S lies below θ(S) at Ω·𝕀₀Ω = ``K2``
+    (½ Ω·𝕀′(S)Ω).
 """
 
 from __future__ import annotations
@@ -122,6 +137,11 @@ linear_friction = _protocol("linear_friction", "term, c", "c")
 torque = _protocol("torque", "term, G, t", "t")
 exact_flow = _protocol("exact_flow", "term, inertia, t, G, m, q", "m, q")
 nonlinear_friction = _protocol("nonlinear_friction", "term, inertia, h, x, f, J", "f, J")
+#: the inertia slot's dependence on the entropy (the term argument is the inertia part)
+inertia_scale = _protocol("inertia_scale", "term, thermo, theta", "1.0")
+inertia_scale_rate = _protocol("inertia_scale_rate", "term, thermo, theta", "0.0")
+scale_square_change = _protocol("scale_square_change", "term, thermo, theta, e", "0.0")
+temperature_correction = _protocol("temperature_correction", "term, thermo, theta, K2", "0.0")
 
 
 def implements(protocol, cls):
@@ -289,6 +309,25 @@ class Term:
         break because of this term."""
         return ()
 
+    def start_problem(self, scene, phys, kin2: float, what: str) -> tuple[str, str] | None:
+        """(key, why) when some member of ``scene`` cannot start (its initial
+        state breaks a law the term needs), None when all can; ``kin2``
+        bounds Ω·𝕀₀Ω over the members, ``what`` says how (for the message)."""
+        return None
+
+    def vi_refusal(self, start: str, friction: str) -> tuple[str, str] | None:
+        """(key, why) when the variational integrator cannot run this term's
+        model, where it acts and something rubs, from the effective ``start``
+        or with the effective ``friction``; None when it can.  The one
+        statement of that rule: the scene's checks and
+        :func:`liethermo.simulate.simulate` both ask it."""
+        return None
+
+    def expansion(self, phys, theta) -> tuple[np.ndarray, np.ndarray] | None:
+        """(φ, φ′) with 𝕀(S) = φ²𝕀₀ at θ(S) (N, ...), in plain numpy, for a
+        term that makes the inertia depend on the entropy; None otherwise."""
+        return None
+
     def refuses(self, family: str, method: str) -> str | None:
         """Why ``method`` (of ``family``: "vi", "rk" or "split") cannot run a
         model with this term (None: it can)."""
@@ -407,4 +446,5 @@ def registry() -> Registry:
 
 
 __all__ = ["Model", "ATTITUDE", "Attitude", "angular_acceleration", "dissipated_power",
-           "discrete_power", "linear_friction", "torque", "nonlinear_friction", "exact_flow", "implements", "types", "NONE3", "NONE9", "LAWS", "LAW_SPHERICAL_DECAY", "LAW_LAGRANGE_OMEGA3", "LAW_MOMENTUM_NORM", "Term", "ScalarTerm", "Setting", "Parameter", "Registry", "registry", "bcast", "over_inertia"]
+           "discrete_power", "linear_friction", "torque", "nonlinear_friction", "exact_flow",
+           "inertia_scale", "inertia_scale_rate", "scale_square_change", "temperature_correction", "implements", "types", "NONE3", "NONE9", "LAWS", "LAW_SPHERICAL_DECAY", "LAW_LAGRANGE_OMEGA3", "LAW_MOMENTUM_NORM", "Term", "ScalarTerm", "Setting", "Parameter", "Registry", "registry", "bcast", "over_inertia"]

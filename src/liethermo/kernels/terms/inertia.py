@@ -24,7 +24,8 @@ import numpy as np
 
 from .._jit import fma, lane
 from ..gen import none_dispatch
-from . import LAW_MOMENTUM_NORM, Parameter, ScalarTerm, Setting, bcast
+from . import (LAW_MOMENTUM_NORM, Parameter, ScalarTerm, Setting, bcast, implements, inertia_scale,
+               inertia_scale_rate, scale_square_change, temperature_correction)
 
 
 class ConstantInertia(namedtuple("ConstantInertia",
@@ -42,6 +43,44 @@ class ThermalInertia(namedtuple("ThermalInertia",
     #: the temperature correction and the variational integrator solves for
     #: σ_{k+1} together with the step velocity
     CAPABILITIES = frozenset({"entropy_dependent_inertia"})
+
+
+# ----------------------------------------------------------------------------- 𝕀(S) = φ(S)² 𝕀₀
+# φ = 1 + α(θ − T₀), θ = U′(S); each written once, in the operations the
+# solvers used to spell out (so the kernels keep their bits)
+
+
+@lane
+def _phi(term, thermo, theta):
+    return fma(term.alpha, theta - thermo.T0, 1.0)
+
+
+@lane
+def _dphi(term, thermo, theta):
+    """φ′ = dφ/dS = αθ′(S) = αθ/c_v."""
+    return (term.alpha * theta) * thermo.icv
+
+
+@implements(inertia_scale, ThermalInertia)
+def _thermal_scale(term, thermo, theta):
+    return _phi(term, thermo, theta)
+
+
+@implements(inertia_scale_rate, ThermalInertia)
+def _thermal_scale_rate(term, thermo, theta):
+    return _dphi(term, thermo, theta)
+
+
+@implements(scale_square_change, ThermalInertia)
+def _thermal_scale_square_change(term, thermo, theta, e):
+    """φ(S')² − φ(S)² = (φ' − φ)(φ' + φ), φ' − φ = α(θ' − θ) = αθe."""
+    return (term.alpha * (theta * e)) * (_phi(term, thermo, fma(theta, e, theta)) + _phi(term, thermo, theta))
+
+
+@implements(temperature_correction, ThermalInertia)
+def _thermal_temperature_correction(term, thermo, theta, K2):
+    """½ Ω·𝕀′(S)Ω = φφ′ Ω·𝕀₀Ω."""
+    return (_phi(term, thermo, theta) * _dphi(term, thermo, theta)) * K2
 
 
 def _base(I: np.ndarray) -> np.ndarray:
@@ -192,11 +231,22 @@ class _ThermalExpansion(ScalarTerm):
         integ = s["integrator"]
         vi_plain = integ["method"] == "vi" or "vi" in s["output"]["compare"]
         rubs = any(t.friction and t.in_scene(s) for t in registry())
-        if vi_plain and rubs and integ["start"] != "legendre":
-            yield ("integrator.start", 'the coupled top (body.thermal_expansion > 0) starts '
-                   'from its node momentum: use "legendre"', integ["start"])
-        if vi_plain and rubs and integ["friction"] == "endpoint":
-            yield ("integrator.friction", "the coupled top has the trapezoid friction only", "endpoint")
+        if vi_plain and rubs:
+            for key, value in (("integrator.start", integ["start"]), ("integrator.friction", integ["friction"])):
+                problem = self.vi_refusal(integ["start"] if key.endswith("start") else "legendre",
+                                          integ["friction"] if key.endswith("friction") else "trapezoid")
+                if problem is not None:
+                    yield (problem[0], problem[1], value)
+
+    def vi_refusal(self, start: str, friction: str) -> tuple[str, str] | None:
+        """The coupled top's variational integrator solves for σ_{k+1} with the
+        step velocity from the node momentum, with the trapezoid friction."""
+        if start != "legendre":
+            return ("integrator.start", 'the coupled top (body.thermal_expansion > 0) starts '
+                    'from its node momentum: use "legendre"')
+        if friction == "endpoint":
+            return ("integrator.friction", "the coupled top has the trapezoid friction only")
+        return None
 
     def start_problem(self, scene, phys, kin2: float, what: str) -> tuple[str, str] | None:
         """The coupled top's temperature T = θ − φφ′ Ω·𝕀₀Ω must start positive

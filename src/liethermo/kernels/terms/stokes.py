@@ -187,10 +187,10 @@ class _Stokes(Term):
     settings = (Setting("fluid", "viscosity", 0.1, "kg m-1 s-1",
                         "dynamic viscosity μ of the Stokes fluid (friction torque −CΩ)"),)
     parameters = (
-        Parameter("friction", (3,), "N m s", "Stokes resistance C",
+        Parameter("stokes_resistance", (3,), "N m s", "Stokes resistance C",
                   comment="rotational Stokes resistance: friction torque -C Omega",
                   variable="friction_coefficients", always=True),
-        Parameter("isotropic_friction", None, "",
+        Parameter("isotropic_resistance", None, "",
                   "C = c Id for every member (a sphere): the kernels use the scalar form",
                   variable="", default=True),
     )
@@ -206,25 +206,25 @@ class _Stokes(Term):
         mu = float(scene["fluid"]["viscosity"])
         if body.sphere_radius is not None:
             c = 8.0 * math.pi * mu * body.sphere_radius ** 3
-            return {"friction": np.array([c, c, c]), "isotropic_friction": True}
+            return {"stokes_resistance": np.array([c, c, c]), "isotropic_resistance": True}
         C = jeffery_resistance(body.semi_axes, mu)[0]
         G = body.center_of_mass
         if np.any(G != 0.0):  # the centre, at G from the pivot, is dragged through the fluid
             C = C + np.diag(pivot_drag(oberbeck_resistance(body.semi_axes, mu)[0], G))
-        return {"friction": C, "isotropic_friction": False}
+        return {"stokes_resistance": C, "isotropic_resistance": False}
 
     def active(self, phys) -> np.ndarray:
-        return np.any(phys.friction != 0.0, axis=-1)
+        return np.any(phys.stokes_resistance != 0.0, axis=-1)
 
     def dissipates(self, phys) -> bool:
-        return bool(np.any(phys.friction != 0.0))
+        return bool(np.any(phys.stokes_resistance != 0.0))
 
     def kernel_parts(self, phys) -> list:
-        if not np.any(phys.friction != 0.0):
+        if not np.any(phys.stokes_resistance != 0.0):
             return []
-        if phys.isotropic_friction:
-            return [("forces", StokesSphere, sphere_coefficients(phys.friction[:, 0], phys.inertia))]
-        return [("forces", StokesDiagonal, diagonal_coefficients(phys.friction, phys.inertia))]
+        if phys.isotropic_resistance:
+            return [("forces", StokesSphere, sphere_coefficients(phys.stokes_resistance[:, 0], phys.inertia))]
+        return [("forces", StokesDiagonal, diagonal_coefficients(phys.stokes_resistance, phys.inertia))]
 
     def violations(self, s: dict):
         body = s["body"]
@@ -245,13 +245,13 @@ class _Stokes(Term):
 
     def keeps(self, law, phys):
         if law == LAW_SPHERICAL_DECAY:  # −CΩ with C = c·Id
-            return self._isotropic(phys.friction)
+            return self._isotropic(phys.stokes_resistance)
         if law == LAW_LAGRANGE_OMEGA3:  # C is diagonal in the body axes: −C₃Ω₃
             return np.ones(phys.n, dtype=bool)
         return super().keeps(law, phys)
 
     def summary_lines(self, phys) -> list[str]:
-        C, I0 = phys.friction, phys.inertia
+        C, I0 = phys.stokes_resistance, phys.inertia
         if not np.any(C != 0.0):
             return []
         with np.errstate(divide="ignore"):
@@ -266,13 +266,13 @@ class _Stokes(Term):
                 f"                            decay times I_i/C_i = {times} s"]
 
     def torque(self, phys, omega, gamma, scale):
-        return -bcast(phys.friction, omega) * omega
+        return -bcast(phys.stokes_resistance, omega) * omega
 
     def dissipated_power(self, phys, omega, scale):
-        return np.sum(bcast(phys.friction, omega) * omega * omega, axis=-1)
+        return np.sum(bcast(phys.stokes_resistance, omega) * omega * omega, axis=-1)
 
     def rate_bound(self, phys, omega_max):
-        return phys.friction.max(axis=1) / phys.inertia.min(axis=1)
+        return phys.stokes_resistance.max(axis=1) / phys.inertia.min(axis=1)
 
 
 TERM = _Stokes()
