@@ -554,16 +554,16 @@ def register_model(model: OtherModel) -> None:
 
 
 def _other_models() -> list[OtherModel]:
-    """The registered models, once the modules the package names in
-    ``liethermo.MODEL_MODULES`` have registered theirs (imported here, on
-    first need, so that ``import liethermo`` stays light)."""
-    import importlib
+    """The scene sides of the models registered with :mod:`liethermo.models`
+    (their modules, ``liethermo.MODEL_MODULES``, imported on first need, so
+    that ``import liethermo`` stays light), and any registered here."""
+    from .models import models
 
-    import liethermo
-
-    for name in liethermo.MODEL_MODULES:
-        importlib.import_module(name)
-    return _OTHER_MODELS
+    out = list(_OTHER_MODELS)
+    for m in models():
+        if not m.is_default and m.scene_model is not None and all(o.name != m.scene_model.name for o in out):
+            out.append(m.scene_model)
+    return out
 
 
 def _other_model(tables) -> OtherModel | None:
@@ -623,7 +623,7 @@ def load_scene(source: str | Path | dict | Scene | None = "paper",
 
 
 def scene_to_toml(scene) -> str:
-    return scene.to_toml() if isinstance(scene, Scene) else tomli_w.dumps(scene)
+    return scene.to_toml() if hasattr(scene, "to_toml") else tomli_w.dumps(scene)
 
 
 def validate(scene: dict) -> Scene:

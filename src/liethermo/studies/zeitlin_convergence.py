@@ -41,7 +41,7 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress=None, dask=None, h
     s, outdir, opt = start_study(study, outdir, reduced, validate, options)
     sc = zeitlin_scene(s)
     b = zk.basis(sc["zeitlin"]["N"])
-    nu = float(sc["fluid"]["viscosity"])
+    nu = float(sc["fluid"]["kinematic_viscosity"])
     T = float(opt["t_end"])
     W0 = zr.initial_fields(sc)
     M = W0.shape[0]

@@ -127,7 +127,7 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress=None, dask=None, h
                if shrink else
                f"The differences to the next N do not shrink at every N ({', '.join(f'{v:.2g}' for v in nxt[:-1])})")
     text = (f"Scene {sc0.name!r}: {sc0['ensemble']['members']} members, ν = "
-            f"{sc0['fluid']['viscosity']:g} s⁻¹, initial degrees l ≤ {sc0['initial']['lmax']} (the same "
+            f"{sc0['fluid']['kinematic_viscosity']:g} s⁻¹, initial degrees l ≤ {sc0['initial']['lmax']} (the same "
             f"coefficients at every N), method {opt['method']}, h = {itg['h']:g} s, t = {t_end:g} s.  "
             f"Differences are Σ_l |ΔE_l| over the degrees l ≤ {L} that every N resolves, over H(0).  "
             f"{verdict}."

@@ -77,7 +77,7 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress=None, dask=None, h
     T, samples = float(opt["t_end"]), int(opt["samples"])
     for N in opt["N"]:
         for nu in opt["viscosity"]:
-            sc = zeitlin_scene(s, {"zeitlin.N": int(N), "fluid.viscosity": float(nu)})
+            sc = zeitlin_scene(s, {"zeitlin.N": int(N), "fluid.kinematic_viscosity": float(nu)})
             b = zk.basis(int(N))
             W0 = zr.initial_fields(sc)
             for m in split_methods:

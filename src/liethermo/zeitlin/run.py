@@ -123,8 +123,12 @@ class Predictor:
 
     COEF = {1: (1.0,), 2: (2.0, -1.0), 3: (3.0, -3.0, 1.0), 4: (4.0, -6.0, 4.0, -1.0)}
 
-    def __init__(self, substeps: int, M: int, N: int, order: int = 4, budget: int = 2**29):
-        per = substeps * M * N * N * 16
+    def __init__(self, substeps: int, M: int, N: int, order: int = 4, budget: int = 2**29,
+                 budget_members: int | None = None):
+        # the order is set by ``budget_members`` (default M): a run in member chunks
+        # gives every chunk the order of the largest, so a member's bits do not
+        # depend on the chunk it is computed in
+        per = substeps * (M if budget_members is None else budget_members) * N * N * 16
         self.order = min(order, budget // per) if per else order
         self.shape = (M, N, N)
         self.hist: list[list[np.ndarray]] = [[] for _ in range(substeps)]
@@ -243,14 +247,16 @@ class Trajectory:
 
 
 def integrate(scene: ZeitlinScene, W0: np.ndarray, *, method: str | None = None, progress=None,
-              keep_vorticity: bool | None = None) -> Trajectory:
+              keep_vorticity: bool | None = None, budget_members: int | None = None) -> Trajectory:
     """Integrate the members W0 with the scene's method; outputs every
     output.every steps.  ``keep_vorticity``: keep W of every member at every
-    output (default: the scene's output.vorticity)."""
+    output (default: the scene's output.vorticity).  ``budget_members``: the
+    batch size that sets the fixed point predictor's order (default: W0's;
+    see :class:`Predictor`)."""
     z, itg, out = scene["zeitlin"], scene["integrator"], scene["output"]
     method = method or itg["method"]
     b = zk.basis(z["N"])
-    nu = float(scene["fluid"]["viscosity"])
+    nu = float(scene["fluid"]["kinematic_viscosity"])
     h, steps, every = float(itg["h"]), int(itg["steps"]), int(out["every"])
     M = W0.shape[0]
     n_out = steps // every + 1
@@ -280,7 +286,7 @@ def integrate(scene: ZeitlinScene, W0: np.ndarray, *, method: str | None = None,
     active = np.arange(M)
     acc_its = np.zeros(M)
     guess = np.zeros_like(W)
-    predictor = Predictor(len(fac), M, b.N) if method != "rk4" else None
+    predictor = Predictor(len(fac), M, b.N, budget_members=budget_members) if method != "rk4" else None
     bar = tqdm(total=steps, desc=f"{scene.name} {method}", unit="step", leave=False,
                disable=None if progress is None else not progress)
     for k in range(1, steps + 1):
@@ -343,7 +349,10 @@ def _var(data, dims, units, long_name, **extra):
     return xr.Variable(dims, data, {"units": units, "long_name": long_name, **extra})
 
 
-def trajectory_dataset(scene: ZeitlinScene, traj: Trajectory, method: str, history: str | None = None) -> xr.Dataset:
+def trajectory_dataset(scene: ZeitlinScene, traj: Trajectory, method: str, history: str | None = None,
+                       member_offset: int = 0, attrs: dict | None = None) -> xr.Dataset:
+    """The labelled dataset of members ``member_offset + (0 … M−1)``; ``attrs``:
+    its global attributes (default: :func:`run_attrs` and the kernel time)."""
     b = zk.basis(scene["zeitlin"]["N"])
     cv, T0 = scene["thermo"]["heat_capacity"], scene["thermo"]["T0"]
     r = traj.out
@@ -391,7 +400,7 @@ def trajectory_dataset(scene: ZeitlinScene, traj: Trajectory, method: str, histo
         data["vorticity_imag"] = _var(r.W.imag, dims_w, "s-1", "vorticity W, imag. part", comment=how)
     steps = np.arange(traj.times.size) * int(scene["output"]["every"])  # t_j = j every h
     coords = {
-        "member": _var(np.arange(M), ("member",), "1", "ensemble member"),
+        "member": _var(np.arange(member_offset, member_offset + M), ("member",), "1", "ensemble member"),
         "t": _var(cf.decimal_times(steps, scene["integrator"]["h"]), ("t",), "s", "time t",
                   comment="time since the start of the run (the decimal value of k h)"),
         "k": _var(np.array([2, 3, 4]), ("k",), "1", "power k of the Casimir"),
@@ -399,6 +408,15 @@ def trajectory_dataset(scene: ZeitlinScene, traj: Trajectory, method: str, histo
         "l": _var(np.arange(1, b.N), ("l",), "1", "degree l",
                   comment="degree l of the spherical harmonics"),
     }
+    if attrs is None:
+        attrs = run_attrs(scene, method, history)
+        attrs["kernel_seconds"] = traj.kernel_seconds
+    return xr.Dataset(data, coords=coords, attrs=attrs)
+
+
+def run_attrs(scene: ZeitlinScene, method: str, history: str | None = None) -> dict:
+    """The global attributes of a run's dataset (without its kernel time)."""
+    N = scene["zeitlin"]["N"]
     itg = scene["integrator"]
     created = cf.timestamp()
     attrs = {
@@ -410,10 +428,9 @@ def trajectory_dataset(scene: ZeitlinScene, traj: Trajectory, method: str, histo
         "method_order": METHOD_ORDER[method],
         "composition": itg["composition"] if method in ("split4", "split6") else "none",
         "N": scene["zeitlin"]["N"],
-        "hbar": b.hbar,
+        "hbar": zk.hbar(N),
         "h": float(itg["h"]),
         "h_units": "s",
-        "kernel_seconds": traj.kernel_seconds,
         "scene": scene.to_toml(),
         "software": f"liethermo {__version__}",
         "software_version": __version__,
@@ -423,7 +440,7 @@ def trajectory_dataset(scene: ZeitlinScene, traj: Trajectory, method: str, histo
         "references": "Zeitlin (1991, 2004); Modin & Viviani (2020), the isospectral midpoint; "
                       "liethermo docs/model.md, the thermodynamic Zeitlin fluid",
     }
-    return xr.Dataset(data, coords=coords, attrs=attrs)
+    return attrs
 
 
 def vorticity_coefficients(ds: xr.Dataset) -> xr.DataArray:
@@ -464,7 +481,7 @@ def _summary(ds: xr.Dataset) -> str:
     its = ds["fixed_point_iterations"].values[:, 1:]
     import tomllib
 
-    viscous = tomllib.loads(ds.attrs["scene"])["fluid"]["viscosity"] > 0
+    viscous = tomllib.loads(ds.attrs["scene"])["fluid"]["kinematic_viscosity"] > 0
     casimir_words = ("tr W² (∫ω² dA) changed by {:.2e} (viscosity dissipates it)" if viscous
                      else "tr W² drift ≤ {:.2e} (∫ω² dA)")
     lines = [f"{ds.attrs['method']}: {M} member(s), N = {ds.attrs['N']}, h = {ds.attrs['h']:g} s, "
