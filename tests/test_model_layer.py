@@ -186,3 +186,24 @@ def test_a_model_of_the_tests_runs_through_the_api_and_the_command_line(toy, tmp
     assert "toy.rate [s-1] = 0.5" in capsys.readouterr().out
     assert main(["run", str(scene), "--set", "toy.rate=-1", "--check"]) == 2
     assert "'toy.rate'" in capsys.readouterr().err
+
+
+def test_the_fluid_decay_study_goes_on_from_its_finished_points(tmp_path, monkeypatch):
+    from liethermo.studies.runner import load_study, run_study
+    from liethermo.zeitlin import run as zr
+
+    study = load_study(Path(__file__).resolve().parents[1] / "studies" / "zeitlin_decay.toml")
+    run_study(study, tmp_path / "a", reduced=True, progress=False)
+    points = sorted((tmp_path / "a" / "points").glob("*.nc"))
+    assert len(points) == 2  # one per viscosity of the reduced sweep
+    first = values(next((tmp_path / "a").glob("*.nc")))
+    points[0].unlink()  # as a study killed after its first point leaves it
+    calls = []
+    real = zr.simulate
+    monkeypatch.setattr(zr, "simulate", lambda sc, **kw: calls.append(sc) or real(sc, **kw))
+    run_study(study, tmp_path / "a", reduced=True, progress=False)
+    steps = [int(sc["integrator"]["steps"]) for sc in calls]
+    assert len(steps) == 2 and min(steps) == int(calls[0]["output"]["every"])  # one point and the attributes' template
+    again = values(next((tmp_path / "a").glob("*.nc")))
+    for name in ("energy", "heat", "entropy"):
+        assert again[name].tobytes() == first[name].tobytes(), name

@@ -15,13 +15,12 @@
   whole ensemble (16 bytes per complex entry), the splitting's predictor of
   the next fixed point (at most 512 MiB), and what is kept for the output.
 
-This module is the fluid's preflight until the run layer gives every model
-one; it is called where ``--check`` is handled and before a long run.
+The run layer's disk and memory checks use :meth:`liethermo.zeitlin.model.Fluid.estimate`;
+this module gives the time (``--check``, and before a long run) and the basis's cost.
 """
 
 from __future__ import annotations
 
-import os
 import sys
 import time
 from dataclasses import dataclass, field
@@ -72,10 +71,9 @@ def run_bytes(scene, method: str | None = None) -> int:
 
 
 def _available_bytes() -> int | None:
-    try:
-        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_AVPHYS_PAGES")
-    except (ValueError, OSError, AttributeError):
-        return None
+    from ..preflight import available_memory
+
+    return available_memory()
 
 
 def probe_step_seconds(scene, method: str) -> tuple[float, int, int]:

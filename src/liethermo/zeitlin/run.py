@@ -1,9 +1,10 @@
 """Ensembles of the thermodynamic Zeitlin fluid: initial fields, the methods'
-steps over a batch of members, and the dataset a run writes."""
+steps over a batch of members, and the dataset of a member chunk.  Runs with
+an output go through the common runner (:mod:`liethermo.zeitlin.model`);
+:func:`simulate` is the in-memory run the studies and tests use."""
 
 from __future__ import annotations
 
-import os
 import platform
 import time as _time
 from dataclasses import dataclass
@@ -496,8 +497,10 @@ def _summary(ds: xr.Dataset) -> str:
 
 
 def check_memory(scene: ZeitlinScene) -> None:
-    """A run keeps W of every member at every output only with output.vorticity:
-    refuse one whose W would not fit in half of this machine's memory."""
+    """An in-memory run keeps W of every member at every output only with
+    output.vorticity: refuse one whose W would not fit in half of the memory
+    available (:func:`liethermo.preflight.available_memory`, cgroup limits included)."""
+    from ..preflight import available_memory
     from ..scene import SceneError
 
     if not scene["output"]["vorticity"]:
@@ -505,13 +508,12 @@ def check_memory(scene: ZeitlinScene) -> None:
     M, N = scene["ensemble"]["members"], scene["zeitlin"]["N"]
     T = scene["integrator"]["steps"] // scene["output"]["every"] + 1
     need = 16 * M * T * N * N
-    try:
-        have = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    except (ValueError, OSError, AttributeError):
+    have = available_memory()
+    if have is None:
         return
     if need > have / 2:
         raise SceneError("output.vorticity", f"W of {M} members at {T} output times, N = {N}, needs "
-                         f"{need / 2**30:.1f} GiB, more than half of this machine's {have / 2**30:.1f} GiB: "
+                         f"{need / 2**30:.1f} GiB, more than half of the {have / 2**30:.1f} GiB available: "
                          f"store fewer outputs (output.every) or members, or leave the vorticity out", True)
 
 
@@ -524,76 +526,3 @@ def simulate(scene: ZeitlinScene, *, method: str | None = None, progress=None, h
     ds = trajectory_dataset(scene, traj, method, history)
     ds.attrs["summary"] = summary(ds)
     return ds
-
-
-# ----------------------------------------------------------------------------- runs with outputs
-
-
-class OutputError(ValueError):
-    """An output that would replace another scene's run (without force)."""
-
-
-def output_paths(scene: ZeitlinScene, output=None) -> dict:
-    """{method: path}: ``output`` (or data/runs/<name>_<method>.nc) for the scene's
-    method, ``<stem>_<method>.nc`` beside it for the compared ones."""
-    from pathlib import Path
-
-    method = scene["integrator"]["method"]
-    methods = [method] + [m for m in dict.fromkeys(scene["output"]["compare"]) if m != method]
-    if output is None:
-        return {m: Path("data/runs") / f"{scene.name}_{m}.nc" for m in methods}
-    out = Path(output)
-    return {m: out if m == method else out.with_name(f"{out.stem}_{m}.nc") for m in methods}
-
-
-def _check_output(path, scene: ZeitlinScene, force: bool) -> None:
-    from ..cf import load_dataset
-
-    if force or not path.exists():
-        return
-    try:
-        old = load_dataset(path).attrs.get("scene", "")
-    except (OSError, ValueError):
-        raise OutputError(f"{path} exists and is not a liethermo file: give --force to replace it") from None
-    import tomllib
-
-    try:
-        name = tomllib.loads(old)["scene"]["name"]
-    except (tomllib.TOMLDecodeError, KeyError):
-        name = None
-    if name != scene.name:
-        raise OutputError(f"{path} holds a run of scene {name!r}, not {scene.name!r}: give --force to replace it")
-
-
-def run_outputs(scene: ZeitlinScene, output=None, *, compare: bool = True, figures: bool | None = None,
-                progress=None, force: bool = False, history: str | None = None) -> dict:
-    """Run the scene's method (and its output.compare methods if ``compare``) and
-    write each to its file (atomically); draw the figures beside the first.
-    Returns {method: Dataset} with ``attrs["summary"]`` and, on the first,
-    ``attrs["figures"]``."""
-    from ..io import write_netcdf_atomic
-    from . import plotting
-
-    check_memory(scene)
-    paths = output_paths(scene, output)
-    if not compare:
-        paths = dict(list(paths.items())[:1])
-    for p in paths.values():
-        _check_output(p, scene, force)
-    W0 = initial_fields(scene)
-    results, W_first = {}, None
-    for m, p in paths.items():
-        traj = integrate(scene, W0, method=m, progress=progress)
-        ds = trajectory_dataset(scene, traj, m, history)
-        ds.attrs["summary"] = summary(ds) + f"\n  wrote {p}"
-        write_netcdf_atomic(ds, p, history=history)
-        if W_first is None:
-            W_first = traj.out.W_first
-        results[m] = ds
-    draw = scene["output"]["figures"] if figures is None else figures
-    if draw:
-        first = next(iter(paths.values()))
-        W = W_first if np.isfinite(W_first).all() else None
-        figs = plotting.draw(results, W, first.parent, first.stem)
-        results[next(iter(results))].attrs["figures"] = [str(f) for f in figs]
-    return results
