@@ -61,6 +61,13 @@ class Model:
     :meth:`setup`) has the attributes ``scene_name``, ``method``, ``members``,
     ``steps``, ``h``, ``wall_time``, ``resumed_members`` and ``path``, and the
     methods ``finish(stats)`` (fill it from the merged stats) and ``lines()``.
+
+    The run layer reads these keys of every model's scenes: ``scene.name``,
+    ``integrator.method``, ``integrator.h``, ``integrator.steps``,
+    ``ensemble.members``, ``output.every``, ``output.compare``,
+    ``output.figures`` and ``output.member_chunk``; a scene object reads like
+    TOML tables (``scene["integrator"]["h"]``) and has ``to_toml()`` and
+    ``with_overrides({"section.key": value})``.
     """
 
     #: the model's name (files record it in their ``model`` attribute where they have one)

@@ -529,8 +529,9 @@ def _overrides_as_tables(overrides) -> list[tuple[dict, str]]:
 
 @dataclass(frozen=True)
 class OtherModel:
-    """A model beside the top that scenes can describe, registered by its own
-    package (:func:`register_model`); this module never imports it.  A scene
+    """The scene side of a model beside the top: the ``scene_model`` of a
+    :class:`liethermo.models.Model` (or registered here with
+    :func:`register_model`); this module never imports its package.  A scene
     whose tables ``marks`` is that model's: ``load(tables, origin, overrides,
     validate)`` gives its defaults ← tables ← overrides, validated into a
     ``scene_class`` (or, with ``validate`` False, as tables), and

@@ -53,10 +53,12 @@ def basis_bytes(N: int) -> int:
 
 
 def run_bytes(scene, method: str | None = None) -> int:
-    """Memory of the steps and outputs of one method's run (bytes), beside the basis."""
+    """Memory of the steps and outputs of one method's run (bytes), beside the basis:
+    of one member chunk (``output.member_chunk`` members at a time)."""
     from .run import factors
 
-    M, N = int(scene["ensemble"]["members"]), int(scene["zeitlin"]["N"])
+    N = int(scene["zeitlin"]["N"])
+    M = min(int(scene["ensemble"]["members"]), int(scene["output"]["member_chunk"]))
     T = int(scene["integrator"]["steps"]) // int(scene["output"]["every"]) + 1
     method = method or scene["integrator"]["method"]
     W = 16 * M * N * N
