@@ -207,3 +207,20 @@ def test_the_fluid_decay_study_goes_on_from_its_finished_points(tmp_path, monkey
     again = values(next((tmp_path / "a").glob("*.nc")))
     for name in ("energy", "heat", "entropy"):
         assert again[name].tobytes() == first[name].tobytes(), name
+
+
+def test_the_fluid_structure_study_reruns_nothing_it_finished(tmp_path, monkeypatch):
+    from liethermo.studies import _zeitlin
+    from liethermo.studies.runner import load_study, run_study
+
+    study = load_study(Path(__file__).resolve().parents[1] / "studies" / "zeitlin_structure.toml")
+    run_study(study, tmp_path / "s", reduced=True, progress=False)
+    table = (tmp_path / "s" / "drift.csv").read_text()
+
+    def no_steps(*a, **k):
+        raise AssertionError("a finished pair was integrated again")
+
+    monkeypatch.setattr(_zeitlin, "advance", no_steps)
+    monkeypatch.setattr("liethermo.studies.zeitlin_structure.advance", no_steps)
+    run_study(study, tmp_path / "s", reduced=True, progress=False)
+    assert (tmp_path / "s" / "drift.csv").read_text() == table
