@@ -65,7 +65,7 @@ def check(xp, N: int = 16, members: int = 4, steps: int = 50) -> None:
         for m in xs.METHODS:
             sc = load_scene("zeitlin_decay", {"zeitlin.N": N, "initial.lmax": 8, "ensemble.members": members,
                                               "integrator.steps": steps, "output.every": steps,
-                                              "integrator.method": m, "fluid.viscosity": nu})
+                                              "integrator.method": m, "fluid.kinematic_viscosity": nu})
             W0 = zr.initial_fields(sc)
             W0[-1] *= 1000.0
             a = zr.integrate(sc, W0, progress=False, keep_vorticity=True)

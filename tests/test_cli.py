@@ -330,7 +330,7 @@ def test_summary_reads_at_any_scale():
     import re
 
     from liethermo.findings import finding_lines
-    from liethermo.runner import RunSummary
+    from liethermo.heavy_top import RunSummary
 
     s = RunSummary("paper", "rk2", 200000, 300, 0.1, wall_time=3.5, kernel_time=1e-4, compile_time=0.2,
                    status_counts={"ok": 82370, "newton_not_converged": 0, "non_finite": 117630},
@@ -489,9 +489,9 @@ def test_fluid_estimates_memory_of_the_basis_it_builds():
 
 
 def test_a_long_run_says_how_long_before_it_starts(tmp_path, monkeypatch, capsys):
-    from liethermo import cli
+    from liethermo import cli, heavy_top
 
-    monkeypatch.setattr(cli, "LONG_RUN_MEMBER_STEPS", 100)
+    monkeypatch.setattr(heavy_top, "LONG_RUN_MEMBER_STEPS", 100)
     monkeypatch.setattr(cli, "LONG_RUN_SECONDS", 0.0)
     out = tmp_path / "p.nc"
     assert main(["run", "paper", "-o", str(out), "--no-progress", "--set", "ensemble.members=4",

@@ -170,6 +170,24 @@ def test_two_workers_equal_in_process(client, tmp_path, which, ref_vi, ref_rk2):
             assert summ.first_fail_step == int(b["failed_at_step"].values[failed].min())
 
 
+def test_a_fluid_run_on_two_workers_equals_in_process(client, tmp_path):
+    """The Zeitlin fluid through the same Dask path: its tasks are the scene's
+    member chunks (3 members) and give the arrays of the in-process run bit for bit."""
+    over = ["zeitlin.N=12", "initial.lmax=6", "ensemble.members=16", "output.member_chunk=3",
+            "integrator.steps=40", "output.every=10", "output.compare=[]", "output.figures=false"]
+    ref = tmp_path / "ref.nc"
+    run_scene("zeitlin_decay", ref, overrides=over, progress=False)
+    out = tmp_path / "z.nc"
+    _, summ = ld.run_scene_dask("zeitlin_decay", out, overrides=over, address=client, progress=False)
+    assert summ.tasks == 6 and summ.members == 16
+    with cf.open_dataset(out) as a, cf.open_dataset(ref) as b:
+        assert set(a.variables) == set(b.variables)
+        for name in a.variables:
+            va, vb = a[name].values, b[name].values
+            assert va.dtype == vb.dtype and (va.tobytes() == vb.tobytes() if va.dtype.kind in "fiu"
+                                             else np.array_equal(va, vb)), name
+
+
 def test_killed_worker_task_is_retried(client, tmp_path, ref_vi):
     out = tmp_path / "killed.nc"
     _, summ = ld.run_scene_dask("paper", out, overrides=VI, address=client, task_members=TASK,

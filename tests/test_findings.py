@@ -18,7 +18,8 @@ import pytest
 from conftest import OMEGA0, paper_numbers
 from liethermo import plotting
 from liethermo.findings import exact_spherical_top, merge_findings
-from liethermo.runner import ChunkStats, run_scene
+from liethermo.heavy_top import ChunkStats
+from liethermo.runner import run_scene
 from liethermo.scene import load_scene
 
 

@@ -169,7 +169,7 @@ def test_ideal_fluid_keeps_casimirs_and_angular_momentum_over_ten_thousand_steps
 
 
 def test_viscous_fluid_conserves_total_energy_to_the_order_and_entropy_never_decreases():
-    base = {"zeitlin.N": 10, "fluid.viscosity": 0.02, "initial.lmax": 6, "ensemble.members": 3,
+    base = {"zeitlin.N": 10, "fluid.kinematic_viscosity": 0.02, "initial.lmax": 6, "ensemble.members": 3,
             "integrator.steps": 100, "output.every": 1}
     errs = []
     for h in (0.04, 0.02):
@@ -192,7 +192,7 @@ def test_each_method_keeps_the_laws_it_declares(method):
     base = {"zeitlin.N": 10, "initial.lmax": 7, "ensemble.members": 3, "integrator.method": method,
             "integrator.steps": 40, "output.every": 1, "output.compare": []}
     for nu, h in ((0.3, 0.05), (0.0, 0.05)):
-        ds = zr.simulate(load_scene("zeitlin_decay", {**base, "fluid.viscosity": nu, "integrator.h": h}),
+        ds = zr.simulate(load_scene("zeitlin_decay", {**base, "fluid.kinematic_viscosity": nu, "integrator.h": h}),
                          progress=False)
         assert (ds["status"] == 0).all()
         if zr.LAW_ENTROPY_MONOTONE in laws and nu > 0:

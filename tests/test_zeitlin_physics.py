@@ -89,7 +89,7 @@ def test_a_single_degree_decays_at_the_exact_rate_and_its_energy_becomes_heat(N)
 
     def errors(method, h):
         steps = int(round(T / h))
-        sc = load_scene("zeitlin_decay", {"zeitlin.N": N, "initial.lmax": min(6, N - 1), "fluid.viscosity": nu,
+        sc = load_scene("zeitlin_decay", {"zeitlin.N": N, "initial.lmax": min(6, N - 1), "fluid.kinematic_viscosity": nu,
                                           "ensemble.members": 1, "integrator.h": h, "integrator.steps": steps,
                                           "output.every": steps})
         traj = zr.integrate(sc, W0, method=method, progress=False, keep_vorticity=True)
@@ -113,7 +113,7 @@ def test_the_same_field_converges_in_n():
     time error is far below these differences)."""
     specs, fields = {}, {}
     for N in (16, 32, 64):
-        sc = load_scene("zeitlin_decay", {"zeitlin.N": N, "fluid.viscosity": 1e-2, "initial.lmax": 6,
+        sc = load_scene("zeitlin_decay", {"zeitlin.N": N, "fluid.kinematic_viscosity": 1e-2, "initial.lmax": 6,
                                           "ensemble.members": 2, "integrator.method": "rk4", "integrator.h": 0.005,
                                           "integrator.steps": 4000, "output.every": 4000, "output.compare": []})
         fields[N] = zk.to_modes(zr.initial_fields(sc), zk.basis(N))

@@ -67,7 +67,7 @@ def test_a_nan_anywhere_in_the_fixed_point_change_is_the_change():
 
 def _scene(method, nu, **more):
     over = {"zeitlin.N": 8, "initial.lmax": 4, "ensemble.members": 3, "integrator.steps": 50,
-            "output.every": 10, "integrator.method": method, "fluid.viscosity": nu, **more}
+            "output.every": 10, "integrator.method": method, "fluid.kinematic_viscosity": nu, **more}
     return load_scene("zeitlin_decay", over)
 
 

@@ -24,9 +24,9 @@ try:
 except Exception:  # pragma: no cover - not installed
     __version__ = "0+unknown"
 
-#: the modules that register models beside the top with :mod:`liethermo.scene`
-#: (imported by it when a scene is loaded)
-MODEL_MODULES = ("liethermo.zeitlin.scene",)
+#: the modules that register the models (:mod:`liethermo.models`), imported on
+#: first need (when a scene is loaded); each is light and registers one model
+MODEL_MODULES = ("liethermo.heavy_top", "liethermo.zeitlin.model")
 
 __all__ = ["run", "study", "load_scene", "open_dataset", "StudyResult", "SceneError", "PreflightError",
            "__version__"]

@@ -79,9 +79,6 @@ def run(scene: str | Path | dict | Scene = "paper", overrides: dict | list | Non
     from .preflight import method_scene, output_paths
 
     sc = load_scene(scene, overrides)
-    if getattr(sc, "model", None) == "zeitlin":
-        return _run_zeitlin(sc, scene, overrides, output=output, compare=compare, figures=figures,
-                            progress=progress, force=force, history=history)
     if output is None:  # an output's checks (prepare_run) include these
         from .preflight import check_parameters
 
@@ -92,7 +89,7 @@ def run(scene: str | Path | dict | Scene = "paper", overrides: dict | list | Non
     method, others = _methods_to_run(sc, compare, figures, output)
     draw = bool(sc["output"]["figures"] if figures is None else figures) and output is not None
     if history is None:
-        history = cf.api_call("liethermo.run", scene if not isinstance(scene, Scene) else sc.name,
+        history = cf.api_call("liethermo.run", scene if isinstance(scene, (str, Path, dict)) else sc.name,
                               overrides=overrides, output=output)
     methods = [method] + (others if compare else [])
     sc = sc.with_overrides({"output.compare": []})
@@ -106,7 +103,7 @@ def run(scene: str | Path | dict | Scene = "paper", overrides: dict | list | Non
     if not wanted:
         line = "  figures: none asked for (figures=False or output.figures = false)"
     elif output is not None:
-        drawn = _draw_figures(paths, Path(output).stem) if draw else []
+        drawn = _draw_figures(paths, Path(output).stem, sc) if draw else []
         line = (f"  figures: {', '.join(str(f) for f in drawn)}" if drawn else "  figures: none drawn")
     else:
         line = "  figures: none drawn (an in-memory run; pass output= to draw them beside the file)"
@@ -130,27 +127,6 @@ def _methods_to_run(sc, compare, figures, output) -> tuple[str, list[str]]:
         raise SceneError("output.figures", "figures are drawn beside the output file: pass output= "
                          "(a .nc path) or figures=False", show_value=False)
     return method, others
-
-
-def _run_zeitlin(sc, scene, overrides, *, output, compare, figures, progress, force, history):
-    """:func:`run` for a Zeitlin fluid: in memory, or written whole to ``output``
-    (no member chunks, no resume)."""
-    from .zeitlin import run as zr
-
-    method, others = _methods_to_run(sc, compare, figures, output)
-    if history is None:
-        history = cf.api_call("liethermo.run", scene if isinstance(scene, (str, Path)) else sc.name,
-                              overrides=overrides, output=output)
-    if output is None:
-        methods = [method] + (others if compare else [])
-        results = {m: zr.simulate(sc, method=m, progress=progress, history=history) for m in methods}
-    else:
-        try:
-            results = zr.run_outputs(sc, output, compare=bool(compare), figures=figures, progress=progress,
-                                     force=force, history=history)
-        except zr.OutputError as exc:
-            raise PreflightError(str(exc).replace("give --force", "pass force=True")) from None
-    return results if compare else results[method]
 
 
 def _run_one(sc: Scene, out: Path | None, *, progress, force, resume, preflight, history) -> xr.Dataset:
@@ -184,7 +160,7 @@ def _run_one(sc: Scene, out: Path | None, *, progress, force, resume, preflight,
     return ds
 
 
-def _draw_figures(outputs: dict, stem: str) -> list[Path]:
+def _draw_figures(outputs: dict, stem: str, scene) -> list[Path]:
     """Draw a run's figures next to its first output file, each complete or
     not at all: drawn in a temporary folder there, then renamed into place.
     Unfinished figure folders of killed runs are removed (one line on stderr)."""
@@ -195,7 +171,7 @@ def _draw_figures(outputs: dict, stem: str) -> list[Path]:
 
     from .faults import figure_drafts, one_line
     from .io import WriteError, io_cause
-    from .plotting import scene_figures
+    from .models import model_of
 
     folder = Path(next(iter(outputs.values()))).parent
     drafts = figure_drafts(folder, stem)  # of runs killed while drawing
@@ -207,7 +183,7 @@ def _draw_figures(outputs: dict, stem: str) -> list[Path]:
     tmp = Path(tempfile.mkdtemp(prefix=f".{stem}_figures.{os.getpid()}.", dir=folder))
     try:
         try:
-            drawn = scene_figures(dict(outputs), tmp, stem=stem)
+            drawn = model_of(scene).figures(dict(outputs), tmp, stem)
             final = []
             for f in drawn:
                 os.replace(f, folder / f.name)

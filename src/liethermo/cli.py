@@ -17,12 +17,9 @@ from . import __version__
 EXIT_INVALID = 2  # invalid input, refused run, failed write: one line on stderr
 #: flags that do not change what a command writes, left out of the files' history
 NOT_IN_HISTORY = {"--resume", "--force", "--no-progress"}
-#: runs of more member-steps than this are timed by a probe before they start,
-#: and the estimate printed when it exceeds LONG_RUN_SECONDS
-LONG_RUN_MEMBER_STEPS = 2**26
+#: a run its model times before it starts (``Model.long_run``) prints the
+#: estimate when it exceeds this
 LONG_RUN_SECONDS = 60.0
-#: a Zeitlin run of at least this N estimates its time first (its basis alone takes seconds)
-ZEITLIN_ANNOUNCE_N = 256
 
 
 def _error(msg) -> int:
@@ -38,8 +35,6 @@ def cmd_run(args) -> int:
 
     try:
         scene = load_scene(args.scene, args.set)
-        if getattr(scene, "model", None) == "zeitlin":
-            return _run_zeitlin(args, scene)
         if args.resume and args.force:
             raise PreflightError("--resume keeps what an earlier run left and --force replaces it: "
                                  "give one of them")
@@ -59,7 +54,10 @@ def cmd_run(args) -> int:
             print(f"scene {scene['scene']['name']!r} is valid: {plan.check_line()}")
             for o in plan.outputs:
                 if not o.skip and not args.dask:
-                    print(estimate_time(o.scene).line())
+                    est = estimate_time(o.scene)
+                    print(est.line())
+                    for w in est.warnings():
+                        print(one_line(w), file=sys.stderr)
             plan.release()
             plan.remove_created()
             return 0
@@ -72,14 +70,15 @@ def _run_outputs(args, scene, plan) -> int:
     from . import api
     from .faults import Interrupted, join_checking
     from .io import WriteError
-    from .warmup import start_warming
+    from .models import model_of
 
     progress = None if not args.no_progress else False
     written = []
     todo = [o for o in plan.outputs if not o.skip]
     # a second process compiles the kernels of the later methods (and the
     # variational integrators' start) into the cache while this one compiles the first
-    warming = None if (args.dask or not todo) else start_warming(scene, [o.method for o in todo])
+    warming = (None if (args.dask or not todo)
+               else model_of(scene).warm(scene, [o.method for o in todo], progress))
     try:
         _announce_long_runs(todo, args)
         for i, o in enumerate(todo):
@@ -125,84 +124,17 @@ def _run_outputs(args, scene, plan) -> int:
     return 0
 
 
-def _run_zeitlin(args, scene) -> int:
-    """A Zeitlin fluid's run: every method in memory, then written atomically."""
-    from .io import WriteError
-    from .scene import SceneError
-    from .zeitlin.run import OutputError, output_paths, run_outputs
-
-    for flag in ("resume", "dask"):
-        if getattr(args, flag):
-            return _error(f"--{flag} is not available for a Zeitlin scene (its runs are written whole)")
-    if args.check:
-        from .zeitlin.estimate import estimate
-        from .zeitlin.run import check_memory
-
-        try:
-            check_memory(scene)
-        except SceneError as exc:
-            return _error(exc)
-        paths = output_paths(scene, args.output)
-        print(f"scene {scene.name!r} is valid: outputs {', '.join(str(p) for p in paths.values())}")
-        for w in _zeitlin_output_conflicts(scene, paths, args.force):
-            print(w, file=sys.stderr)
-        est = estimate(scene, list(paths))
-        print("\n".join(est.lines()))
-        for w in est.warnings():
-            print(w, file=sys.stderr)
-        return 0
-    from .zeitlin.estimate import LONG_SECONDS, build_basis, estimate
-    from .zeitlin.run import _check_output, check_memory
-
-    try:  # what would refuse the run is said before any work (the basis of a large N takes minutes)
-        check_memory(scene)
-        for p in output_paths(scene, args.output).values():
-            _check_output(p, scene, args.force)
-    except (OutputError, SceneError) as exc:
-        return _error(exc)
-    if scene["zeitlin"]["N"] >= ZEITLIN_ANNOUNCE_N and not args.no_progress:
-        est = estimate(scene, list(output_paths(scene, args.output)))  # a probe of a fraction of a second
-        if est.seconds > LONG_SECONDS / 10:
-            from .runner import human_seconds
-
-            print(f"liethermo: this run will take about {human_seconds(est.seconds)} on this machine "
-                  "(liethermo run --check says why)", file=sys.stderr, flush=True)
-    build_basis(scene["zeitlin"]["N"], progress=False if args.no_progress else None)
-    try:
-        results = run_outputs(scene, args.output, progress=None if not args.no_progress else False,
-                              force=args.force, history=args.command_line)
-    except (OutputError, WriteError, SceneError) as exc:
-        return _error(exc)
-    for ds in results.values():
-        print(ds.attrs["summary"])
-    for f in next(iter(results.values())).attrs.get("figures", []):
-        print(f"  figure {f}")
-    return 0
-
-
-def _zeitlin_output_conflicts(scene, paths, force) -> list[str]:
-    """The outputs a Zeitlin run would refuse to replace, as warning lines."""
-    from .zeitlin.run import OutputError, _check_output
-
-    out = []
-    for p in paths.values():
-        try:
-            _check_output(p, scene, force)
-        except OutputError as exc:
-            out.append(f"liethermo: warning: the run would be refused: {exc}")
-    return out
-
-
 def _announce_long_runs(todo, args) -> None:
     """A run that will take minutes or hours says so before it starts."""
     from .faults import one_line
+    from .models import model_of
     from .runner import estimate_time
 
     if args.dask:
         return
     for o in todo:
         sc = o.scene
-        if int(sc["ensemble"]["members"]) * int(sc["integrator"]["steps"]) <= LONG_RUN_MEMBER_STEPS:
+        if not model_of(sc).long_run(sc):
             continue
         est = estimate_time(sc)
         if est.seconds > LONG_RUN_SECONDS:
@@ -213,22 +145,22 @@ def _figures(plan, stem: str) -> list[Path]:
     """The run's figures, next to its first output (see :func:`liethermo.api._draw_figures`)."""
     from .api import _draw_figures
 
-    return _draw_figures({o.method: o.path for o in plan.outputs}, stem)
+    return _draw_figures({o.method: o.path for o in plan.outputs}, stem, plan.outputs[0].scene)
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from .models import model_of, models
     from .scene_files import builtin_scene_tables
 
     tables = builtin_scene_tables()
-    fluid = sorted(n for n, t in tables.items() if "zeitlin" in t)
-    top = sorted(n for n in tables if n not in fluid)
-    builtins = f"the heavy top: {', '.join(top)}; the Zeitlin fluid: {', '.join(fluid)}"
+    ms = models()
+    owner = {n: model_of(t) for n, t in tables.items()}
+    builtins = "; ".join(f"{m.title}: {', '.join(sorted(n for n in tables if owner[n] is m))}"
+                         for m in ms if any(owner[n] is m for n in tables))
     ap = argparse.ArgumentParser(
         prog="liethermo",
         description="Structure-preserving simulation of thermodynamic systems on Lie groups, over "
-        "ensembles of initial conditions: the heavy top in Stokes flow (variational integrators, "
-        "splittings and Runge-Kutta methods) and a viscous Zeitlin fluid on the sphere that turns "
-        "its energy into heat (isospectral splitting vs RK4).",
+        f"ensembles of initial conditions: {' and '.join(m.description for m in ms)}.",
     )
     ap.add_argument("--version", action="version", version=f"liethermo {__version__}")
     sub = ap.add_subparsers(dest="command", required=True)
@@ -291,10 +223,13 @@ def cmd_keys(args) -> int:
     if args.markdown:
         sys.stdout.write(scenes_markdown())
         return 0
-    from .zeitlin.scene import KEYS as ZKEYS
+    from .models import models
 
-    sys.stdout.write(keys_table(markdown=False) + "\n# a Zeitlin fluid (a scene with a [zeitlin] table)\n\n"
-                     + keys_table(markdown=False, keys=ZKEYS))
+    parts = []
+    for m in models():
+        head = "" if m.scene_model is None else f"\n# {m.scene_model.title}\n\n"
+        parts.append(head + keys_table(markdown=False, keys=m.keys()))
+    sys.stdout.write("".join(parts))
     return 0
 
 

@@ -56,7 +56,8 @@ import numpy as np
 from . import __version__, cf
 from .faults import POLL_SECONDS, Interrupted, check_stop, folder_leftovers, remove_files
 from .io import ChunkedWriter, write_atomic
-from .runner import ChunkStats, RunSummary, _progress_bar, finish_summary, run_chunk, scene_setup
+from .models import model_of
+from .runner import _progress_bar, run_chunk, scene_setup
 from .scene import scene_to_toml
 
 INDEX_NAME = "index.json"
@@ -212,14 +213,18 @@ def plan_chunks(members: int, task_members: int) -> list[tuple[int, int]]:
 def default_task_members(scene: dict, nthreads: int) -> int:
     """Members per task: at most ``output.member_chunk`` (the memory bound),
     else about TASKS_PER_THREAD equal tasks per worker thread (load balance).
-    Any split gives the same numbers (member i depends only on (seed, i))."""
+    Any split gives the same numbers (member i depends only on (seed, i)), but
+    for a model whose last bits depend on the batch
+    (:attr:`liethermo.models.Model.chunk_sets_bits`): its tasks are the member chunks."""
     members = int(scene["ensemble"]["members"])
     cap = int(scene["output"]["member_chunk"])
+    if model_of(scene).chunk_sets_bits:  # the in-process run's chunks, for the same bits
+        return cap
     want = math.ceil(members / max(1, TASKS_PER_THREAD * max(1, nthreads)))
     return max(1, min(cap, want))
 
 
-def read_part_stats(path: Path, key: str, lo: int, hi: int) -> ChunkStats | None:
+def read_part_stats(path: Path, key: str, lo: int, hi: int, scene=None):
     """The stats stored in a finished chunk file, or None if it is missing,
     unreadable, or belongs to another scene/range."""
     import netCDF4
@@ -231,9 +236,10 @@ def read_part_stats(path: Path, key: str, lo: int, hi: int) -> ChunkStats | None
                     or int(nc.getncattr("liethermo_part_hi")) != hi
                     or len(nc.dimensions["member"]) != hi - lo):
                 return None
-            return ChunkStats.from_dict(json.loads(nc.getncattr("liethermo_part_stats")))
+            d = json.loads(nc.getncattr("liethermo_part_stats"))
     except (OSError, KeyError, AttributeError, ValueError, RuntimeError):
         return None
+    return model_of(scene if scene is not None else {}).stats_from_dict(d)
 
 
 def compute_part(scene: dict, lo: int, hi: int, path: str, key: str, attrs: dict,
@@ -246,7 +252,7 @@ def compute_part(scene: dict, lo: int, hi: int, path: str, key: str, attrs: dict
     """
     t0 = time.perf_counter()
     path = Path(path)
-    st = read_part_stats(path, key, lo, hi)
+    st = read_part_stats(path, key, lo, hi, scene)
     if st is not None:
         return {"stats": st.to_dict(), "task_time": time.perf_counter() - t0, "skipped": True}
     if numba_threads is None:
@@ -334,7 +340,7 @@ def run_scene_dask(scene: dict | str, out: str | os.PathLike, *, address: Any = 
                    progress: bool | None = None, overrides=None, task_members: int | None = None,
                    keep_parts: bool = False, combine: bool = True, retries: int = 2,
                    numba_threads: int | None = None, task: Callable = compute_part,
-                   history: str | None = None) -> tuple[None, RunSummary]:
+                   history: str | None = None) -> tuple:
     """Run a scene's ensemble as Dask tasks; same output file as :func:`liethermo.runner.run_scene`.
 
     ``address``: ``"local"``, a scheduler address, or an existing Client.
@@ -444,10 +450,10 @@ def _run_scene_dask(scene, attrs, summ, out, key, parts, t_wall, chunks_out, add
             chunks = plan_chunks(members, task_members)
             _write_index(parts, key, members, chunks, out)
         chunks_out[:] = chunks
-        total = ChunkStats()
+        total = model_of(scene).new_stats()
         todo = []
         for lo, hi in chunks:
-            st = read_part_stats(part_path(parts, lo, hi), key, lo, hi)
+            st = read_part_stats(part_path(parts, lo, hi), key, lo, hi, scene)
             if st is None:
                 todo.append((lo, hi))
             else:
@@ -470,7 +476,7 @@ def _run_scene_dask(scene, attrs, summ, out, key, parts, t_wall, chunks_out, add
         def done(fut) -> int:
             lo, hi = futures[fut]
             res = fut.result()
-            st = ChunkStats.from_dict(res["stats"])
+            st = model_of(scene).stats_from_dict(res["stats"])
             total.merge(st)
             if not res["skipped"]:
                 overhead.append(res["task_time"] - st.kernel_time)
@@ -487,7 +493,7 @@ def _run_scene_dask(scene, attrs, summ, out, key, parts, t_wall, chunks_out, add
             shutil.rmtree(parts, ignore_errors=True)
     summ.combine_time = time.perf_counter() - t_comb
     summ.wall_time = time.perf_counter() - t_wall
-    finish_summary(summ, total)
+    summ.finish(total)
     summ.path = out if combine else parts / INDEX_NAME
     summ.tasks = len(chunks)
     summ.tasks_skipped = len(chunks) - len(todo)

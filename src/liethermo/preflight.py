@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from .faults import Busy, OutputLock, folder_leftovers, human_bytes, leftovers, remove_files
+from .models import model_of
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -102,11 +103,12 @@ def _fmt(v) -> str:
 NOT_IN_RESULTS = {("output", "figures"), ("output", "compare"), ("output", "member_chunk")}
 
 
-def scene_difference(old_toml: str, new_toml: str) -> str | None:
+def scene_difference(old_toml: str, new_toml: str, ignore=NOT_IN_RESULTS) -> str | None:
     """The first key in which two resolved scenes (TOML texts) differ, as
     ``"section.key (A there, B here)"``; None if they are equal but for keys
-    that do not change the results (:data:`NOT_IN_RESULTS`: figures, the
-    other methods compared, the member chunk)."""
+    that do not change the results (``ignore``, default :data:`NOT_IN_RESULTS`:
+    figures, the other methods compared, the member chunk; a model's own:
+    :attr:`liethermo.models.Model.not_in_results`)."""
     if old_toml == new_toml:
         return None
     try:
@@ -122,7 +124,7 @@ def scene_difference(old_toml: str, new_toml: str) -> str | None:
                 return section
             continue
         for key in list(b) + [k for k in a if k not in b]:
-            if (section, key) in NOT_IN_RESULTS:
+            if (section, key) in ignore:
                 continue
             va, vb = a.get(key, missing), b.get(key, missing)
             if va != vb and not (isinstance(va, float) and isinstance(vb, float) and np.isnan(va) and np.isnan(vb)):
@@ -156,6 +158,8 @@ class Estimate:
 
     #: per variable with a member dimension: (bytes per member, members per disk chunk or 0)
     layout: list = field(default_factory=list)
+    #: memory a run needs once whatever its chunk (e.g. a basis the steps share)
+    fixed_memory: int = 0
 
     @property
     def file_bytes(self) -> int:
@@ -183,54 +187,23 @@ class Estimate:
     @property
     def memory(self) -> int:
         """What a run needs at most: a member chunk, the writer and the program."""
-        return self.chunk_memory + self.writer_memory + BASE_MEMORY
+        return self.chunk_memory + self.writer_memory + self.fixed_memory + BASE_MEMORY
 
 
-#: Memory of a chunk per byte of its labelled output, beyond the kernel state
-#: (Ω, Γ and R are views of the state; the energies are new arrays): 1.0
-#: matched the measured peak to within 6 % (docs/operations.md, "Disk and memory estimates").
-MEMORY_FACTOR = 1.0
 #: Bytes of a file besides the values (measured: 74 kB for the paper scene).
 FILE_OVERHEAD = 96 * 1024
 #: What a run needs besides its member chunk (Python, numba, xarray, netCDF).
 BASE_MEMORY = 300 * 2**20
 
 
-def estimate(scene: dict) -> Estimate:
-    """Output size and chunk memory of a resolved scene, from the layout of a
-    one-member, two-time dataset labelled like a run's (no kernel runs)."""
-    from .dataset import trajectory_dataset
-    from .io import disk_chunk_members
-    from .resolve import resolve
-    from .simulate import Trajectory
+def estimate(scene) -> Estimate:
+    """Output size and chunk memory of a resolved scene (its model's estimate; no kernel runs)."""
+    return model_of(scene).estimate(scene)
 
-    integ, outp = scene["integrator"], scene["output"]
-    steps, every = int(integ["steps"]), int(outp["every"])
-    n_t = steps // every + 1
-    run = resolve(scene)
-    phys = run.physics
-    layout = run.model.layout(run.method.layout)
-    width = layout.size
-    one = lambda dt: np.zeros(1, dtype=dt)  # noqa: E731
-    traj = Trajectory(choice=run.choice, h=run.h, steps=every,
-                      every=every, physics=phys, layout=layout, terms=run.terms,
-                      states=np.zeros((1, 2, width)), status=one(np.int8), fail_step=one(np.int64),
-                      newton_iterations=one(np.int64), newton_max=one(np.int64), steps_done=one(np.int64),
-                      max_h_omega=one(np.float64))
-    with np.errstate(all="ignore"):
-        ds = trajectory_dataset(traj, omega0=np.zeros((1, 3)), R0=np.eye(3)[None])
-    members = int(scene["ensemble"]["members"])
-    layout = []
-    for var in ds.variables.values():
-        if "member" not in var.dims:
-            continue
-        n = var.dtype.itemsize if var.dtype.kind != "O" else 16
-        for d in var.dims[1:]:
-            n *= n_t if d == "t" else ds.sizes[d]
-        layout.append((n, disk_chunk_members(members, n) if var.ndim > 1 else 0))
-    per = sum(n for n, _ in layout)
-    memory = int(MEMORY_FACTOR * per) + n_t * width * 8
-    return Estimate(per, memory, members, int(outp["member_chunk"]), layout)
+
+def check_parameters(scene) -> None:
+    """What valid keys still make impossible for the kernels (the scene's model says), as a PreflightError."""
+    model_of(scene).check_parameters(scene)
 
 
 def available_memory() -> int | None:
@@ -300,73 +273,6 @@ class RunPlan:
                 f"at most about {mem} of memory (member chunks of {e.chunk_members}){avail}")
 
 
-def _parameter_keys() -> tuple[str, ...]:
-    from .kernels.terms import registry
-
-    return (("body.radius", "body.semi_axes", "body.density", "body.mass", "body.molar_mass",
-             "body.upper_mass_fraction", "body.inertia", "thermo.heat_capacity", "body.center_of_mass")
-            + tuple(st.path for t in registry() for st in t.settings) + ("thermo.T0",))
-
-
-#: Scene keys the kernel parameters are derived from: the body's and every term's.
-PARAMETER_KEYS = _parameter_keys()
-
-
-#: Integer keys the kernels and arrays take as 64-bit integers.
-INT64_KEYS = ("integrator.steps", "integrator.newton_maxiter", "output.every", "output.member_chunk",
-              "ensemble.members")
-
-
-def check_parameters(scene: dict) -> None:
-    """The kernels get numbers they can take: integers that fit in 64 bits, and
-    finite parameters (every key may be valid on its own and the derived mass,
-    moments, friction, heat capacity or gravity torque still overflow or
-    vanish: a radius of 1e-300 m)."""
-    from .resolve import resolve
-
-    for key in INT64_KEYS:
-        section, name = key.split(".")
-        v = scene[section][name]
-        if isinstance(v, int) and v > np.iinfo(np.int64).max:
-            raise PreflightError(f"scene key '{key}': too large for the kernels (at most "
-                                 f"{np.iinfo(np.int64).max}) (got {v})")
-
-    try:
-        with np.errstate(all="ignore"):
-            run = resolve(scene)
-            phys, p = run.physics, run.model.P
-        bad = not all(np.all(np.isfinite(v)) for v in vars(phys).values() if isinstance(v, np.ndarray))
-        bad = bad or not np.all(np.isfinite(p))
-        why = "not finite numbers"
-    except ArithmeticError as exc:
-        bad, why = True, f"not computable ({exc})"
-    if bad:
-        raise PreflightError(f"the kernel parameters derived from the scene (mass, moments of inertia, friction, "
-                             f"heat capacity, gravity torque) are {why}; check {', '.join(PARAMETER_KEYS)}")
-    _check_start(scene, phys)
-
-
-def _check_start(scene: dict, phys) -> None:
-    """Every term's condition on the start (e.g. the coupled top's temperature
-    must start positive), with Ω·𝕀₀Ω bounded over the members: the members'
-    spins reach spin_range[1] × |Ω(0)| in any direction, so the bound uses
-    the largest moment."""
-    from .kernels.terms import registry
-
-    omega = np.asarray(scene["initial"]["omega"], dtype=np.float64)
-    if int(scene["ensemble"]["members"]) == 1:
-        kin2, what = float(omega @ (phys.inertia[0] * omega)), "Ω·𝕀₀Ω"
-    else:
-        from .initial import max_spin
-
-        kin2, what = float(phys.inertia[0].max()) * max_spin(scene) ** 2, "I_max (spin_range[1] |Ω(0)|)²"
-    for t in registry():
-        problem = t.start_problem(scene, phys, kin2, what)
-        if problem is not None:
-            key, why = problem
-            raise PreflightError(f"scene key '{key}': {why}")
-
-
 def _first_existing(p: Path) -> Path:
     p = p.absolute()
     while not p.exists() and p != p.parent:
@@ -414,6 +320,7 @@ def prepare_run(scene: dict, output=None, *, force: bool = False, resume: bool =
     from .scene import scene_to_toml
 
     check_parameters(scene)
+    ignore = model_of(scene).not_in_results
     outs = [Output(m, p, method_scene(scene, m)) for m, p in output_paths(scene, output).items()]
     plan = RunPlan(outs)
     created = plan.created
@@ -436,7 +343,7 @@ def prepare_run(scene: dict, output=None, *, force: bool = False, resume: bool =
             if (dask and not combine) or not (o.path.exists() or o.path.is_symlink()):
                 continue
             old = file_scene(o.path)
-            if old is not None and scene_difference(old, toml) is None:
+            if old is not None and scene_difference(old, toml, ignore) is None:
                 o.skip = resume  # a rerun replaces it; a resume has nothing left to do
                 if resume:
                     plan.notes.append(f"liethermo: {o.path} is complete for this scene: kept")
@@ -444,7 +351,7 @@ def prepare_run(scene: dict, output=None, *, force: bool = False, resume: bool =
             if force:
                 continue
             what = ("is not a liethermo output" if old is None
-                    else f"holds a run of another scene, differing in {scene_difference(old, toml)}")
+                    else f"holds a run of another scene, differing in {scene_difference(old, toml, ignore)}")
             refusal = PreflightError.remedy(f"{o.path} exists and {what}", "force", "elsewhere")
             if not warn_conflicts:
                 raise refusal
@@ -463,7 +370,7 @@ def prepare_run(scene: dict, output=None, *, force: bool = False, resume: bool =
                 if j.version != __version__:
                     raise PreflightError.remedy(f"cannot resume {o.path}: its partial run was made by "
                                                 f"liethermo {j.version}, this is {__version__}", "fresh", sep="; ")
-                diff = scene_difference(j.scene_toml, scene_to_toml(o.scene))
+                diff = scene_difference(j.scene_toml, scene_to_toml(o.scene), ignore)
                 if diff is not None:
                     raise PreflightError.remedy(f"cannot resume {o.path}: the scene differs from the "
                                                 f"interrupted run's in {diff}", "fresh", sep="; ")
@@ -528,7 +435,7 @@ def _check_sizes(plan: RunPlan, scene: dict, *, dask: bool, combine: bool, check
                 f"{names} would need about {human_bytes(b)} ({e.members} members x "
                 f"{human_bytes(e.file_per_member)}{' x 2 for the Dask parts' if dask and combine else ''}) "
                 f"but the disk of {root} has {human_bytes(free)} free; run fewer members (ensemble.members) "
-                f"or store less (output.every, output.attitude)")
+                f"or store less ({model_of(scene).store_less})")
     if not check_memory:
         return
     avail = available_memory()

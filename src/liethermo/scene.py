@@ -529,8 +529,9 @@ def _overrides_as_tables(overrides) -> list[tuple[dict, str]]:
 
 @dataclass(frozen=True)
 class OtherModel:
-    """A model beside the top that scenes can describe, registered by its own
-    package (:func:`register_model`); this module never imports it.  A scene
+    """The scene side of a model beside the top: the ``scene_model`` of a
+    :class:`liethermo.models.Model` (or registered here with
+    :func:`register_model`); this module never imports its package.  A scene
     whose tables ``marks`` is that model's: ``load(tables, origin, overrides,
     validate)`` gives its defaults ← tables ← overrides, validated into a
     ``scene_class`` (or, with ``validate`` False, as tables), and
@@ -554,16 +555,16 @@ def register_model(model: OtherModel) -> None:
 
 
 def _other_models() -> list[OtherModel]:
-    """The registered models, once the modules the package names in
-    ``liethermo.MODEL_MODULES`` have registered theirs (imported here, on
-    first need, so that ``import liethermo`` stays light)."""
-    import importlib
+    """The scene sides of the models registered with :mod:`liethermo.models`
+    (their modules, ``liethermo.MODEL_MODULES``, imported on first need, so
+    that ``import liethermo`` stays light), and any registered here."""
+    from .models import models
 
-    import liethermo
-
-    for name in liethermo.MODEL_MODULES:
-        importlib.import_module(name)
-    return _OTHER_MODELS
+    out = list(_OTHER_MODELS)
+    for m in models():
+        if not m.is_default and m.scene_model is not None and all(o.name != m.scene_model.name for o in out):
+            out.append(m.scene_model)
+    return out
 
 
 def _other_model(tables) -> OtherModel | None:
@@ -623,7 +624,7 @@ def load_scene(source: str | Path | dict | Scene | None = "paper",
 
 
 def scene_to_toml(scene) -> str:
-    return scene.to_toml() if isinstance(scene, Scene) else tomli_w.dumps(scene)
+    return scene.to_toml() if hasattr(scene, "to_toml") else tomli_w.dumps(scene)
 
 
 def validate(scene: dict) -> Scene:

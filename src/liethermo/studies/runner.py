@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 
 from ..scene import SceneError
-from . import KINDS, get_study
+from . import get_study, kinds
 from .common import (BASE_KEYS, STUDY_KEYS, StudyError, expand_sweep, first_table, parse_method, resolve_study,
                      study_scene, terminal_table)
 
@@ -43,8 +43,8 @@ def validate_study(study: dict) -> None:
     if not isinstance(st, dict):
         raise StudyError("the study file needs a [study] table with kind = ...")
     kind = st.get("kind")
-    if kind not in KINDS:
-        raise StudyError(f"study.kind: unknown study kind {kind!r}; known kinds: {', '.join(KINDS)}")
+    if kind not in kinds():
+        raise StudyError(f"study.kind: unknown study kind {kind!r}; known kinds: {', '.join(kinds())}")
     for k in st:
         if k not in STUDY_KEYS:
             raise StudyError(f"study.{k}: unknown key; known keys of [study]: {', '.join(sorted(STUDY_KEYS))}")

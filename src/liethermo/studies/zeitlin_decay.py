@@ -17,11 +17,11 @@ from ..io import write_netcdf_atomic
 from ..zeitlin import run as zr
 from ..zeitlin.plotting import save, spectrum_lines
 from ._zeitlin import zeitlin_scene
-from .common import (StudyError, expand_sweep, start_study, study_history, study_netcdf_path, study_options,
-                     write_report, write_table)
+from .common import (StudyError, cached_point, expand_sweep, point_key, start_study, study_history,
+                     study_netcdf_path, study_options, write_report, write_table)
 
 EXTRA_KEYS = ()
-SWEEP_KEY = "fluid.viscosity"
+SWEEP_KEY = "fluid.kinematic_viscosity"
 DEFAULT_OPTIONS = {"method": "split"}
 
 
@@ -43,7 +43,9 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress=None, dask=None, h
     rows, dss = [], []
     for pt in points:
         sc = zeitlin_scene(s, pt)
-        ds = zr.simulate(sc, method=opt["method"], progress=progress)
+        # each viscosity's ensemble is a point of the resume cache: a stopped study goes on from it
+        key = point_key({"kind": "zeitlin_decay", "scene": sc.to_dict(), "method": opt["method"]})
+        ds = cached_point(outdir, key, lambda sc=sc: zr.simulate(sc, method=opt["method"], progress=progress))
         nu = float(pt[SWEEP_KEY])
         H, q = ds["energy"].values, ds["heat"].values
         lost = H[:, :1] - H

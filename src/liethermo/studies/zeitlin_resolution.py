@@ -21,8 +21,8 @@ from ..io import write_netcdf_atomic
 from ..zeitlin import run as zr
 from ..zeitlin.plotting import save
 from ._zeitlin import zeitlin_scene
-from .common import (StudyError, expand_sweep, progress_bar, start_study, study_history, study_netcdf_path,
-                     study_options, write_report, write_table)
+from .common import (StudyError, cached_point, expand_sweep, point_key, progress_bar, start_study, study_history,
+                     study_netcdf_path, study_options, write_report, write_table)
 
 SWEEP_KEY = "zeitlin.N"
 DEFAULT_OPTIONS = {"method": "rk4", "time_check": True}
@@ -54,6 +54,18 @@ def _spectrum_difference(a: np.ndarray, b: np.ndarray, H0: np.ndarray, L: int) -
     return np.abs(a[..., :L] - b[..., :L]).sum(axis=-1) / H0[:, None]
 
 
+def _timed_run(sc, method: str):
+    """The scene's run, with its warm cost per member-step in ``attrs["seconds_per_member_step"]``."""
+    # compile and build N's basis first, so that the cost is that of the steps
+    zr.simulate(sc.with_overrides({"integrator.steps": sc["output"]["every"], "ensemble.members": 1}),
+                method=method, progress=False)
+    t0 = time.perf_counter()
+    ds = zr.simulate(sc, method=method, progress=False)
+    ds.attrs["seconds_per_member_step"] = ((time.perf_counter() - t0)
+                                           / (sc["integrator"]["steps"] * sc["ensemble"]["members"]))
+    return ds
+
+
 def run(study: dict, outdir: Path, *, reduced: bool, progress=None, dask=None, history=None) -> Path:
     s, outdir, opt = start_study(study, outdir, reduced, validate, options)
     points = expand_sweep(s["sweep"])
@@ -64,13 +76,10 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress=None, dask=None, h
     bar = progress_bar(jobs, progress, "zeitlin_resolution")
     for N, pt in zip(Ns, points):
         sc = zeitlin_scene(s, pt)
-        # compile and build N's basis first, so that the cost is that of the steps
-        zr.simulate(sc.with_overrides({"integrator.steps": sc["output"]["every"], "ensemble.members": 1}),
-                    method=opt["method"], progress=False)
-        t0 = time.perf_counter()
-        runs[N] = zr.simulate(sc, method=opt["method"], progress=False)
-        steps = sc["integrator"]["steps"] * sc["ensemble"]["members"]
-        cost[N] = (time.perf_counter() - t0) / steps
+        # each N is a point of the resume cache (its run and its cost): a stopped study goes on from them
+        key = point_key({"kind": "zeitlin_resolution", "scene": sc.to_dict(), "method": opt["method"]})
+        runs[N] = cached_point(outdir, key, lambda sc=sc: _timed_run(sc, opt["method"]))
+        cost[N] = float(runs[N].attrs["seconds_per_member_step"])
         bar.update(1)
     time_error = None
     if opt["time_check"]:
@@ -78,7 +87,8 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress=None, dask=None, h
         itg, out = sc["integrator"], sc["output"]
         half = sc.with_overrides({"integrator.h": itg["h"] / 2, "integrator.steps": 2 * itg["steps"],
                                   "output.every": 2 * out["every"]})
-        fine = zr.simulate(half, method=opt["method"], progress=False)
+        key = point_key({"kind": "zeitlin_resolution", "scene": half.to_dict(), "method": opt["method"]})
+        fine = cached_point(outdir, key, lambda: zr.simulate(half, method=opt["method"], progress=False))
         ref = runs[Ns[-1]]
         time_error = float(np.nanmax(_spectrum_difference(ref["energy_spectrum"].values,
                                                           fine["energy_spectrum"].values,
@@ -127,7 +137,7 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress=None, dask=None, h
                if shrink else
                f"The differences to the next N do not shrink at every N ({', '.join(f'{v:.2g}' for v in nxt[:-1])})")
     text = (f"Scene {sc0.name!r}: {sc0['ensemble']['members']} members, ν = "
-            f"{sc0['fluid']['viscosity']:g} s⁻¹, initial degrees l ≤ {sc0['initial']['lmax']} (the same "
+            f"{sc0['fluid']['kinematic_viscosity']:g} s⁻¹, initial degrees l ≤ {sc0['initial']['lmax']} (the same "
             f"coefficients at every N), method {opt['method']}, h = {itg['h']:g} s, t = {t_end:g} s.  "
             f"Differences are Σ_l |ΔE_l| over the degrees l ≤ {L} that every N resolves, over H(0).  "
             f"{verdict}."

@@ -12,6 +12,7 @@ assumed."""
 
 from __future__ import annotations
 
+import json
 import time
 from pathlib import Path
 
@@ -24,7 +25,8 @@ from ..zeitlin import kernels as zk
 from ..zeitlin import run as zr
 from ..zeitlin.plotting import save
 from ._zeitlin import advance, check_methods, step_seconds, zeitlin_scene
-from .common import StudyError, start_study, study_history, study_netcdf_path, study_options, write_report, write_table
+from .common import (StudyError, cached_point, point_key, start_study, study_history, study_netcdf_path, study_options,
+                     write_report, write_table)
 
 EXTRA_KEYS = ()
 DEFAULT_OPTIONS = {"N": [32, 64], "viscosity": [0.0, 1e-4], "h": 0.02, "t_end": 100.0, "samples": 50}
@@ -69,6 +71,51 @@ def _long_run(meth, W0, h, T, samples, nu, b):
     return wall, h, per * samples, d, float(np.mean(its)), seg
 
 
+def _pair(m: str, W0, h: float, T: float, samples: int, nu: float, b, N: int) -> tuple[list, list]:
+    """A splitting and RK4 at the same measured cost: (table rows, drift curves)."""
+    rows, curves = [], []
+    c_split = step_seconds(m, W0, h, nu, b)
+    c_rk4 = step_seconds("rk4", W0, h, nu, b)
+    wall_split = None
+    for meth, hm in ((m, h), ("rk4", h * c_rk4 / c_split)):
+        for attempt in range(3):  # RK4 again with a corrected step while the costs differ by > 10 %
+            res = _long_run(meth, W0, hm, T, samples, nu, b)
+            if wall_split is None or abs(res[0] / wall_split - 1.0) <= 0.1:
+                break
+            hm = res[1] * res[0] / wall_split
+        wall, hm, steps, d, its, seg = res
+        wall_split = wall if wall_split is None else wall_split
+        curves += [{"N": N, "viscosity": nu, "pair": m, "method": meth, **c} for c in seg]
+        rows.append({"N": N, "viscosity (s-1)": nu, "pair": m, "method": meth, "h (s)": hm,
+                     "steps": steps, "wall per simulated second (s)": wall / T,
+                     "tr W² drift": d["cas2"], "tr W⁴ drift": d["cas4"],
+                     "|H + q − H(0)|/H(0)": d["energy"], "angular momentum drift": d["L"],
+                     "fixed-point its/step": its})
+    return rows, curves
+
+
+def _records_dataset(rows: list, curves: list) -> xr.Dataset:
+    """Table rows and curve points as a dataset (columns by position: their names are no netCDF names)."""
+    data, attrs = {}, {}
+    for prefix, records in (("row", rows), ("curve", curves)):
+        df = pd.DataFrame(records)
+        attrs[f"{prefix}_columns"] = json.dumps(list(df.columns))
+        for i, c in enumerate(df.columns):
+            v = df[c].to_numpy()
+            data[f"{prefix}{i}"] = ((prefix,), v.astype(str) if v.dtype == object else v)
+    return xr.Dataset(data, attrs=attrs)
+
+
+def _dataset_records(ds: xr.Dataset) -> tuple[list, list]:
+    out = []
+    for prefix in ("row", "curve"):
+        cols = json.loads(ds.attrs[f"{prefix}_columns"])
+        vals = [ds[f"{prefix}{i}"].values for i in range(len(cols))]
+        out.append([{c: (v[k].item() if hasattr(v[k], "item") else v[k]) for c, v in zip(cols, vals)}
+                    for k in range(ds.sizes[prefix])])
+    return out[0], out[1]
+
+
 def run(study: dict, outdir: Path, *, reduced: bool, progress=None, dask=None, history=None) -> Path:
     s, outdir, opt = start_study(study, outdir, reduced, validate, options)
     methods = check_methods(s)
@@ -77,28 +124,19 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress=None, dask=None, h
     T, samples = float(opt["t_end"]), int(opt["samples"])
     for N in opt["N"]:
         for nu in opt["viscosity"]:
-            sc = zeitlin_scene(s, {"zeitlin.N": int(N), "fluid.viscosity": float(nu)})
+            sc = zeitlin_scene(s, {"zeitlin.N": int(N), "fluid.kinematic_viscosity": float(nu)})
             b = zk.basis(int(N))
             W0 = zr.initial_fields(sc)
             for m in split_methods:
-                h = float(opt["h"])
-                c_split = step_seconds(m, W0, h, nu, b)
-                c_rk4 = step_seconds("rk4", W0, h, nu, b)
-                wall_split = None
-                for meth, hm in ((m, h), ("rk4", h * c_rk4 / c_split)):
-                    for attempt in range(3):  # RK4 again with a corrected step while the costs differ by > 10 %
-                        res = _long_run(meth, W0, hm, T, samples, nu, b)
-                        if wall_split is None or abs(res[0] / wall_split - 1.0) <= 0.1:
-                            break
-                        hm = res[1] * res[0] / wall_split
-                    wall, hm, steps, d, its, seg = res
-                    wall_split = wall if wall_split is None else wall_split
-                    curves += [{"N": int(N), "viscosity": float(nu), "pair": m, "method": meth, **c} for c in seg]
-                    rows.append({"N": int(N), "viscosity (s-1)": float(nu), "pair": m, "method": meth, "h (s)": hm,
-                                 "steps": steps, "wall per simulated second (s)": wall / T,
-                                 "tr W² drift": d["cas2"], "tr W⁴ drift": d["cas4"],
-                                 "|H + q − H(0)|/H(0)": d["energy"], "angular momentum drift": d["L"],
-                                 "fixed-point its/step": its})
+                # each pair is a point of the resume cache (its rows, curves and measured costs):
+                # a stopped study goes on from the pairs it finished
+                key = point_key({"kind": "zeitlin_structure", "scene": sc.to_dict(), "pair": m, "h": float(opt["h"]),
+                                 "t_end": T, "samples": samples})
+                pt = cached_point(outdir, key, lambda m=m, b=b, W0=W0, N=N, nu=nu: _records_dataset(
+                    *_pair(m, W0, float(opt["h"]), T, samples, float(nu), b, int(N))))
+                r, c = _dataset_records(pt)
+                rows += r
+                curves += c
     df = pd.DataFrame(rows)
     cv = pd.DataFrame(curves)
     ds = xr.Dataset.from_dataframe(cv.rename(columns={"viscosity": "viscosity"})).rename({"index": "row"})

@@ -15,13 +15,12 @@
   whole ensemble (16 bytes per complex entry), the splitting's predictor of
   the next fixed point (at most 512 MiB), and what is kept for the output.
 
-This module is the fluid's preflight until the run layer gives every model
-one; it is called where ``--check`` is handled and before a long run.
+The run layer's disk and memory checks use :meth:`liethermo.zeitlin.model.Fluid.estimate`;
+this module gives the time (``--check``, and before a long run) and the basis's cost.
 """
 
 from __future__ import annotations
 
-import os
 import sys
 import time
 from dataclasses import dataclass, field
@@ -54,10 +53,12 @@ def basis_bytes(N: int) -> int:
 
 
 def run_bytes(scene, method: str | None = None) -> int:
-    """Memory of the steps and outputs of one method's run (bytes), beside the basis."""
+    """Memory of the steps and outputs of one method's run (bytes), beside the basis:
+    of one member chunk (``output.member_chunk`` members at a time)."""
     from .run import factors
 
-    M, N = int(scene["ensemble"]["members"]), int(scene["zeitlin"]["N"])
+    N = int(scene["zeitlin"]["N"])
+    M = min(int(scene["ensemble"]["members"]), int(scene["output"]["member_chunk"]))
     T = int(scene["integrator"]["steps"]) // int(scene["output"]["every"]) + 1
     method = method or scene["integrator"]["method"]
     W = 16 * M * N * N
@@ -72,10 +73,9 @@ def run_bytes(scene, method: str | None = None) -> int:
 
 
 def _available_bytes() -> int | None:
-    try:
-        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_AVPHYS_PAGES")
-    except (ValueError, OSError, AttributeError):
-        return None
+    from ..preflight import available_memory
+
+    return available_memory()
 
 
 def probe_step_seconds(scene, method: str) -> tuple[float, int, int]:

@@ -231,4 +231,4 @@ def draw(datasets: dict, W_member0: np.ndarray | None, folder, stem: str) -> lis
 def _nu(ds) -> str:
     import tomllib
 
-    return f"{tomllib.loads(ds.attrs['scene'])['fluid']['viscosity']:g}"
+    return f"{tomllib.loads(ds.attrs['scene'])['fluid']['kinematic_viscosity']:g}"

@@ -1,9 +1,10 @@
 """Ensembles of the thermodynamic Zeitlin fluid: initial fields, the methods'
-steps over a batch of members, and the dataset a run writes."""
+steps over a batch of members, and the dataset of a member chunk.  Runs with
+an output go through the common runner (:mod:`liethermo.zeitlin.model`);
+:func:`simulate` is the in-memory run the studies and tests use."""
 
 from __future__ import annotations
 
-import os
 import platform
 import time as _time
 from dataclasses import dataclass
@@ -124,8 +125,12 @@ class Predictor:
 
     COEF = {1: (1.0,), 2: (2.0, -1.0), 3: (3.0, -3.0, 1.0), 4: (4.0, -6.0, 4.0, -1.0)}
 
-    def __init__(self, substeps: int, M: int, N: int, order: int = 4, budget: int = 2**29):
-        per = substeps * M * N * N * 16
+    def __init__(self, substeps: int, M: int, N: int, order: int = 4, budget: int = 2**29,
+                 budget_members: int | None = None):
+        # the order is set by ``budget_members`` (default M): a run in member chunks
+        # gives every chunk the order of the largest, so a member's bits do not
+        # depend on the chunk it is computed in
+        per = substeps * (M if budget_members is None else budget_members) * N * N * 16
         self.order = min(order, budget // per) if per else order
         self.shape = (M, N, N)
         self.hist: list[list[np.ndarray]] = [[] for _ in range(substeps)]
@@ -244,21 +249,24 @@ class Trajectory:
 
 
 def integrate(scene: ZeitlinScene, W0: np.ndarray, *, method: str | None = None, progress=None,
-              keep_vorticity: bool | None = None, backend: str = "cpu") -> Trajectory:
+              keep_vorticity: bool | None = None, budget_members: int | None = None,
+              backend: str = "cpu") -> Trajectory:
     """Integrate the members W0 with the scene's method; outputs every
     output.every steps.  ``keep_vorticity``: keep W of every member at every
-    output (default: the scene's output.vorticity).  ``backend``: "cpu" (the
-    numba kernels), or the steps over an array namespace (:mod:`.xpstep`):
-    "gpu" (CuPy), "cpu-xp" (numpy)."""
+    output (default: the scene's output.vorticity).  ``budget_members``: the
+    batch size that sets the fixed point predictor's order (default: W0's;
+    see :class:`Predictor`).  ``backend``: "cpu" (the numba kernels), or the
+    steps over an array namespace (:mod:`.xpstep`): "gpu" (CuPy), "cpu-xp"
+    (numpy)."""
     if backend != "cpu":
         from . import xpstep
 
         return xpstep.integrate_xp(xpstep.namespace(backend), scene, W0, method=method, progress=progress,
-                                   keep_vorticity=keep_vorticity)
+                                   keep_vorticity=keep_vorticity, budget_members=budget_members)
     z, itg, out = scene["zeitlin"], scene["integrator"], scene["output"]
     method = method or itg["method"]
     b = zk.basis(z["N"])
-    nu = float(scene["fluid"]["viscosity"])
+    nu = float(scene["fluid"]["kinematic_viscosity"])
     h, steps, every = float(itg["h"]), int(itg["steps"]), int(out["every"])
     M = W0.shape[0]
     n_out = steps // every + 1
@@ -288,7 +296,7 @@ def integrate(scene: ZeitlinScene, W0: np.ndarray, *, method: str | None = None,
     active = np.arange(M)
     acc_its = np.zeros(M)
     guess = np.zeros_like(W)
-    predictor = Predictor(len(fac), M, b.N) if method != "rk4" else None
+    predictor = Predictor(len(fac), M, b.N, budget_members=budget_members) if method != "rk4" else None
     bar = tqdm(total=steps, desc=f"{scene.name} {method}", unit="step", leave=False,
                disable=None if progress is None else not progress)
     for k in range(1, steps + 1):
@@ -353,7 +361,10 @@ def _var(data, dims, units, long_name, **extra):
     return xr.Variable(dims, data, {"units": units, "long_name": long_name, **extra})
 
 
-def trajectory_dataset(scene: ZeitlinScene, traj: Trajectory, method: str, history: str | None = None) -> xr.Dataset:
+def trajectory_dataset(scene: ZeitlinScene, traj: Trajectory, method: str, history: str | None = None,
+                       member_offset: int = 0, attrs: dict | None = None) -> xr.Dataset:
+    """The labelled dataset of members ``member_offset + (0 … M−1)``; ``attrs``:
+    its global attributes (default: :func:`run_attrs` and the kernel time)."""
     b = zk.basis(scene["zeitlin"]["N"])
     cv, T0 = scene["thermo"]["heat_capacity"], scene["thermo"]["T0"]
     r = traj.out
@@ -401,7 +412,7 @@ def trajectory_dataset(scene: ZeitlinScene, traj: Trajectory, method: str, histo
         data["vorticity_imag"] = _var(r.W.imag, dims_w, "s-1", "vorticity W, imag. part", comment=how)
     steps = np.arange(traj.times.size) * int(scene["output"]["every"])  # t_j = j every h
     coords = {
-        "member": _var(np.arange(M), ("member",), "1", "ensemble member"),
+        "member": _var(np.arange(member_offset, member_offset + M), ("member",), "1", "ensemble member"),
         "t": _var(cf.decimal_times(steps, scene["integrator"]["h"]), ("t",), "s", "time t",
                   comment="time since the start of the run (the decimal value of k h)"),
         "k": _var(np.array([2, 3, 4]), ("k",), "1", "power k of the Casimir"),
@@ -409,6 +420,15 @@ def trajectory_dataset(scene: ZeitlinScene, traj: Trajectory, method: str, histo
         "l": _var(np.arange(1, b.N), ("l",), "1", "degree l",
                   comment="degree l of the spherical harmonics"),
     }
+    if attrs is None:
+        attrs = run_attrs(scene, method, history)
+        attrs["kernel_seconds"] = traj.kernel_seconds
+    return xr.Dataset(data, coords=coords, attrs=attrs)
+
+
+def run_attrs(scene: ZeitlinScene, method: str, history: str | None = None) -> dict:
+    """The global attributes of a run's dataset (without its kernel time)."""
+    N = scene["zeitlin"]["N"]
     itg = scene["integrator"]
     created = cf.timestamp()
     attrs = {
@@ -420,10 +440,9 @@ def trajectory_dataset(scene: ZeitlinScene, traj: Trajectory, method: str, histo
         "method_order": METHOD_ORDER[method],
         "composition": itg["composition"] if method in ("split4", "split6") else "none",
         "N": scene["zeitlin"]["N"],
-        "hbar": b.hbar,
+        "hbar": zk.hbar(N),
         "h": float(itg["h"]),
         "h_units": "s",
-        "kernel_seconds": traj.kernel_seconds,
         "scene": scene.to_toml(),
         "software": f"liethermo {__version__}",
         "software_version": __version__,
@@ -433,7 +452,7 @@ def trajectory_dataset(scene: ZeitlinScene, traj: Trajectory, method: str, histo
         "references": "Zeitlin (1991, 2004); Modin & Viviani (2020), the isospectral midpoint; "
                       "liethermo docs/model.md, the thermodynamic Zeitlin fluid",
     }
-    return xr.Dataset(data, coords=coords, attrs=attrs)
+    return attrs
 
 
 def vorticity_coefficients(ds: xr.Dataset) -> xr.DataArray:
@@ -474,7 +493,7 @@ def _summary(ds: xr.Dataset) -> str:
     its = ds["fixed_point_iterations"].values[:, 1:]
     import tomllib
 
-    viscous = tomllib.loads(ds.attrs["scene"])["fluid"]["viscosity"] > 0
+    viscous = tomllib.loads(ds.attrs["scene"])["fluid"]["kinematic_viscosity"] > 0
     casimir_words = ("tr W² (∫ω² dA) changed by {:.2e} (viscosity dissipates it)" if viscous
                      else "tr W² drift ≤ {:.2e} (∫ω² dA)")
     lines = [f"{ds.attrs['method']}: {M} member(s), N = {ds.attrs['N']}, h = {ds.attrs['h']:g} s, "
@@ -489,8 +508,10 @@ def _summary(ds: xr.Dataset) -> str:
 
 
 def check_memory(scene: ZeitlinScene) -> None:
-    """A run keeps W of every member at every output only with output.vorticity:
-    refuse one whose W would not fit in half of this machine's memory."""
+    """An in-memory run keeps W of every member at every output only with
+    output.vorticity: refuse one whose W would not fit in half of the memory
+    available (:func:`liethermo.preflight.available_memory`, cgroup limits included)."""
+    from ..preflight import available_memory
     from ..scene import SceneError
 
     if not scene["output"]["vorticity"]:
@@ -498,13 +519,12 @@ def check_memory(scene: ZeitlinScene) -> None:
     M, N = scene["ensemble"]["members"], scene["zeitlin"]["N"]
     T = scene["integrator"]["steps"] // scene["output"]["every"] + 1
     need = 16 * M * T * N * N
-    try:
-        have = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    except (ValueError, OSError, AttributeError):
+    have = available_memory()
+    if have is None:
         return
     if need > have / 2:
         raise SceneError("output.vorticity", f"W of {M} members at {T} output times, N = {N}, needs "
-                         f"{need / 2**30:.1f} GiB, more than half of this machine's {have / 2**30:.1f} GiB: "
+                         f"{need / 2**30:.1f} GiB, more than half of the {have / 2**30:.1f} GiB available: "
                          f"store fewer outputs (output.every) or members, or leave the vorticity out", True)
 
 
@@ -519,76 +539,3 @@ def simulate(scene: ZeitlinScene, *, method: str | None = None, progress=None, h
     ds = trajectory_dataset(scene, traj, method, history)
     ds.attrs["summary"] = summary(ds)
     return ds
-
-
-# ----------------------------------------------------------------------------- runs with outputs
-
-
-class OutputError(ValueError):
-    """An output that would replace another scene's run (without force)."""
-
-
-def output_paths(scene: ZeitlinScene, output=None) -> dict:
-    """{method: path}: ``output`` (or data/runs/<name>_<method>.nc) for the scene's
-    method, ``<stem>_<method>.nc`` beside it for the compared ones."""
-    from pathlib import Path
-
-    method = scene["integrator"]["method"]
-    methods = [method] + [m for m in dict.fromkeys(scene["output"]["compare"]) if m != method]
-    if output is None:
-        return {m: Path("data/runs") / f"{scene.name}_{m}.nc" for m in methods}
-    out = Path(output)
-    return {m: out if m == method else out.with_name(f"{out.stem}_{m}.nc") for m in methods}
-
-
-def _check_output(path, scene: ZeitlinScene, force: bool) -> None:
-    from ..cf import load_dataset
-
-    if force or not path.exists():
-        return
-    try:
-        old = load_dataset(path).attrs.get("scene", "")
-    except (OSError, ValueError):
-        raise OutputError(f"{path} exists and is not a liethermo file: give --force to replace it") from None
-    import tomllib
-
-    try:
-        name = tomllib.loads(old)["scene"]["name"]
-    except (tomllib.TOMLDecodeError, KeyError):
-        name = None
-    if name != scene.name:
-        raise OutputError(f"{path} holds a run of scene {name!r}, not {scene.name!r}: give --force to replace it")
-
-
-def run_outputs(scene: ZeitlinScene, output=None, *, compare: bool = True, figures: bool | None = None,
-                progress=None, force: bool = False, history: str | None = None) -> dict:
-    """Run the scene's method (and its output.compare methods if ``compare``) and
-    write each to its file (atomically); draw the figures beside the first.
-    Returns {method: Dataset} with ``attrs["summary"]`` and, on the first,
-    ``attrs["figures"]``."""
-    from ..io import write_netcdf_atomic
-    from . import plotting
-
-    check_memory(scene)
-    paths = output_paths(scene, output)
-    if not compare:
-        paths = dict(list(paths.items())[:1])
-    for p in paths.values():
-        _check_output(p, scene, force)
-    W0 = initial_fields(scene)
-    results, W_first = {}, None
-    for m, p in paths.items():
-        traj = integrate(scene, W0, method=m, progress=progress)
-        ds = trajectory_dataset(scene, traj, m, history)
-        ds.attrs["summary"] = summary(ds) + f"\n  wrote {p}"
-        write_netcdf_atomic(ds, p, history=history)
-        if W_first is None:
-            W_first = traj.out.W_first
-        results[m] = ds
-    draw = scene["output"]["figures"] if figures is None else figures
-    if draw:
-        first = next(iter(paths.values()))
-        W = W_first if np.isfinite(W_first).all() else None
-        figs = plotting.draw(results, W, first.parent, first.stem)
-        results[next(iter(results))].attrs["figures"] = [str(f) for f in figs]
-    return results

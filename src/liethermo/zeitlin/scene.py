@@ -15,7 +15,7 @@ from typing import Any
 import tomli_w
 
 from ..methods import COMPOSITION_KINDS
-from ..scene import Key, OtherModel, SceneError, boolean, choice, integer, number, register_model, string
+from ..scene import Key, OtherModel, SceneError, boolean, choice, integer, number, string
 
 #: the methods a Zeitlin scene runs (names as for the top)
 METHODS = ("split", "split4", "split6", "rk4", "reference")
@@ -54,7 +54,7 @@ KEYS: tuple[Key, ...] = (
     Key("zeitlin", "N", 32, "1", f"integer in [3, {MAX_N}]",
         "matrix size: the vorticity W ∈ su(N) holds the spherical harmonics of degree l = 1 … N−1",
         integer(3, MAX_N)),
-    Key("fluid", "viscosity", 1e-3, "s-1", "≥ 0",
+    Key("fluid", "kinematic_viscosity", 1e-3, "s-1", "≥ 0",
         "kinematic viscosity ν on the unit sphere: Ẇ = (1/ħ)[P, W] + ν(Δ_N + 2)W", number(0.0)),
     Key("thermo", "heat_capacity", 1.0, "J K-1", "> 0", "heat capacity c_v of the fluid",
         number(0.0, lo_open=True)),
@@ -99,6 +99,9 @@ KEYS: tuple[Key, ...] = (
     Key("output", "compare", [], "", "list of methods",
         "further methods run on the same scene (files <OUT>_<method>.nc)", _compare_check),
     Key("output", "figures", False, "", "true | false", "write PNG figures next to the netCDF", boolean),
+    Key("output", "member_chunk", 64, "1", "integer ≥ 1",
+        "members simulated and written at a time (bounds memory; a resumed run continues from the "
+        "last complete chunk)", integer()),
 )
 SECTIONS = tuple(dict.fromkeys(k.section for k in KEYS))
 DEFAULTS: dict[str, dict[str, Any]] = {s: {k.name: k.default for k in KEYS if k.section == s} for s in SECTIONS}
@@ -158,6 +161,11 @@ def merge(base: dict, new: dict, origin: str) -> None:
     """Merge scene tables into ``base``, refusing sections and keys a Zeitlin scene does not have."""
     from ..scene import _merge
 
+    fluid = new.get("fluid") if isinstance(new, dict) else None
+    if isinstance(fluid, dict) and "viscosity" in fluid:
+        raise SceneError("fluid.viscosity", "a Zeitlin fluid's viscosity is fluid.kinematic_viscosity "
+                         "(ν in s-1); fluid.viscosity is the top's dynamic viscosity (kg m-1 s-1)",
+                         show_value=False)
     _merge(base, new, origin, DEFAULTS, " of a Zeitlin scene")
 
 
@@ -204,5 +212,6 @@ It has keys of its own, below; sections it shares with the top (`[fluid]`, `[the
 `[integrator]`, `[ensemble]`, `[output]`) hold only the keys listed here.  Its methods are `split`,
 `split4`, `split6`, `rk4` and `reference`."""
 
-register_model(OtherModel(name="zeitlin", marks=is_zeitlin, load=load, scene_class=ZeitlinScene, keys=KEYS,
-                          title="a Zeitlin fluid", intro=INTRO))
+#: the scene side of the fluid's model (registered with it: liethermo.zeitlin.model)
+SCENE_MODEL = OtherModel(name="zeitlin", marks=is_zeitlin, load=load, scene_class=ZeitlinScene, keys=KEYS,
+                         title="a Zeitlin fluid", intro=INTRO)

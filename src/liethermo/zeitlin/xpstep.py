@@ -443,12 +443,13 @@ def rk4_step(W, q, h: float, nu: float, xb: XpBasis):
 class Predictor:
     """:class:`.run.Predictor` on ``xp`` (the same orders, memory budget and coefficients)."""
 
-    def __init__(self, xp, substeps: int, M: int, N: int, order: int = 4, budget: int = 2**29):
+    def __init__(self, xp, substeps: int, M: int, N: int, order: int = 4, budget: int = 2**29,
+                 budget_members: int | None = None):
         from .run import Predictor as _P
 
         self.xp = xp
         self.COEF = _P.COEF
-        per = substeps * M * N * N * 16
+        per = substeps * (M if budget_members is None else budget_members) * N * N * 16
         self.order = min(order, budget // per) if per else order
         self.shape = (M, N, N)
         self.hist: list[list] = [[] for _ in range(substeps)]
@@ -512,7 +513,7 @@ def check_method(method: str) -> None:
 
 
 def integrate_xp(xp, scene, W0: np.ndarray, *, method: str | None = None, progress=None,
-                 keep_vorticity: bool | None = None):
+                 keep_vorticity: bool | None = None, budget_members: int | None = None):
     """:func:`.run.integrate` with the steps on ``xp``: the same
     :class:`.run.Trajectory` (diagnostics recorded on the host from the
     kept steps' W, the same status, failed_step and iterations)."""
@@ -525,7 +526,7 @@ def integrate_xp(xp, scene, W0: np.ndarray, *, method: str | None = None, progre
     check_method(method)
     b = zk.basis(z["N"])
     xb = xp_basis(xp, z["N"])
-    nu = float(scene["fluid"]["viscosity"])
+    nu = float(scene["fluid"]["kinematic_viscosity"])
     h, steps, every = float(itg["h"]), int(itg["steps"]), int(out["every"])
     M = W0.shape[0]
     n_out = steps // every + 1
@@ -542,7 +543,8 @@ def integrate_xp(xp, scene, W0: np.ndarray, *, method: str | None = None, progre
     active = np.arange(M)
     acc_its = np.zeros(M)
     guess = xp.zeros_like(W)
-    predictor = Predictor(xp, len(fac), M, b.N) if method != "rk4" else None
+    predictor = (Predictor(xp, len(fac), M, b.N, budget_members=budget_members)
+                 if method != "rk4" else None)
     bar = tqdm(total=steps, desc=f"{scene.name} {method}", unit="step", leave=False,
                disable=None if progress is None else not progress)
     for k in range(1, steps + 1):

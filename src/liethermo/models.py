@@ -1,0 +1,211 @@
+"""Models: what the run layer asks of every simulated system.
+
+A model is a package that describes one system (the heavy top, the Zeitlin
+fluid, …) to the run layer with one object, registered once::
+
+    from liethermo.models import register
+    register(MyModel())
+
+(a package's model module is listed in ``liethermo.MODEL_MODULES``, so that
+it registers on first need).  The runner (member chunks, streaming writes,
+journal, lock, resume, stop signals), the preflight checks, Dask runs, the
+command line (``run``, ``keys``, ``--check``), the Python API and the study
+kinds then reach the model only through :class:`Model`; none of them names a
+model.
+
+What a model provides (:class:`Model`):
+
+* its scene: keys with units, defaults and rules, and how a scene of it is
+  recognised and loaded (``scene_model``: a :class:`liethermo.scene.OtherModel`;
+  None for the default model, whose keys are :data:`liethermo.scene.KEYS`);
+* its methods, ``{name: MethodInfo}`` (order, laws kept, how it steps);
+* its initial conditions for members ``lo:hi``;
+* :meth:`Model.run_chunk`: members ``lo:hi`` integrated into a labelled
+  dataset (its variables and CF metadata) and the chunk's mergeable stats;
+* :meth:`Model.setup`: the file's global attributes and an empty summary,
+  whose ``lines()`` are what a run prints;
+* its figures, drawn from the written files;
+* its preflight: parameter checks, disk and memory per member, time.
+
+Member ``i``'s values must depend on the scene and ``i`` only, not on the
+chunk it is computed in: that is what makes a resumed or a Dask run give the
+same file as an uninterrupted one.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+
+@dataclass(frozen=True)
+class MethodInfo:
+    """One method of a model: its order, the laws it keeps to round-off and
+    one line on how it steps."""
+
+    name: str
+    order: int
+    laws: tuple[str, ...]
+    description: str
+
+
+class Model:
+    """The protocol every model implements (subclass it; each method below
+    says what the run layer expects).
+
+    A **stats** object (what :meth:`new_stats` and :meth:`run_chunk` return)
+    has ``merge(other)`` (returns self), ``to_dict()`` (JSON-serialisable),
+    a ``kernel_time`` attribute (seconds), and the model's
+    :meth:`stats_from_dict` reads it back.  A **summary** (from
+    :meth:`setup`) has the attributes ``scene_name``, ``method``, ``members``,
+    ``steps``, ``h``, ``wall_time``, ``resumed_members`` and ``path``, and the
+    methods ``finish(stats)`` (fill it from the merged stats) and ``lines()``.
+
+    The run layer reads these keys of every model's scenes: ``scene.name``,
+    ``integrator.method``, ``integrator.h``, ``integrator.steps``,
+    ``ensemble.members``, ``output.every``, ``output.compare``,
+    ``output.figures`` and ``output.member_chunk``; a scene object reads like
+    TOML tables (``scene["integrator"]["h"]``) and has ``to_toml()`` and
+    ``with_overrides({"section.key": value})``.
+    """
+
+    #: the model's name (files record it in their ``model`` attribute where they have one)
+    name: str = ""
+    #: how the command line's help names the model, e.g. "the heavy top"
+    title: str = ""
+    #: one sentence for the command line's description
+    description: str = ""
+    #: the scene side (:class:`liethermo.scene.OtherModel`; may be a property that
+    #: imports it on first use); None: the default model
+    scene_model: Any = None
+    #: the table whose presence marks a scene's tables as this model's (a light test,
+    #: for the command line's help); None: ``scene_model.marks``
+    scene_table: str | None = None
+    #: the model of a scene no other model owns (the heavy top)
+    is_default: bool = False
+    #: study kinds of this model: modules ``liethermo.studies.<kind>``
+    study_kinds: tuple[str, ...] = ()
+    #: the scene keys that make a run store less (named when an output does not fit on its disk)
+    store_less: str = "output.every"
+    #: scene keys (section, key) that do not change what a run writes: an output made
+    #: with other values of them is the same run's (replaced, resumed)
+    not_in_results: frozenset = frozenset({("output", "figures"), ("output", "compare"),
+                                           ("output", "member_chunk")})
+    #: True where a member's last bits depend on the batch it is computed in (BLAS
+    #: products over the chunk): Dask tasks are then the scene's member chunks, and
+    #: ``output.member_chunk`` is part of the results
+    chunk_sets_bits: bool = False
+
+    # ---------------------------------------------------------- scenes
+    def owns(self, scene) -> bool:
+        """Whether ``scene`` (a loaded scene or its tables) is one of this model's."""
+        if isinstance(scene, dict):
+            return self.scene_table in scene if self.scene_table else bool(self.scene_model.marks(scene))
+        return isinstance(scene, self.scene_model.scene_class)
+
+    def keys(self) -> tuple:
+        """The scene keys (:class:`liethermo.scene.Key`): unit, default, rule, meaning."""
+        return tuple(self.scene_model.keys)
+
+    def methods(self) -> dict[str, MethodInfo]:
+        raise NotImplementedError
+
+    def initial_conditions(self, scene, lo: int, hi: int):
+        """The initial state of members ``lo:hi`` (depends on (scene, member) only)."""
+        raise NotImplementedError
+
+    # ---------------------------------------------------------- a run
+    def setup(self, scene, history: str | None) -> tuple[dict, Any]:
+        """``(global attributes of the output, empty summary)`` of a resolved scene."""
+        raise NotImplementedError
+
+    def new_stats(self):
+        raise NotImplementedError
+
+    def stats_from_dict(self, d: dict):
+        raise NotImplementedError
+
+    def run_chunk(self, scene, lo: int, hi: int, *, progress_cb=None, kernel: str | None = None,
+                  threads: int | None = None):
+        """Members ``lo:hi``: ``(labelled dataset with a leading member dimension, stats)``.
+        ``progress_cb(n)`` gets the member-steps just done."""
+        raise NotImplementedError
+
+    def warm(self, scene, methods: list[str], progress: bool | None):
+        """Before the first run of ``methods``: what can be made ready (kernels
+        compiled in another process, bases built); returns a process to join
+        or terminate, or None."""
+        return None
+
+    def figures(self, outputs: dict[str, Path], folder: Path, stem: str) -> list[Path]:
+        """Draw the figures of written outputs ``{method: path}`` (the scene's
+        own method first) into ``folder`` as ``<stem>_*.png``."""
+        return []
+
+    # ---------------------------------------------------------- preflight
+    def check_parameters(self, scene) -> None:
+        """Refuse (``PreflightError``) what valid keys still make impossible for the kernels."""
+
+    def estimate(self, scene):
+        """Disk and memory of a run: a :class:`liethermo.preflight.Estimate`."""
+        raise NotImplementedError
+
+    def estimate_time(self, scene):
+        """An object with ``seconds``, ``line()`` (the run's time on this machine)
+        and ``warnings()`` (lines for stderr: a run of hours, or near the memory)."""
+        raise NotImplementedError
+
+    def long_run(self, scene) -> bool:
+        """Whether the command line times the run before it starts (and says so if it is long)."""
+        return False
+
+
+_MODELS: dict[str, Model] = {}
+
+
+def register(model: Model) -> Model:
+    """Make ``model`` known to the run layer and its scenes to :mod:`liethermo.scene`."""
+    _MODELS[model.name] = model
+    return model
+
+
+def unregister(name: str) -> None:
+    """Forget a registered model (tests register models of their own)."""
+    _MODELS.pop(name, None)
+
+
+def models() -> list[Model]:
+    """Every registered model, once the modules of ``liethermo.MODEL_MODULES`` have registered theirs."""
+    import importlib
+
+    import liethermo
+
+    for name in liethermo.MODEL_MODULES:
+        importlib.import_module(name)
+    return list(_MODELS.values())
+
+
+def get_model(name: str) -> Model:
+    for m in models():
+        if m.name == name:
+            return m
+    raise KeyError(f"no model named {name!r}: known models {', '.join(m.name for m in models())}")
+
+
+def model_of(scene) -> Model:
+    """The model whose scene ``scene`` is: the first registered model that
+    owns it, else the default model (the one without a scene model of its own)."""
+    ms = models()
+    for m in ms:
+        if not m.is_default and m.owns(scene):
+            return m
+    for m in ms:
+        if m.is_default:
+            return m
+    raise LookupError("no model owns this scene")  # pragma: no cover
+
+
+def study_kinds() -> dict[str, Model]:
+    """``{study kind: model}`` over the registered models."""
+    return {k: m for m in models() for k in m.study_kinds}

@@ -1,0 +1,302 @@
+"""The thermodynamic Zeitlin fluid as a model of the run layer (:mod:`liethermo.models`).
+
+A fluid run goes through the common runner: members in chunks of
+``output.member_chunk`` (:meth:`Fluid.run_chunk`), each written as it
+finishes, with the journal, the lock, ``--resume`` and ``--dask`` of every
+run.  Member k's field depends on (scene, k) only, and the fixed point's
+predictor takes its order from the chunk size the scene sets, not from the
+chunk a member lands in, so a resumed or a Dask run gives the same bits.
+
+This module is light: the kernels, xarray and the basis load on first use.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..models import MethodInfo, Model, register
+
+#: a run of at least this N is timed before it starts (its basis alone takes seconds)
+ANNOUNCE_N = 256
+
+#: member 0's W at every output of the last chunk run here that held it, by
+#: scene (TOML): the vorticity maps of the figures, without a second run
+_MEMBER0: dict[str, np.ndarray] = {}
+
+
+def _max(a) -> float:
+    a = np.asarray(a, dtype=float)
+    a = a[np.isfinite(a)]
+    return float(a.max()) if a.size else -np.inf
+
+
+@dataclass
+class FluidStats:
+    """What one member chunk contributes to a fluid run's summary (mergeable, JSON-serialisable)."""
+
+    members: int = 0
+    kernel_time: float = 0.0
+    failed: int = 0
+    energy_error: float = -np.inf       # max |H + q − H(0)| / H(0)
+    casimir2: float = -np.inf           # max |relative change of tr W²|
+    momentum_change: float = -np.inf    # max |L − L(0)|
+    momentum: float = -np.inf           # max |L(0)|
+    heat_sum: float = 0.0               # Σ over members of q(end) / H(0)
+    heat_n: int = 0
+    its_sum: float = 0.0                # Σ of the mean fixed-point iterations per step, per output
+    its_n: int = 0
+    its_max: float = -np.inf
+
+    def merge(self, o: "FluidStats") -> "FluidStats":
+        self.members += o.members
+        self.kernel_time += o.kernel_time
+        self.failed += o.failed
+        for k in ("energy_error", "casimir2", "momentum_change", "momentum", "its_max"):
+            setattr(self, k, max(getattr(self, k), getattr(o, k)))
+        self.heat_sum += o.heat_sum
+        self.heat_n += o.heat_n
+        self.its_sum += o.its_sum
+        self.its_n += o.its_n
+        return self
+
+    def to_dict(self) -> dict:
+        return {k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in self.__dict__.items()}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "FluidStats":
+        return cls(**{k: (-np.inf if v is None else v) for k, v in d.items()})
+
+    @classmethod
+    def of(cls, ds, kernel_time: float) -> "FluidStats":
+        """The figures of a chunk's dataset (failed members are NaN there)."""
+        st = cls(members=ds.sizes["member"], kernel_time=kernel_time)
+        st.failed = int((ds["status"].values != 0).sum())
+        with np.errstate(invalid="ignore", divide="ignore"):
+            st.energy_error = _max(np.abs(ds["energy_error"].values))
+            st.casimir2 = _max(np.abs(ds["casimir_drift"].sel(k=2).values))
+            L = ds["angular_momentum"].values
+            st.momentum_change = _max(np.abs(L - L[:, :1]))
+            st.momentum = _max(np.abs(L[:, :1]))
+            heat = ds["heat"].values[:, -1] / ds["energy"].values[:, 0]
+        fin = np.isfinite(heat)
+        st.heat_sum, st.heat_n = float(heat[fin].sum()), int(fin.sum())
+        its = ds["fixed_point_iterations"].values[:, 1:]
+        fin = np.isfinite(its)
+        st.its_sum, st.its_n, st.its_max = float(its[fin].sum()), int(fin.sum()), _max(its)
+        return st
+
+
+@dataclass
+class FluidSummary:
+    """What a fluid run did, for the one-screen report."""
+
+    scene_name: str
+    method: str
+    members: int
+    steps: int
+    h: float
+    N: int
+    t_end: float
+    viscous: bool
+    wall_time: float = 0.0
+    resumed_members: int = 0
+    path: Path | None = None
+    stats: FluidStats = field(default_factory=FluidStats)
+
+    def finish(self, st: FluidStats) -> "FluidSummary":
+        self.stats = st
+        return self
+
+    def lines(self) -> list[str]:
+        st = self.stats
+        nan = float("nan")
+        fin = lambda v: v if np.isfinite(v) else nan  # noqa: E731
+        dL = fin(st.momentum_change) / max(fin(st.momentum), 1e-300) if np.isfinite(st.momentum) else nan
+        heat = st.heat_sum / st.heat_n if st.heat_n else nan
+        words = ("tr W² (∫ω² dA) changed by {:.2e} (viscosity dissipates it)" if self.viscous
+                 else "tr W² drift ≤ {:.2e} (∫ω² dA)")
+        out = [f"{self.method}: {self.members} member(s), N = {self.N}, h = {self.h:g} s, t = {self.t_end:g} s, "
+               f"kernels {st.kernel_time:.2f} s",
+               f"  |H + q − H(0)|/H(0) ≤ {fin(st.energy_error):.2e}; {words.format(fin(st.casimir2))}; "
+               f"angular momentum drift ≤ {dL:.2e} (relative); heat {100 * heat:.1f} % of H(0)"]
+        if st.its_n and st.its_max > 0:
+            out.append(f"  fixed-point iterations per step: mean {st.its_sum / st.its_n:.2f}, max {st.its_max:.2f}")
+        if st.failed:
+            out.append(f"  {st.failed} member(s) failed: see status and failed_step")
+        if self.resumed_members:
+            out.append(f"  resumed: members 0-{self.resumed_members - 1} came from the interrupted run "
+                       "(not in the kernel time above)")
+        if self.path is not None:
+            out.append(f"  wrote {self.path}")
+        return out
+
+
+@dataclass
+class TimeEstimate:
+    """A fluid run's time on this machine (:mod:`liethermo.zeitlin.estimate`)."""
+
+    estimate: object
+
+    @property
+    def seconds(self) -> float:
+        return self.estimate.seconds
+
+    def line(self) -> str:
+        return "\n".join(self.estimate.lines())
+
+    def warnings(self) -> list[str]:
+        return self.estimate.warnings()
+
+
+def budget_members(scene) -> int:
+    """The batch size that sets the predictor's order: the scene's chunk, not the chunk computed."""
+    return min(int(scene["ensemble"]["members"]), int(scene["output"]["member_chunk"]))
+
+
+class Fluid(Model):
+    """The thermodynamic Zeitlin fluid on the sphere (a scene with a ``[zeitlin]`` table)."""
+
+    name = "zeitlin"
+    title = "the Zeitlin fluid"
+    description = ("a viscous Zeitlin fluid on the sphere that turns its energy into heat "
+                   "(isospectral splitting vs RK4)")
+    scene_table = "zeitlin"
+
+    @property
+    def scene_model(self):
+        from .scene import SCENE_MODEL
+
+        return SCENE_MODEL
+    study_kinds = ("zeitlin_convergence", "zeitlin_decay", "zeitlin_structure", "zeitlin_resolution")
+    store_less = "output.every, output.vorticity"
+    # the diagnostics go through BLAS products over the chunk's members (last bits)
+    chunk_sets_bits = True
+    not_in_results = frozenset({("output", "figures"), ("output", "compare")})
+
+    def methods(self) -> dict[str, MethodInfo]:
+        from . import run as zr
+
+        return {m: MethodInfo(m, zr.METHOD_ORDER[m], zr.METHOD_LAWS[m], zr.METHOD_DESCRIPTION[m])
+                for m in zr.METHOD_ORDER}
+
+    def initial_conditions(self, scene, lo: int, hi: int):
+        from .run import initial_fields
+
+        return initial_fields(scene, np.arange(lo, hi))
+
+    def setup(self, scene, history):
+        from .run import run_attrs
+
+        itg = scene["integrator"]
+        method = itg["method"]
+        attrs = run_attrs(scene, method, history)
+        steps = int(itg["steps"])
+        summ = FluidSummary(scene.name, method, int(scene["ensemble"]["members"]), steps, float(itg["h"]),
+                            int(scene["zeitlin"]["N"]), float(steps * float(itg["h"])),
+                            scene["fluid"]["kinematic_viscosity"] > 0)
+        return attrs, summ
+
+    def new_stats(self):
+        return FluidStats()
+
+    def stats_from_dict(self, d: dict):
+        return FluidStats.from_dict(d)
+
+    def run_chunk(self, scene, lo, hi, *, progress_cb=None, kernel=None, threads=None):
+        from .run import integrate, run_attrs, trajectory_dataset
+
+        method = scene["integrator"]["method"]
+        W0 = self.initial_conditions(scene, lo, hi)
+        traj = integrate(scene, W0, method=method, progress=False, budget_members=budget_members(scene))
+        if lo == 0:
+            _MEMBER0.clear()
+            _MEMBER0[scene.to_toml()] = traj.out.W_first
+        ds = trajectory_dataset(scene, traj, method, member_offset=lo, attrs=run_attrs(scene, method))
+        if progress_cb is not None:
+            progress_cb((hi - lo) * int(scene["integrator"]["steps"]))
+        return ds, FluidStats.of(ds, traj.kernel_seconds)
+
+    def warm(self, scene, methods, progress):
+        from .estimate import build_basis
+
+        build_basis(int(scene["zeitlin"]["N"]), progress=progress)
+        return None
+
+    def figures(self, outputs, folder, stem):
+        from ..cf import open_dataset
+        from . import plotting
+
+        datasets = {}
+        for m, p in outputs.items():
+            with open_dataset(p) as ds:
+                datasets[m] = ds.load()
+        first = next(iter(datasets.values()))
+        W = self.member0(first)
+        return plotting.draw(datasets, W if W is not None and np.isfinite(W).all() else None, folder, stem)
+
+    def member0(self, ds) -> np.ndarray | None:
+        """W of member 0 at every output time of a run's dataset: stored, kept
+        from the run in this process, or integrated again (one member)."""
+        if "vorticity_real" in ds:
+            return ds["vorticity_real"].values[0] + 1j * ds["vorticity_imag"].values[0]
+        W = _MEMBER0.get(ds.attrs["scene"])
+        if W is not None:
+            return W
+        import tomllib
+
+        from ..scene import load_scene
+        from .run import initial_fields, integrate
+
+        scene = load_scene(tomllib.loads(ds.attrs["scene"]))
+        traj = integrate(scene, initial_fields(scene, np.arange(1)), progress=False,
+                         budget_members=budget_members(scene))
+        return traj.out.W_first
+
+    # ---------------------------------------------------------- preflight
+    def check_parameters(self, scene) -> None:
+        from ..preflight import PreflightError
+
+        for key in ("integrator.steps", "output.every", "output.member_chunk", "ensemble.members"):
+            section, name = key.split(".")
+            v = scene[section][name]
+            if v > np.iinfo(np.int64).max:
+                raise PreflightError(f"scene key '{key}': too large for the arrays (at most "
+                                     f"{np.iinfo(np.int64).max}) (got {v})")
+
+    def estimate(self, scene):
+        from ..io import disk_chunk_members
+        from ..preflight import Estimate
+        from . import estimate as ze
+        from .run import factors
+
+        N, M = int(scene["zeitlin"]["N"]), int(scene["ensemble"]["members"])
+        T = int(scene["integrator"]["steps"]) // int(scene["output"]["every"]) + 1
+        per_var = [8 * T] * 8 + [8 * T * 3] * 3 + [8 * T * (N - 1)]  # (member, t[, k | axis | l]) values
+        if scene["output"]["vorticity"]:
+            per_var += [8 * T * N * N] * 2
+        layout = [(n, disk_chunk_members(M, n)) for n in per_var] + [(1, 0), (8, 0), (8, 0)]
+        file_per = sum(n for n, _ in layout)
+        W = 16 * N * N
+        method = scene["integrator"]["method"]
+        work = ze.STATE_COPIES * W + 8 * T * (N + 12)
+        if method not in ("rk4", "reference"):
+            work += 4 * len(factors(method, scene["integrator"]["composition"])) * W
+        if scene["output"]["vorticity"]:
+            work += W * T  # kept by the run, then labelled (in the file's bytes below)
+        memory_per = work + 2 * file_per  # the labelled chunk and its encoded copy
+        fixed = ze.basis_bytes(N) + W * T  # the basis; member 0's W for the figures
+        return Estimate(file_per, memory_per, M, int(scene["output"]["member_chunk"]), layout, fixed)
+
+    def estimate_time(self, scene):
+        from .estimate import estimate
+
+        return TimeEstimate(estimate(scene, [scene["integrator"]["method"]]))
+
+    def long_run(self, scene) -> bool:
+        return int(scene["zeitlin"]["N"]) >= ANNOUNCE_N
+
+
+register(Fluid())
