@@ -34,7 +34,7 @@ def cmd_run(args) -> int:
     from .scene import SceneError, load_scene
 
     try:
-        scene = load_scene(args.scene, args.set)
+        scene = load_scene(args.scene, args.set + ([f'ensemble.device="{args.device}"'] if args.device else []))
         if args.resume and args.force:
             raise PreflightError("--resume keeps what an earlier run left and --force replaces it: "
                                  "give one of them")
@@ -185,6 +185,9 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--set", metavar="SECTION.KEY=VALUE", action="append", default=[],
                    help="override a scene key with a TOML value, e.g. --set integrator.h=0.05 "
                    "--set 'initial.omega=[2,-1,0.5]' (repeatable)")
+    r.add_argument("--device", choices=("cpu", "gpu"), default=None,
+                   help="where the steps run (the scene key ensemble.device): gpu on a CUDA device, "
+                   "refused before any work where none can run them")
     r.add_argument("--no-progress", action="store_true", help="no progress bar")
     r.add_argument("--dask", metavar="local|ADDRESS", default=None,
                    help="run member chunks as tasks on a Dask cluster: 'local' starts a LocalCluster "

@@ -43,6 +43,41 @@ def gpu_available() -> tuple[bool, str]:
         return False, f"the CUDA device cannot be opened ({' '.join(str(exc).split())})"
 
 
+#: a kernel call's kept outputs take at most this many bytes of device memory
+OUT_BYTES = 256 * 2**20
+
+
+def top_device_bytes(members: int, width: int, nparam: int, shared: bool, n_out: int) -> int:
+    """Device memory of one member chunk of the top (bytes): state, parameters
+    (one row when the members share them), status and the outputs of one
+    kernel call (at most :data:`OUT_BYTES`, at least one output)."""
+    from .kernels.layout import NFSTAT, NISTAT
+
+    out = min(max(1, n_out) * width * members * 8, max(OUT_BYTES, width * members * 8))
+    return 8 * (width * members + (nparam if shared else nparam * members)
+                + (NISTAT + NFSTAT) * members) + out
+
+
+def device_memory() -> tuple[int, int] | None:
+    """(free, total) bytes of the current CUDA device, or None."""
+    ok, _ = gpu_available()
+    if ok:
+        try:
+            from numba import cuda
+
+            free, total = cuda.current_context().get_memory_info()
+            return int(free), int(total)
+        except Exception:  # noqa: BLE001 - the simulator, a device that went away
+            pass
+    try:  # CuPy, which the fluid's steps use
+        import cupy
+
+        free, total = cupy.cuda.runtime.memGetInfo()
+        return int(free), int(total)
+    except Exception:  # noqa: BLE001 - not installed, no driver, no device
+        return None
+
+
 def require_gpu() -> str:
     """The device's name, or RuntimeError with the one-line reason."""
     ok, why = gpu_available()
@@ -51,4 +86,4 @@ def require_gpu() -> str:
     return why
 
 
-__all__ = ["DEVICES", "gpu_available", "require_gpu"]
+__all__ = ["DEVICES", "OUT_BYTES", "device_memory", "gpu_available", "require_gpu", "top_device_bytes"]

@@ -366,7 +366,13 @@ def estimate(scene: dict):
         layout.append((n, disk_chunk_members(members, n) if var.ndim > 1 else 0))
     per = sum(n for n, _ in layout)
     memory = int(MEMORY_FACTOR * per) + n_t * width * 8
-    return Estimate(per, memory, members, int(outp["member_chunk"]), layout)
+    est = Estimate(per, memory, members, int(outp["member_chunk"]), layout)
+    if scene["ensemble"]["device"] == "gpu":
+        from .gpu import top_device_bytes
+
+        est.device_memory = top_device_bytes(est.chunk_members, width, run.model.nparam,
+                                             run.model.shared is not None, (steps // every))
+    return est
 
 
 def _parameter_keys() -> tuple[str, ...]:
@@ -392,6 +398,15 @@ def check_parameters(scene: dict) -> None:
     from .preflight import PreflightError
     from .resolve import resolve
 
+    if scene["ensemble"]["device"] == "gpu":
+        from .gpu import gpu_available
+
+        ok, why = gpu_available()
+        if not ok:
+            raise PreflightError(f"scene key 'ensemble.device': \"gpu\" cannot run here: {why}")
+        if scene["integrator"]["method"] == "reference":
+            raise PreflightError("scene key 'ensemble.device': the reference method runs on the CPU only "
+                                 "(\"gpu\" runs vi, vi4, vi6, split, split4, split6, rk2 and rk4)")
     for key in INT64_KEYS:
         section, name = key.split(".")
         v = scene[section][name]

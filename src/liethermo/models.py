@@ -91,7 +91,7 @@ class Model:
     #: scene keys (section, key) that do not change what a run writes: an output made
     #: with other values of them is the same run's (replaced, resumed)
     not_in_results: frozenset = frozenset({("output", "figures"), ("output", "compare"),
-                                           ("output", "member_chunk")})
+                                           ("output", "member_chunk"), ("ensemble", "device")})
     #: True where a member's last bits depend on the batch it is computed in (BLAS
     #: products over the chunk): Dask tasks are then the scene's member chunks, and
     #: ``output.member_chunk`` is part of the results

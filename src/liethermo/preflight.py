@@ -160,6 +160,8 @@ class Estimate:
     layout: list = field(default_factory=list)
     #: memory a run needs once whatever its chunk (e.g. a basis the steps share)
     fixed_memory: int = 0
+    #: GPU memory of one member chunk (bytes; 0 for a run on the CPU)
+    device_memory: int = 0
 
     @property
     def file_bytes(self) -> int:
@@ -247,6 +249,7 @@ class RunPlan:
     disk_need: int = 0
     disk_free: int | None = None
     memory_available: int | None = None
+    device_free: int | None = None  # bytes free on the GPU of a run there
     resume_sources: dict = field(default_factory=dict)  # {path: ResumeSource}
     created: list = field(default_factory=list)  # folders made for the outputs
 
@@ -269,8 +272,12 @@ class RunPlan:
         mem = human_bytes(e.memory)
         free = f", {human_bytes(self.disk_free)} free" if self.disk_free is not None else ""
         avail = f", {human_bytes(self.memory_available)} available" if self.memory_available is not None else ""
+        gpu = ""
+        if e.device_memory:
+            have = f", {human_bytes(self.device_free)} free" if self.device_free is not None else ""
+            gpu = f"; about {human_bytes(e.device_memory)} of GPU memory{have}"
         return (f"{n} output file(s), about {human_bytes(self.disk_need)} on disk{free}; "
-                f"at most about {mem} of memory (member chunks of {e.chunk_members}){avail}")
+                f"at most about {mem} of memory (member chunks of {e.chunk_members}){avail}{gpu}")
 
 
 def _first_existing(p: Path) -> Path:
@@ -436,6 +443,18 @@ def _check_sizes(plan: RunPlan, scene: dict, *, dask: bool, combine: bool, check
                 f"{human_bytes(e.file_per_member)}{' x 2 for the Dask parts' if dask and combine else ''}) "
                 f"but the disk of {root} has {human_bytes(free)} free; run fewer members (ensemble.members) "
                 f"or store less ({model_of(scene).store_less})")
+    gpu = max(ests.values(), key=lambda e: e.device_memory)
+    if gpu.device_memory:
+        from .gpu import device_memory
+
+        dm = device_memory()
+        plan.device_free = None if dm is None else dm[0]
+        if dm is not None and gpu.device_memory > dm[0]:
+            fit = max(1, int(gpu.chunk_members * dm[0] / gpu.device_memory) // 2)
+            raise PreflightError(
+                f"a member chunk of {gpu.chunk_members} members would need about "
+                f"{human_bytes(gpu.device_memory)} of GPU memory but {human_bytes(dm[0])} are free; "
+                f"lower output.member_chunk (to about {fit})")
     if not check_memory:
         return
     avail = available_memory()

@@ -66,12 +66,12 @@ class ResolvedRun:
     def simulate_options(self, kernel: str = "auto") -> dict:
         """The keywords of :func:`liethermo.simulate.simulate`, besides the
         method choice, that the scene fixes for every part of its run: the
-        Newton settings, the attitude, the ensemble loop (:meth:`kernel`) and
-        the heat bound (the same kernel model for every chunk)."""
+        Newton settings, the attitude, the ensemble loop (:meth:`kernel`), the
+        heat bound (the same kernel model for every chunk) and the device."""
         integ = self.scene["integrator"]
         return dict(attitude=self.attitude, newton_tol=float(integ["newton_tol"]),
                     newton_maxiter=int(integ["newton_maxiter"]), kernel=self.kernel(kernel),
-                    heat_bound=self.heat_bound)
+                    heat_bound=self.heat_bound, device=self.scene["ensemble"]["device"])
 
     def simulate(self, omega0: np.ndarray, R0: np.ndarray, *, steps: int | None = None,
                  every: int | None = None, kernel: str = "auto", **kw):

@@ -289,6 +289,10 @@ CORE_KEYS: tuple[Key, ...] = (
         "members; with more than one, initial conditions are drawn from the seed", integer()),
     Key("ensemble", "seed", 0, "1", "integer ≥ 0", "seed of the random initial conditions",
         integer(0)),
+    Key("ensemble", "device", "cpu", "", '"cpu" | "gpu"',
+        "where the steps run: gpu runs every method but the reference on a CUDA device "
+        "(numba-cuda, one thread per member), with the same results bit for bit; refused before "
+        "any work where no device can run it", choice("cpu", "gpu")),
     Key("ensemble", "spin_range", [0.5, 1.5], "1", "[lo, hi], 0 ≤ lo ≤ hi",
         "|Ω(0)| drawn uniformly in this range × |initial.omega|", _spin_range_check),
     Key("output", "every", 1, "1", "integer ≥ 1 dividing integrator.steps",

@@ -210,7 +210,8 @@ class Fluid(Model):
 
         method = scene["integrator"]["method"]
         W0 = self.initial_conditions(scene, lo, hi)
-        traj = integrate(scene, W0, method=method, progress=False, budget_members=budget_members(scene))
+        traj = integrate(scene, W0, method=method, progress=False, budget_members=budget_members(scene),
+                         backend=scene["ensemble"]["device"])
         if lo == 0:
             _MEMBER0.clear()
             _MEMBER0[scene.to_toml()] = traj.out.W_first
@@ -259,6 +260,17 @@ class Fluid(Model):
     def check_parameters(self, scene) -> None:
         from ..preflight import PreflightError
 
+        if scene["ensemble"]["device"] == "gpu":
+            from .xpstep import namespace
+
+            try:
+                namespace("gpu")
+            except RuntimeError as exc:
+                raise PreflightError(f"scene key 'ensemble.device': \"gpu\" cannot run here: {exc}") from None
+            if scene["integrator"]["method"] == "reference":
+                raise PreflightError("scene key 'ensemble.device': the reference method runs on the CPU "
+                                     "only (\"gpu\" runs split, split4, split6 and rk4)")
+
         for key in ("integrator.steps", "output.every", "output.member_chunk", "ensemble.members"):
             section, name = key.split(".")
             v = scene[section][name]
@@ -288,7 +300,12 @@ class Fluid(Model):
             work += W * T  # kept by the run, then labelled (in the file's bytes below)
         memory_per = work + 2 * file_per  # the labelled chunk and its encoded copy
         fixed = ze.basis_bytes(N) + W * T  # the basis; member 0's W for the figures
-        return Estimate(file_per, memory_per, M, int(scene["output"]["member_chunk"]), layout, fixed)
+        est = Estimate(file_per, memory_per, M, int(scene["output"]["member_chunk"]), layout, fixed)
+        if scene["ensemble"]["device"] == "gpu" and method != "reference":
+            from .xpstep import memory_bytes
+
+            est.device_memory = memory_bytes(N, est.chunk_members, method, scene["integrator"]["composition"])
+        return est
 
     def estimate_time(self, scene):
         from .estimate import estimate
