@@ -15,7 +15,10 @@
    64 members, and a run at N = 1024;
 5. the peer: the same RK4 of the top written in JAX with ``vmap``
    (``jax_peer.py``), at the same members and steps, and its agreement with
-   ours.
+   ours;
+6. ``liethermo run`` with ``--device gpu`` against the CPU for the paper
+   scene and the fluid (whole files compared variable by variable), and the
+   ``--check`` line of a 2²²-member run.
 
 Each method compiles in its own process (the device machine has many cores
 and a CUDA compile is single-threaded); the timings are then taken one
@@ -274,6 +277,53 @@ def _free(xp):
         xp.get_default_memory_pool().free_all_blocks()
 
 
+def _cli(*args):
+    import subprocess
+
+    t0 = time.perf_counter()
+    p = subprocess.run([sys.executable, "-m", "liethermo.cli", *args], capture_output=True, text=True)
+    return p, time.perf_counter() - t0
+
+
+def run_layer_section(args):
+    """``liethermo run`` with ``--device gpu`` against the CPU, whole files."""
+    import numpy as np
+    import xarray as xr
+
+    say("\n## The run layer: `liethermo run SCENE --device gpu` against the CPU")
+    cases = (("paper", ["--set", f"ensemble.members={args.run_members}", "--set", "output.compare=[]"]),
+             ("zeitlin_decay", ["--set", "zeitlin.N=64", "--set", "ensemble.members=64",
+                                "--set", "integrator.steps=200"]))
+    for scene, sets in cases:
+        files = {}
+        for device in ("gpu", "cpu"):
+            out = os.path.join(args.scratch, f"{scene}_{device}.nc")
+            p, sec = _cli("run", scene, "-o", out, "--force", "--no-progress", "--device", device, *sets)
+            if p.returncode:
+                say(f"{scene} on the {device}: FAILED\n{p.stderr[-3000:]}")
+                break
+            files[device] = out
+            say(f"{scene} on the {device}: {sec:.1f} s (the command, start-up and compilation included)")
+        if len(files) < 2:
+            continue
+        with xr.open_dataset(files["gpu"]) as g, xr.open_dataset(files["cpu"]) as c:
+            same, worst = [], 0.0
+            for v in c.data_vars:
+                a, b = c[v].values, g[v].values
+                if np.array_equal(a, b, equal_nan=a.dtype.kind == "f"):
+                    same.append(v)
+                elif a.dtype.kind == "f":
+                    ok = np.isfinite(a) & np.isfinite(b)
+                    worst = max(worst, float(np.abs(a[ok] - b[ok]).max() / max(np.abs(a[ok]).max(), 1e-300)))
+            say(f"  {len(same)} of {len(c.data_vars)} variables bit for bit; the others within a relative "
+                f"{worst:.1e}; status identical: {np.array_equal(g['status'].values, c['status'].values)}")
+    p, _ = _cli("run", "paper", "-o", os.path.join(args.scratch, "check.nc"), "--device", "gpu", "--check",
+                "--set", f"ensemble.members={2**22}", "--set", "output.every=100", "--set", "output.attitude=false",
+                "--set", "output.compare=[]")
+    say("`liethermo run paper --device gpu --check` (4 194 304 members): "
+        + " ".join((p.stdout + p.stderr).split())[-600:])
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
@@ -288,7 +338,8 @@ def main():
     ap.add_argument("--big-fluid-members", type=int, default=8)
     ap.add_argument("--fluid-xp", default="cupy", help="array module of the fluid (numpy: a dry run here)")
     ap.add_argument("--compile-timeout", type=float, default=300.0)
-    ap.add_argument("--skip", nargs="*", default=[], choices=["top", "fluid", "jax"])
+    ap.add_argument("--run-members", type=int, default=65536, help="members of the run-layer check")
+    ap.add_argument("--skip", nargs="*", default=[], choices=["top", "fluid", "jax", "run"])
     ap.add_argument("--scratch", default=os.environ.get("TMPDIR", "/tmp"))
     args = ap.parse_args()
     t0 = time.perf_counter()
@@ -314,6 +365,12 @@ def main():
     if "jax" not in args.skip:
         try:
             jax_section(args, results)
+        except Exception:  # noqa: BLE001
+            say(traceback.format_exc())
+    say(f"[{time.perf_counter() - t0:.0f} s]")
+    if "run" not in args.skip:
+        try:
+            run_layer_section(args)
         except Exception:  # noqa: BLE001
             say(traceback.format_exc())
     say(f"\ntotal {time.perf_counter() - t0:.0f} s")
