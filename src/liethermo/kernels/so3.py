@@ -9,13 +9,12 @@ vector form reads
 It rotates by the angle 2·atan(|w|/2) about w (not |w|): the phase error of a
 Cayley step of size h|Ω| is ≈ (h|Ω|)³/12 per step.  The ``*_lane`` functions
 are the scalar forms (explicit fused multiply-adds) that every kernel shares,
-so the straightforward and the vectorized kernels get the same bits; the
-array functions write into caller-allocated ``out`` arrays.
+so the straightforward and the vectorized kernels get the same bits.
 """
 
 from __future__ import annotations
 
-from ._jit import fma, jit, lane
+from ._jit import fma, lane
 
 
 @lane
@@ -75,57 +74,3 @@ def attitude_rate_lane(R, w0, w1, w2):
     b0, b1, b2 = cross_lane(R[3], R[4], R[5], w0, w1, w2)
     c0, c1, c2 = cross_lane(R[6], R[7], R[8], w0, w1, w2)
     return (a0, a1, a2, b0, b1, b2, c0, c1, c2)
-
-
-@jit
-def cross(a, b, out):
-    """out = a × b (out may not alias a or b)."""
-    out[0], out[1], out[2] = cross_lane(a[0], a[1], a[2], b[0], b[1], b[2])
-
-
-@jit
-def hat(w, out):
-    """out = ŵ, the 3×3 skew matrix with ŵ v = w × v."""
-    out[0, 0] = 0.0
-    out[0, 1] = -w[2]
-    out[0, 2] = w[1]
-    out[1, 0] = w[2]
-    out[1, 1] = 0.0
-    out[1, 2] = -w[0]
-    out[2, 0] = -w[1]
-    out[2, 1] = w[0]
-    out[2, 2] = 0.0
-
-
-@jit
-def cayley_apply(w, v, out):
-    """out = cay(ŵ) v, computed without forming the matrix; out may alias v."""
-    out[0], out[1], out[2] = cayley_lane(w[0], w[1], w[2], v[0], v[1], v[2])
-
-
-@jit
-def cayley_matrix(w, out):
-    """out = cay(ŵ) = I + 4/(4+|w|²) (ŵ + ½ ŵ²) as a 3×3 matrix."""
-    C = cayley_matrix_lane(w[0], w[1], w[2])
-    for i in range(3):
-        for j in range(3):
-            out[i, j] = C[3 * i + j]
-
-
-@jit
-def attitude_update(R, w, out):
-    """out = R cay(ŵ): the attitude update R_{k+1} = R_k cay(hΩ̂_k) with w = hΩ_k;
-    out must not alias R."""
-    C = cayley_matrix_lane(w[0], w[1], w[2])
-    for i in range(3):
-        out[i, 0], out[i, 1], out[i, 2] = row_times_lane(R[i, 0], R[i, 1], R[i, 2], C)
-
-
-@jit
-def cayley_inverse(Q, out):
-    """out = w with cay(ŵ) = Q, for a rotation Q with trace > −1:
-    ŵ = 2 (Q − I)(Q + I)⁻¹, i.e. w = 2 vee(Q − Qᵀ) / (1 + tr Q)."""
-    d = 1.0 + Q[0, 0] + Q[1, 1] + Q[2, 2]
-    out[0] = 2.0 * (Q[2, 1] - Q[1, 2]) / d
-    out[1] = 2.0 * (Q[0, 2] - Q[2, 0]) / d
-    out[2] = 2.0 * (Q[1, 0] - Q[0, 1]) / d
