@@ -307,16 +307,20 @@ def run_layer_section(args):
         if len(files) < 2:
             continue
         with xr.open_dataset(files["gpu"]) as g, xr.open_dataset(files["cpu"]) as c:
-            same, worst = [], 0.0
+            same, worst = [], {}
             for v in c.data_vars:
                 a, b = c[v].values, g[v].values
                 if np.array_equal(a, b, equal_nan=a.dtype.kind == "f"):
                     same.append(v)
                 elif a.dtype.kind == "f":
                     ok = np.isfinite(a) & np.isfinite(b)
-                    worst = max(worst, float(np.abs(a[ok] - b[ok]).max() / max(np.abs(a[ok]).max(), 1e-300)))
-            say(f"  {len(same)} of {len(c.data_vars)} variables bit for bit; the others within a relative "
-                f"{worst:.1e}; status identical: {np.array_equal(g['status'].values, c['status'].values)}")
+                    worst[v] = float(np.abs(a[ok] - b[ok]).max() / max(np.abs(a[ok]).max(), 1e-300))
+                else:
+                    worst[v] = float("nan")
+            others = ", ".join(f"{v} {d:.1e}" for v, d in worst.items())
+            say(f"  {len(same)} of {len(c.data_vars)} variables bit for bit"
+                + (f"; the others, largest difference over their largest value: {others}" if worst else "")
+                + f"; status identical: {np.array_equal(g['status'].values, c['status'].values)}")
     p, _ = _cli("run", "paper", "-o", os.path.join(args.scratch, "check.nc"), "--device", "gpu", "--check",
                 "--set", f"ensemble.members={2**22}", "--set", "output.every=100", "--set", "output.attitude=false",
                 "--set", "output.compare=[]")

@@ -21,12 +21,15 @@ scene key changes the stored scene text, not the numbers).
 from __future__ import annotations
 
 import argparse
+import os
 import json
 import sys
 import time
 from pathlib import Path
 
-import numpy as np
+os.environ.setdefault("NUMBA_OPT", "2")  # as the console script: the kernels it caches are the ones runs load
+
+import numpy as np  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = ROOT / "src" / "liethermo" / "scenes"
