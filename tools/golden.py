@@ -21,8 +21,8 @@ scene key changes the stored scene text, not the numbers).
 from __future__ import annotations
 
 import argparse
-import os
 import json
+import os
 import sys
 import time
 from pathlib import Path
