@@ -210,8 +210,13 @@ class Fluid(Model):
 
         method = scene["integrator"]["method"]
         W0 = self.initial_conditions(scene, lo, hi)
-        traj = integrate(scene, W0, method=method, progress=False, budget_members=budget_members(scene),
-                         backend=scene["ensemble"]["device"])
+        if scene["ensemble"]["device"] == "gpu":
+            from .xpstep import integrate_xp, namespace
+
+            traj = integrate_xp(namespace("gpu"), scene, W0, method=method, progress=False,
+                                budget_members=budget_members(scene))
+        else:
+            traj = integrate(scene, W0, method=method, progress=False, budget_members=budget_members(scene))
         if lo == 0:
             _MEMBER0.clear()
             _MEMBER0[scene.to_toml()] = traj.out.W_first

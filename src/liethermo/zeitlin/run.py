@@ -249,20 +249,13 @@ class Trajectory:
 
 
 def integrate(scene: ZeitlinScene, W0: np.ndarray, *, method: str | None = None, progress=None,
-              keep_vorticity: bool | None = None, budget_members: int | None = None,
-              backend: str = "cpu") -> Trajectory:
+              keep_vorticity: bool | None = None, budget_members: int | None = None) -> Trajectory:
     """Integrate the members W0 with the scene's method; outputs every
     output.every steps.  ``keep_vorticity``: keep W of every member at every
     output (default: the scene's output.vorticity).  ``budget_members``: the
     batch size that sets the fixed point predictor's order (default: W0's;
-    see :class:`Predictor`).  ``backend``: "cpu" (the numba kernels), or the
-    steps over an array namespace (:mod:`.xpstep`): "gpu" (CuPy), "cpu-xp"
-    (numpy)."""
-    if backend != "cpu":
-        from . import xpstep
-
-        return xpstep.integrate_xp(xpstep.namespace(backend), scene, W0, method=method, progress=progress,
-                                   keep_vorticity=keep_vorticity, budget_members=budget_members)
+    see :class:`Predictor`).  The same steps over an array namespace (CuPy on
+    a GPU): :func:`.xpstep.integrate_xp`."""
     z, itg, out = scene["zeitlin"], scene["integrator"], scene["output"]
     method = method or itg["method"]
     b = zk.basis(z["N"])
@@ -528,14 +521,13 @@ def check_memory(scene: ZeitlinScene) -> None:
                          f"store fewer outputs (output.every) or members, or leave the vorticity out", True)
 
 
-def simulate(scene: ZeitlinScene, *, method: str | None = None, progress=None, history=None,
-             backend: str = "cpu") -> xr.Dataset:
+def simulate(scene: ZeitlinScene, *, method: str | None = None, progress=None, history=None) -> xr.Dataset:
     """Run the scene's ensemble with its method (or ``method``) into an in-memory
-    dataset; ``backend`` as in :func:`integrate`."""
+    dataset."""
     check_memory(scene)
     W0 = initial_fields(scene)
     method = method or scene["integrator"]["method"]
-    traj = integrate(scene, W0, method=method, progress=progress, backend=backend)
+    traj = integrate(scene, W0, method=method, progress=progress)
     ds = trajectory_dataset(scene, traj, method, history)
     ds.attrs["summary"] = summary(ds)
     return ds
