@@ -17,16 +17,7 @@ from __future__ import annotations
 
 import sys
 
-try:
-    from importlib.metadata import version as _version
-
-    __version__ = _version("liethermo")
-except Exception:  # pragma: no cover - not installed
-    __version__ = "0+unknown"
-
-#: the modules that register the models (:mod:`liethermo.models`), imported on
-#: first need (when a scene is loaded); each is light and registers one model
-MODEL_MODULES = ("liethermo.heavy_top", "liethermo.zeitlin.model")
+from .version import __version__
 
 __all__ = ["run", "study", "load_scene", "open_dataset", "StudyResult", "SceneError", "PreflightError",
            "__version__"]

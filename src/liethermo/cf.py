@@ -196,7 +196,7 @@ def encode_attrs(attrs: dict, history: str | None = None, conventions: bool = Tr
     (removed with ``conventions=False``: a file that does not claim CF);
     ``history`` set to a timestamped line with ``history`` if given, else kept
     (or, if missing, a line naming the liethermo version that wrote the file)."""
-    from . import __version__
+    from .version import __version__
 
     out = dict(attrs)
     if conventions:

@@ -12,7 +12,7 @@ import shlex
 import sys
 from pathlib import Path
 
-from . import __version__
+from .version import __version__
 
 EXIT_INVALID = 2  # invalid input, refused run, failed write: one line on stderr
 #: flags that do not change what a command writes, left out of the files' history

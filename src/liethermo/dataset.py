@@ -23,7 +23,8 @@ import platform
 import numpy as np
 import xarray as xr
 
-from . import __version__, cf
+from . import cf
+from .version import __version__
 from . import physics as ph
 from .kernels.layout import STATUS_MEANINGS
 from .methods import METHODS

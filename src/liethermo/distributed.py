@@ -53,9 +53,10 @@ from typing import Any, Callable, Iterable
 
 import numpy as np
 
-from . import __version__, cf
+from . import cf
 from .faults import POLL_SECONDS, Interrupted, check_stop, folder_leftovers, remove_files
-from .io import ChunkedWriter, write_atomic
+from .io import ChunkedWriter, parts_dir, write_atomic
+from .version import __version__
 from .models import model_of
 from .runner import _progress_bar, run_chunk, scene_setup
 from .scene import scene_to_toml
@@ -195,11 +196,6 @@ def scene_key(scene: dict) -> str:
     scene (or version) are never reused."""
     text = f"{__version__}\n{scene_to_toml(scene)}"
     return hashlib.sha256(text.encode()).hexdigest()[:20]
-
-
-def parts_dir(out: str | os.PathLike) -> Path:
-    out = Path(out)
-    return out.with_name(out.name + ".parts")
 
 
 def part_path(parts: Path, lo: int, hi: int) -> Path:

@@ -43,15 +43,11 @@ def gpu_available() -> tuple[bool, str]:
         return False, f"the CUDA device cannot be opened ({' '.join(str(exc).split())})"
 
 
-#: a kernel call's kept outputs take at most this many bytes of device memory
-OUT_BYTES = 256 * 2**20
-
-
 def top_device_bytes(members: int, width: int, nparam: int, shared: bool, n_out: int) -> int:
     """Device memory of one member chunk of the top (bytes): state, parameters
     (one row when the members share them), status and the outputs of one
     kernel call (at most :data:`OUT_BYTES`, at least one output)."""
-    from .kernels.layout import NFSTAT, NISTAT
+    from .kernels.layout import NFSTAT, NISTAT, OUT_BYTES
 
     out = min(max(1, n_out) * width * members * 8, max(OUT_BYTES, width * members * 8))
     return 8 * (width * members + (nparam if shared else nparam * members)
@@ -86,4 +82,4 @@ def require_gpu() -> str:
     return why
 
 
-__all__ = ["DEVICES", "OUT_BYTES", "device_memory", "gpu_available", "require_gpu", "top_device_bytes"]
+__all__ = ["DEVICES", "device_memory", "gpu_available", "require_gpu", "top_device_bytes"]

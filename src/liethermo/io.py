@@ -42,7 +42,8 @@ import netCDF4
 import numpy as np
 import xarray as xr
 
-from . import __version__, cf
+from . import cf
+from .version import __version__
 from .faults import check_stop, create_temp, leftovers, release_temp
 
 CHUNK_BYTES = 4 * 2**20  # target on-disk chunk size
@@ -306,6 +307,12 @@ class ChunkedWriter:
 def partial_path(out: Path) -> Path:
     """Where an interrupted run keeps its completed members: ``<OUT>.partial``."""
     return out.with_name(out.name + ".partial")
+
+
+def parts_dir(out: str | os.PathLike) -> Path:
+    """Where a Dask run keeps its tasks' chunk files: ``<OUT>.parts/``."""
+    out = Path(out)
+    return out.with_name(out.name + ".parts")
 
 
 def journal_path(data: Path) -> Path:

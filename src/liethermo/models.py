@@ -6,7 +6,7 @@ fluid, …) to the run layer with one object, registered once::
     from liethermo.models import register
     register(MyModel())
 
-(a package's model module is listed in ``liethermo.MODEL_MODULES``, so that
+(a package's model module is listed in ``liethermo.models.MODEL_MODULES``, so that
 it registers on first need).  The runner (member chunks, streaming writes,
 journal, lock, resume, stop signals), the preflight checks, Dask runs, the
 command line (``run``, ``keys``, ``--check``), the Python API and the study
@@ -175,13 +175,16 @@ def unregister(name: str) -> None:
     _MODELS.pop(name, None)
 
 
+#: the modules that register the built-in models, imported on first need (when a
+#: scene is loaded); each is light and registers one model
+MODEL_MODULES = ("liethermo.heavy_top", "liethermo.zeitlin.model")
+
+
 def models() -> list[Model]:
-    """Every registered model, once the modules of ``liethermo.MODEL_MODULES`` have registered theirs."""
+    """Every registered model, once the modules of :data:`MODEL_MODULES` have registered theirs."""
     import importlib
 
-    import liethermo
-
-    for name in liethermo.MODEL_MODULES:
+    for name in MODEL_MODULES:
         importlib.import_module(name)
     return list(_MODELS.values())
 

@@ -322,8 +322,7 @@ def prepare_run(scene: dict, output=None, *, force: bool = False, resume: bool =
     ``warn_conflicts``: an existing output that the run would refuse to
     replace is a warning in ``plan.notes`` instead of an error (a check
     that still estimates the run)."""
-    from .distributed import parts_dir
-    from .io import journal_path, partial_path, resume_sources
+    from .io import journal_path, partial_path, parts_dir, resume_sources
     from .scene import scene_to_toml
 
     check_parameters(scene)
@@ -372,7 +371,7 @@ def prepare_run(scene: dict, output=None, *, force: bool = False, resume: bool =
                 if not src:
                     continue
                 j = src[0].journal
-                from . import __version__
+                from .version import __version__
 
                 if j.version != __version__:
                     raise PreflightError.remedy(f"cannot resume {o.path}: its partial run was made by "

@@ -560,7 +560,7 @@ def register_model(model: OtherModel) -> None:
 
 def _other_models() -> list[OtherModel]:
     """The scene sides of the models registered with :mod:`liethermo.models`
-    (their modules, ``liethermo.MODEL_MODULES``, imported on first need, so
+    (their modules, ``liethermo.models.MODEL_MODULES``, imported on first need, so
     that ``import liethermo`` stays light), and any registered here."""
     from .models import models
 

@@ -227,7 +227,7 @@ def kernel_for(stepper, template):
 
 
 #: the device buffer of a chunk's outputs holds at most this many bytes ...
-from ..gpu import OUT_BYTES  # noqa: E402
+from .layout import OUT_BYTES  # noqa: E402
 #: ... and a kernel call takes at most this many member-steps (seconds on an
 #: H100), so that progress is reported and a stop acted on between calls
 CALL_MEMBER_STEPS = 2**34

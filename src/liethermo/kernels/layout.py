@@ -46,6 +46,10 @@ NISTAT = 6
 FS_MAX_H_OMEGA = 0
 NFSTAT = 1
 
+#: on a GPU, a kernel call's kept outputs take at most this many bytes of device memory
+#: (:mod:`.cuda`); more outputs make more calls
+OUT_BYTES = 256 * 2**20
+
 # Newton outcome codes
 NEWTON_OK, NEWTON_MAXITER, NEWTON_SINGULAR = 0, 1, 2
 

@@ -12,7 +12,8 @@ from dataclasses import dataclass
 import numpy as np
 import xarray as xr
 
-from .. import __version__, cf
+from .. import cf
+from ..version import __version__
 from ..methods import COMPOSITION_FACTORS, LAW_ENTROPY_MONOTONE
 from . import kernels as zk
 from .. import heat as _heat
