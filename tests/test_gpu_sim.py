@@ -88,6 +88,7 @@ def _run_cases(out: Path) -> None:
                            stokes_resistance=phys.stokes_resistance * np.linspace(0.8, 1.2, N)[:, None])
         om, R = initial_conditions(sc, 0, N)
         opts = {**run.simulate_options("simple"), **kw}
+        opts.pop("device")  # the scene's (cpu): each call below names its own
         h = float(sc["integrator"]["h"])
         cpu = simulate(phys, om, R, h, STEPS, method, every=EVERY, **opts)
         gpu = simulate(phys, om, R, h, STEPS, method, every=EVERY, device="gpu", chunk_steps=CHUNK, **opts)
