@@ -53,6 +53,7 @@ from __future__ import annotations
 import contextlib
 import math
 import time
+import warnings
 
 import numba
 import numpy as np
@@ -63,6 +64,7 @@ if not hasattr(np, "row_stack"):
     np.row_stack = np.vstack
 
 from numba import cuda  # noqa: E402
+from numba.core.errors import NumbaPerformanceWarning  # noqa: E402
 
 from ._jit import lane
 from .gen import unflatten
@@ -312,7 +314,9 @@ def _launch_calls(kern, tpb, args, cap, n, N, n_out, every, dOUT, host, states, 
         tc = time.perf_counter()
         if start is not None:
             start.record()
-        kern[blocks, tpb](*args(nj))
+        with warnings.catch_warnings():  # a small ensemble fills few SMs, as its user knows
+            warnings.simplefilter("ignore", NumbaPerformanceWarning)
+            kern[blocks, tpb](*args(nj))
         if end is not None:
             end.record()
             end.synchronize()
