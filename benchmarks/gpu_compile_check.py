@@ -69,7 +69,7 @@ def stepper_and_model(scene: str, overrides: dict, method: str):
     from liethermo.kernels.split import can_split
     from liethermo.kernels.steppers import Explicit, Split, Variational
     from liethermo.kernels.terms.thermo import EXPLICIT, SYMMETRIC
-    from liethermo.methods import get_method
+    from liethermo.methods import MethodChoice
     from liethermo.physics import build_model
     from liethermo.resolve import resolve
     from liethermo.scene import load_scene
@@ -81,16 +81,20 @@ def stepper_and_model(scene: str, overrides: dict, method: str):
         phys = replace(phys, gravity_torque=phys.gravity_torque * np.linspace(0.5, 1.5, N)[:, None])
     opts = run.simulate_options("simple")
     km = build_model(phys, opts["attitude"], heat=opts["heat_bound"])
-    m = get_method(method)
+    integ = sc["integrator"]
+    c = MethodChoice.of(method, start=integ["start"], friction=integ["friction"], entropy=integ["entropy"],
+                        composition=integ["composition"])
+    m = c.method
     if m.family == "split" and can_split(km.model) is not None:
         return None
+    composition = c.composition or "small_error"
     if m.layout in ("rk", "split"):
-        tab = m.kernel_tableau(opts["composition"])
+        tab = m.kernel_tableau(composition)
         stepper = Split(tab, 1, type(tab).factors) if m.layout == "split" else Explicit(tab, 1)
     else:
-        factors = tuple(float(f) for f in m.substeps(opts["composition"]))
-        wl, wr = _vi.FRICTION_WEIGHTS[m.effective_friction(opts["friction"])]
-        mode = EXPLICIT if m.effective_entropy(opts["entropy"]) == "explicit" else SYMMETRIC
+        factors = tuple(float(f) for f in m.substeps(composition))
+        wl, wr = _vi.FRICTION_WEIGHTS[c.friction]
+        mode = EXPLICIT if c.entropy == "explicit" else SYMMETRIC
         stepper = Variational(factors, float(wl), float(wr), mode, float(opts["newton_tol"]),
                               int(opts["newton_maxiter"]))
     return stepper, km, km.layout(m.layout).size
