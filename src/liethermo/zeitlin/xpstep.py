@@ -519,6 +519,7 @@ def integrate_xp(xp, scene, W0: np.ndarray, *, method: str | None = None, progre
     kept steps' W, the same status, failed_step and iterations)."""
     from tqdm.auto import tqdm
 
+    from ..faults import check_stop
     from .run import Recorder, Trajectory, factors
 
     z, itg, out = scene["zeitlin"], scene["integrator"], scene["output"]
@@ -548,6 +549,7 @@ def integrate_xp(xp, scene, W0: np.ndarray, *, method: str | None = None, progre
     bar = tqdm(total=steps, desc=f"{scene.name} {method}", unit="step", leave=False,
                disable=None if progress is None else not progress)
     for k in range(1, steps + 1):
+        check_stop()
         if active.size == 0:
             break
         act = xp.asarray(active)
