@@ -100,7 +100,7 @@ def test_a_gap_equal_to_the_spread_ties_and_a_larger_one_ranks():
     a = cost(1.0, 1.125)  # spread 12.5 % < gap 25 %
     assert compare(a, b) == "a cheaper" and compare(b, a) == "b cheaper"
     assert rank({"b": b, "a": a}) == [["a"], ["b"]]
-    assert describe({"b": b, "a": a}) == "a (1 s, spread 12 %) < b (1.25 s, spread 0 %)"
+    assert describe({"b": b, "a": a}) == "a (1 s, spread 12 %) < b (1.25 s, spread 0.0 %)"
 
 
 def test_the_larger_spread_of_two_neighbours_decides_and_ties_chain():
@@ -108,14 +108,14 @@ def test_the_larger_spread_of_two_neighbours_decides_and_ties_chain():
     # p–q: gap 50 % ≤ q's 50 %; q–r: 33 % ≤ 50 %; r–s: 100 % > 12.5 %
     assert rank(costs) == [["p", "q", "r"], ["s"]]
     assert compare(costs["p"], costs["r"]) == "a cheaper"  # not neighbours in a chain: ranked alone
-    assert describe(costs) == ("p (1 s, spread 0 %), q (1.5 s, spread 50 %) and r (2 s, spread 0 %)"
+    assert describe(costs) == ("p (1 s, spread 0.0 %), q (1.5 s, spread 50 %) and r (2 s, spread 0.0 %)"
                                " tie within noise < s (4 s, spread 12 %)")
 
 
 def test_format_seconds_picks_the_unit():
     assert [format_seconds(t) for t in (2.5, 1.2e-3, 0.9996, 3.4e-6, 5e-9)] == \
         ["2.5 s", "1.2 ms", "1 s", "3.4 µs", "5 ns"]
-    assert format_cost("rk4", Cost.of([2e-3, 2.12e-3, 2.12e-3])) == "rk4 (2 ms, spread 6 %)"
+    assert format_cost("rk4", Cost.of([2e-3, 2.12e-3, 2.12e-3])) == "rk4 (2 ms, spread 6.0 %)"
 
 
 def test_equal_cost_check_flags_16_percent_and_not_14():

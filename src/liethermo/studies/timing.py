@@ -161,13 +161,14 @@ def format_seconds(t: float) -> str:
 
 
 def format_cost(name: str, cost: Cost) -> str:
-    """``"rk4 (2.00 ms, spread 6 %)"``: the best time and the spread."""
-    return f"{name} ({format_seconds(cost.best)}, spread {100 * cost.spread:.0f} %)"
+    """``"rk4 (2 ms, spread 6.0 %)"``: the best time and the spread (one decimal below 10 %)."""
+    pct = 100 * cost.spread
+    return f"{name} ({format_seconds(cost.best)}, spread {pct:.{1 if pct < 10 else 0}f} %)"
 
 
 def describe(costs: Mapping[str, Cost]) -> str:
-    """The ranking as a sentence fragment, e.g. ``"split6 (1.2 ms, spread 4 %) < vi4
-    (1.5 ms, spread 3 %) and split4 (1.52 ms, spread 5 %) tie within noise < rk4 (…)"``."""
+    """The ranking as a sentence fragment, e.g. ``"split6 (1.2 ms, spread 4.0 %) < vi4
+    (1.5 ms, spread 3.1 %) and split4 (1.52 ms, spread 5.2 %) tie within noise < rk4 (…)"``."""
     parts = []
     for group in rank(costs):
         words = [format_cost(name, costs[name]) for name in group]
