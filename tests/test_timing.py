@@ -112,6 +112,14 @@ def test_the_larger_spread_of_two_neighbours_decides_and_ties_chain():
                                " tie within noise < s (4 s, spread 12 %)")
 
 
+def test_gaps_within_the_noise_floor_tie_even_with_no_spread():
+    a, b = cost(1.0, 1.0), cost(1.015, 1.015)
+    assert compare(a, b) == "tie within noise" and rank({"a": a, "b": b}) == [["a", "b"]]
+    assert compare(a, b, floor=0.01) == "a cheaper" and rank({"a": a, "b": b}, floor=0) == [["a"], ["b"]]
+    with pytest.raises(ValueError, match="floor"):
+        rank({"a": a, "b": b}, floor=-0.1)
+
+
 def test_format_seconds_picks_the_unit():
     assert [format_seconds(t) for t in (2.5, 1.2e-3, 0.9996, 3.4e-6, 5e-9)] == \
         ["2.5 s", "1.2 ms", "1 s", "3.4 µs", "5 ns"]

@@ -4,7 +4,7 @@
 * :func:`measure` times candidates in interleaved, rotated rounds and returns a
   :class:`Cost` per candidate: the minimum over repeats with the spread beside it.
 * :func:`rank` and :func:`compare` state an order only where the gap exceeds the
-  measured spread, else a tie within noise; :func:`describe` words it for reports.
+  measured spread (and :data:`NOISE_FLOOR`), else a tie within noise; :func:`describe` words it for reports.
 * :func:`equal_cost_check` flags runs meant to cost the same that do not.
 
 Plain Python: no arrays, no I/O.
@@ -122,32 +122,38 @@ def measure(candidates: Mapping[str, Callable[[], float | None]], *, repeats: in
     return {name: Cost.of(samples[name]) for name in names}
 
 
-def _ties(a: Cost, b: Cost) -> bool:
+#: the smallest relative gap ever ranked: the same code timed twice differs by about
+#: a percent (memory placement, clock frequency), which one run's spread does not see
+NOISE_FLOOR = 0.02
+
+
+def _ties(a: Cost, b: Cost, floor: float) -> bool:
     lo, hi = sorted((a.best, b.best))
     gap = hi / lo - 1.0 if lo > 0 else (0.0 if hi == 0 else math.inf)
-    return gap <= max(a.spread, b.spread)
+    return gap <= max(a.spread, b.spread, _number("floor", floor))
 
 
-def rank(costs: Mapping[str, Cost]) -> list[list[str]]:
+def rank(costs: Mapping[str, Cost], floor: float = NOISE_FLOOR) -> list[list[str]]:
     """Groups of candidates, cheapest group first, sorted by ``best`` within a group.
 
     Two neighbours in the order of ``best`` tie within noise when their gap
-    ``best_b / best_a − 1`` does not exceed the larger of their two spreads; ties
-    chain, so a group is a run of neighbours each tied to the next, and no order is
-    claimed inside it.  Between groups the order holds beyond the measured spread."""
+    ``best_b / best_a − 1`` does not exceed the larger of their two spreads (nor
+    ``floor``); ties chain, so a group is a run of neighbours each tied to the next,
+    and no order is claimed inside it.  Between groups the order holds beyond the
+    measured spread."""
     order = sorted(costs, key=lambda name: costs[name].best)
     groups: list[list[str]] = []
     for name in order:
-        if groups and _ties(costs[groups[-1][-1]], costs[name]):
+        if groups and _ties(costs[groups[-1][-1]], costs[name], floor):
             groups[-1].append(name)
         else:
             groups.append([name])
     return groups
 
 
-def compare(a: Cost, b: Cost) -> str:
+def compare(a: Cost, b: Cost, floor: float = NOISE_FLOOR) -> str:
     """``"a cheaper"``, ``"b cheaper"`` or ``"tie within noise"`` (the rule of :func:`rank`)."""
-    if _ties(a, b):
+    if _ties(a, b, floor):
         return "tie within noise"
     return "a cheaper" if a.best < b.best else "b cheaper"
 
@@ -166,11 +172,11 @@ def format_cost(name: str, cost: Cost) -> str:
     return f"{name} ({format_seconds(cost.best)}, spread {pct:.{1 if pct < 10 else 0}f} %)"
 
 
-def describe(costs: Mapping[str, Cost]) -> str:
+def describe(costs: Mapping[str, Cost], floor: float = NOISE_FLOOR) -> str:
     """The ranking as a sentence fragment, e.g. ``"split6 (1.2 ms, spread 4.0 %) < vi4
     (1.5 ms, spread 3.1 %) and split4 (1.52 ms, spread 5.2 %) tie within noise < rk4 (…)"``."""
     parts = []
-    for group in rank(costs):
+    for group in rank(costs, floor):
         words = [format_cost(name, costs[name]) for name in group]
         if len(words) == 1:
             parts.append(words[0])
@@ -192,5 +198,5 @@ def equal_cost_check(costs: Mapping[str, float | Cost], tolerance: float = 0.15
     return sorted((f for f in flagged if f[2] > 1.0 + tolerance), key=lambda f: -f[2])
 
 
-__all__ = ["Cost", "pinned_threads", "measure", "rank", "compare", "describe", "format_cost",
+__all__ = ["NOISE_FLOOR", "Cost", "pinned_threads", "measure", "rank", "compare", "describe", "format_cost",
            "format_seconds", "equal_cost_check"]
