@@ -489,6 +489,26 @@ class HeavyTop(Model):
 
         return {n: MethodInfo(n, m.order(), tuple(m.laws), m.description) for n, m in METHODS.items()}
 
+    def study_state(self, ds) -> dict:
+        return {"omega": (ds["omega"].values, "rad s-1", "body angular velocity Omega (node values)"),
+                "gamma": (ds["gamma"].values, "1", "direction of gravity Gamma"),
+                "entropy": (ds["entropy"].values, "J K-1", "entropy S"),
+                "total_energy": (ds["energy_error"].values, "J", "total energy E (node values)")}
+
+    def method_overrides(self, label: str) -> dict:
+        from .methods import MethodChoice
+
+        return MethodChoice.parse(label).overrides()
+
+    def method_order(self, label: str) -> int:
+        from .methods import MethodChoice
+
+        return MethodChoice.parse(label).order()
+
+    def relative_energy_error(self, ds):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return ds["energy_error"].values / np.abs(ds["mechanical_energy_initial"].values)[:, None]
+
     def initial_conditions(self, scene, lo: int, hi: int):
         from .initial import initial_conditions
 

@@ -156,6 +156,33 @@ class Model:
         and ``warnings()`` (lines for stderr: a run of hours, or near the memory)."""
         raise NotImplementedError
 
+    # ---------------------------------------------------------- what studies compare
+    #: scene overrides that make a run store what :meth:`study_state` reads
+    study_outputs: dict = {}
+
+    def study_state(self, ds) -> dict:
+        """The state a study compares between methods, from a run's dataset:
+        ``{name: (array (member, t, ...), units, long name)}``; an error is the
+        norm over the trailing axes of a difference.  None: the model offers
+        no comparison (studies that need one refuse its scenes)."""
+        return None
+
+    def method_overrides(self, label: str) -> dict:
+        """Scene overrides that make a scene run the method ``label`` (a name, or a
+        model's richer label such as ``"vi:node:explicit"``)."""
+        if label not in self.methods():
+            raise ValueError(f"{label!r} is not a method of {self.title or self.name} "
+                             f"({', '.join(self.methods())})")
+        return {"integrator.method": label}
+
+    def method_order(self, label: str) -> int:
+        """The order the method ``label`` declares on this model's output values."""
+        return self.methods()[label].order
+
+    def relative_energy_error(self, ds):
+        """(member, t) the energy error of a run relative to its natural scale (1)."""
+        return None
+
     def long_run(self, scene) -> bool:
         """Whether the command line times the run before it starts (and says so if it is long)."""
         return False

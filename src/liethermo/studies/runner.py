@@ -52,7 +52,8 @@ def validate_study(study: dict) -> None:
         mod = get_study(kind)
     except ModuleNotFoundError as exc:
         raise StudyError(f"study.kind: the {kind!r} study is not available ({exc})") from None
-    allowed = BASE_KEYS | frozenset(getattr(mod, "EXTRA_KEYS", ()))
+    decl = getattr(mod, "STUDY", None)
+    allowed = BASE_KEYS | frozenset(decl.extra_keys if decl else getattr(mod, "EXTRA_KEYS", ()))
     for k in study:
         if not k.startswith("_") and k not in allowed:
             raise StudyError(f"{k}: unknown key in a {kind} study; known keys: {', '.join(sorted(allowed))}")
@@ -84,7 +85,9 @@ def validate_study(study: dict) -> None:
                     raise StudyError(f"sweep {key!r}: {exc}") from None
         if not points:
             study_scene(s)
-        if hasattr(mod, "validate"):
+        if decl is not None:
+            decl.validate(s)
+        elif hasattr(mod, "validate"):
             mod.validate(s)
 
 
@@ -110,7 +113,8 @@ def run_study(study: dict, outdir: Path, *, reduced: bool = False, progress: boo
             notes(f"liethermo: removed {n} temporary file{'s' if n != 1 else ''} ({human_bytes(size)}) "
                   f"left by interrupted or killed runs in {outdir}")
         mod = get_study(study["study"]["kind"])
-        return Path(mod.run(study, outdir, reduced=reduced, progress=progress, dask=dask, history=history))
+        run = mod.STUDY.run if hasattr(mod, "STUDY") else mod.run
+        return Path(run(study, outdir, reduced=reduced, progress=progress, dask=dask, history=history))
     finally:
         lock.release()
 

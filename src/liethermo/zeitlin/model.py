@@ -182,6 +182,17 @@ class Fluid(Model):
         return {m: MethodInfo(m, zr.METHOD_ORDER[m], zr.METHOD_LAWS[m], zr.METHOD_DESCRIPTION[m])
                 for m in zr.METHOD_ORDER}
 
+    study_outputs = {"output.vorticity": True}
+
+    def study_state(self, ds) -> dict:
+        W = ds["vorticity_real"].values + 1j * ds["vorticity_imag"].values
+        return {"vorticity": (W, ds["vorticity_real"].attrs.get("units", "s-1"), "vorticity matrix W"),
+                "heat": (ds["heat"].values, "J", "heat q"),
+                "entropy": (ds["entropy"].values, "J K-1", "entropy produced")}
+
+    def relative_energy_error(self, ds):
+        return ds["energy_error"].values
+
     def initial_conditions(self, scene, lo: int, hi: int):
         from .run import initial_fields
 

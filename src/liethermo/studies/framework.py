@@ -1,0 +1,695 @@
+"""Studies as declarations: what a study says, and what the framework does with it.
+
+A study module defines one :class:`Study`::
+
+    STUDY = Study(
+        kind="convergence", title="Convergence", models=None,       # None: every model
+        options=(Option("h0", 0.1, "number>0", "s", "coarsest step"), ...),
+        axes=lambda ctx: {"h": [...]},                              # besides "point" and "scheme"
+        stages=(Stage("reference", reference, over=("point",)),
+                Stage("errors", errors, over=("point", "scheme", "h"), needs=("reference",))),
+        quantities={"error": ("1", "relative error"), ...},       # one definition per quantity
+        derive=derive, tables=tables, verdicts=verdicts, findings=findings,
+        figures=(Figure("errors", x="h", y=("error",), claim="..."),),
+        report="Scene `{scene}`, t = {opt[t_end]} s ...")
+
+A stage's function is pure: ``fn(ctx, coords, **needed) -> xr.Dataset`` for
+one combination of its axes (``coords["point"]`` is the sweep point's
+``{"section.key": value}``, ``coords["scheme"]`` a method label, the study's
+own axes by name), given the results of the stages it ``needs`` at the same
+coordinates.  The framework owns the rest: options and their one-line errors,
+task planning, the resume cache (a task's result is a file; a rerun after any
+signal computes only what is missing), Dask, the progress bar, stacking into
+one dataset with the sweep keys and axes as dimensions, CF attributes from
+the quantities, atomic writes of netCDF, CSV and PNG, the figures (one colour
+per method in every panel, log axes where values span decades, legends off
+the data), and the report with its verdict table and findings.
+"""
+
+from __future__ import annotations
+
+import copy
+import itertools
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+import xarray as xr
+
+from .common import (StudyError, cached_point, coord_value, dim_name, expand_sweep, markdown_table, point_key,
+                     progress_bar, resolve_study, stack_points, study_history, study_name, study_netcdf_path,
+                     study_scene, write_atomic, write_netcdf_atomic, write_report, write_table)
+
+# ----------------------------------------------------------------------------- options
+
+def _num(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+_RULES = {
+    "number>0": ("a number > 0", lambda v: _num(v) and v > 0),
+    "number>=0": ("a number ≥ 0", lambda v: _num(v) and v >= 0),
+    "number": ("a number", _num),
+    "fraction": ("a number in (0, 1)", lambda v: _num(v) and 0 < v < 1),
+    "int>=1": ("an integer ≥ 1", lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 1),
+    "int>=0": ("an integer ≥ 0", lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 0),
+    "int>=2": ("an integer ≥ 2", lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 2),
+    "int>=5": ("an integer ≥ 5", lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 5),
+    "bool": ("true or false", lambda v: isinstance(v, bool)),
+    "str": ("a string", lambda v: isinstance(v, str)),
+}
+
+
+def _check_rule(rule: str, v) -> str | None:
+    """None if ``v`` follows ``rule``, else what it must be."""
+    if rule.startswith("list[") and rule.endswith("]"):
+        inner = rule[5:-1]
+        what, _ = _RULES[inner]
+        if not isinstance(v, list) or not v or any(_check_rule(inner, x) for x in v):
+            return f"a non-empty list of {what.replace('a ', '', 1).replace('an ', '', 1)}s"
+        return None
+    if rule.startswith("one of "):
+        choices = [c.strip() for c in rule[7:].split("|")]
+        return None if v in choices else "one of " + ", ".join(f'"{c}"' for c in choices)
+    what, ok = _RULES[rule]
+    return None if ok(v) else what
+
+
+@dataclass(frozen=True)
+class Option:
+    """One ``[options]`` entry: name, default, rule (``"number>0"``, ``"int>=5"``,
+    ``"fraction"``, ``"bool"``, ``"list[number>0]"``, ``"one of a|b"``, …), unit, meaning."""
+
+    name: str
+    default: Any
+    rule: str
+    units: str = ""
+    doc: str = ""
+    optional: bool = False  # None allowed (the default then means "not set")
+
+    def check(self, v):
+        if v is None and self.optional:
+            return
+        why = _check_rule(self.rule, v)
+        if why:
+            unit = f" ({self.units})" if self.units and self.units != "1" else ""
+            raise StudyError(f"options.{self.name}: must be {why}{unit}, got {v!r}")
+
+
+# ----------------------------------------------------------------------------- declarations
+
+@dataclass(frozen=True)
+class Stage:
+    """Tasks of one kind: ``fn(ctx, coords, **needed)`` over the Cartesian
+    product of the axes ``over``; ``needs``: stages whose axes are a subset
+    of these, passed by name; ``prefix``: put before every variable name;
+    ``serial``: run in this process even under Dask (timings)."""
+
+    name: str
+    fn: Callable
+    over: tuple[str, ...] = ("point",)
+    needs: tuple[str, ...] = ()
+    prefix: str = ""
+    serial: bool = False
+    keep: tuple[str, ...] | None = None  # the variables the study's dataset keeps (None: all)
+
+
+@dataclass(frozen=True)
+class Figure:
+    """A declared figure.  ``kind``: "lines" (``y`` against ``x``, one line per
+    ``hue`` value, one panel per ``y`` variable), "heatmap" (``y[0]`` over the
+    dims ``x`` and ``hue``; non-finite cells hatched, not coloured) or
+    "custom" (``draw(ds, ctx, fig)`` returns the axes it drew).  ``claim``:
+    the sentence the figure supports, stated in the report under it."""
+
+    name: str
+    claim: str
+    kind: str = "lines"
+    x: str = ""
+    y: tuple[str, ...] | Callable = ()  # names (``*`` patterns), or ds -> names
+    hue: str = "scheme"
+    facet: str | None = None  # a dimension: one panel per value (wrapped, at most 3 columns)
+    logx: bool | None = None  # None: where the values span more than two decades
+    logy: bool | None = None
+    title: str = ""
+    draw: Callable | None = None
+    select: Callable | None = None  # ds, ctx -> the part of ds drawn (default: the first sweep point)
+    size: tuple[float, float] | None = None
+
+
+@dataclass(frozen=True)
+class Table:
+    """A table of the report, also written as ``<name>.csv``."""
+
+    name: str
+    title: str
+    rows: list
+    footer: str = ""
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """One row of a report's verdict table: the claim, what was measured, the
+    rule, and whether the numbers above say it holds (None: not decided)."""
+
+    claim: str
+    measured: str
+    rule: str
+    holds: bool | None
+
+
+@dataclass
+class Study:
+    kind: str
+    title: str
+    description: str
+    options: tuple[Option, ...]
+    stages: tuple[Stage, ...]
+    quantities: dict[str, tuple[str, str]] | Callable  # {name: (units, long name)}, or ctx -> that
+    report: str = ""
+    models: tuple[str, ...] | None = None
+    axes: Callable | None = None  # ctx -> {axis: [values]} besides "point" and "scheme"
+    check: Callable | None = None  # ctx -> None (cross-option rules; raise StudyError)
+    needs_methods: bool = True
+    derive: Callable | None = None  # (ds, ctx) -> ds
+    tables: Callable | None = None  # (ds, ctx) -> [Table]
+    verdicts: Callable | None = None  # (ds, ctx) -> [Verdict]
+    findings: Callable | None = None  # (ds, ctx) -> [sentence]
+    facts: Callable | None = None  # (ds, ctx) -> {name: value} for the report template
+    figures: tuple[Figure, ...] = ()
+    extra_keys: tuple[str, ...] = ()
+
+    # ------------------------------------------------------------ the module contract
+    @property
+    def EXTRA_KEYS(self):  # noqa: N802 - the contract's name
+        return self.extra_keys
+
+    def option_values(self, s: dict) -> dict:
+        given = s.get("options", {}) or {}
+        if not isinstance(given, dict):
+            raise StudyError("options: must be a table")
+        known = {o.name: o for o in self.options}
+        for k in given:
+            if k not in known:
+                raise StudyError(f"options.{k}: unknown option of a {self.kind} study; known: "
+                                 f"{', '.join(sorted(known))}")
+        out = {}
+        for o in self.options:
+            v = given.get(o.name, copy.deepcopy(o.default))
+            o.check(v)
+            out[o.name] = v
+        return out
+
+    def context(self, study: dict, reduced: bool, outdir=None) -> "Context":
+        s = resolve_study(study, reduced)
+        opt = self.option_values(s)
+        methods = list(s.get("methods", []) or [])
+        if self.needs_methods and not methods:
+            raise StudyError(f"methods: a {self.kind} study needs at least one method")
+        ctx = Context(study=s, opt=opt, kind=self.kind, reduced=reduced, methods=methods,
+                      points=expand_sweep(s.get("sweep")), outdir=Path(outdir) if outdir is not None else None)
+        model = ctx.model
+        if self.models is not None and model.name not in self.models:
+            raise StudyError(f"study.base_scene: a {self.kind} study runs on a scene of "
+                             f"{' or '.join(self.models)}, not of {model.name} ({ctx.scene_name!r})")
+        known = set(model.methods())
+        for m in methods:
+            if m.split(":")[0] not in known:
+                raise StudyError(f"methods: {m!r} is not a method of {model.title or model.name} "
+                                 f"({', '.join(known)})")
+        ctx.axes = dict(self.axes(ctx)) if self.axes else {}
+        if self.check:
+            self.check(ctx)
+        return ctx
+
+    def validate(self, s: dict) -> None:
+        self.context(s, reduced=False)
+
+    def run(self, study: dict, outdir, *, reduced: bool, progress=None, dask=None, history=None) -> Path:
+        ctx = self.context(study, reduced, outdir)
+        ctx.outdir.mkdir(parents=True, exist_ok=True)
+        results = _compute(self, ctx, progress, dask)
+        ds = _assemble(self, ctx, results)
+        if self.derive:
+            ds = self.derive(ds, ctx)
+        _label(self, ctx, ds)
+        ctx.dataset = ds
+        nc = write_netcdf_atomic(ds, study_netcdf_path(ctx.study, ctx.outdir),
+                                 history=study_history(self.kind, ctx.study, ctx.outdir, reduced, history))
+        return _report(self, ctx, ds, nc)
+
+
+@dataclass
+class Context:
+    """What a stage function and the report see: the resolved study, its
+    options, sweep points, methods, the study's axes, and the scenes."""
+
+    study: dict
+    opt: dict
+    kind: str
+    reduced: bool
+    methods: list[str]
+    points: list[dict]
+    outdir: Path | None = None
+    axes: dict = field(default_factory=dict)
+    dataset: Any = None
+    _scenes: dict = field(default_factory=dict, repr=False)
+
+    def __getstate__(self):  # Dask ships contexts: no dataset, no cached scenes
+        d = dict(self.__dict__)
+        d["dataset"] = None
+        d["_scenes"] = {}
+        return d
+
+    @property
+    def name(self) -> str:
+        return study_name(self.study)
+
+    @property
+    def sweep_keys(self) -> list[str]:
+        return list(self.points[0]) if self.points and self.points[0] else []
+
+    @property
+    def scene_name(self) -> str:
+        return str(self.study.get("study", {}).get("base_scene", "paper"))
+
+    def scene(self, point: dict | None = None, **overrides):
+        """The validated scene of a sweep point (and further ``{"section.key": v}`` overrides)."""
+        pt = dict(point or {})
+        pt.update({k.replace("__", "."): v for k, v in overrides.items()})
+        key = point_key(pt)
+        if key not in self._scenes:
+            self._scenes[key] = study_scene(self.study, pt)
+        return self._scenes[key]
+
+    @property
+    def model(self):
+        from ..models import model_of
+
+        return model_of(self.scene(self.points[0] if self.points else None))
+
+    def color(self, method: str) -> str:
+        """The colour of a method, the same in every panel and figure of the study."""
+        return method_color(self.methods, method)
+
+
+# ----------------------------------------------------------------------------- runs
+
+def run_scene(scene, method: str, *, h: float, steps: int, every: int = 1, members: int | None = None,
+              threads: int | None = None, **overrides):
+    """Members ``0:members`` of ``scene`` run with ``method`` (a label of the
+    scene's model) at step ``h``: ``(labelled dataset, stats)`` from the model
+    (:meth:`liethermo.models.Model.run_chunk`), storing what the model's
+    :meth:`~liethermo.models.Model.study_state` reads.  ``stats.kernel_time``
+    is the integration's wall time, compilation excluded."""
+    from ..models import model_of
+
+    model = model_of(scene)
+    over = {**model.study_outputs, **model.method_overrides(method), "integrator.h": float(h),
+            "integrator.steps": int(steps), "output.every": int(every),
+            **{k.replace("__", "."): v for k, v in overrides.items()}}
+    if members is not None:
+        over["ensemble.members"] = int(members)
+    sc = scene.with_overrides(over)
+    n = int(sc["ensemble"]["members"])
+    return model.run_chunk(sc, 0, n, threads=threads)
+
+
+# ----------------------------------------------------------------------------- computing
+
+def _stage_axes(study: Study, ctx: Context, stage: Stage) -> list[tuple[str, list]]:
+    out = []
+    for ax in stage.over:
+        if ax == "point":
+            out.append(("point", ctx.points or [{}]))
+        elif ax == "scheme":
+            out.append(("scheme", ctx.methods))
+        elif ax in ctx.axes:
+            out.append((ax, list(ctx.axes[ax])))
+        else:
+            raise StudyError(f"stage {stage.name!r} of the {study.kind} study runs over an unknown axis {ax!r}")
+    return out
+
+
+def _tasks(study: Study, ctx: Context, stage: Stage) -> list[dict]:
+    axes = _stage_axes(study, ctx, stage)
+    return [dict(zip([a for a, _ in axes], combo)) for combo in itertools.product(*(v for _, v in axes))]
+
+
+def _key(study: Study, ctx: Context, stage: Stage, coords: dict) -> str:
+    scene = ctx.scene(coords.get("point"))
+    return point_key({"kind": study.kind, "stage": stage.name, "coords": coords, "opt": ctx.opt,
+                      "scene": scene})
+
+
+def _sub(coords: dict, over: tuple[str, ...]) -> dict:
+    return {k: coords[k] for k in over}
+
+
+def run_stage_task(kind: str, stage_name: str, ctx: Context, coords: dict, needed: dict) -> xr.Dataset:
+    """A stage function called by name (what a Dask worker runs)."""
+    from . import get_study
+
+    study = get_study(kind).STUDY
+    stage = next(s for s in study.stages if s.name == stage_name)
+    return stage.fn(ctx, coords, **needed)
+
+
+def _compute(study: Study, ctx: Context, progress, dask) -> dict[str, list[tuple[dict, xr.Dataset]]]:
+    from ..io import point_is_cached
+
+    stages = {s.name: s for s in study.stages}
+    plan = {s.name: _tasks(study, ctx, s) for s in study.stages}
+    keys = {s.name: [_key(study, ctx, s, c) for c in plan[s.name]] for s in study.stages}
+    results: dict[str, list[tuple[dict, xr.Dataset]]] = {}
+    done: dict[tuple[str, str], xr.Dataset] = {}
+
+    def needed(stage: Stage, coords: dict) -> dict:
+        out = {}
+        for n in stage.needs:
+            sub = _sub(coords, stages[n].over)
+            out[n] = done[(n, point_key(sub))]
+        return out
+
+    total = sum(len(v) for v in plan.values())
+    client_cm = None
+    if dask is not None:
+        from ..distributed import client_for
+
+        client_cm = client_for(dask)
+        client = client_cm.__enter__()
+    bar = progress_bar(total, progress, f"{ctx.name} tasks")
+    try:
+        for stage in study.stages:
+            todo = plan[stage.name]
+            if client_cm is not None and not stage.serial:
+                from ..distributed import map_cached_points
+
+                # the needed stages are complete (stages run in order): their results travel with the task
+                missing = [(k, run_stage_task, (study.kind, stage.name, ctx, c, needed(stage, c)))
+                           for c, k in zip(todo, keys[stage.name]) if not point_is_cached(ctx.outdir, k)]
+                if missing:
+                    map_cached_points(ctx.outdir, missing, client, progress=False)
+            out = []
+            for c, k in zip(todo, keys[stage.name]):
+                ds = cached_point(ctx.outdir, k, lambda c=c: stage.fn(ctx, c, **needed(stage, c)))
+                done[(stage.name, point_key(c))] = ds
+                out.append((c, ds))
+                bar.update(1)
+            results[stage.name] = out
+    finally:
+        bar.close()
+        if client_cm is not None:
+            client_cm.__exit__(None, None, None)
+    return results
+
+
+def _assemble(study: Study, ctx: Context, results) -> xr.Dataset:
+    """One dataset: every stage's results stacked over its axes (the sweep keys
+    and the study's axes as dimensions), the stages merged."""
+    parts = []
+    for stage in study.stages:
+        rows = results[stage.name]
+        if stage.keep == ():
+            continue
+        flat, dsets = [], []
+        for coords, ds in rows:
+            p = {}
+            for ax in stage.over:
+                if ax == "point":
+                    p.update(coords["point"])
+                else:
+                    p[ax] = coords[ax]
+            flat.append(p)
+            dsets.append(ds if stage.keep is None else ds[[v for v in stage.keep if v in ds]])
+        keys = list(flat[0]) if flat else []
+        ds = stack_points(dsets, flat, keys) if keys else dsets[0]
+        if stage.prefix:
+            ds = ds.rename({v: stage.prefix + v for v in ds.data_vars})
+        parts.append(ds)
+    ds = xr.merge(parts, compat="override", join="outer", combine_attrs="override")
+    for ax, values in ctx.axes.items():
+        if ax in ds.dims:
+            ds = ds.reindex({ax: [coord_value(v) for v in values]})
+    return ds
+
+
+def _label(study: Study, ctx: Context, ds: xr.Dataset) -> None:
+    """CF attributes from the declared quantities; global attributes that describe the whole study."""
+    q = dict(COMMON_QUANTITIES)
+    q.update(study.quantities(ctx) if callable(study.quantities) else study.quantities)
+    for name in list(ds.variables):
+        if name in q:
+            units, long_name = q[name]
+            ds[name].attrs.update(units=units, long_name=long_name)
+        elif name in ds.data_vars and "units" not in ds[name].attrs:
+            raise RuntimeError(f"the {study.kind} study writes {name!r} without declaring its quantity")
+    for k in ctx.sweep_keys:
+        d = dim_name(k)
+        if d in ds.coords:
+            ds[d].attrs.update(scene_key=k, long_name=f"sweep over {k}")
+    sweep = ctx.study.get("sweep") or {}
+    ds.attrs = {"title": f"liethermo {study.kind} study: {study.title}", "study": ctx.name, "kind": study.kind,
+                "model": ctx.model.name, "base_scene": ctx.scene_name, "reduced": int(ctx.reduced),
+                "methods": ", ".join(ctx.methods), "sweep": json.dumps(sweep) if sweep else "none",
+                "description": str(ctx.study.get("study", {}).get("description", study.description)),
+                **{f"option_{k}": (json.dumps(v) if not isinstance(v, (int, float, str)) or isinstance(v, bool)
+                                   else v) for k, v in ctx.opt.items()}}
+
+
+#: quantities several studies write (one definition each)
+COMMON_QUANTITIES = {
+    "h": ("s", "time step"),
+    "scheme": ("1", "method"),
+    "member": ("1", "ensemble member"),
+    "t": ("s", "time"),
+    "axis": ("1", "body axis"),
+    "status": ("1", "member status (0 ok)"),
+}
+
+
+# ----------------------------------------------------------------------------- figures
+
+PALETTE = ("#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#17becf",
+           "#7f7f7f", "#bcbd22", "#393b79", "#ad494a", "#637939", "#843c39", "#7b4173", "#3182bd")
+MARKERS = ("o", "s", "^", "v", "D", "P", "X", "*", "<", ">", "h", "p")
+
+
+def method_color(methods: list[str], method: str) -> str:
+    i = list(methods).index(method) if method in methods else len(methods) + hash(method) % 7
+    return PALETTE[i % len(PALETTE)]
+
+
+def spans_decades(values, decades: float = 2.0) -> bool:
+    v = np.abs(np.asarray(values, float))
+    v = v[np.isfinite(v) & (v > 0)]
+    return v.size > 1 and (np.all(np.asarray(values)[np.isfinite(values)] > 0)) and v.max() / v.min() > 10 ** decades
+
+
+def axis_label(da) -> str:
+    units = da.attrs.get("units", "")
+    name = da.attrs.get("long_name", da.name)
+    return f"{name} ({units})" if units and units != "1" else str(name)
+
+
+def save_figure(fig, path: Path) -> Path:
+    """Write a figure atomically (a killed study leaves no half PNG)."""
+    import matplotlib.pyplot as plt
+
+    write_atomic(path, lambda tmp: fig.savefig(tmp, format="png", dpi=120))
+    plt.close(fig)
+    return path
+
+
+def first_point(ds: xr.Dataset, ctx: Context, keep=()) -> xr.Dataset:
+    sel = {dim_name(k): 0 for k in ctx.sweep_keys if dim_name(k) in ds.dims and dim_name(k) not in keep}
+    return ds.isel(sel) if sel else ds
+
+
+def _grid(n: int, size=None):
+    import matplotlib.pyplot as plt
+
+    cols = min(3, n)
+    rows = -(-n // cols)
+    w, h = size or (4.6, 3.6)
+    fig, axes = plt.subplots(rows, cols, figsize=(w * cols + 1.8, h * rows), layout="constrained", squeeze=False)
+    for ax in axes.ravel()[n:]:
+        ax.set_visible(False)
+    return fig, list(axes.ravel()[:n])
+
+
+def _expand(names, ds) -> list[str]:
+    """Variable names, ``*`` patterns expanded over the dataset's variables."""
+    import fnmatch
+
+    if callable(names):
+        return list(names(ds))
+    out = []
+    for n in names:
+        out += [v for v in ds.data_vars if fnmatch.fnmatchcase(v, n)] if "*" in n else [n]
+    return out
+
+
+def _draw_lines(f: Figure, ds: xr.Dataset, ctx: Context):
+    from matplotlib.ticker import NullFormatter
+    ys = _expand(f.y, ds)
+    panels = [(v, None) for v in ys] if f.facet is None else [(ys[0], i) for i in range(ds.sizes[f.facet])]
+    fig, axes = _grid(len(panels), f.size)
+    hues = [str(h) for h in ds[f.hue].values] if f.hue in ds.dims else [None]
+    handles = {}
+    for ax, (var, fi) in zip(axes, panels):
+        d = ds if fi is None else ds.isel({f.facet: fi})
+        xs_all, ys_all = [], []
+        for j, hv in enumerate(hues):
+            dd = d if hv is None else d.sel({f.hue: hv})
+            x = np.asarray(dd[f.x].values, float).ravel()
+            y = np.asarray(dd[var].values, float).ravel()
+            ok = np.isfinite(x) & np.isfinite(y)
+            if not ok.any():
+                continue
+            order = np.argsort(x[ok])
+            color = ctx.color(hv) if hv in ctx.methods else PALETTE[j % len(PALETTE)]
+            (ln,) = ax.plot(x[ok][order], y[ok][order], color=color, marker=MARKERS[j % len(MARKERS)],
+                            ms=7 - 2 * (j % 2), mfc="none", lw=1.2, label=hv or var)
+            handles.setdefault(hv or var, ln)
+            xs_all.append(x[ok])
+            ys_all.append(y[ok])
+        xs = np.concatenate(xs_all) if xs_all else np.array([])
+        ys = np.concatenate(ys_all) if ys_all else np.array([])
+        for on, axis, vals in ((f.logx, ax.xaxis, xs), (f.logy, ax.yaxis, ys)):
+            if on if on is not None else spans_decades(vals):
+                (ax.set_xscale if axis is ax.xaxis else ax.set_yscale)("log")
+                axis.set_minor_formatter(NullFormatter())  # minor labels run into each other
+        if f.x in ds.dims and 1 < ds.sizes[f.x] <= 16:  # ticks at the swept values, at most 6 labelled
+            xv = np.asarray(ds[f.x].values, float)
+            every = -(-len(xv) // 6)
+            ax.set_xticks(xv, [f"{v:.3g}" if i % every == 0 else "" for i, v in enumerate(xv)])
+        ax.set_xlabel(axis_label(ds[f.x]))
+        units = ds[var].attrs.get("units", "")
+        ax.set_ylabel(axis_label(ds[var]) if len(panels) == 1 else f"{var} ({units})" if units else var)
+        if fi is not None:
+            ax.set_title(f"{f.facet} = {_fmt_coord(ds[f.facet].values[fi])}")
+        elif len(panels) > 1:
+            ax.set_title(str(ds[var].attrs.get("long_name", var)))
+        ax.grid(True, which="both", alpha=0.3)
+    _legend(fig, axes, handles, f.hue)
+    return fig
+
+
+def _legend(fig, axes, handles: dict, title: str) -> None:
+    if len(handles) <= 1:
+        return
+    if len(handles) <= 4 and len(axes) == 1:
+        axes[0].legend(handles.values(), handles.keys(), fontsize=8, title=title, loc="best", framealpha=0.9)
+    else:  # crowded: one legend for every panel, outside the axes
+        fig.legend(handles.values(), handles.keys(), fontsize=8, title=title, loc="outside right upper")
+
+
+def _fmt_coord(v) -> str:
+    return f"{v:.3g}" if isinstance(v, (float, np.floating)) else str(v)
+
+
+def _draw_heatmap(f: Figure, ds: xr.Dataset, ctx: Context):
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import LogNorm
+
+    var = _expand(f.y, ds)[0]
+    panels = [None] if f.facet is None else list(range(ds.sizes[f.facet]))
+    fig, axes = _grid(len(panels), f.size)
+    finite_all = np.asarray(ds[var].values, float)
+    finite_all = finite_all[np.isfinite(finite_all)]
+    log = f.logy if f.logy is not None else spans_decades(finite_all)
+    vmin = float(finite_all[finite_all > 0].min()) if log and (finite_all > 0).any() else None
+    vmax = float(finite_all.max()) if finite_all.size else None
+    for ax, fi in zip(axes, panels):
+        d = ds if fi is None else ds.isel({f.facet: fi})
+        z = np.asarray(d[var].transpose(f.hue, f.x).values, float)
+        bad = ~np.isfinite(z)
+        ax.set_facecolor("none")
+        norm = LogNorm(vmin=vmin, vmax=vmax) if log and vmin else None
+        im = ax.imshow(np.ma.masked_invalid(z), aspect="auto", origin="lower", norm=norm,
+                       vmin=None if norm else vmin, vmax=None if norm else vmax, cmap="viridis")
+        for (i, j) in zip(*np.nonzero(bad)):
+            ax.add_patch(plt.Rectangle((j - 0.5, i - 0.5), 1, 1, fill=False, hatch="xx", color="0.4", lw=0))
+        ax.set_xticks(range(z.shape[1]), [_fmt_coord(v) for v in d[f.x].values], rotation=45, fontsize=7)
+        ax.set_yticks(range(z.shape[0]), [_fmt_coord(v) for v in d[f.hue].values], fontsize=7)
+        ax.set_xlabel(axis_label(ds[f.x]))
+        ax.set_ylabel(axis_label(ds[f.hue]))
+        if fi is not None:
+            ax.set_title(f"{f.facet} = {_fmt_coord(ds[f.facet].values[fi])}")
+    fig.colorbar(im, ax=axes, label=axis_label(ds[var]) + ("; hatched: not finite" if np.isnan(
+        np.asarray(ds[var].values, float)).any() or np.isinf(np.asarray(ds[var].values, float)).any() else ""))
+    return fig
+
+
+def draw_figures(study: Study, ctx: Context, ds: xr.Dataset) -> list[tuple[Figure, Path]]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out = []
+    for f in study.figures:
+        d = f.select(ds, ctx) if f.select else first_point(ds, ctx, keep=(f.facet,) if f.facet else ())
+        if f.kind == "lines":
+            fig = _draw_lines(f, d, ctx)
+        elif f.kind == "heatmap":
+            fig = _draw_heatmap(f, d, ctx)
+        else:
+            fig = plt.figure(figsize=f.size or (7, 4.5), layout="constrained")
+            f.draw(d, ctx, fig)
+        if f.title:
+            fig.suptitle(f.title)
+        out.append((f, save_figure(fig, ctx.outdir / f"{f.name}.png")))
+    return out
+
+
+# ----------------------------------------------------------------------------- the report
+
+def verdict_table(verdicts: list[Verdict]) -> str:
+    import pandas as pd
+
+    rows = [{"claim": v.claim, "measured": v.measured, "rule": v.rule,
+             "verdict": "holds" if v.holds else "—" if v.holds is None else "FAILS"} for v in verdicts]
+    return markdown_table(pd.DataFrame(rows, columns=["claim", "measured", "rule", "verdict"]), "Verdicts",
+                          "Each verdict follows from the tables above by its rule.")
+
+
+def _report(study: Study, ctx: Context, ds: xr.Dataset, nc: Path) -> Path:
+    import pandas as pd
+
+    facts = dict(study.facts(ds, ctx)) if study.facts else {}
+    fields = {"opt": ctx.opt, "scene": ctx.scene_name, "model": ctx.model.name, "name": ctx.name,
+              "methods": ", ".join(ctx.methods), **facts}
+    sections = []
+    tables = list(study.tables(ds, ctx)) if study.tables else []
+    verdicts = list(study.verdicts(ds, ctx)) if study.verdicts else []
+    md = [write_table(pd.DataFrame(list(t.rows)), ctx.outdir, t.name, t.title).rstrip("\n")
+          + (f"\n\n{t.footer}" if t.footer else "") for t in tables]
+    if md:
+        sections.append(md[0])
+    text = (study.report or study.description).format_map(fields)
+    sections.append(text)
+    sections += md[1:]
+    for f, path in draw_figures(study, ctx, ds):
+        sections.append(f"![{f.name}]({path.name})\n\n*{f.name}.png:* {f.claim.format_map(fields)}")
+    if verdicts:
+        sections.append(verdict_table(verdicts))
+    found = list(study.findings(ds, ctx)) if study.findings else []
+    if found:
+        sections.append("**Findings.** " + " ".join(found))
+    sections.append(f"Files: `{nc.name}` (every number above, with units), "
+                    + ", ".join(f"`{t.name}.csv`" for t in tables) + (", " if tables else "")
+                    + ", ".join(f"`{f.name}.png`" for f in study.figures) + ".")
+    title = f"{study.title}: {ctx.name}" + (" (reduced)" if ctx.reduced else "")
+    return write_report(ctx.outdir, title, sections)
+
+
+def run(study: dict, outdir, **kw) -> Path:
+    """Run a study file's dict whatever its kind (the declared study of its kind)."""
+    from . import get_study
+
+    return get_study(study["study"]["kind"]).STUDY.run(study, outdir, **kw)
