@@ -158,7 +158,7 @@ STUDY = Study(
     kind="convergence", title="Convergence", models=None,
     description="Observed orders per method and variable against the reference, h halving",
     options=(Option("h0", 0.1, "number>0", "s", "coarsest step"),
-             Option("levels", 7, "int>=5", "1", "h0, h0/2, …, h0/2^(levels−1)"),
+             Option("levels", 7, "int>=3", "1", "h0, h0/2, …, h0/2^(levels−1) (an order fit needs 3)"),
              Option("t_end", 5.0, "number>0", "s", "end time (a multiple of h0)"),
              Option("members", 1, "int>=1", "1", "members compared (the first ones of the scene)"),
              Option("floor_rel", 1e-12, "number>0", "1", "errors below this × the variable's scale are round-off")),

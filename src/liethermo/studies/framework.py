@@ -57,7 +57,7 @@ _RULES = {
     "int>=1": ("an integer ≥ 1", lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 1),
     "int>=0": ("an integer ≥ 0", lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 0),
     "int>=2": ("an integer ≥ 2", lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 2),
-    "int>=5": ("an integer ≥ 5", lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 5),
+    "int>=3": ("an integer ≥ 3", lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 3),
     "bool": ("true or false", lambda v: isinstance(v, bool)),
     "str": ("a string", lambda v: isinstance(v, str)),
 }
