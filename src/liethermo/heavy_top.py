@@ -500,6 +500,14 @@ class HeavyTop(Model):
 
         return MethodChoice.parse(label).overrides()
 
+    def method_details(self, label: str) -> dict:
+        from .methods import MethodChoice
+
+        c = MethodChoice.parse(label)
+        vi = c.family == "vi"
+        return {"start": c.start if vi else "—", "friction": c.friction if vi else "—",
+                "entropy update": c.entropy if vi else "—"}
+
     def method_order(self, label: str) -> int:
         from .methods import MethodChoice
 

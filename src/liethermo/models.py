@@ -175,6 +175,10 @@ class Model:
                              f"({', '.join(self.methods())})")
         return {"integrator.method": label}
 
+    def method_details(self, label: str) -> dict:
+        """``{choice: value}`` of a method label beyond its name (a table's columns)."""
+        return {}
+
     def method_order(self, label: str) -> int:
         """The order the method ``label`` declares on this model's output values."""
         return self.methods()[label].order
