@@ -458,7 +458,7 @@ LONG_RUN_MEMBER_STEPS = 2**26
 
 #: the top's study kinds (modules liethermo.studies.<kind>)
 STUDY_KINDS = ("paper", "convergence", "energy_drift", "work_precision", "stability", "viscosity_sweep",
-               "long_drift", "coupling", "flat_spin")
+               "long_drift", "coupling", "flat_spin", "entropy_rate")
 
 
 class HeavyTop(Model):
