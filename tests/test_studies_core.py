@@ -364,7 +364,7 @@ def test_study_netcdf_is_cf_clean(which, request):
 
     out, _, ds = request.getfixturevalue(which)
     assert_cf_clean(out / f"{which}.nc")
-    assert ds.attrs["history"].split(": ", 1)[1].startswith(f"liethermo.studies.{which}.run(load_study(")
+    assert ds.attrs["history"].split(": ", 1)[1].startswith(f"liethermo.study('{STUDIES / which}.toml', reduced=True")
 
 
 

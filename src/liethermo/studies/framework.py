@@ -32,12 +32,15 @@ import copy
 import itertools
 import json
 import math
+import platform
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
 import xarray as xr
+
+from .. import __version__, cf
 
 from .common import (StudyError, cached_point, coord_value, dim_name, expand_sweep, markdown_table, point_key,
                      progress_bar, resolve_study, stack_points, study_history, study_name, study_netcdf_path,
@@ -237,8 +240,10 @@ class Study:
             ds = self.derive(ds, ctx)
         _label(self, ctx, ds)
         ctx.dataset = ds
-        nc = write_netcdf_atomic(ds, study_netcdf_path(ctx.study, ctx.outdir),
-                                 history=study_history(self.kind, ctx.study, ctx.outdir, reduced, history))
+        created = cf.timestamp()
+        ds.attrs.update(created=created, history=cf.history_entry(
+            study_history(self.kind, ctx.study, ctx.outdir, reduced, history), created))
+        nc = write_netcdf_atomic(ds, study_netcdf_path(ctx.study, ctx.outdir))
         return _report(self, ctx, ds, nc)
 
 
@@ -456,6 +461,8 @@ def _label(study: Study, ctx: Context, ds: xr.Dataset) -> None:
                 "model": ctx.model.name, "base_scene": ctx.scene_name, "reduced": int(ctx.reduced),
                 "methods": ", ".join(ctx.methods), "sweep": json.dumps(sweep) if sweep else "none",
                 "description": str(ctx.study.get("study", {}).get("description", study.description)),
+                "software": f"liethermo {__version__}", "software_version": __version__,
+                "python": platform.python_version(),
                 **{f"option_{k}": (json.dumps(v) if not isinstance(v, (int, float, str)) or isinstance(v, bool)
                                    else v) for k, v in ctx.opt.items()}}
 
