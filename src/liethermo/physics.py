@@ -101,9 +101,24 @@ class _PhysicsBase:
         """max V − min V over all attitudes (J), (N,): :func:`potential_span`."""
         return potential_span(self)
 
+    def resting_gamma(self) -> np.ndarray:
+        """(N, 3) the Γ of least potential energy (the body at rest): :func:`resting_gamma`."""
+        return resting_gamma(self)
+
     def linear_resistance(self) -> np.ndarray:
         """(N, 3) Σ diag C (N m s) of the frictions linear in Ω: :func:`linear_resistance`."""
         return linear_resistance(self)
+
+    def with_linear_resistance(self, C) -> "Physics":
+        """These members with the friction linear in Ω set to diag C (N, 3)
+        (the term with :data:`~liethermo.kernels.terms.ROLE_LINEAR_FRICTION` takes it)."""
+        from .kernels.terms import ROLE_LINEAR_FRICTION
+
+        kw = {}
+        for t in registry():
+            if t.role == ROLE_LINEAR_FRICTION:
+                kw.update(t.with_linear_resistance(self, C))
+        return dataclasses.replace(self, **kw)
 
     def discrete_friction(self, h, x) -> np.ndarray:
         """The variational integrator's discrete friction at step velocities X: :func:`discrete_friction`."""
@@ -112,6 +127,10 @@ class _PhysicsBase:
     def has_constant_inertia(self) -> np.ndarray:
         """(N,) bool: no term makes the member's inertia depend on S: :func:`has_constant_inertia`."""
         return has_constant_inertia(self)
+
+    def breaking(self, law: str) -> list[str]:
+        """Names of the terms that break the exact ``law`` on some member (:meth:`keeps`)."""
+        return [t.name for t in registry() if not np.all(t.keeps(law, self))]
 
     def keeps(self, law: str) -> np.ndarray:
         """(N,) bool: the members on which every term leaves the exact ``law``
@@ -451,6 +470,17 @@ def mechanical_energy_scale(phys: Physics, omega0: np.ndarray, gamma0: np.ndarra
     K0 = kinetic_energy(phys, omega0, None)
     V0 = potential_energy(phys, gamma0)
     return mechanical_energy(phys, K0, V0)
+
+
+def resting_gamma(phys: Physics) -> np.ndarray:
+    """(N, 3) the Γ at which V is least, from the one term with a potential
+    (NaN where no term has one or, for a member, its potential is 0)."""
+    for t in registry():
+        with np.errstate(invalid="ignore", divide="ignore"):
+            G = t.resting_gamma(phys)
+        if G is not None:
+            return G
+    return np.full((phys.n, 3), np.nan)
 
 
 def linear_resistance(phys: Physics) -> np.ndarray:

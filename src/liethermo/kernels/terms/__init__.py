@@ -361,6 +361,11 @@ class Term:
         axes; None for a term that is not one."""
         return None
 
+    def with_linear_resistance(self, phys, C) -> dict:
+        """The fields of ``phys`` to replace so that the term's friction −CΩ
+        linear in Ω has diag C (N, 3) (its shape kept); {} for a term that has none."""
+        return {}
+
     def discrete_friction(self, phys, h, x) -> np.ndarray | None:
         """The variational integrator's discrete friction at the step velocity
         X (N, ..., 3) of a step h, in plain numpy (N m): C X for a linear law,
@@ -377,6 +382,11 @@ class Term:
 
     def potential_energy(self, phys, gamma) -> np.ndarray | None:
         """V(Γ) (J) of a conservative torque."""
+        return None
+
+    def resting_gamma(self, phys) -> np.ndarray | None:
+        """(N, 3) the Γ at which the term's potential is least (its resting
+        attitude), None for a term without a potential."""
         return None
 
     def potential_span(self, phys) -> np.ndarray | float:

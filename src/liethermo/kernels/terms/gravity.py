@@ -104,6 +104,10 @@ class _Gravity(Term):
     def potential_energy(self, phys, gamma):
         return potential_energy(phys.gravity_torque, gamma)
 
+    def resting_gamma(self, phys):
+        g = phys.gravity_torque
+        return -g / np.linalg.norm(g, axis=1)[:, None]
+
     def potential_span(self, phys):
         return 2.0 * np.linalg.norm(phys.gravity_torque, axis=1)
 

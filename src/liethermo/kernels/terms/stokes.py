@@ -272,6 +272,9 @@ class _Stokes(Term):
     def linear_resistance(self, phys):
         return phys.stokes_resistance
 
+    def with_linear_resistance(self, phys, C):
+        return {"stokes_resistance": C}
+
     def discrete_friction(self, phys, h, x):
         return bcast(phys.stokes_resistance, x) * x
 
