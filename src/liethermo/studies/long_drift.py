@@ -32,10 +32,12 @@ E_mech,0 = K₀ + V₀ + mgℓ):
 * max |E_k − E₀|/E_mech,0, and max ||Γ_k| − 1| (the |Γ| defect);
 * the Kelvin–Noether residual, from a window of ``kn_steps`` steps stored
   with every = 1: for the variational integrators the discrete law
-  J_{k+1} − J_k = −h(w_LΓ_k + w_RΓ_{k+1})·CX_k, J = Γ·μ (checked for ``vi``
-  with friction and for every VI method without it), and for every method the
-  continuous law d(Γ·μ)/dt = −Γ·CΩ integrated by the trapezoid rule between
-  stored nodes (which includes that quadrature's own O(h²) error).
+  J_{k+1} − J_k = −h(w_LΓ_k + w_RΓ_{k+1})·F(X_k), J = Γ·μ, F the sum of the
+  terms' discrete frictions (checked for ``vi`` with friction and for every VI
+  method without it), and for every method the continuous law
+  d(Γ·μ)/dt = Γ·f(Ω, Γ), f the sum of the terms' torques, integrated by the
+  trapezoid rule between stored nodes (which includes that quadrature's own
+  error).
 """
 
 from __future__ import annotations
