@@ -129,6 +129,12 @@ def study_scene(study: dict, overrides: dict | None = None) -> dict:
     return load_scene(scene, nested(overrides) or None)
 
 
+def scene_value(scene: dict, key: str):
+    """The value of the dotted scene key ``key`` ("section.name") in a resolved scene."""
+    section, name = key.split(".", 1)
+    return scene[section][name]
+
+
 def study_name(study: dict) -> str:
     return str(study.get("study", {}).get("name") or study.get("study", {}).get("kind", "study"))
 

@@ -32,10 +32,12 @@ E_mech,0 = K₀ + V₀ + mgℓ):
 * max |E_k − E₀|/E_mech,0, and max ||Γ_k| − 1| (the |Γ| defect);
 * the Kelvin–Noether residual, from a window of ``kn_steps`` steps stored
   with every = 1: for the variational integrators the discrete law
-  J_{k+1} − J_k = −h(w_LΓ_k + w_RΓ_{k+1})·CX_k, J = Γ·μ (checked for ``vi``
-  with friction and for every VI method without it), and for every method the
-  continuous law d(Γ·μ)/dt = −Γ·CΩ integrated by the trapezoid rule between
-  stored nodes (which includes that quadrature's own O(h²) error).
+  J_{k+1} − J_k = −h(w_LΓ_k + w_RΓ_{k+1})·F(X_k), J = Γ·μ, F the sum of the
+  terms' discrete frictions (checked for ``vi`` with friction and for every VI
+  method without it), and for every method the continuous law
+  d(Γ·μ)/dt = Γ·f(Ω, Γ), f the sum of the terms' torques, integrated by the
+  trapezoid rule between stored nodes (which includes that quadrature's own
+  error).
 """
 
 from __future__ import annotations
@@ -54,11 +56,13 @@ from ..physics import physics_of_scene
 from .common import (shared_units, status_units, StudyError, cached_point, closing_section, dim_name, expand_sweep, parse_method, point_key,
                      progress_bar, stack_points, step_text, start_study, study_history, study_name, study_netcdf_path, study_options,
                      study_scene, write_netcdf_atomic, write_report, write_table)
+from ..kernels.terms import ROLE_LINEAR_FRICTION, key_of
 from .tools import (NODE_VALUES_NOTE, continuous_kelvin_noether_residual, drift_fit, energy_errors,
                     kelvin_noether_residual, repeat_timing, run_spec)
 
 EXTRA_KEYS = ()
-SWEEP_KEY = "fluid.viscosity"
+#: the key swept: the strength of the friction linear in Ω
+SWEEP_KEY = key_of(ROLE_LINEAR_FRICTION)
 DEFAULT_OPTIONS = {
     "h_base": 0.01,         # s, the step of the cost reference method
     "cost_base": "vi",      # the method whose step is h_base
@@ -259,7 +263,7 @@ UNITS = {
     "oscillation_amplitude": ("1", "RMS of (E_k - E_0)/E_mech,0 about its least-squares line, node values"),
     "kelvin_noether_discrete": ("1", "max residual of the discrete Kelvin-Noether law / max |mu| (every = 1 "
                                      "window; NaN where it does not apply)"),
-    "kelvin_noether_continuous": ("1", "max defect of d(Gamma.mu)/dt = -Gamma.C Omega by the trapezoid rule "
+    "kelvin_noether_continuous": ("1", "max defect of d(Gamma.mu)/dt = Gamma.f(Omega, Gamma), f the sum of the torques, by the trapezoid rule "
                                        "between nodes / max |mu| (every = 1 window)"),
     "status": status_units(),
     "kernel_time": ("s", "kernel wall time of the long run"),
