@@ -218,11 +218,13 @@ class Study:
         if self.models is not None and model.name not in self.models:
             raise StudyError(f"study.base_scene: a {self.kind} study runs on a scene of "
                              f"{' or '.join(self.models)}, not of {model.name} ({ctx.scene_name!r})")
-        known = set(model.methods())
         for m in methods:
-            if m.split(":")[0] not in known:
-                raise StudyError(f"methods: {m!r} is not a method of {model.title or model.name} "
-                                 f"({', '.join(known)})")
+            if not isinstance(m, str):
+                raise StudyError(f"methods: {m!r} is not a method name")
+            try:
+                model.method_overrides(m)
+            except ValueError as exc:
+                raise StudyError(f"methods: {exc}") from None
         ctx.axes = dict(self.axes(ctx)) if self.axes else {}
         if self.check:
             self.check(ctx)
