@@ -78,6 +78,7 @@ def toy_methods(monkeypatch):
     from liethermo.models import MethodInfo
 
     monkeypatch.setattr(HeavyTop, "methods", lambda self: {m: MethodInfo(m, 1, (), "") for m in "ab"})
+    monkeypatch.setattr(HeavyTop, "method_overrides", lambda self, m: {"integrator.method": m})
 
 
 def test_a_declared_study_plans_stacks_labels_and_reports(tmp_path, toy_methods):

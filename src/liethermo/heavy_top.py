@@ -490,10 +490,12 @@ class HeavyTop(Model):
         return {n: MethodInfo(n, m.order(), tuple(m.laws), m.description) for n, m in METHODS.items()}
 
     def study_state(self, ds) -> dict:
-        return {"omega": (ds["omega"].values, "rad s-1", "body angular velocity Omega (node values)"),
-                "gamma": (ds["gamma"].values, "1", "direction of gravity Gamma"),
-                "entropy": (ds["entropy"].values, "J K-1", "entropy S"),
-                "total_energy": (ds["energy_error"].values, "J", "total energy E (node values)")}
+        return {"omega": (ds["omega"].values, "rad s-1", "body angular velocity Omega (node values)", None),
+                "gamma": (ds["gamma"].values, "1", "direction of gravity Gamma", None),
+                "entropy": (ds["entropy"].values, "J K-1", "entropy S", None),
+                # the energy that moves between the mechanical and the internal one
+                "total_energy": (ds["energy_error"].values, "J", "total energy E (node values)",
+                                 float(np.max(np.abs(ds["mechanical_energy_initial"].values))))}
 
     def method_overrides(self, label: str) -> dict:
         from .methods import MethodChoice

@@ -162,8 +162,9 @@ class Model:
 
     def study_state(self, ds) -> dict:
         """The state a study compares between methods, from a run's dataset:
-        ``{name: (array (member, t, ...), units, long name)}``; an error is the
-        norm over the trailing axes of a difference.  None: the model offers
+        ``{name: (array (member, t, ...), units, long name, scale)}``; an error is
+        the norm over the trailing axes of a difference, and ``scale`` the size
+        it is measured against (None: the largest value of the reference).  None: the model offers
         no comparison (studies that need one refuse its scenes)."""
         return None
 

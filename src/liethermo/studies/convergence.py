@@ -53,12 +53,12 @@ def errors(ctx, coords, reference) -> xr.Dataset:
     got, ref = model.study_state(ds), model.study_state(reference)
     failed = int(np.max(ds["status"].values)) != 0
     out = {"status": ((), int(np.max(ds["status"].values))), "kernel_time": ((), float(stats.kernel_time))}
-    for name, (x, units, long) in got.items():
+    for name, (x, units, long, scale) in got.items():
         r = ref[name][0]
         diff = np.abs(x[:, 1:] - r[:, 1:]).reshape(x.shape[0], x.shape[1] - 1, -1)
         err = np.inf if failed else float(np.max(np.sqrt(np.sum(diff * diff, axis=-1))))
         out[f"error_{name}"] = ((), err, {"units": units, "long_name": f"error in {long}"})
-        out[f"scale_{name}"] = ((), float(np.max(np.abs(r))) or 1.0, {"units": units})
+        out[f"scale_{name}"] = ((), ref[name][3] or float(np.max(np.abs(r))) or 1.0, {"units": units})
     return xr.Dataset(out)
 
 
