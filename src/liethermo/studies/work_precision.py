@@ -226,5 +226,5 @@ STUDY = Study(
             "{opt[repeats]} rounds and {opt[min_timing]} s; the minimum over repeats, spread = median / min − 1. {scipy}"),
     facts=lambda ds, ctx: {"state": ", ".join(ds["state"].values), "ref": ctx.model.methods()["reference"].description,
                            "scipy": SCIPY_NOTE.format(s=", ".join(ctx.axes["solver"]), o=ctx.opt) if ctx.axes["solver"]
-                           else "scipy's solve_ivp is skipped: the model has no continuous right-hand side."},
+                           else "scipy's solve_ivp is skipped (no continuous right-hand side, or scipy_members = 0)."},
 )
