@@ -519,6 +519,16 @@ class HeavyTop(Model):
         with np.errstate(divide="ignore", invalid="ignore"):
             return ds["energy_error"].values / np.abs(ds["mechanical_energy_initial"].values)[:, None]
 
+    def ode(self, scene, lo, hi):
+        from .initial import initial_conditions
+        from .physics import physics_of_scene
+        from .studies.tools import continuous_rhs
+
+        om, R = initial_conditions(scene, lo, hi)
+        phys = physics_of_scene(scene, hi - lo)  # the same physics for every member
+        y0 = np.concatenate([om, R[:, 2, :], np.zeros((hi - lo, 1))], axis=1)  # y = (Ω, Γ, σ)
+        return y0, [continuous_rhs(phys, m) for m in range(hi - lo)], lambda y: {"omega": y[0:3], "gamma": y[3:6]}
+
     def initial_conditions(self, scene, lo: int, hi: int):
         from .initial import initial_conditions
 

@@ -188,6 +188,12 @@ class Model:
         """(member, t) the energy error of a run relative to its natural scale (1)."""
         return None
 
+    #: ``ode(scene, lo, hi)``: members ``lo:hi`` as a continuous system for scipy's
+    #: ``solve_ivp``, ``(y0 (members, n), [f(t, y) per member], state)`` where
+    #: ``state(y)`` gives :meth:`study_state`'s variables at one time (those it can);
+    #: None: the model has no continuous right-hand side (studies skip scipy)
+    ode = None
+
     def long_run(self, scene) -> bool:
         """Whether the command line times the run before it starts (and says so if it is long)."""
         return False

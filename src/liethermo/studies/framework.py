@@ -420,7 +420,7 @@ def _assemble(study: Study, ctx: Context, results) -> xr.Dataset:
     parts = []
     for stage in study.stages:
         rows = results[stage.name]
-        if stage.keep == ():
+        if stage.keep == () or not rows:  # a stage over an empty axis has nothing to stack
             continue
         flat, dsets = [], []
         for coords, ds in rows:
