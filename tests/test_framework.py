@@ -136,3 +136,23 @@ def test_a_study_killed_and_rerun_writes_the_same_file(tmp_path):
     assert 0 < kept < 24 and not (out / "entropy_rate.nc").exists()
     subprocess.run(cmd + ["-o", str(out)], check=True, env=env, capture_output=True)
     assert same_but_created(clean, out / "entropy_rate.nc")
+
+
+def test_one_study_file_runs_on_a_scene_of_either_model(tmp_path, capsys):
+    """[model.<name>] applies for a base scene of that model (then its own [reduced]);
+    ``--scene`` swaps the base scene and names the folder after it."""
+    from liethermo.cli import main
+    from liethermo.studies.common import resolve_study, with_scene
+
+    study = {"study": {"kind": "convergence", "name": "c", "base_scene": "paper"}, "options": {"h0": 0.1, "levels": 4},
+             "reduced": {"options": {"levels": 3}},
+             "model": {"zeitlin": {"options": {"h0": 0.2, "members": 2}, "reduced": {"options": {"t_end": 0.4}}}}}
+    assert resolve_study(study, True)["options"] == {"h0": 0.1, "levels": 3}
+    fluid = with_scene(study, "zeitlin_decay")
+    assert fluid["study"]["name"] == "c_zeitlin_decay"
+    assert resolve_study(fluid, False)["options"] == {"h0": 0.2, "levels": 4, "members": 2}
+    assert resolve_study(fluid, True)["options"] == {"h0": 0.2, "levels": 3, "members": 2, "t_end": 0.4}
+    bad = tmp_path / "bad.toml"
+    bad.write_text('methods = ["rk4"]\n[study]\nkind = "convergence"\n[model.fluid.options]\nh0 = 1.0\n')
+    assert main(["study", str(bad), "-o", str(tmp_path / "o"), "--no-progress"]) == 2
+    assert "model.fluid: must be a table named after a model (top, zeitlin)" in capsys.readouterr().err

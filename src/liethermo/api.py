@@ -216,21 +216,27 @@ class StudyResult:
 
 
 def study(path: str | Path, *, reduced: bool = False, output: str | Path | None = None,
-          dask: Any = None, progress: bool = False, history: str | None = None) -> StudyResult:
+          dask: Any = None, progress: bool = False, history: str | None = None,
+          scene: str | None = None) -> StudyResult:
     """Run a study file (``studies/*.toml``) and return its results.
+
+    ``scene``: run it on another base scene (``liethermo study --scene``).
 
     ``output``: the study's folder (default ``data/runs/<name>``, with
     ``-reduced`` in reduced mode); an interrupted study resumes there.
     ``dask``: ``"local"``, a scheduler address or a Client, to run sweep
     points as Dask tasks."""
     from .studies.common import study_netcdf_path
+    from .studies.common import with_scene
     from .studies.runner import default_outdir, load_study, run_study, validate_study
 
     s = load_study(path)
+    if scene is not None:
+        s = with_scene(s, scene)
     validate_study(s)
     outdir = Path(output) if output is not None else default_outdir(s, reduced)
     if history is None:
-        history = cf.api_call("liethermo.study", str(path), reduced=reduced, output=output)
+        history = cf.api_call("liethermo.study", str(path), reduced=reduced, output=output, scene=scene)
     report = run_study(s, outdir, reduced=reduced, progress=progress, dask=dask, history=history)
     from .studies.common import resolve_study
 

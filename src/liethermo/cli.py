@@ -206,6 +206,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("study", metavar="STUDY.toml", help="study definition, e.g. studies/convergence.toml")
     s.add_argument("-o", "--outdir", metavar="DIR", help="output folder (default data/runs/<study name>)")
     s.add_argument("--reduced", action="store_true", help="reduced-size mode (what the test suite runs)")
+    s.add_argument("--scene", metavar="SCENE", default=None,
+                   help="run the study on another base scene (a built-in scene or a scene file; the study "
+                        "file's [model.<name>] table for that scene's model applies)")
     s.add_argument("--no-progress", action="store_true", help="no progress bar")
     s.add_argument("--dask", metavar="local|ADDRESS", default=None,
                    help="run sweep points as tasks on a Dask cluster ('local' or a scheduler address)")

@@ -56,7 +56,7 @@ from .. import cf
 from ..scene import builtin_scene_text, load_scene
 
 #: Top-level keys every study accepts.
-BASE_KEYS = frozenset({"study", "scene", "sweep", "methods", "report", "reduced", "options"})
+BASE_KEYS = frozenset({"study", "scene", "sweep", "methods", "report", "reduced", "options", "model"})
 #: Keys of the ``[study]`` table.
 STUDY_KEYS = frozenset({"kind", "name", "base_scene", "description", "title"})
 
@@ -76,13 +76,43 @@ def _deep_merge(base: dict, new: dict) -> None:
 
 
 def resolve_study(study: dict, reduced: bool) -> dict:
-    """A copy of ``study`` with the ``[reduced]`` table applied (if ``reduced``)
-    and removed (always).  Idempotent."""
+    """A copy of ``study`` with, in this order, the ``[reduced]`` table (if
+    ``reduced``), the ``[model.<name>]`` table of the base scene's model and
+    that table's own ``[reduced]`` table applied; both removed.  Idempotent.
+
+    ``[model.<name>]`` holds what a model's scenes need besides the base scene
+    (their time scales, sizes, methods): the same study file then runs on a
+    scene of either model (``liethermo study FILE --scene NAME``)."""
     out = copy.deepcopy(study)
     red = out.pop("reduced", None) or {}
+    per = out.pop("model", None) or {}
     if reduced:
         _deep_merge(out, red)
+    if per:
+        if not isinstance(per, dict):
+            raise StudyError("model: must be a table of [model.<name>] tables")
+        section = copy.deepcopy(per.get(base_model(out), {}))
+        sec_red = section.pop("reduced", None) or {}
+        _deep_merge(out, section)
+        if reduced:
+            _deep_merge(out, sec_red)
     return out
+
+
+def with_scene(study: dict, scene: str) -> dict:
+    """The study run on another base scene (its name gets the scene's, so its folder differs)."""
+    out = copy.deepcopy(study)
+    st = out.setdefault("study", {})
+    st["name"] = f"{st.get('name') or st.get('kind', 'study')}_{Path(str(scene)).stem}"
+    st["base_scene"] = str(scene)
+    return out
+
+
+def base_model(study: dict) -> str:
+    """The name of the model whose scene the study's base scene is."""
+    from ..models import model_of
+
+    return model_of(load_scene(_base_scene(study), validate_scene=False)).name
 
 
 def start_study(study: dict, outdir, reduced: bool, validate: Callable[[dict], None],
@@ -115,17 +145,7 @@ def nested(overrides: dict | None) -> dict:
 def study_scene(study: dict, overrides: dict | None = None) -> dict:
     """The validated scene of a study point: base scene ← inline ``[scene]``
     table ← ``overrides`` (``{"section.key": value}`` or nested)."""
-    st = study.get("study", {})
-    base = st.get("base_scene", "paper")
-    builtin = (isinstance(base, str) and "/" not in base and not base.endswith(".toml")
-               and builtin_scene_text(base) is not None)
-    if isinstance(base, str) and not builtin:  # a scene file, relative to the study file
-        p = Path(base)
-        src = study.get("_source")
-        if not p.is_absolute() and src is not None and not p.is_file():
-            p = Path(src).parent / p
-        base = str(p)
-    scene = load_scene(base, study.get("scene") or None, validate_scene=False)
+    scene = load_scene(_base_scene(study), study.get("scene") or None, validate_scene=False)
     return load_scene(scene, nested(overrides) or None)
 
 
@@ -133,6 +153,20 @@ def scene_value(scene: dict, key: str):
     """The value of the dotted scene key ``key`` ("section.name") in a resolved scene."""
     section, name = key.split(".", 1)
     return scene[section][name]
+
+
+def _base_scene(study: dict):
+    """The base scene as ``load_scene`` takes it (a scene file relative to the study file)."""
+    base = study.get("study", {}).get("base_scene", "paper")
+    builtin = (isinstance(base, str) and "/" not in base and not base.endswith(".toml")
+               and builtin_scene_text(base) is not None)
+    if isinstance(base, str) and not builtin:
+        p = Path(base)
+        src = study.get("_source")
+        if not p.is_absolute() and src is not None and not p.is_file():
+            p = Path(src).parent / p
+        base = str(p)
+    return base
 
 
 def study_name(study: dict) -> str:

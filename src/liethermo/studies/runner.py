@@ -14,7 +14,7 @@ from pathlib import Path
 from ..scene import SceneError
 from . import get_study, kinds
 from .common import (BASE_KEYS, STUDY_KEYS, StudyError, expand_sweep, first_table, parse_method, resolve_study,
-                     study_scene, terminal_table)
+                     study_scene, terminal_table, with_scene)
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -63,6 +63,17 @@ def validate_study(study: dict) -> None:
     for k in red:
         if k not in allowed:
             raise StudyError(f"reduced.{k}: unknown key in a {kind} study; known keys: {', '.join(sorted(allowed))}")
+    per = study.get("model", {})
+    from ..models import models
+
+    names = [m.name for m in models()]
+    for name, sec in (per.items() if isinstance(per, dict) else [("", None)]):
+        if name not in names or not isinstance(sec, dict):
+            raise StudyError(f"model.{name}: must be a table named after a model ({', '.join(names)})")
+        for k in sec:
+            if k not in allowed - {"model"}:
+                raise StudyError(f"model.{name}.{k}: unknown key in a {kind} study; known keys: "
+                                 f"{', '.join(sorted(allowed - {'model'}))}")
     for reduced in (False, True):
         s = resolve_study(study, reduced)
         methods = s.get("methods", [])
@@ -125,6 +136,8 @@ def main_study(args) -> int:
 
     try:
         study = load_study(args.study)
+        if getattr(args, "scene", None):
+            study = with_scene(study, args.scene)
         validate_study(study)
     except (StudyError, SceneError) as exc:
         print(f"liethermo: error: {one_line(exc)}", file=sys.stderr)
