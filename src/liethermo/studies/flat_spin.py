@@ -90,15 +90,15 @@ def derive(ds, ctx):
 
 
 Q = {DIM: ("s kg-1 m-2", "friction strength lambda (keeps |mu|)"), "status": status_units(True),
-     "settling_time": ("s", "settling time: X/X_0 <= settle_fraction, X = K - |mu|^2/(2 I_max)"),
+     "settling_time": ("s", "settling time (excess energy)"),
      "final_axis_angle": ("rad", "angle of mu at t_end from the major axis (either sense)"),
      "on_major_axis": ("1", "1: final_axis_angle < axis_tolerance and run to the end; 0: not; -1: not run"),
      "casimir_drift": ("1", "Casimir drift max_k ||mu_k| - |mu_0|| / |mu_0| (failed: inf)"),
      "energy_balance_error": ("1", "max_k |(U(S_k) - U(S_0)) - (K_0 - K_k)| / K_0 (failed: inf)"),
-     "kinetic_energy_floor": ("J", "|mu_0|^2 / (2 I_max)"), "excess_ratio_quantiles": ("1", "excess X/X_0"),
+     "kinetic_energy_floor": ("J", "|mu_0|^2 / (2 I_max)"), "excess_ratio_quantiles": ("1", "X/X_0, X = K - |mu|^2/(2 I_max)"),
      "casimir_drift_quantiles": ("1", "||mu_k| - |mu_0|| / |mu_0|"), "node_time": ("s", "time of the stored node"),
      "t_end": ("s", "horizon lambda_t_end / lambda"), "casimir_step": ("s", "time step h of the Casimir runs"),
-     "casimir_drift_h": ("1", "Casimir drift at lambda = casimir_lambda (failed: inf)"),
+     "casimir_drift_h": ("1", "Casimir drift, h sweep"),
      "settling_time_minus_reference": ("s", "settling time minus the reference's (same member and lambda)"),
      **{k: ("1", k.replace("_", " ")) for k in ("quantile", "node", "casimir_member")}}
 
