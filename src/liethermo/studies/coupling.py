@@ -8,8 +8,6 @@ orders on this model: the convergence study on its scene (``studies/coupling_con
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import xarray as xr
 
@@ -23,7 +21,6 @@ from .tools import (column, direction_angle, energy_errors, ensemble, pad_member
 
 SWEEP_KEY = key_of(ROLE_THERMAL_COUPLING)
 DIM = dim_name(SWEEP_KEY)
-DEG = 180.0 / math.pi
 DRIFT = ("drift_error_first_half", "drift_error_second_half", "drift_heat_half", "drift_heat_end")
 
 
@@ -41,31 +38,31 @@ def _check(ctx) -> None:
 
 
 def _energy(ctx, point, method, limit, **kw):
-    """(physics, trajectory, node energies, |E_k − E₀|/E_mech,0 (inf where not finite), N)."""
+    """(physics, trajectory, node energies, |E_k − E₀|/E_mech,0 (inf where not finite), E_mech,0, N)."""
     scene, spec, phys, om, R, N = ensemble(ctx, point, method, limit)
     h = float(scene["integrator"]["h"])
     steps = int(round(kw.pop("t_end") / h))
     every = max(1, steps // kw.pop("nodes", steps))
     tr = run_spec(phys, om, R, h, (steps // every) * every, spec, every=every, **kw)
     with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
-        err = energy_errors(tr, om, R)
+        err, e = energy_errors(tr, om, R), node_energies(tr)
         rel = np.abs(err["node"] / err["scale"][:, None])
-    return phys, tr, node_energies(tr), np.where(np.isfinite(rel), rel, np.inf), err["scale"], N
+    return phys, tr, e, np.where(np.isfinite(rel), rel, np.inf), err["scale"], N
 
 
 def run(ctx, coords) -> xr.Dataset:
     """Per member of one (α, method): settling, final state, temperature, inertia, energy error."""
-    nref, is_ref = ctx.opt["reference_members"], "reference" in coords["scheme"]
+    nref, is_ref = ctx.opt["reference_members"], parse_method(coords["scheme"])["method"] == "reference"
     phys, tr, e, arel, _, N = _energy(ctx, coords["point"], coords["scheme"], nref if is_ref else None,
                                       t_end=ctx.opt["t_end"], attitude=True)
     nt = min(ctx.opt["trace_members"], nref, N)  # members every method runs
     with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
         ratio = (em := phys.mechanical_energy(e["K"], e["V"])) / em[:, :1]
         s = np.broadcast_to(np.asarray(inertia_scale(phys, tr.sigma), float), tr.sigma.shape)
-        per = {"settling_time": settling_time(tr.times, ratio, ctx.opt["settle_fraction"]),
-               "final_attitude": tr.attitude[:, -1], "final_temperature": e["T"][:, -1],
-               "final_tilt": direction_angle(tr.gamma[:, -1], phys.resting_gamma()) * DEG, "final_inertia_factor":
-               s[:, -1], "max_relative_energy_error": np.where(tr.status == 0, arel.max(1), np.inf),
+        per = {"settling_time": settling_time(tr.times, ratio, ctx.opt["settle_fraction"]), "final_inertia_factor":
+               s[:, -1], "final_attitude": tr.attitude[:, -1], "final_temperature": e["T"][:, -1],
+               "final_tilt": np.degrees(direction_angle(tr.gamma[:, -1], phys.resting_gamma())),
+               "max_relative_energy_error": np.where(tr.status == 0, arel.max(1), np.inf),
                "gamma_defect": np.nanmax(np.abs(np.linalg.norm(tr.gamma, axis=-1) - 1.0), axis=1)}
     data = {k: (("member", "row", "col")[:v.ndim], pad_members(v, N)) for k, v in per.items()}
     data.update(status=("member", pad_members(tr.status.astype(np.int8), N, np.int8(-1)).astype(np.int8)),
@@ -90,7 +87,7 @@ def drift(ctx, coords) -> xr.Dataset:
 def derive(ds, ctx):
     """Against the same member at α = 0 (same method), and against the reference (same member and α)."""
     ref = reference_label(ctx.methods)
-    angle = lambda a, b: xr.apply_ufunc(lambda x, y: rotation_angle(x, y) * DEG, a, b,  # noqa: E731
+    angle = lambda a, b: xr.apply_ufunc(lambda x, y: np.degrees(rotation_angle(x, y)), a, b,  # noqa: E731
                                         input_core_dims=[["row", "col"]] * 2)
     for tag, base in {"change": ds.sel({DIM: 0.0}, drop=True),
                       **({"minus_reference": ds.sel(scheme=ref, drop=True)} if ref else {})}.items():
@@ -123,13 +120,14 @@ def tables(ds, ctx) -> list[Table]:
     for a in ds[DIM].values:
         d = ds.sel({DIM: a, "scheme": mm})
         r = d["status"].values >= 0
-        key.append({column(ds, DIM): float(a), "method": mm, "members": int(r.sum()), "not settled": int(np.isnan(
-                    d["settling_time"].values[r]).sum()), "later than at alpha = 0": int((d["settling_time_change"]
-                                                                                       .values[r] > 0).sum()),
+        key.append({column(ds, DIM): float(a), "method": mm, "members": int(r.sum()),
+                    "not settled": int(np.isnan(d["settling_time"].values[r]).sum()),
+                    "later than at alpha = 0": int((d["settling_time_change"].values[r] > 0).sum()),
                     **quantile_columns(ds, d, ("settling_time", "settling_time_change", "attitude_change",
                                                "final_temperature", "final_inertia_factor"), r),
-                    **quantile_columns(ds, d, ("final_tilt",), r, ("median",)), column(ds, "final_temperature_change",
-                    "max |…|"): float(np.nanmax(np.abs(d["final_temperature_change"].values[r])))})
+                    **quantile_columns(ds, d, ("final_tilt",), r, ("median",)),
+                    column(ds, "final_temperature_change", "max |…|"):
+                        float(np.nanmax(np.abs(d["final_temperature_change"].values[r])))})
         for m in ctx.methods:
             d = ds.sel({DIM: a, "scheme": m})
             meth.append({column(ds, DIM): float(a), "method": m, "members": int(same.sum()), "failed (all members)":
@@ -216,5 +214,5 @@ STUDY = Study(
     report=("Scene `{scene}` (𝕀(S) = 𝕀₀(1 + α(θ − T₀))²), the same random members at every alpha, node values "
             "(kinetic energy from the node velocity 𝕀(S_k)⁻¹μ_k), t_end = {opt[t_end]} s. The reference (DOP853 with "
             "substeps) runs the first {opt[reference_members]} members; methods meet it, and each other, there only. "
-            "No cost is reported: work_precision ranks methods by measured cost."),
+            "No cost is reported: these runs are not timed interleaved and repeated; work_precision ranks costs."),
 )

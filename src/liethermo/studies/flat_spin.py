@@ -184,5 +184,6 @@ STUDY = Study(
                     "ran falls as 1/λ, alike for every method")),
     report=("Scene `{scene}`, random spins, node values over t_end = {opt[lambda_t_end]} s² kg⁻¹ m⁻² / λ ({opt[nodes]} "
             "nodes; maxima over them). The reference (DOP853 with substeps) runs the first {opt[reference_members]} "
-            "members; methods meet it there only. No cost is reported: work_precision ranks methods by measured cost."),
+            "members; methods meet it there only. No cost is reported: these runs are not timed interleaved and "
+            "repeated; work_precision ranks methods by measured cost."),
 )
