@@ -182,8 +182,8 @@ def findings(ds, ctx) -> list[str]:
             "members), and the settling time the others are judged by."] if ref else [])
 
 
-def _at_check(ds, ctx, **sel):
-    return ds.sel({DIM: ctx.opt["check_alpha"], **sel}).assign_coords(trace=[f"member {i}" for i in ds["trace"]])
+def _at_check(ds, ctx, **sel):  # at alpha = check_alpha, the traced members named for the legend
+    return ds.sel({DIM: ctx.opt["check_alpha"], **sel}).assign_coords(trace=[f"member {int(i)}" for i in ds["trace"]])
 
 
 STUDY = Study(
