@@ -19,7 +19,7 @@ import math
 import numpy as np
 
 from ..dataset import node_energies
-from ..physics import Physics, inertia_scale, kinetic_energy, mechanical_energy_scale, potential_energy
+from ..physics import Physics, inertia_scale, kinetic_energy, mechanical_energy_scale, physics_of_scene, potential_energy
 from ..simulate import Trajectory, simulate
 from .common import method_choice
 
@@ -245,6 +245,58 @@ def quantile_band(a: np.ndarray, q=(0.05, 0.5, 0.95)) -> np.ndarray:
     if a.size == 0:
         return np.full(len(q), np.nan)
     return np.quantile(a, q)
+
+
+def column(ds, name: str, stat: str = "") -> str:
+    """A table column for the quantity ``name`` of the study dataset: its netCDF
+    name and units (``"median settling_time (s)"``), so that a CSV or report
+    column is the quantity the netCDF defines."""
+    units = ds[name].attrs.get("units", "1")
+    return f"{stat} {name} ({units})".strip()
+
+
+def ensemble(ctx, point: dict, method: str, limit: int | None = None):
+    """``(scene, parsed method, physics, Ω₀, R₀, N)``: the first ``limit`` (all:
+    None) of the N members of a study's sweep point run with ``method``."""
+    from ..initial import initial_conditions
+    from .common import method_overrides, parse_method
+
+    spec = parse_method(method)
+    scene = ctx.scene({**point, **method_overrides(spec)})
+    N = int(scene["ensemble"]["members"])
+    n = min(N, limit) if limit else N
+    om, R = initial_conditions(scene, 0, n)
+    return scene, spec, physics_of_scene(scene, N).take(slice(0, n)), om, R, N
+
+
+def pad_members(a: np.ndarray, n: int, fill=np.nan) -> np.ndarray:
+    """``a`` (m, …) padded to n members with ``fill`` (members a method did not run)."""
+    out = np.full((n,) + a.shape[1:], fill, dtype=np.result_type(a.dtype, type(fill)))
+    out[:a.shape[0]] = a
+    return out
+
+
+def reference_label(methods) -> str | None:
+    """The study's reference method among ``methods``, if any."""
+    from .common import parse_method
+
+    return next((m for m in methods if parse_method(m)["method"] == "reference"), None)
+
+
+def same_members(ds, methods) -> np.ndarray:
+    """(member,) bool: the members every method ran — the reference's (status ≥ 0
+    at every point), all of them without a reference."""
+    ref = reference_label(methods)
+    if ref is None:
+        return np.ones(ds.sizes["member"], bool)
+    st = ds["status"].sel(scheme=ref) >= 0
+    return st.all([d for d in st.dims if d != "member"]).values
+
+
+def quantile_columns(ds, d, names, members, stats=("5%", "median", "95%")) -> dict:
+    """{column: value}: the quantiles ``stats`` over ``members`` of each quantity in ``names`` of ``d``."""
+    q = [{"5%": 0.05, "median": 0.5, "95%": 0.95}[s] for s in stats]
+    return {column(ds, v, s): float(x) for v in names for s, x in zip(stats, quantile_band(d[v].values[members], q))}
 
 
 def observed_orders(hs, errors) -> np.ndarray:
