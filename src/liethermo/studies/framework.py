@@ -485,6 +485,8 @@ COMMON_QUANTITIES = {
 PALETTE = ("#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#17becf",
            "#7f7f7f", "#bcbd22", "#393b79", "#ad494a", "#637939", "#843c39", "#7b4173", "#3182bd")
 MARKERS = ("o", "s", "^", "v", "D", "P", "X", "*", "<", ">", "h", "p")
+#: colours of hues that are not methods (members, quantiles): none of them a method's
+OTHER_COLORS = ("#000000", "#8a8a8a", "#b8860b", "#4b0082", "#2f4f4f", "#c71585")
 
 
 def method_color(methods: list[str], method: str) -> str:
@@ -569,9 +571,9 @@ def _draw_lines(f: Figure, ds: xr.Dataset, ctx: Context):
         for j, hv, x, y in lines:
             if logs[1]:  # a zero on a log axis is a gap, not a line to the bottom
                 y = np.where(y > 0, y, np.nan)
-            color = ctx.color(hv) if hv in ctx.methods else PALETTE[j % len(PALETTE)]
+            color = ctx.color(hv) if hv in ctx.methods else OTHER_COLORS[j % len(OTHER_COLORS)]
             (ln,) = ax.plot(x, y, color=color, marker=MARKERS[j % len(MARKERS)], ms=7 - 2 * (j % 2), mfc="none",
-                            lw=1.2, label=hv or var)
+                            lw=1.2, label=hv or var, markevery=max(1, len(x) // 12))  # a long series: few markers
             handles.setdefault(hv or var, ln)
         for on, axis in zip(logs, (ax.xaxis, ax.yaxis)):
             if on:
@@ -596,10 +598,8 @@ def _draw_lines(f: Figure, ds: xr.Dataset, ctx: Context):
 def _legend(fig, axes, handles: dict, title: str) -> None:
     if len(handles) <= 1:
         return
-    if len(handles) <= 4 and len(axes) == 1:
-        axes[0].legend(handles.values(), handles.keys(), fontsize=8, title=title, loc="best", framealpha=0.9)
-    else:  # crowded: one legend for every panel, outside the axes
-        fig.legend(handles.values(), handles.keys(), fontsize=8, title=title, loc="outside right upper")
+    # one legend for every panel, outside the axes: it covers no data
+    fig.legend(handles.values(), handles.keys(), fontsize=8, title=title, loc="outside right upper")
 
 
 def _dim_label(ds, dim) -> str:
