@@ -418,7 +418,7 @@ def _assemble(study: Study, ctx: Context, results) -> xr.Dataset:
     parts = []
     for stage in study.stages:
         rows = results[stage.name]
-        if stage.keep == ():
+        if stage.keep == () or not rows:  # nothing kept, or an empty axis (no tasks)
             continue
         flat, dsets = [], []
         for coords, ds in rows:
