@@ -71,10 +71,10 @@ def sweep(ctx, coords) -> xr.Dataset:
 
 QUANTITIES = {
     "settling_time": ("s", "time after which K + V above rest stays below threshold x its initial value (NaN: "
-                           "censored)"), "settling_time_quartiles": ("s", "settling time, quartiles over members"),
+                           "censored)"), "settling_time_quartiles": ("s", "settling time quartiles"),
     "entropy_produced": ("J K-1", "entropy produced by t_end"), "entropy_time": ("s", "time of the entropy count"),
     "entropy_by_time": ("J K-1", "entropy produced by entropy_time"), "quantile": ("1", "quantile over members"),
-    "entropy_by_time_mean": ("J K-1", "entropy produced by entropy_time, member mean"),
+    "entropy_by_time_mean": ("J K-1", "mean entropy produced"),
     "mech_energy_initial": ("J", "initial mechanical energy above rest"), "mech_energy_final": ("J", "same at t_end"),
     "heat_ratio": ("1", "heat U - U0 produced by t_end over the mechanical energy lost (1 = exact balance)"),
     "entropy_rate_initial": ("W K-1", "initial entropy production rate P(Omega0) / T(0), P the dissipated power"),
