@@ -21,12 +21,16 @@ DIM = dim_name(SWEEP_KEY)
 
 
 def _check(ctx) -> None:
-    sweep, _ = ctx.study.get("sweep") or {}, parse_method(ctx.opt["method"])
+    sweep = ctx.study.get("sweep") or {}
     if list(sweep) != [SWEEP_KEY] or any(not isinstance(v, (int, float)) or v <= 0 for v in sweep[SWEEP_KEY]):
         raise StudyError(f"sweep: a viscosity_sweep study sweeps {SWEEP_KEY!r} alone, over viscosities > 0 (a "
                          f"settling time needs friction), got {sweep}")
     if ctx.opt["outputs"] < 10:
         raise StudyError(f"options.outputs: must be an integer ≥ 10, got {ctx.opt['outputs']!r}")
+    try:
+        parse_method(ctx.opt["method"])
+    except StudyError as e:
+        raise StudyError(f"options.method: {str(e).removeprefix('methods: ')}") from None
 
 
 def settling_times(t: np.ndarray, E: np.ndarray, threshold: float) -> np.ndarray:
@@ -74,14 +78,12 @@ QUANTITIES = {
                            "censored)"), "settling_time_quartiles": ("s", "settling time quartiles"),
     "entropy_produced": ("J K-1", "entropy produced by t_end"), "entropy_time": ("s", "time of the entropy count"),
     "entropy_by_time": ("J K-1", "entropy produced by entropy_time"), "quantile": ("1", "quantile over members"),
-    "entropy_by_time_mean": ("J K-1", "mean entropy produced"),
+    "entropy_by_time_mean": ("J K-1", "mean entropy produced"), DIM: ("kg m-1 s-1", "fluid viscosity mu (sweep)"),
     "mech_energy_initial": ("J", "initial mechanical energy above rest"), "mech_energy_final": ("J", "same at t_end"),
     "heat_ratio": ("1", "heat U - U0 produced by t_end over the mechanical energy lost (1 = exact balance)"),
     "entropy_rate_initial": ("W K-1", "initial entropy production rate P(Omega0) / T(0), P the dissipated power"),
     "status": status_units(), "t_end": ("s", "simulated time (adapted to the viscosity)"),
-    "mu_crit": ("kg m-1 s-1", "viscosity above which the pendulum mode is over-damped, c = 2 sqrt(I_min m g l)"),
-    DIM: ("kg m-1 s-1", "fluid viscosity mu (sweep)"),
-}
+    "mu_crit": ("kg m-1 s-1", "viscosity above which the pendulum mode is over-damped, c = 2 sqrt(I_min m g l)")}
 
 
 def derive(ds, ctx):
@@ -98,8 +100,7 @@ def derive(ds, ctx):
 def tables(ds, ctx) -> list[Table]:
     rows = []
     for mu in ds[DIM].values:
-        d = ds.sel({DIM: mu})
-        q25, med, q75 = (float(x) for x in d["settling_time_quartiles"].values)
+        d, (q25, med, q75) = ds.sel({DIM: mu}), ds["settling_time_quartiles"].sel({DIM: mu}).values.tolist()
         rows.append({"μ (kg m⁻¹ s⁻¹)": float(mu), "t_end (s)": float(d["t_end"]), "settling time median (s)": med,
                      "q25 (s)": q25, "q75 (s)": q75, "μ × median (kg m⁻¹)": float(mu) * med,
                      "censored": int(np.isnan(d["settling_time"].values).sum()), "failed": int((d["status"] != 0).sum()),
