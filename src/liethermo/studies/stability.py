@@ -8,7 +8,7 @@ import numpy as np
 import xarray as xr
 
 from ..initial import initial_conditions
-from ..methods import METHODS, friction_amplification, negative_substep_limits  # noqa: F401 (the study's analysis)
+from ..methods import negative_substep_limits
 from ..physics import kinetic_energy, physics_of_scene, potential_energy
 from ..simulate import simulate
 from .common import StudyError, keeps_geometry, method_choice, status_units
