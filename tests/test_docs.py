@@ -193,7 +193,7 @@ def test_composition_factors_are_the_documented_ones(model_md):
 def test_negative_substep_limits_are_the_documented_ones(model_md):
     """The table of docs/model.md, "Negative substeps": the κ where a negative
     substep's Newton matrix is singular and the band where a friction mode grows."""
-    from liethermo.studies.stability import negative_substep_limits
+    from liethermo.methods import negative_substep_limits
 
     rows = (("vi4", "small_error", "| vi4 | −0.6580 | 3.0397 | 3.023 < κ < 3.055 |", -0.6580, [3.0397], (3.023, 3.055)),
             ("vi6", "small_error", "| vi6 | −0.7062 | 2.8319 | 2.728 < κ < 2.950 |", -0.7062, [2.8319], (2.728, 2.950)),

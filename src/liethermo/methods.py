@@ -224,6 +224,35 @@ def judge_order(observed: float, declared: int, tolerance: float | None = None) 
     return "above declared" if observed > declared + tol else "as declared"
 
 
+def friction_amplification(method: str, kappa, friction: str = "trapezoid", composition: str = "small_error"):
+    """R(κ) = Π_i r(f_i κ): one step of a VI-family method on a purely frictional linear mode (κ = c h / I),
+    r(z) = (1 − w_R z)/(1 + w_L z) with the friction's weights (trapezoid: (1 − z/2)/(1 + z/2))."""
+    from .kernels.vi import FRICTION_WEIGHTS
+
+    wl, wr = FRICTION_WEIGHTS[friction]
+    kappa = np.asarray(kappa, float)
+    out = np.ones_like(kappa)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for f in METHODS[method].substeps(composition):
+            out = out * (1.0 - wr * f * kappa) / (1.0 + wl * f * kappa)
+    return out
+
+
+def negative_substep_limits(method: str, friction: str = "trapezoid", composition: str = "small_error") -> dict:
+    """For a VI-family method: the most negative substep factor f, the κ at which a negative substep's Newton
+    matrix factor 1 + w_L f κ vanishes, and the band of κ where |R(κ)| > 1 (a friction mode grows), from a
+    fine grid of κ up to 50."""
+    from .kernels.vi import FRICTION_WEIGHTS
+
+    f = np.asarray(METHODS[method].substeps(composition), float)
+    neg = f[f < 0]
+    k = np.linspace(1e-3, 50.0, 200_000)
+    bad = np.abs(friction_amplification(method, k, friction, composition)) > 1.0 + 1e-9
+    return {"min_factor": float(f.min()),
+            "kappa_singular": sorted(set(np.round(-1.0 / (FRICTION_WEIGHTS[friction][0] * neg), 4))) if neg.size else [],
+            "growth_band": (float(k[bad].min()), float(k[bad].max())) if bad.any() else None}
+
+
 def get_method(name: str) -> Method:
     try:
         return METHODS[name]

@@ -173,6 +173,27 @@ class Trajectory:
     def momentum(self) -> np.ndarray | None:
         return self.part("momentum")
 
+    def newton_condition(self) -> np.ndarray:
+        """VI family: per member, the largest 2-norm condition number of the Newton Jacobian
+        (:func:`liethermo.kernels.vi.newton_jacobian`, every term of the member's model) at the stored step
+        velocities, over the accepted steps and the substep sizes f_i h; NaN where no step was accepted."""
+        from .kernels.vi import FRICTION_WEIGHTS, newton_jacobian
+        from .methods import METHODS
+        from .physics import build_model
+
+        wl, wr = FRICTION_WEIGHTS[self.friction]
+        X, out = self.omega_step, np.full(self.states.shape[0], np.nan)
+        for m in range(X.shape[0]):
+            model, best = build_model(self.physics.take(slice(m, m + 1))).model, 0.0
+            for k in range(X.shape[1] - 1):
+                if not np.all(np.isfinite(X[m, k + 1])):
+                    break
+                for f in METHODS[self.method].substeps(self.composition or "small_error"):
+                    best = max(best, float(np.linalg.cond(newton_jacobian(model, f * self.h, wl, wr,
+                                                                          *map(float, X[m, k])))))
+            out[m] = best if best > 0 else np.nan
+        return out
+
     @property
     def attitude(self) -> np.ndarray | None:
         R = self.part("attitude")

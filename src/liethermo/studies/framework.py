@@ -558,7 +558,7 @@ def _draw_lines(f: Figure, ds: xr.Dataset, ctx: Context):
         d = ds if fi is None else ds.isel({f.facet: fi})
         lines = []
         for j, hv in enumerate(hues):
-            dd = d if hv is None else d.sel({f.hue: hv})
+            dd = d if hv is None else d.isel({f.hue: j})  # by position: a numeric hue is not its text
             x = np.asarray(dd[f.x].values, float).ravel()
             y = np.asarray(dd[var].values, float).ravel()
             ok = np.isfinite(x) & np.isfinite(y)
