@@ -451,7 +451,7 @@ def test_a_small_heat_capacity_gives_the_same_bits_however_the_ensemble_is_split
 # ------------------------------------------------------------------ the terms own their names
 
 #: studies whose subject is a term's physics: they set or sweep its key
-STUDIES_ABOUT_TERMS = {"coupling.py", "flat_spin.py", "viscosity_sweep.py", "long_drift.py",
+STUDIES_ABOUT_TERMS = {"coupling.py", "flat_spin.py", "viscosity_sweep.py",
                        "stability.py"}
 
 
