@@ -45,7 +45,7 @@ def ensemble(ctx, coords) -> xr.Dataset:
         ds, st = model.run_chunk(sc, lo, hi)
         status[lo:hi], wall = ds["status"].values, wall + st.kernel_time
         rel[""][lo:hi] = model.relative_energy_error(ds)
-        for c, r in (model.energy_conventions(ds).items() if m in (opt["paper_convention"] or []) else ()):
+        for c, r in model.energy_conventions(ds).items():
             rel[f"_{c}"][lo:hi] = r
     data, ok, tc = {"status": ("member", status), "kernel_time": ((), wall)}, status == 0, t - t.mean()
     for c, r in rel.items():
@@ -56,23 +56,21 @@ def ensemble(ctx, coords) -> xr.Dataset:
         data.update({f"relative_energy_error_quantiles{c}": (("quantile", "t"), asked * np.quantile(
             arel[:, ::be], QUANTILES, axis=0, method="inverted_cdf")), f"max_relative_energy_error{c}": (
             "member", asked * np.where(ok, arel.max(axis=1), np.inf)), f"final_relative_energy_error{c}": (
-            "member", asked * arel[:, -1]), f"energy_drift_rate{c}": ("member", np.where(ok, slope, np.nan))})
+            "member", asked * arel[:, -1]), f"energy_drift_rate{c}": ("member", asked * np.where(ok, slope, np.nan))})
     data["blown_up"] = ("member", (~ok | ~(data["max_relative_energy_error"][1] <= opt["diverged_above"])).astype(np.int8))
     return xr.Dataset(data, coords={"quantile": list(QUANTILES), "t": t[::be], "member": np.arange(N)})
 
 
 def quantities(ctx) -> dict:
-    q = {"kernel_time": ("s", "kernel wall time of the point's ensemble"), "quantile": ("1", "quantile over members"),
-         "blown_up": ("1", f"1: the member failed or its max |relative energy error| > {ctx.opt['diverged_above']:g}"),
-         "blown_up_members": ("1", "members that blew up"), H: ("s", "time step h"),
-         "median_max_relative_energy_error": ("1", "median max |rel. energy error|")}
-    for c in _sfx(ctx):
-        w = f" ({c[1:]} convention; NaN where not asked)" if c else ""
-        q.update({f"relative_energy_error_quantiles{c}": ("1", f"quantiles over members of |relative energy error|{w}"),
-                  f"max_relative_energy_error{c}": ("1", f"max over t of |relative energy error|{w}; failed: inf"),
-                  f"final_relative_energy_error{c}": ("1", f"|relative energy error| at t_end{w}"),
-                  f"energy_drift_rate{c}": ("s-1", f"least-squares slope of the relative energy error in t{w}")})
-    return q
+    return {"kernel_time": ("s", "kernel wall time of the point's ensemble"), "quantile": ("1", "quantile over members"),
+            "blown_up": ("1", f"1: the member failed or its max |relative energy error| > {ctx.opt['diverged_above']:g}"),
+            "blown_up_members": ("1", "members that blew up"), H: ("s", "time step h"),
+            "median_max_relative_energy_error": ("1", "median max |rel. energy error|"),
+            **{f"{v}{c}": (u, w + (f" ({c[1:]} convention; NaN where not asked)" if c else "")) for c in _sfx(ctx)
+               for v, u, w in (("relative_energy_error_quantiles", "1", "quantiles over members of |relative energy "
+                                "error|"), ("max_relative_energy_error", "1", "max over t of |relative energy error| "
+                                "(failed: inf)"), ("final_relative_energy_error", "1", "|relative energy error| at t_end"),
+                               ("energy_drift_rate", "s-1", "least-squares slope of the relative energy error in t"))}}
 
 
 def derive(ds, ctx) -> xr.Dataset:
