@@ -22,6 +22,8 @@ other or a neighbouring panel, or if any of them is cut off.
 
 from __future__ import annotations
 
+import re
+
 import math
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -46,7 +48,10 @@ def legible_figures():
         problems = layout_problems(fig, kwargs.get("dpi"))
         assert not problems, f"{fname}: illegible at its saved size:\n  " + "\n  ".join(problems)
         engine = fig.get_layout_engine()
-        SAVED_FIGURES[str(Path(str(fname)).resolve())] = type(engine).__name__ if engine is not None else None
+        path = Path(str(fname)).resolve()
+        atomic = re.fullmatch(r"\.(.+)\.\d+\.tmp", path.name)  # an atomic write's temporary
+        path = path.with_name(atomic.group(1)) if atomic else path
+        SAVED_FIGURES[str(path)] = type(engine).__name__ if engine is not None else None
         return out
 
     Figure.savefig = checked_savefig

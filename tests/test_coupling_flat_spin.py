@@ -196,7 +196,9 @@ def test_flat_spin_invalid_studies_are_rejected(tmp_path, edit, needle):
     if "internal_friction" in edit:
         src = src.replace(edit, '"body.internal_friction" = [0.0, 10.0]')
     else:
-        src = src.replace("[options]", "[scene.gravity]\ng = 9.81\n\n[options]")
+        # gravity with a lever arm (the centre of mass off the pivot) exerts a torque
+        src = src.replace("[options]", "[scene.gravity]\ng = 9.81\n\n[scene.body]\ncenter_of_mass = [0.0, 0.0, 0.01]\n\n"
+                          "[options]")
     p = tmp_path / "bad.toml"
     p.write_text(src)
     with pytest.raises(StudyError, match=needle):

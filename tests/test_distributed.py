@@ -442,17 +442,6 @@ def test_cli_study_dask_address(client, tmp_path, capsys):
     assert_same_study(tmp_path / "dask", tmp_path / "inproc", "convergence")
 
 
-def test_work_precision_ignores_dask(tmp_path, capsys):
-    """Its wall times are the measurement: it runs in-process (an unreachable
-    scheduler address is never contacted) and says so, on stderr and in the report."""
-    from liethermo.studies import get_study, work_precision
-
-    report = get_study("work_precision").run(_study("work_precision"), tmp_path, reduced=True, progress=False,
-                                             dask="tcp://127.0.0.1:9")
-    assert work_precision.DASK_NOTE in capsys.readouterr().err
-    assert work_precision.DASK_NOTE in report.read_text()
-
-
 def test_stack_points_single_key():
     """One sweep key (no MultiIndex to unstack): the key becomes the dimension,
     in the order of the study file."""

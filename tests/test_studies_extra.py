@@ -23,18 +23,25 @@ ROOT = Path(__file__).resolve().parents[1]
 STUDIES = ROOT / "studies"
 
 
-def _run(kind: str, outdir: Path) -> Path:
+def _run(kind: str, outdir: Path, file: str | None = None) -> Path:
     from liethermo.studies import get_study
 
-    study = load_study(STUDIES / f"{kind}.toml")
+    study = load_study(STUDIES / f"{file or kind}.toml")
     validate_study(study)
-    return get_study(kind).run(study, outdir, reduced=True, progress=False)
+    mod = get_study(kind)
+    return getattr(mod, "STUDY", mod).run(study, outdir, reduced=True, progress=False)
 
 
 @pytest.fixture(scope="module")
 def wp(tmp_path_factory):
     out = tmp_path_factory.mktemp("work_precision")
     return _run("work_precision", out), out
+
+
+@pytest.fixture(scope="module")
+def wpz(tmp_path_factory):
+    out = tmp_path_factory.mktemp("work_precision_zeitlin")
+    return _run("work_precision", out, "work_precision_zeitlin"), out
 
 
 @pytest.fixture(scope="module")
@@ -52,106 +59,95 @@ def visc(tmp_path_factory):
 # ----------------------------------------------------------------------------- work–precision
 
 def test_work_precision_outputs(wp):
+    """The top's methods by default (its own, the reference aside), scipy's baselines, units on every variable,
+    and every run's cost the minimum over at least ``repeats`` interleaved rounds, with its spread."""
     report, out = wp
     text = report.read_text()
-    assert report.name == "report.md" and "serially" in text and "node values" in text
-    assert (out / "work_precision.png").is_file()
+    assert "serially" in text and "omega, gamma" in text and (out / "work_precision.png").is_file()
     ds = cf.open_dataset(out / "work_precision.nc")
-    for v in ds.data_vars:
-        assert "units" in ds[v].attrs and "long_name" in ds[v].attrs, v
-    study = load_study(STUDIES / "work_precision.toml")
-    assert set(ds["method"].values) == set(study["methods"]) | {"scipy RK45", "scipy DOP853"}
+    assert all("units" in ds[v].attrs and "long_name" in ds[v].attrs for v in ds.variables)
+    assert list(ds["scheme"].values) == ["vi", "vi4", "vi6", "split", "split4", "split6", "rk2", "rk4"]
+    assert list(ds["solver"].values) == ["RK45", "DOP853"] and list(ds["state"].values) == ["omega", "gamma"]
+    assert (ds["cost_repeats"] >= 5).all() and (ds["cost_spread"] >= 0).all()
+    assert (ds["timed_members"] * (2.0 / ds["h"]) >= 65536).all()
     ttr = pd.read_csv(out / "time_to_error.csv")
-    assert len(ttr) == ds.sizes["method"]
+    assert list(ttr["method"]) == list(ds["scheme"].values) + ["scipy RK45", "scipy DOP853"]
 
 
-def test_work_precision_times_warm_block_kernels_at_every_level(wp):
-    """Every level runs on the vectorized block kernel, warm, for at least
-    timing_member_steps per timed run: no level of a method costs more than 3×
-    its median per member-step (compiling, or a slower kernel at coarse levels,
-    would cost 20–200×)."""
-    report, out = wp
-    ds = cf.open_dataset(out / "work_precision.nc")
-    assert ds.attrs["kernel"] == "fast" and ds.attrs["kernel_threads"] == 1
-    text = report.read_text()
-    assert "`fast` kernel" in text and "1 numba thread(s)" in text and "**minimum** over the repeats" in text
-    spread = pd.read_csv(out / "level_costs.csv")
-    study = load_study(STUDIES / "work_precision.toml")
-    assert set(spread["method"]) == set(study["methods"])
-    assert (spread["greatest / median"] <= 3.0).all(), spread.to_string()
-    df = pd.read_csv(out / "work_precision.csv")
-    kern = df[df["method"].isin(study["methods"])]
-    opt = study["reduced"]["options"]
-    assert (kern["timed members"] * kern["steps"] >= opt["timing_member_steps"]).all()
-    assert (kern["wall/member-step (s)"] <= kern["median repeat /member-step (s)"] * (1 + 1e-12)).all()
-
-
-def test_work_precision_closes_with_the_cheapest_method_per_epsilon(wp):
-    report, out = wp
-    text = report.read_text()
-    closing = text[text.rindex("### Closing"):]
-    assert "**Cheapest here**" in closing
-    df = pd.read_csv(out / "work_precision.csv")
-    df = df[df["failed members"] == 0]
-    cl = pd.read_csv(out / "closing.csv")
-    study = load_study(STUDIES / "work_precision.toml")
-    assert sorted(cl["error ≤"].unique()) == sorted(study["options"]["epsilons"])
-    for eps, g in cl.groupby("error ≤"):
-        ok = df[df["error at t_end (max)"] <= eps]
-        if ok.empty:
-            assert (g["cheapest method"] == "not reached").all()
-            continue
-        best = ok.loc[ok["wall/member (s)"].idxmin()]
-        assert g.iloc[0]["cheapest method"] == best["method"] and g.iloc[0]["cost (s)"] == best["wall/member (s)"]
-
-
-def test_timing_copies_cover_the_member_steps():
-    from liethermo.studies.work_precision import timing_copies
-
-    assert timing_copies(32, 50, 2**18) == 164 and 164 * 32 * 50 >= 2**18 > 163 * 32 * 50
-    assert timing_copies(32, 204800, 2**18) == 1
+def test_work_precision_closing_tables_agree(wp):
+    """One computation: the cheapest per ε is the cheapest time to ε, and a tie is named only within the spreads."""
+    _, out = wp
+    ttr, cheap = pd.read_csv(out / "time_to_error.csv"), pd.read_csv(out / "cheapest.csv")
+    for _, row in cheap.iterrows():
+        col = f"time/member to {row['error ≤']:.0e} (s)"
+        t = ttr.set_index("method")[col].dropna()
+        group = row["cheapest"].split(" = ")
+        assert group[0] == t.idxmin() and row["time/member (s)"] == t.min()
+        spread = ttr.set_index("method")[f"spread ({row['error ≤']:.0e})"]
+        for a, b in zip(group, group[1:]):
+            assert t[b] / t[a] - 1 <= max(spread[a], spread[b], 0.02) + 1e-12
 
 
 def test_work_precision_slopes(wp):
-    """Errors on node values fall with h at the methods' orders."""
+    """Errors on node values fall with h at the methods' orders; scipy's with its tolerance."""
     _, out = wp
     df = pd.read_csv(out / "work_precision.csv")
-    expected = {"vi": 2.0, "vi4": 4.0, "vi6": 6.0, "rk2": 2.0, "rk4": 4.0}
-    for m, order in expected.items():
-        d = df[df["method"] == m].sort_values("h (s)", ascending=False)
-        e = d["error at t_end (max)"].to_numpy()
-        h = d["h (s)"].to_numpy()
+    assert (df["failed members"] == 0).all()
+    for m, order in {"vi": 2.0, "vi4": 4.0, "vi6": 6.0, "rk2": 2.0, "rk4": 4.0, "split4": 4.0}.items():
+        d = df[df["method"] == m]
+        e, h = d["error at t_end (max)"].to_numpy(), d["h (s)"].to_numpy()
         assert np.all(np.diff(e) < 0), (m, e)
-        assert (d["failed members"] == 0).all()
-        slope = np.polyfit(np.log(h[-3:]), np.log(e[-3:]), 1)[0]
-        assert abs(slope - order) < (0.7 if order == 6 else 0.35), (m, slope)
-
-
-def test_work_precision_scipy_tolerances(wp):
-    _, out = wp
-    df = pd.read_csv(out / "work_precision.csv")
+        assert abs(np.polyfit(np.log(h[-3:]), np.log(e[-3:]), 1)[0] - order) < (0.7 if order == 6 else 0.35), m
     for m in ("scipy RK45", "scipy DOP853"):
-        d = df[df["method"] == m].sort_values("rtol", ascending=False)
-        e = d["error at t_end (max)"].to_numpy()
-        assert np.all(np.diff(e) < 0), (m, e)
-        assert e[-1] < 1e-8
-        # evaluations grow as the tolerance shrinks
-        assert np.all(np.diff(d["evals/member"].to_numpy()) > 0)
+        e = df[df["method"] == m]["error at t_end (max)"].to_numpy()
+        assert np.all(np.diff(e) < 0) and e[-1] < 1e-8, (m, e)
+
+
+def test_work_precision_on_the_fluid(wpz):
+    """The same study on a fluid scene: its own methods, the vorticity relative to |W(0)| (heat and entropy start at
+    zero and have no relative scale), orders 2/4/6/4, and scipy skipped in one line."""
+    report, out = wpz
+    ds = cf.open_dataset(out / "work_precision_zeitlin.nc")
+    assert list(ds["scheme"].values) == ["split", "split4", "split6", "rk4"] and "solver" not in ds.dims
+    assert list(ds["state"].values) == ["vorticity"] and ds.attrs["model"] == "zeitlin"
+    assert "solve_ivp is skipped" in report.read_text()
+    e = ds["error"].values
+    orders = np.log2(e[:, -2] / e[:, -1])
+    assert np.all(np.abs(orders - [2, 4, 6, 4]) < [0.3, 0.3, 0.7, 0.3]), orders
+
+
+def test_work_precision_times_in_this_process():
+    """The stages that time run serially (never on Dask workers); the error runs may be distributed."""
+    from liethermo.studies.work_precision import STUDY
+
+    assert {s.name: s.serial for s in STUDY.stages} == {"reference": False, "errors": False, "costs": True,
+                                                       "scipy": True}
 
 
 def test_time_to_error_interpolation():
     from liethermo.studies.work_precision import time_to_error
 
-    errs = [1e-2, 1e-4, 1e-6]
-    times = [1.0, 10.0, 100.0]
-    t, how = time_to_error(errs, times, 1e-3)
-    assert how == "interpolated" and t == pytest.approx(math.sqrt(10.0), rel=1e-12)
-    assert time_to_error(errs, times, 1e-1) == (1.0, "coarsest")
-    t, how = time_to_error(errs, times, 1e-9)
-    assert math.isnan(t) and how == "not reached"
-    # a failed (inf) coarse level does not stop the interpolation
-    t, how = time_to_error([np.inf, 1e-4], [1.0, 2.0], 1e-3)
-    assert (t, how) == (2.0, "interpolated")
+    errs, times = [1e-2, 1e-4, 1e-6], [1.0, 10.0, 100.0]
+    t, how, used = time_to_error(errs, times, 1e-3)
+    assert how == "interpolated" and used == (0, 1) and t == pytest.approx(math.sqrt(10.0), rel=1e-12)
+    assert time_to_error(errs, times, 1e-1) == (1.0, "coarsest", (0,))
+    t, how, used = time_to_error(errs, times, 1e-9)
+    assert math.isnan(t) and how == "not reached" and used == ()
+    # a failed (inf or NaN) coarse level does not stop the interpolation
+    assert time_to_error([np.inf, 1e-4], [1.0, 2.0], 1e-3) == (2.0, "interpolated", (1,))
+    assert time_to_error([np.nan, 1e-4], [1.0, 2.0], 1e-3) == (2.0, "interpolated", (1,))
+
+
+def test_work_precision_rejects_bad_options():
+    from liethermo.studies.work_precision import STUDY
+
+    study = load_study(STUDIES / "work_precision.toml")
+    for opts, msg in (({"h": [0.3]}, "options.h"), ({"scipy_methods": ["LSODA"]}, "options.scipy_methods"),
+                      ({"scipy_members": 99}, "options.scipy_members")):
+        with pytest.raises(StudyError, match=msg):
+            STUDY.validate({**study, "options": {**study["options"], **opts}})
+    with pytest.raises(StudyError, match="methods"):
+        STUDY.validate({**study, "methods": ["rk4", "reference"]})
 
 
 # ----------------------------------------------------------------------------- stability

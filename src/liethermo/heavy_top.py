@@ -484,7 +484,7 @@ LONG_RUN_MEMBER_STEPS = 2**26
 
 #: the top's study kinds (modules liethermo.studies.<kind>)
 STUDY_KINDS = ("paper", "convergence", "energy_drift", "work_precision", "stability", "viscosity_sweep",
-               "long_drift", "coupling", "flat_spin")
+               "long_drift", "coupling", "flat_spin", "entropy_rate")
 
 
 class HeavyTop(Model):
@@ -516,15 +516,25 @@ class HeavyTop(Model):
         return {n: MethodInfo(n, m.order(), tuple(m.laws), m.description) for n, m in METHODS.items()}
 
     def study_state(self, ds) -> dict:
-        return {"omega": (ds["omega"].values, "rad s-1", "body angular velocity Omega (node values)"),
-                "gamma": (ds["gamma"].values, "1", "direction of gravity Gamma"),
-                "entropy": (ds["entropy"].values, "J K-1", "entropy S"),
-                "total_energy": (ds["energy_error"].values, "J", "total energy E (node values)")}
+        return {"omega": (ds["omega"].values, "rad s-1", "body angular velocity Omega (node values)", None),
+                "gamma": (ds["gamma"].values, "1", "direction of gravity Gamma", None),
+                "entropy": (ds["entropy"].values, "J K-1", "entropy S", None),
+                # the energy that moves between the mechanical and the internal one
+                "total_energy": (ds["energy_error"].values, "J", "total energy E (node values)",
+                                 float(np.max(np.abs(ds["mechanical_energy_initial"].values))))}
 
     def method_overrides(self, label: str) -> dict:
         from .methods import MethodChoice
 
         return MethodChoice.parse(label).overrides()
+
+    def method_details(self, label: str) -> dict:
+        from .methods import MethodChoice
+
+        c = MethodChoice.parse(label)
+        vi = c.family == "vi"
+        return {"start": c.start if vi else "—", "friction": c.friction if vi else "—",
+                "entropy update": c.entropy if vi else "—"}
 
     def method_order(self, label: str) -> int:
         from .methods import MethodChoice
@@ -560,6 +570,16 @@ class HeavyTop(Model):
         traj, ds = _chunk(scene, 0, int(scene["ensemble"]["members"]), kernel=kernel, threads=threads)
         return ds, ChunkStats(members=ds.sizes["member"], kernel_time=traj.wall_time,
                               compile_time=traj.compile_time), law_defects(traj)
+
+    def ode(self, scene, lo, hi):
+        from .initial import initial_conditions
+        from .physics import physics_of_scene
+        from .studies.tools import continuous_rhs
+
+        om, R = initial_conditions(scene, lo, hi)
+        phys = physics_of_scene(scene, hi - lo)  # the same physics for every member
+        y0 = np.concatenate([om, R[:, 2, :], np.zeros((hi - lo, 1))], axis=1)  # y = (Ω, Γ, σ)
+        return y0, [continuous_rhs(phys, m) for m in range(hi - lo)], lambda y: {"omega": y[0:3], "gamma": y[3:6]}
 
     def initial_conditions(self, scene, lo: int, hi: int):
         from .initial import initial_conditions

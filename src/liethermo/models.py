@@ -162,8 +162,9 @@ class Model:
 
     def study_state(self, ds) -> dict:
         """The state a study compares between methods, from a run's dataset:
-        ``{name: (array (member, t, ...), units, long name)}``; an error is the
-        norm over the trailing axes of a difference.  None: the model offers
+        ``{name: (array (member, t, ...), units, long name, scale)}``; an error is
+        the norm over the trailing axes of a difference, and ``scale`` the size
+        it is measured against (None: the largest value of the reference).  None: the model offers
         no comparison (studies that need one refuse its scenes)."""
         return None
 
@@ -174,6 +175,10 @@ class Model:
             raise ValueError(f"{label!r} is not a method of {self.title or self.name} "
                              f"({', '.join(self.methods())})")
         return {"integrator.method": label}
+
+    def method_details(self, label: str) -> dict:
+        """``{choice: value}`` of a method label beyond its name (a table's columns)."""
+        return {}
 
     def method_order(self, label: str) -> int:
         """The order the method ``label`` declares on this model's output values."""
@@ -210,6 +215,12 @@ class Model:
         checked on the stored steps."""
         ds, st = self.run_chunk(scene, 0, int(scene["ensemble"]["members"]), kernel=kernel, threads=threads)
         return ds, st, {}
+
+    #: ``ode(scene, lo, hi)``: members ``lo:hi`` as a continuous system for scipy's
+    #: ``solve_ivp``, ``(y0 (members, n), [f(t, y) per member], state)`` where
+    #: ``state(y)`` gives :meth:`study_state`'s variables at one time (those it can);
+    #: None: the model has no continuous right-hand side (studies skip scipy)
+    ode = None
 
     def long_run(self, scene) -> bool:
         """Whether the command line times the run before it starts (and says so if it is long)."""

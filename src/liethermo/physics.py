@@ -80,6 +80,58 @@ class _PhysicsBase:
         """{term name: (N,) bool}: the terms acting on each member."""
         return {t.name: np.asarray(t.active(self), dtype=bool) for t in registry()}
 
+    # the model's physics in plain numpy, summed over the terms (functions of this module)
+    def torque(self, omega, gamma, sigma=None) -> np.ndarray:
+        """Σ f(Ω, Γ) (N m) of every term, (N, ..., 3): :func:`torque`."""
+        return torque(self, omega, gamma, sigma)
+
+    def dissipated_power(self, omega, sigma=None) -> np.ndarray:
+        """−Σ⟨f, Ω⟩ ≥ 0 (W) of the frictions, (N, ...): :func:`dissipated_power`."""
+        return dissipated_power(self, omega, sigma)
+
+    def mechanical_energy(self, K, V) -> np.ndarray:
+        """K + V − min V ≥ 0 (J), the energy above rest: :func:`mechanical_energy`."""
+        return mechanical_energy(self, K, V)
+
+    def mechanical_energy_scale(self, omega0, gamma0) -> np.ndarray:
+        """K₀ + V₀ − min V (N,) (J): :func:`mechanical_energy_scale`."""
+        return mechanical_energy_scale(self, omega0, gamma0)
+
+    def potential_span(self) -> np.ndarray:
+        """max V − min V over all attitudes (J), (N,): :func:`potential_span`."""
+        return potential_span(self)
+
+    def resting_gamma(self) -> np.ndarray:
+        """(N, 3) the Γ of least potential energy (the body at rest): :func:`resting_gamma`."""
+        return resting_gamma(self)
+
+    def linear_resistance(self) -> np.ndarray:
+        """(N, 3) Σ diag C (N m s) of the frictions linear in Ω: :func:`linear_resistance`."""
+        return linear_resistance(self)
+
+    def with_linear_resistance(self, C) -> "Physics":
+        """These members with the friction linear in Ω set to diag C (N, 3)
+        (the term with :data:`~liethermo.kernels.terms.ROLE_LINEAR_FRICTION` takes it)."""
+        from .kernels.terms import ROLE_LINEAR_FRICTION
+
+        kw = {}
+        for t in registry():
+            if t.role == ROLE_LINEAR_FRICTION:
+                kw.update(t.with_linear_resistance(self, C))
+        return dataclasses.replace(self, **kw)
+
+    def discrete_friction(self, h, x) -> np.ndarray:
+        """The variational integrator's discrete friction at step velocities X: :func:`discrete_friction`."""
+        return discrete_friction(self, h, x)
+
+    def has_constant_inertia(self) -> np.ndarray:
+        """(N,) bool: no term makes the member's inertia depend on S: :func:`has_constant_inertia`."""
+        return has_constant_inertia(self)
+
+    def breaking(self, law: str) -> list[str]:
+        """Names of the terms that break the exact ``law`` on some member (:meth:`keeps`)."""
+        return [t.name for t in registry() if not np.all(t.keeps(law, self))]
+
     def keeps(self, law: str) -> np.ndarray:
         """(N,) bool: the members on which every term leaves the exact ``law``
         of the motion valid (:data:`liethermo.kernels.terms.LAWS`)."""
@@ -405,9 +457,60 @@ def potential_span(phys: Physics) -> np.ndarray:
     return out
 
 
+def mechanical_energy(phys: Physics, K: np.ndarray, V: np.ndarray) -> np.ndarray:
+    """K + V − min V ≥ 0 (J): the mechanical energy above the resting state,
+    from the kinetic and potential energies K, V (N, ...) of the members
+    (min V = −½(max V − min V): every potential of the terms is odd in Γ)."""
+    return K + V + bcast(0.5 * potential_span(phys), K)
+
+
 def mechanical_energy_scale(phys: Physics, omega0: np.ndarray, gamma0: np.ndarray) -> np.ndarray:
     """K₀ + V₀ − min V (N,): the initial mechanical energy above the resting state,
     the energy friction can turn into heat (the natural scale of E_k − E₀)."""
     K0 = kinetic_energy(phys, omega0, None)
     V0 = potential_energy(phys, gamma0)
-    return K0 + V0 + 0.5 * potential_span(phys)
+    return mechanical_energy(phys, K0, V0)
+
+
+def resting_gamma(phys: Physics) -> np.ndarray:
+    """(N, 3) the Γ at which V is least, from the one term with a potential
+    (NaN where no term has one or, for a member, its potential is 0)."""
+    for t in registry():
+        with np.errstate(invalid="ignore", divide="ignore"):
+            G = t.resting_gamma(phys)
+        if G is not None:
+            return G
+    return np.full((phys.n, 3), np.nan)
+
+
+def linear_resistance(phys: Physics) -> np.ndarray:
+    """(N, 3) Σ diag C (N m s): the frictions −CΩ linear in Ω, in the body axes."""
+    C = np.zeros((phys.n, 3))
+    for t in registry():
+        c = t.linear_resistance(phys)
+        if c is not None:
+            C = C + c
+    return C
+
+
+def discrete_friction(phys: Physics, h: float, x: np.ndarray) -> np.ndarray:
+    """Σ of the variational integrator's discrete frictions at the step
+    velocities X (N, ..., 3) of steps h (N m): Σ C X + Σ D(X).  Raises
+    NotImplementedError where an acting friction does not give its discrete form."""
+    F = np.zeros(x.shape)
+    for t in registry():
+        if not np.any(t.active(phys)):
+            continue
+        f = t.discrete_friction(phys, h, x)
+        if f is not None:
+            F = F + f
+    return F
+
+
+def has_constant_inertia(phys: Physics) -> np.ndarray:
+    """(N,) bool: the members whose inertia no term makes depend on the entropy."""
+    out = np.ones(phys.n, dtype=bool)
+    for t in registry():
+        if t.sets_inertia:
+            out &= ~np.asarray(t.active(phys), dtype=bool)
+    return out

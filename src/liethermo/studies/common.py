@@ -129,6 +129,12 @@ def study_scene(study: dict, overrides: dict | None = None) -> dict:
     return load_scene(scene, nested(overrides) or None)
 
 
+def scene_value(scene: dict, key: str):
+    """The value of the dotted scene key ``key`` ("section.name") in a resolved scene."""
+    section, name = key.split(".", 1)
+    return scene[section][name]
+
+
 def study_name(study: dict) -> str:
     return str(study.get("study", {}).get("name") or study.get("study", {}).get("kind", "study"))
 
@@ -137,11 +143,10 @@ def study_history(kind: str, study: dict, outdir, reduced: bool, history: str | 
     """``history`` if given (the command line), else the API call that runs the study."""
     if history:
         return history
-    func = f"liethermo.studies.{kind}.run"
     src = study.get("_source")
-    if src:  # a study file: name it (load_study is what reads it)
-        return f"{func}(load_study({str(src)!r}), {str(outdir)!r}, reduced={bool(reduced)})"
-    return cf.api_call(func, study, str(outdir), reduced=bool(reduced))
+    if src:  # a study file: the public call that runs it
+        return cf.api_call("liethermo.study", str(src), reduced=bool(reduced), output=str(outdir))
+    return cf.api_call(f"liethermo.studies.get_study({kind!r}).STUDY.run", study, str(outdir), reduced=bool(reduced))
 
 
 def study_netcdf_path(study: dict, outdir: Path) -> Path:

@@ -53,20 +53,21 @@ def errors(ctx, coords, reference) -> xr.Dataset:
     got, ref = model.study_state(ds), model.study_state(reference)
     failed = int(np.max(ds["status"].values)) != 0
     out = {"status": ((), int(np.max(ds["status"].values))), "kernel_time": ((), float(stats.kernel_time))}
-    for name, (x, units, long) in got.items():
+    for name, (x, units, long, scale) in got.items():
         r = ref[name][0]
         diff = np.abs(x[:, 1:] - r[:, 1:]).reshape(x.shape[0], x.shape[1] - 1, -1)
         err = np.inf if failed else float(np.max(np.sqrt(np.sum(diff * diff, axis=-1))))
         out[f"error_{name}"] = ((), err, {"units": units, "long_name": f"error in {long}"})
-        out[f"scale_{name}"] = ((), float(np.max(np.abs(r))) or 1.0, {"units": units})
+        out[f"scale_{name}"] = ((), ref[name][3] or float(np.max(np.abs(r))) or 1.0, {"units": units})
     return xr.Dataset(out)
 
 
 def fit_order(hs, errs, scale: float, floor_rel: float):
     """(order, constant, levels fitted): least squares of log(error) on log(h)
     from the coarsest level while the error is above ``floor_rel`` × ``scale``
-    and the local order log2(e_{i-1}/e_i) stays above half the first one (a
-    level on the way into the round-off plateau ends the fit)."""
+    and the local order log2(e_{i-1}/e_i) stays near the first one (a
+    level on the way into the round-off plateau ends the fit: a local order
+    more than max(1, first/4) below the first one)."""
     hs, errs = np.asarray(hs, float), np.asarray(errs, float)
     used, first = 0, None
     for i, e in enumerate(errs):
@@ -75,7 +76,7 @@ def fit_order(hs, errs, scale: float, floor_rel: float):
         if i > 0:
             local = np.log(errs[i - 1] / e) / np.log(hs[i - 1] / hs[i])
             first = local if first is None else first
-            if local < max(0.26, 0.5 * first):
+            if local < max(0.26, first - max(1.0, 0.25 * first)):
                 break
         used = i + 1
     if used < 3:
@@ -116,7 +117,7 @@ def tables(ds, ctx) -> list[Table]:
     rows = []
     for m in ctx.methods:
         x = d.sel(scheme=m)
-        rows.append({"method": m, "declared order": int(x["declared_order"]),
+        rows.append({"method": m, **ctx.model.method_details(m), "declared order": int(x["declared_order"]),
                      **{f"order {n}": float(x[f"observed_order_{n}"]) for n in names},
                      **{f"C {n} ({ds[f'error_{n}'].attrs.get('units', '')})": float(x[f"error_constant_{n}"])
                         for n in names},
@@ -171,6 +172,8 @@ STUDY = Study(
     report=("Scene `{scene}` ({model}), {opt[members]} member(s), t_end = {opt[t_end]} s, h = {opt[h0]} s halved "
             "{levels_less} times, compared at t = j·{opt[h0]} s with the reference at h = {h_ref:.3g} s. The fit "
             "ends at the round-off floor (error < {opt[floor_rel]:g} × the variable's scale) or where the local "
-            "order falls below half its first value; `levels fitted` says how many levels entered it."),
-    facts=lambda ds, ctx: {"levels_less": ctx.opt["levels"] - 1, "h_ref": _h_ref(ctx)},
+            "order falls more than max(1, p/4) below its first value; `levels fitted` says how many levels "
+            "entered it. Compared: {state}."),
+    facts=lambda ds, ctx: {"levels_less": ctx.opt["levels"] - 1, "h_ref": _h_ref(ctx),
+                           "state": "; ".join(f"{n}: {ds[f'error_{n}'].attrs['long_name']}" for n in _names(ds))},
 )

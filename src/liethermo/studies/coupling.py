@@ -55,6 +55,7 @@ import xarray as xr
 from ..dataset import node_energies
 from ..initial import initial_conditions
 from ..methods import METHODS
+from ..kernels.terms import ROLE_LINEAR_FRICTION, ROLE_POTENTIAL, ROLE_THERMAL_COUPLING, key_of
 from ..physics import inertia_scale, internal_energy_change, physics_of_scene
 from ..simulate import simulate
 from .common import (shared_units, status_units, StudyError, cached_point, closing_fact, closing_section, dim_name, expand_sweep,
@@ -65,7 +66,8 @@ from .tools import (NODE_VALUES_NOTE, band_text, direction_angle, display_table,
                     observed_orders, quantile_band, rotation_angle, run_spec, settling_time)
 
 EXTRA_KEYS = ()
-SWEEP_KEY = "body.thermal_expansion"
+#: the key swept: how the inertia grows with the temperature (α)
+SWEEP_KEY = key_of(ROLE_THERMAL_COUPLING)
 DEFAULT_OPTIONS = {
     "t_end": 60.0,               # s
     "settle_fraction": 1e-3,     # settled: E_mech below this fraction of its initial value
@@ -135,10 +137,12 @@ def validate(study: dict) -> None:
     for k in ("t_end", "drift_t_end"):
         if not _multiple(float(opt[k]), h):
             raise StudyError(f"options.{k} = {opt[k]} must be a multiple of integrator.h = {h}")
-    if float(scene["fluid"]["viscosity"]) <= 0:
-        raise StudyError("scene: fluid.viscosity must be > 0: without friction nothing heats the top")
-    if float(scene["gravity"]["g"]) == 0.0:
-        raise StudyError("scene: gravity.g must be ≠ 0 (the settling and the tilt are measured from rest)")
+    phys = physics_of_scene(scene)
+    if float(phys.linear_resistance().max()) <= 0:
+        raise StudyError(f"scene: {key_of(ROLE_LINEAR_FRICTION)} must be > 0: without friction nothing heats the top")
+    if float(phys.potential_span().max()) == 0.0:
+        raise StudyError(f"scene: {key_of(ROLE_POTENTIAL)} must be ≠ 0 (the settling and the tilt are measured "
+                         f"from rest)")
     n = int(scene["ensemble"]["members"])
     if opt["trace_members"] > min(n, opt["reference_members"]):
         raise StudyError("options.trace_members: at most min(ensemble.members, options.reference_members)")
@@ -171,12 +175,10 @@ def point(scene, spec: dict, opt: dict) -> xr.Dataset:
     phys, om, R = _ensemble(scene, n)
     tr = run_spec(phys, om, R, h, steps, spec, attitude=True)
     ok = tr.status == 0
-    g = phys.gravity_torque
-    gn = np.linalg.norm(g, axis=1)
-    rest = -g / gn[:, None]
+    rest = phys.resting_gamma()
     with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
         e = node_energies(tr)
-        emech = e["K"] + e["V"] + gn[:, None]
+        emech = phys.mechanical_energy(e["K"], e["V"])
         ratio = emech / emech[:, :1]
         err = energy_errors(tr, om, R)
         rel = err["node"] / err["scale"][:, None]
@@ -334,7 +336,7 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
                order_point, (sc_chk, specs, float(h), opt)) for h in opt["order_h"]]
     dtasks = []
     for sp in specs:
-        sc = study_scene(s, dict({SWEEP_KEY: a_chk, "fluid.viscosity": float(opt["drift_viscosity"])},
+        sc = study_scene(s, dict({SWEEP_KEY: a_chk, key_of(ROLE_LINEAR_FRICTION): float(opt["drift_viscosity"])},
                                  **method_overrides(sp)))
         dtasks.append((point_key({"study": "coupling/drift", "scene": sc, "spec": sp, "opt": opt}),
                        drift_point, (sc, sp, opt)))
@@ -524,7 +526,7 @@ def _report(s, outdir, opt, reduced, ds, oset, dset, specs, labels, scene0, nc, 
         _finding(kdf, mdf, odf, ddf, opt, labels, ref_lab),
         f"Scene `{scene0['scene']['name']}`: the paper's top (principal moments 𝕀₀ = "
         f"{', '.join(f'{x:.4g}' for x in phys0.inertia[0])} kg m², Stokes friction c = "
-        f"{float(phys0.stokes_resistance[0, 0]):.4g} N m s, |g⃗| = m g ℓ = {float(np.linalg.norm(phys0.gravity_torque[0])):.4g} "
+        f"{float(phys0.linear_resistance()[0, 0]):.4g} N m s, |g⃗| = m g ℓ = {0.5 * float(phys0.potential_span()[0]):.4g} "
         f"N m) with heat capacity c_v = {float(phys0.heat_capacity[0]):.4g} J/K and 𝕀(S) = 𝕀₀(1 + α(θ − T₀))², "
         f"T₀ = {float(phys0.T0[0]):g} K. {members} members, random attitudes and spins (|Ω₀| in "
         f"{scene0['ensemble']['spin_range']} × {np.linalg.norm(scene0['initial']['omega']):.4g} rad/s, seed "

@@ -48,15 +48,18 @@ import xarray as xr
 
 from ..dataset import node_energies
 from ..initial import initial_conditions
+from ..kernels.terms import LAW_MOMENTUM_NORM, ROLE_MOMENTUM_FRICTION, key_of
 from ..physics import kinetic_energy, physics_of_scene
 from .common import (status_units, StudyError, cached_point, closing_section, dim_name, expand_sweep, method_overrides,
                      parse_method, point_key, progress_bar, stack_points, start_study, step_text, study_history,
-                     study_name, study_netcdf_path, study_options, study_scene, write_netcdf_atomic, write_report, write_table)
+                     study_name, study_netcdf_path, study_options, study_scene, write_netcdf_atomic, write_report, write_table,
+                     scene_value)
 from .tools import (band_text, direction_angle, display_table, observed_orders, quantile_band, run_spec,
                     settling_time)
 
 EXTRA_KEYS = ()
-SWEEP_KEY = "body.internal_friction"
+#: the key swept: the strength of the friction that keeps |μ|
+SWEEP_KEY = key_of(ROLE_MOMENTUM_FRICTION)
 DEFAULT_OPTIONS = {
     "lambda_t_end": 4000.0,    # s² kg⁻¹ m⁻²: horizon t_end = lambda_t_end / λ
     "nodes": 2000,             # stored nodes per run (every = t_end / (h nodes), an integer)
@@ -101,11 +104,14 @@ def validate(study: dict) -> None:
     if not (isinstance(hs, list) and hs and all(isinstance(h, (int, float)) and h > 0 for h in hs)):
         raise StudyError("options.casimir_h: must be a non-empty list of steps > 0 (s)")
     scene = study_scene(study, {SWEEP_KEY: sweep[SWEEP_KEY][0]})
-    if float(scene["gravity"]["g"]) != 0.0 or float(scene["fluid"]["viscosity"]) != 0.0:
-        raise StudyError("scene: a flat_spin study needs a free body (gravity.g = 0, fluid.viscosity = 0): "
-                         "|μ| is a Casimir only without torques and Stokes friction")
-    if float(scene["body"]["thermal_expansion"]) != 0.0:
-        raise StudyError("scene: body.thermal_expansion must be 0 in a flat_spin study")
+    phys = physics_of_scene(scene)
+    broken = phys.breaking(LAW_MOMENTUM_NORM)
+    if broken:
+        raise StudyError(f"scene: a flat_spin study needs a free body on which |μ| is a Casimir; "
+                         f"{', '.join(broken)} break it: switch them off")
+    if not np.all(phys.has_constant_inertia()):
+        raise StudyError("scene: a flat_spin study needs a constant inertia (its energy floor is "
+                         "|μ|²/(2 I_max)): switch off the inertia's dependence on the entropy")
     n = int(scene["ensemble"]["members"])
     if opt["trace_members"] > min(n, opt["reference_members"]):
         raise StudyError("options.trace_members: at most min(ensemble.members, options.reference_members)")
@@ -146,7 +152,7 @@ def _casimir(mu: np.ndarray, mu0: np.ndarray) -> np.ndarray:
 
 def point(scene, spec: dict, opt: dict) -> xr.Dataset:
     """One (λ, method) point: per-member settling, axis, Casimir and energy balance."""
-    lam = float(scene["body"]["internal_friction"])
+    lam = float(scene_value(scene, SWEEP_KEY))
     h = float(scene["integrator"]["h"])
     steps, every = horizon(lam, h, opt)
     N = int(scene["ensemble"]["members"])
@@ -199,7 +205,7 @@ def point(scene, spec: dict, opt: dict) -> xr.Dataset:
 
 def casimir_point(scene, spec: dict, h: float, opt: dict) -> xr.Dataset:
     """One (h, method) point of the Casimir-against-h sweep: max Casimir drift per member."""
-    lam = float(scene["body"]["internal_friction"])
+    lam = float(scene_value(scene, SWEEP_KEY))
     steps, every = horizon(lam, h, opt)
     n = min(int(scene["ensemble"]["members"]), int(opt["casimir_members"]))
     tr, _, _, mu, mu0 = _spin_run(scene, spec, h, steps, every, n)

@@ -32,12 +32,15 @@ import copy
 import itertools
 import json
 import math
+import platform
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
 import xarray as xr
+
+from .. import __version__, cf
 
 from .common import (StudyError, cached_point, coord_value, dim_name, expand_sweep, markdown_table, point_key,
                      progress_bar, resolve_study, stack_points, study_history, study_name, study_netcdf_path,
@@ -215,11 +218,13 @@ class Study:
         if self.models is not None and model.name not in self.models:
             raise StudyError(f"study.base_scene: a {self.kind} study runs on a scene of "
                              f"{' or '.join(self.models)}, not of {model.name} ({ctx.scene_name!r})")
-        known = set(model.methods())
         for m in methods:
-            if m.split(":")[0] not in known:
-                raise StudyError(f"methods: {m!r} is not a method of {model.title or model.name} "
-                                 f"({', '.join(known)})")
+            if not isinstance(m, str):
+                raise StudyError(f"methods: {m!r} is not a method name")
+            try:
+                model.method_overrides(m)
+            except ValueError as exc:
+                raise StudyError(f"methods: {exc}") from None
         ctx.axes = dict(self.axes(ctx)) if self.axes else {}
         if self.check:
             self.check(ctx)
@@ -237,8 +242,10 @@ class Study:
             ds = self.derive(ds, ctx)
         _label(self, ctx, ds)
         ctx.dataset = ds
-        nc = write_netcdf_atomic(ds, study_netcdf_path(ctx.study, ctx.outdir),
-                                 history=study_history(self.kind, ctx.study, ctx.outdir, reduced, history))
+        created = cf.timestamp()
+        ds.attrs.update(created=created, history=cf.history_entry(
+            study_history(self.kind, ctx.study, ctx.outdir, reduced, history), created))
+        nc = write_netcdf_atomic(ds, study_netcdf_path(ctx.study, ctx.outdir))
         return _report(self, ctx, ds, nc)
 
 
@@ -413,7 +420,7 @@ def _assemble(study: Study, ctx: Context, results) -> xr.Dataset:
     parts = []
     for stage in study.stages:
         rows = results[stage.name]
-        if stage.keep == ():
+        if stage.keep == () or not rows:  # a stage over an empty axis has nothing to stack
             continue
         flat, dsets = [], []
         for coords, ds in rows:
@@ -456,6 +463,8 @@ def _label(study: Study, ctx: Context, ds: xr.Dataset) -> None:
                 "model": ctx.model.name, "base_scene": ctx.scene_name, "reduced": int(ctx.reduced),
                 "methods": ", ".join(ctx.methods), "sweep": json.dumps(sweep) if sweep else "none",
                 "description": str(ctx.study.get("study", {}).get("description", study.description)),
+                "software": f"liethermo {__version__}", "software_version": __version__,
+                "python": platform.python_version(),
                 **{f"option_{k}": (json.dumps(v) if not isinstance(v, (int, float, str)) or isinstance(v, bool)
                                    else v) for k, v in ctx.opt.items()}}
 
@@ -484,9 +493,12 @@ def method_color(methods: list[str], method: str) -> str:
 
 
 def spans_decades(values, decades: float = 2.0) -> bool:
-    v = np.abs(np.asarray(values, float))
-    v = v[np.isfinite(v) & (v > 0)]
-    return v.size > 1 and (np.all(np.asarray(values)[np.isfinite(values)] > 0)) and v.max() / v.min() > 10 ** decades
+    """Whether the finite values, mostly positive, span more than ``decades``
+    decades (a log axis then; zeros are left out of it)."""
+    v = np.asarray(values, float)
+    v = v[np.isfinite(v)]
+    pos = v[v > 0]
+    return pos.size > 1 and pos.size >= 0.5 * v.size and not (v < 0).any() and pos.max() / pos.min() > 10 ** decades
 
 
 def axis_label(da) -> str:
@@ -542,25 +554,27 @@ def _draw_lines(f: Figure, ds: xr.Dataset, ctx: Context):
     handles = {}
     for ax, (var, fi) in zip(axes, panels):
         d = ds if fi is None else ds.isel({f.facet: fi})
-        xs_all, ys_all = [], []
+        lines = []
         for j, hv in enumerate(hues):
             dd = d if hv is None else d.sel({f.hue: hv})
             x = np.asarray(dd[f.x].values, float).ravel()
             y = np.asarray(dd[var].values, float).ravel()
             ok = np.isfinite(x) & np.isfinite(y)
-            if not ok.any():
-                continue
-            order = np.argsort(x[ok])
+            if ok.any():
+                order = np.argsort(x[ok])
+                lines.append((j, hv, x[ok][order], y[ok][order]))
+        xs = np.concatenate([ln[2] for ln in lines]) if lines else np.array([])
+        ys = np.concatenate([ln[3] for ln in lines]) if lines else np.array([])
+        logs = [on if on is not None else spans_decades(vals) for on, vals in ((f.logx, xs), (f.logy, ys))]
+        for j, hv, x, y in lines:
+            if logs[1]:  # a zero on a log axis is a gap, not a line to the bottom
+                y = np.where(y > 0, y, np.nan)
             color = ctx.color(hv) if hv in ctx.methods else PALETTE[j % len(PALETTE)]
-            (ln,) = ax.plot(x[ok][order], y[ok][order], color=color, marker=MARKERS[j % len(MARKERS)],
-                            ms=7 - 2 * (j % 2), mfc="none", lw=1.2, label=hv or var)
+            (ln,) = ax.plot(x, y, color=color, marker=MARKERS[j % len(MARKERS)], ms=7 - 2 * (j % 2), mfc="none",
+                            lw=1.2, label=hv or var)
             handles.setdefault(hv or var, ln)
-            xs_all.append(x[ok])
-            ys_all.append(y[ok])
-        xs = np.concatenate(xs_all) if xs_all else np.array([])
-        ys = np.concatenate(ys_all) if ys_all else np.array([])
-        for on, axis, vals in ((f.logx, ax.xaxis, xs), (f.logy, ax.yaxis, ys)):
-            if on if on is not None else spans_decades(vals):
+        for on, axis in zip(logs, (ax.xaxis, ax.yaxis)):
+            if on:
                 (ax.set_xscale if axis is ax.xaxis else ax.set_yscale)("log")
                 axis.set_minor_formatter(NullFormatter())  # minor labels run into each other
         if f.x in ds.dims and 1 < ds.sizes[f.x] <= 16:  # ticks at the swept values, at most 6 labelled
@@ -588,6 +602,11 @@ def _legend(fig, axes, handles: dict, title: str) -> None:
         fig.legend(handles.values(), handles.keys(), fontsize=8, title=title, loc="outside right upper")
 
 
+def _dim_label(ds, dim) -> str:
+    key = ds[dim].attrs.get("scene_key") if dim in ds.coords else None
+    return key or (axis_label(ds[dim]) if dim in ds.coords else dim)
+
+
 def _fmt_coord(v) -> str:
     return f"{v:.3g}" if isinstance(v, (float, np.floating)) else str(v)
 
@@ -597,6 +616,12 @@ def _draw_heatmap(f: Figure, ds: xr.Dataset, ctx: Context):
     from matplotlib.colors import LogNorm
 
     var = _expand(f.y, ds)[0]
+    sweep = [dim_name(k) for k in ctx.sweep_keys if dim_name(k) in ds.dims]
+    xdim = f.x or sweep[-1]  # default: the sweep's last key across, its first one up
+    ydim = f.hue if f.x else (sweep[0] if len(sweep) > 1 else None)
+    if ydim is None:
+        ds = ds.expand_dims(row=[""])
+        ydim = "row"
     panels = [None] if f.facet is None else list(range(ds.sizes[f.facet]))
     fig, axes = _grid(len(panels), f.size)
     finite_all = np.asarray(ds[var].values, float)
@@ -606,7 +631,7 @@ def _draw_heatmap(f: Figure, ds: xr.Dataset, ctx: Context):
     vmax = float(finite_all.max()) if finite_all.size else None
     for ax, fi in zip(axes, panels):
         d = ds if fi is None else ds.isel({f.facet: fi})
-        z = np.asarray(d[var].transpose(f.hue, f.x).values, float)
+        z = np.asarray(d[var].transpose(ydim, xdim).values, float)
         bad = ~np.isfinite(z)
         ax.set_facecolor("none")
         norm = LogNorm(vmin=vmin, vmax=vmax) if log and vmin else None
@@ -614,10 +639,10 @@ def _draw_heatmap(f: Figure, ds: xr.Dataset, ctx: Context):
                        vmin=None if norm else vmin, vmax=None if norm else vmax, cmap="viridis")
         for (i, j) in zip(*np.nonzero(bad)):
             ax.add_patch(plt.Rectangle((j - 0.5, i - 0.5), 1, 1, fill=False, hatch="xx", color="0.4", lw=0))
-        ax.set_xticks(range(z.shape[1]), [_fmt_coord(v) for v in d[f.x].values], rotation=45, fontsize=7)
-        ax.set_yticks(range(z.shape[0]), [_fmt_coord(v) for v in d[f.hue].values], fontsize=7)
-        ax.set_xlabel(axis_label(ds[f.x]))
-        ax.set_ylabel(axis_label(ds[f.hue]))
+        ax.set_xticks(range(z.shape[1]), [_fmt_coord(v) for v in d[xdim].values], rotation=45, fontsize=7)
+        ax.set_yticks(range(z.shape[0]), [_fmt_coord(v) for v in d[ydim].values], fontsize=7)
+        ax.set_xlabel(_dim_label(ds, xdim))
+        ax.set_ylabel(_dim_label(ds, ydim))
         if fi is not None:
             ax.set_title(f"{f.facet} = {_fmt_coord(ds[f.facet].values[fi])}")
     fig.colorbar(im, ax=axes, label=axis_label(ds[var]) + ("; hatched: not finite" if np.isnan(
@@ -633,7 +658,8 @@ def draw_figures(study: Study, ctx: Context, ds: xr.Dataset) -> list[tuple[Figur
 
     out = []
     for f in study.figures:
-        d = f.select(ds, ctx) if f.select else first_point(ds, ctx, keep=(f.facet,) if f.facet else ())
+        keep = tuple(dim_name(k) for k in ctx.sweep_keys) if f.kind == "heatmap" else (f.facet,) if f.facet else ()
+        d = f.select(ds, ctx) if f.select else first_point(ds, ctx, keep=keep)
         if f.kind == "lines":
             fig = _draw_lines(f, d, ctx)
         elif f.kind == "heatmap":

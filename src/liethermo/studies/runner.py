@@ -68,7 +68,7 @@ def validate_study(study: dict) -> None:
         methods = s.get("methods", [])
         if not isinstance(methods, list):
             raise StudyError("methods: must be a list")
-        for m in methods:
+        for m in methods if decl is None else ():  # a declared study asks its scene's model
             if not isinstance(m, str):
                 raise StudyError(f"methods: {m!r} is not a method name")
             parse_method(m)

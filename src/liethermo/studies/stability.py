@@ -35,7 +35,6 @@ steps (every substep size), errors, the energy growth and the |Γ| defect.
 
 from __future__ import annotations
 
-import dataclasses
 import time
 from functools import partial
 from pathlib import Path
@@ -45,12 +44,13 @@ import xarray as xr
 
 from ..initial import initial_conditions
 from ..kernels.vi import FRICTION_WEIGHTS
+from ..kernels.terms import ROLE_LINEAR_FRICTION, key_of
 from ..methods import METHODS
 from ..physics import Physics, kinetic_energy, physics_of_scene, potential_energy
 from ..simulate import simulate
 from .common import (shared_units, status_units, fmt, parse_method, study_options, StudyError, cached_point, point_key, progress_bar, study_name,
                      study_netcdf_path, study_scene, write_netcdf_atomic, write_report, write_table, start_study,
-                     study_history, closing_fact, kept_laws)
+                     study_history, closing_fact, kept_laws, scene_value)
 from .tools import NODE_VALUES_NOTE, run_spec
 
 EXTRA_KEYS = ()
@@ -117,10 +117,8 @@ def sim(phys, om, R, h, steps, spec, **kw):
 
 
 def mech_energy(phys: Physics, omega, gamma):
-    """Mechanical energy above the resting state K + V + |g⃗| (J); omega, gamma (N, T, 3) or (N, 3)."""
-    g = np.linalg.norm(phys.gravity_torque, axis=1)
-    g = g[:, None] if omega.ndim == 3 else g
-    return kinetic_energy(phys, omega, None) + potential_energy(phys, gamma) + g
+    """Mechanical energy above the resting state K + V − min V (J); omega, gamma (N, T, 3) or (N, 3)."""
+    return phys.mechanical_energy(kinetic_energy(phys, omega, None), potential_energy(phys, gamma))
 
 
 def references(phys, om, R, h, steps):
@@ -214,10 +212,10 @@ def jacobian_condition(tr, h: float) -> np.ndarray:
 def _map_physics(scene, N: int, kappa: np.ndarray, h: float) -> Physics:
     """The scene's physics for N members with the friction scaled to κ = c_max h / I_min."""
     phys = physics_of_scene(scene, N)
-    C = phys.stokes_resistance[0]
+    C = phys.linear_resistance()[0]
     shape = C / C.max() if C.max() > 0 else np.ones(3)
     c = kappa * phys.inertia.min(axis=1) / h
-    return dataclasses.replace(phys, stokes_resistance=c[:, None] * shape[None, :])
+    return phys.with_linear_resistance(c[:, None] * shape[None, :])
 
 
 def map_point(scene, opt: dict, method: str) -> xr.Dataset:
@@ -240,8 +238,8 @@ def map_point(scene, opt: dict, method: str) -> xr.Dataset:
     shape = HW.shape
     fail = np.where(tr.status != 0, tr.fail_step, -1)
     dims = ("h_omega", "kappa")
-    visc = float(scene["fluid"]["viscosity"])
-    c_scene = float(physics_of_scene(scene).stokes_resistance.max())
+    visc = float(scene_value(scene, key_of(ROLE_LINEAR_FRICTION)))
+    c_scene = float(physics_of_scene(scene).linear_resistance().max())
     return xr.Dataset({
         "regime": (dims, cls.reshape(shape)),
         "status": (dims, tr.status.reshape(shape)),
@@ -253,7 +251,7 @@ def map_point(scene, opt: dict, method: str) -> xr.Dataset:
         "newton_mean": (dims, (tr.newton_iterations / np.maximum(tr.steps_done, 1)).reshape(shape)),
         "failed_at_step": (dims, fail.reshape(shape)),
         "max_h_omega": (dims, tr.max_h_omega.reshape(shape)),
-        "viscosity_equivalent": (dims, (phys.stokes_resistance.max(axis=1) * (visc / c_scene if c_scene > 0 else np.nan))
+        "viscosity_equivalent": (dims, (phys.linear_resistance().max(axis=1) * (visc / c_scene if c_scene > 0 else np.nan))
                                  .reshape(shape)),
     }, coords={"h_omega": hw, "kappa": ka})
 
@@ -275,7 +273,7 @@ def case_point(scene, case: dict, method: str) -> xr.Dataset:
         "newton_max": tr.newton_max[0], "newton_mean": tr.newton_iterations[0] / max(tr.steps_done[0], 1),
         "jacobian_cond_max": cond, "error_max": dg["error_max"][0], "error_end": dg["error_end"][0],
         "energy_growth": dg["energy_growth"][0], "gamma_defect": dg["gamma_defect"][0],
-        "kappa": phys.stokes_resistance[0].max() * h / phys.inertia[0].min(), "wall": wall,
+        "kappa": phys.linear_resistance()[0].max() * h / phys.inertia[0].min(), "wall": wall,
     }.items()})
 
 
@@ -531,7 +529,7 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
                             f"h = {h:g} s, {opt['steps']} steps)")]
     sections.append(
         f"Map scene `{scene['scene']['name']}` with overrides {opt['map_scene'] or 'none'} "
-        f"(|g⃗| = {np.linalg.norm(physics_of_scene(scene).gravity_torque[0]):.3g} N m); each cell of the map is one "
+        f"(|g⃗| = {0.5 * physics_of_scene(scene).potential_span()[0]:.3g} N m); each cell of the map is one "
         f"member with Ω₀ = (h|Ω₀|/h)·Ω̂_scene and friction scaled to c = κ I_min/h (its own parameters; one "
         f"`simulate` call per method). Error = max over the run of max(|Ω(t_k) − Ω_ref(t_k)|/|Ω₀|, "
         f"|Γ_k − Γ_ref(t_k)|) on node values against the fixed-step DOP853 reference (dimensionless). Regimes: "

@@ -19,7 +19,7 @@ import math
 import numpy as np
 
 from ..dataset import node_energies
-from ..physics import Physics, kinetic_energy, mechanical_energy_scale, potential_energy
+from ..physics import Physics, inertia_scale, kinetic_energy, mechanical_energy_scale, potential_energy
 from ..simulate import Trajectory, simulate
 from .common import method_choice
 
@@ -80,13 +80,18 @@ def kelvin_noether_residual(traj: Trajectory) -> np.ndarray:
     """Per member, max over steps of the residual of the discrete Kelvin–Noether
     law of the variational integrator in node form (needs ``every = 1``):
 
-        J_{k+1} − J_k + h (w_L Γ_k + w_R Γ_{k+1})·C X_k = 0,   J_k = Γ_k·μ_k,
+        J_{k+1} − J_k + h (w_L Γ_k + w_R Γ_{k+1})·F(X_k) = 0,   J_k = Γ_k·μ_k,
 
-    relative to max_k |μ_k| (1).  For a composition the law holds per
-    substep; the stored steps are whole steps, so with friction it is checked
-    only for ``vi`` (NaN for the others); without friction it reads
-    J_{k+1} = J_k for every variational method."""
-    frictionless = not np.any(traj.physics.stokes_resistance != 0.0)
+    F(X) the sum of the terms' discrete frictions at the step velocity X_k
+    (C X for a linear friction, D(X) for a nonlinear one, placed alike:
+    :func:`liethermo.physics.discrete_friction`; conservative torques are ⟂ Γ
+    and drop out), relative to max_k |μ_k| (1).  For a composition the law
+    holds per substep; the stored steps are whole steps, so with friction it
+    is checked only for ``vi`` (NaN for the others); without friction it
+    reads J_{k+1} = J_k for every variational method.  NaN also where an
+    acting friction does not give its discrete form (its law is not checked)."""
+    phys = traj.physics
+    frictionless = not phys.dissipative
     if traj.family != "vi" or traj.every != 1 or (traj.method != "vi" and not frictionless):
         return np.full(traj.states.shape[0], np.nan)
     from ..kernels.vi import FRICTION_WEIGHTS
@@ -95,10 +100,12 @@ def kelvin_noether_residual(traj: Trajectory) -> np.ndarray:
     G = traj.gamma
     mu = traj.momentum
     X = traj.omega_step
-    C = traj.physics.stokes_resistance[:, None, :]
+    try:
+        F = phys.discrete_friction(traj.h, X[:, :-1])
+    except NotImplementedError:
+        return np.full(traj.states.shape[0], np.nan)
     J = np.sum(G * mu, axis=-1)
-    CX = C * X[:, :-1]
-    res = J[:, 1:] - J[:, :-1] + traj.h * np.sum((wl * G[:, :-1] + wr * G[:, 1:]) * CX, axis=-1)
+    res = J[:, 1:] - J[:, :-1] + traj.h * np.sum((wl * G[:, :-1] + wr * G[:, 1:]) * F, axis=-1)
     scale = np.nanmax(np.linalg.norm(mu, axis=-1), axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.nanmax(np.abs(res), axis=1) / scale
@@ -106,17 +113,25 @@ def kelvin_noether_residual(traj: Trajectory) -> np.ndarray:
 
 def continuous_kelvin_noether_residual(traj: Trajectory) -> np.ndarray:
     """Per member, max over the stored steps of the defect of the continuous
-    law d(Γ·μ)/dt = −Γ·CΩ integrated by the trapezoid rule between stored
+    law d(Γ·μ)/dt = Γ·f(Ω, Γ) (f the sum of the terms' torques, whose
+    conservative part is ⟂ Γ) integrated by the trapezoid rule between stored
     nodes, relative to max |μ| (1): what any method can be held to (its own
     quadrature error included)."""
     phys = traj.physics
     om = traj.omega
     G = traj.gamma
-    mu = phys.inertia[:, None, :] * om if traj.family != "vi" else traj.momentum
+    sigma = traj.sigma if traj.thermo else None
+    if traj.family != "vi":
+        s = inertia_scale(phys, sigma)
+        s = s[..., None] if isinstance(s, np.ndarray) else s
+        mu = s * (phys.inertia[:, None, :] * om)
+    else:
+        mu = traj.momentum
     J = np.sum(G * mu, axis=-1)
-    f = np.sum(G * phys.stokes_resistance[:, None, :] * om, axis=-1)
+    with np.errstate(invalid="ignore", over="ignore"):
+        f = np.sum(G * phys.torque(om, G, sigma), axis=-1)
     dt = traj.h * traj.every
-    res = J[:, 1:] - J[:, :-1] + 0.5 * dt * (f[:, 1:] + f[:, :-1])
+    res = J[:, 1:] - J[:, :-1] - 0.5 * dt * (f[:, 1:] + f[:, :-1])
     scale = np.nanmax(np.linalg.norm(mu, axis=-1), axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.nanmax(np.abs(res), axis=1) / scale

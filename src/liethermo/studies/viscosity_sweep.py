@@ -1,6 +1,7 @@
 """Viscosity sweep: entropy production and settling-time statistics over an ensemble.
 
-For each viscosity μ of the ``[sweep]`` (``"fluid.viscosity"``) the same
+For each viscosity μ of the ``[sweep]`` (the scene key of the friction linear
+in Ω, :data:`SWEEP_KEY`) the same
 ensemble of random initial conditions (``ensemble.members``, ``ensemble.seed``
 of the scene) is integrated until it has settled.  Per member:
 
@@ -11,7 +12,7 @@ of the scene) is integrated until it has settled.  Per member:
 * entropy produced by fixed times ``entropy_times`` and by t_end, and the
   check T₀ΔS / ΔE_mech (≈ 1: the heat is the mechanical energy lost, with
   T ≈ T₀ because c_v is large);
-* the initial entropy production rate c|Ω₀|²/T₀.
+* the initial entropy production rate P(Ω₀)/T₀, P the model's dissipated power.
 
 The run length adapts to μ: t_end = ``t_end_factor`` × max(I_max/c, c/mgℓ) —
 the slowest relaxation time of an under-damped (I/c) and of an over-damped
@@ -36,14 +37,16 @@ import xarray as xr
 
 from ..dataset import node_energies
 from ..initial import initial_conditions
-from ..physics import Physics, physics_of_scene
+from ..kernels.terms import ROLE_LINEAR_FRICTION, key_of
+from ..physics import Physics, physics_of_scene, temperature
 from .common import (status_units, parse_method, study_options, StudyError, cached_point, expand_sweep, point_key, progress_bar,
                      dim_name, stack_points, study_name, study_netcdf_path, study_scene, write_netcdf_atomic,
-                     write_report, write_table, start_study, study_history, closing_fact, kept_laws)
+                     write_report, write_table, start_study, study_history, closing_fact, kept_laws, scene_value)
 from .tools import NODE_VALUES_NOTE, run_spec
 
 EXTRA_KEYS = ()
-SWEEP_KEY = "fluid.viscosity"
+#: the key swept: the strength of the friction linear in Ω
+SWEEP_KEY = key_of(ROLE_LINEAR_FRICTION)
 DEFAULT_OPTIONS = {
     "method": "vi",
     "h": 0.02,
@@ -80,10 +83,11 @@ def validate(study: dict) -> None:
 # ----------------------------------------------------------------------------- numerics
 
 def run_length(phys: Physics, opt: dict) -> float:
-    """t_end = factor × max(I_max/c, c/mgℓ) of member 0, clipped (c: the largest Stokes coefficient)."""
-    c = float(phys.stokes_resistance[0].max())
+    """t_end = factor × max(I_max/c, c/mgℓ) of member 0, clipped (c: the largest
+    linear friction coefficient, mgℓ half the span of the potential)."""
+    c = float(phys.linear_resistance()[0].max())
     Imax = float(phys.inertia[0].max())
-    g = float(np.linalg.norm(phys.gravity_torque[0]))
+    g = 0.5 * float(phys.potential_span()[0])
     tau = Imax / c
     if g > 0:
         tau = max(tau, c / g)
@@ -92,8 +96,8 @@ def run_length(phys: Physics, opt: dict) -> float:
 
 
 def mech_energy(phys: Physics, K: np.ndarray, V: np.ndarray) -> np.ndarray:
-    """Mechanical energy above the resting state K + V + |g⃗| (J), K and V (N, T)."""
-    return K + V + np.linalg.norm(phys.gravity_torque, axis=1)[:, None]
+    """Mechanical energy above the resting state K + V − min V (J), K and V (N, T)."""
+    return phys.mechanical_energy(K, V)
 
 
 def settling_times(t: np.ndarray, E: np.ndarray, E0: np.ndarray, threshold: float) -> np.ndarray:
@@ -135,7 +139,6 @@ def sweep_point(scene, opt: dict) -> xr.Dataset:
     E0 = E[:, 0]
     ts = settling_times(t, E, E0, float(opt["threshold"]))
     sig = tr.sigma
-    T0 = phys.T0
     data = {
         "settling_time": ("member", ts),
         "entropy_produced": ("member", sig[:, -1]),
@@ -143,7 +146,7 @@ def sweep_point(scene, opt: dict) -> xr.Dataset:
         "mech_energy_final": ("member", E[:, -1]),
         # heat check: U(S) - U(S0) against the mechanical energy lost
         "heat_ratio": ("member", e["dU"][:, -1] / (E0 - E[:, -1])),
-        "entropy_rate_initial": ("member", np.sum(phys.stokes_resistance * om * om, axis=1) / T0),
+        "entropy_rate_initial": ("member", phys.dissipated_power(om) / temperature(phys, om, np.zeros(N))),
         "status": ("member", tr.status.astype(np.int8)),
     }
     for ti in opt["entropy_times"]:
@@ -174,7 +177,7 @@ UNITS = {
     "mech_energy_initial": ("J", "initial mechanical energy above the resting state K0 + V0 + mgl"),
     "mech_energy_final": ("J", "mechanical energy above the resting state at t_end"),
     "heat_ratio": ("1", "heat U - U0 produced by t_end over the mechanical energy lost (1 = exact balance)"),
-    "entropy_rate_initial": ("W K-1", "initial entropy production rate Omega0 . C Omega0 / T0"),
+    "entropy_rate_initial": ("W K-1", "initial entropy production rate P(Omega0) / T(0), P the dissipated power"),
     "status": status_units(),
     "t_end": ("s", "simulated time (adapted to the viscosity)"),
     "wall_time": ("s", "wall time of the simulation"),
@@ -249,10 +252,11 @@ def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask
     E0 = ds["mech_energy_initial"].isel({dim: 0}).values
     T0 = float(scene0["thermo"]["T0"])
     phys0 = physics_of_scene(scene0)
-    g = float(np.linalg.norm(phys0.gravity_torque[0]))
+    g = 0.5 * float(phys0.potential_span()[0])
     Imin = float(phys0.inertia[0].min())
-    a = float(scene0["body"]["radius"])
-    mu_crit = 2 * math.sqrt(Imin * g) / (8 * math.pi * a ** 3) if g > 0 else float("inf")
+    # the friction is linear in μ: μ_crit = μ c_crit / c(μ), c_crit = 2√(I_min mgℓ)
+    per_mu = scene_value(scene0, SWEEP_KEY) / float(phys0.linear_resistance()[0].max())
+    mu_crit = 2 * math.sqrt(Imin * g) * per_mu if g > 0 else float("inf")
     sections = [
         write_table(df, outdir, "viscosity_sweep", "Settling time and entropy production against viscosity"),
         f"Scene `{scene0['scene']['name']}`, method `{opt['method']}` (start "

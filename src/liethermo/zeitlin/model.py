@@ -186,9 +186,11 @@ class Fluid(Model):
 
     def study_state(self, ds) -> dict:
         W = ds["vorticity_real"].values + 1j * ds["vorticity_imag"].values
-        return {"vorticity": (W, ds["vorticity_real"].attrs.get("units", "s-1"), "vorticity matrix W"),
-                "heat": (ds["heat"].values, "J", "heat q"),
-                "entropy": (ds["entropy"].values, "J K-1", "entropy produced")}
+        H0 = float(np.max(ds["energy"].values[:, 0]))  # the energy the heat comes from
+        return {"vorticity": (W, ds["vorticity_real"].attrs.get("units", "s-1"), "vorticity matrix W", None),
+                "heat": (ds["heat"].values, "J", "heat q", H0),
+                "entropy": (ds["entropy"].values, "J K-1", "entropy produced",
+                            H0 / float(np.min(ds["temperature"].values[:, 0])))}
 
     def relative_energy_error(self, ds):
         return ds["energy_error"].values

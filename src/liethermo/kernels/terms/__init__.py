@@ -199,6 +199,20 @@ LAW_LAGRANGE_OMEGA3 = "lagrange_omega3"
 LAW_MOMENTUM_NORM = "momentum_norm"
 LAWS = (LAW_SPHERICAL_DECAY, LAW_LAGRANGE_OMEGA3, LAW_MOMENTUM_NORM)
 
+#: what a term's one scene key sets, for the layers (the studies) that vary or
+#: check a kind of physics without naming the term that has it
+#: (:func:`key_of`, :attr:`Term.role`):
+#:
+#: * ``ROLE_LINEAR_FRICTION`` — the strength of the friction linear in Ω (−CΩ);
+#: * ``ROLE_MOMENTUM_FRICTION`` — the strength of a friction that keeps |μ|;
+#: * ``ROLE_THERMAL_COUPLING`` — how the inertia grows with the temperature;
+#: * ``ROLE_POTENTIAL`` — the strength of the conservative torque.
+ROLE_LINEAR_FRICTION = "linear_friction"
+ROLE_MOMENTUM_FRICTION = "momentum_friction"
+ROLE_THERMAL_COUPLING = "thermal_coupling"
+ROLE_POTENTIAL = "potential"
+ROLES = (ROLE_LINEAR_FRICTION, ROLE_MOMENTUM_FRICTION, ROLE_THERMAL_COUPLING, ROLE_POTENTIAL)
+
 
 @dataclass(frozen=True)
 class Setting:
@@ -280,6 +294,8 @@ class Term:
     no_exact_flow: str | None = None
     #: the term makes the inertia depend on the entropy where it acts
     sets_inertia: bool = False
+    #: what its first scene key sets (one of :data:`ROLES`, or None): :func:`key_of`
+    role: str | None = None
 
     def in_scene(self, s: dict) -> bool:
         """Whether the scene tables ``s`` switch the term on."""
@@ -340,12 +356,37 @@ class Term:
         """The term's torque f(Ω, Γ) (N m); ``scale``: s of 𝕀(S) = s𝕀₀ (or 1)."""
         return None
 
+    def linear_resistance(self, phys) -> np.ndarray | None:
+        """(N, 3) diag C (N m s) of a friction −CΩ linear in Ω, in the body
+        axes; None for a term that is not one."""
+        return None
+
+    def with_linear_resistance(self, phys, C) -> dict:
+        """The fields of ``phys`` to replace so that the term's friction −CΩ
+        linear in Ω has diag C (N, 3) (its shape kept); {} for a term that has none."""
+        return {}
+
+    def discrete_friction(self, phys, h, x) -> np.ndarray | None:
+        """The variational integrator's discrete friction at the step velocity
+        X (N, ..., 3) of a step h, in plain numpy (N m): C X for a linear law,
+        D(X) (``nonlinear_friction``) otherwise; None for a term that exerts
+        no friction.  A friction that does not give it here raises
+        NotImplementedError (its discrete laws cannot be checked)."""
+        if self.friction:
+            raise NotImplementedError(f"term {self.name!r} does not give its discrete friction")
+        return None
+
     def dissipated_power(self, phys, omega, scale) -> np.ndarray | None:
         """−⟨f, Ω⟩ ≥ 0 (W) of a friction."""
         return None
 
     def potential_energy(self, phys, gamma) -> np.ndarray | None:
         """V(Γ) (J) of a conservative torque."""
+        return None
+
+    def resting_gamma(self, phys) -> np.ndarray | None:
+        """(N, 3) the Γ at which the term's potential is least (its resting
+        attitude), None for a term without a potential."""
         return None
 
     def potential_span(self, phys) -> np.ndarray | float:
@@ -438,6 +479,16 @@ def constant_inertia_part(phys) -> tuple:
 _REGISTRY: list = []
 
 
+def key_of(role: str) -> str:
+    """The scene key (``section.name``) of the one term whose :attr:`Term.role` is ``role``."""
+    if role not in ROLES:
+        raise ValueError(f"unknown role {role!r}: expected one of {list(ROLES)}")
+    keys = [t.settings[0].path for t in registry() if t.role == role]
+    if len(keys) != 1:
+        raise ValueError(f"role {role!r}: {len(keys)} terms have it, expected one")
+    return keys[0]
+
+
 def registry() -> Registry:
     """Every model term (the ``TERM`` of each module :func:`_term_modules` lists)."""
     if not _REGISTRY:
@@ -447,4 +498,5 @@ def registry() -> Registry:
 
 __all__ = ["Model", "ATTITUDE", "Attitude", "angular_acceleration", "dissipated_power",
            "discrete_power", "linear_friction", "torque", "nonlinear_friction", "exact_flow",
-           "inertia_scale", "inertia_scale_rate", "scale_square_change", "temperature_correction", "implements", "types", "NONE3", "NONE9", "LAWS", "LAW_SPHERICAL_DECAY", "LAW_LAGRANGE_OMEGA3", "LAW_MOMENTUM_NORM", "Term", "ScalarTerm", "Setting", "Parameter", "Registry", "registry", "bcast", "over_inertia"]
+           "inertia_scale", "inertia_scale_rate", "scale_square_change", "temperature_correction", "implements", "types", "NONE3", "NONE9", "LAWS", "LAW_SPHERICAL_DECAY", "LAW_LAGRANGE_OMEGA3", "LAW_MOMENTUM_NORM", "ROLES", "ROLE_LINEAR_FRICTION",
+           "ROLE_MOMENTUM_FRICTION", "ROLE_THERMAL_COUPLING", "ROLE_POTENTIAL", "key_of", "Term", "ScalarTerm", "Setting", "Parameter", "Registry", "registry", "bcast", "over_inertia"]

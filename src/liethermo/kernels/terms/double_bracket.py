@@ -35,7 +35,7 @@ import numpy as np
 from .._jit import fma
 from ..gen import cadd, madd
 from ..so3 import cross_lane, norm2_lane
-from . import (LAW_MOMENTUM_NORM, LAW_SPHERICAL_DECAY, Parameter, ScalarTerm, Setting, angular_acceleration, bcast, discrete_power,
+from . import (LAW_MOMENTUM_NORM, LAW_SPHERICAL_DECAY, ROLE_MOMENTUM_FRICTION, Parameter, ScalarTerm, Setting, angular_acceleration, bcast, discrete_power,
                dissipated_power, implements, nonlinear_friction)
 
 
@@ -129,6 +129,7 @@ class _DoubleBracket(ScalarTerm):
                             comment="double-bracket friction f = lambda mu x (mu x Omega)"),)
     friction = True
     nonlinear_friction = True
+    role = ROLE_MOMENTUM_FRICTION
     kernel_class = DoubleBracket
     coefficients = coefficients
     no_exact_flow = "its flow has no closed form (it must keep |μ| and K + U with heat)"
@@ -148,6 +149,13 @@ class _DoubleBracket(ScalarTerm):
             scale * bcast(phys.inertia, omega) * omega)
         lam = bcast(phys.internal_friction, omega[..., 0])[..., None]
         return lam * np.cross(mu, np.cross(mu, omega))
+
+    def discrete_friction(self, phys, h, x):
+        # D(X) = λ(|m|² X − (m·X) m), m = 𝕀₀X + (h²/4)(X·𝕀₀X)X
+        Q = bcast(phys.inertia, x) * x
+        m = Q + (0.25 * h * h) * np.sum(Q * x, axis=-1, keepdims=True) * x
+        lam = bcast(phys.internal_friction, x[..., 0])[..., None]
+        return lam * (np.sum(m * m, axis=-1, keepdims=True) * x - np.sum(m * x, axis=-1, keepdims=True) * m)
 
     def dissipated_power(self, phys, omega, scale):
         mu = scale[..., None] * bcast(phys.inertia, omega) * omega if np.ndim(scale) else (

@@ -15,7 +15,7 @@ import numpy as np
 
 from .._jit import fma
 from ..gen import madd
-from . import LAW_LAGRANGE_OMEGA3, Parameter, Setting, Term, angular_acceleration, bcast, exact_flow, implements, torque
+from . import LAW_LAGRANGE_OMEGA3, ROLE_POTENTIAL, Parameter, Setting, Term, angular_acceleration, bcast, exact_flow, implements, torque
 
 
 class Gravity(namedtuple("Gravity", "gx gy gz gz1 gy1 gx2 gz2 gy3 gx3")):
@@ -69,6 +69,7 @@ def _kick(term, inertia, t, G, m, q):
 
 class _Gravity(Term):
     name = "gravity"
+    role = ROLE_POTENTIAL
     settings = (Setting("gravity", "g", 9.81, "m s-2", "gravitational acceleration"),)
     parameters = (Parameter("gravity_torque", (3,), "N m", "gravity torque m g l chi",
                             comment="m: mass, g: gravity, l chi: fixed point to centre of mass in the body frame",
@@ -102,6 +103,10 @@ class _Gravity(Term):
 
     def potential_energy(self, phys, gamma):
         return potential_energy(phys.gravity_torque, gamma)
+
+    def resting_gamma(self, phys):
+        g = phys.gravity_torque
+        return -g / np.linalg.norm(g, axis=1)[:, None]
 
     def potential_span(self, phys):
         return 2.0 * np.linalg.norm(phys.gravity_torque, axis=1)

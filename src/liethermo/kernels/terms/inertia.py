@@ -24,7 +24,7 @@ import numpy as np
 
 from .._jit import fma, lane
 from ..gen import none_dispatch
-from . import (LAW_MOMENTUM_NORM, Parameter, ScalarTerm, Setting, bcast, implements, inertia_scale,
+from . import (LAW_MOMENTUM_NORM, ROLE_THERMAL_COUPLING, Parameter, ScalarTerm, Setting, bcast, implements, inertia_scale,
                inertia_scale_rate, scale_square_change, temperature_correction)
 
 
@@ -203,6 +203,7 @@ class _ThermalExpansion(ScalarTerm):
         "(such as the internal friction) are not available with it.")
 
     sets_inertia = True
+    role = ROLE_THERMAL_COUPLING
 
     def keeps(self, law, phys):
         if law == LAW_MOMENTUM_NORM:  # no torque: μ is conserved whatever 𝕀(S) does

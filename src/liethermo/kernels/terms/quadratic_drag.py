@@ -105,6 +105,9 @@ class _QuadraticDrag(ScalarTerm):
         c = bcast(phys.quadratic_drag, omega[..., 0])[..., None]
         return -c * np.linalg.norm(omega, axis=-1, keepdims=True) * omega
 
+    def discrete_friction(self, phys, h, x):
+        return self.torque(phys, -x, None, 1.0)  # c₂|X|X
+
     def dissipated_power(self, phys, omega, scale):
         return bcast(phys.quadratic_drag, omega[..., 0]) * np.linalg.norm(omega, axis=-1) ** 3
 

@@ -24,7 +24,7 @@ from .._jit import fma, lane
 from ..lanemath import expm1_lane
 from ..gen import cadd, madd
 from ..so3 import norm2_lane
-from . import (LAW_LAGRANGE_OMEGA3, LAW_SPHERICAL_DECAY, Parameter, Setting, Term, bcast, over_inertia, angular_acceleration, discrete_power, dissipated_power,
+from . import (LAW_LAGRANGE_OMEGA3, LAW_SPHERICAL_DECAY, ROLE_LINEAR_FRICTION, Parameter, Setting, Term, bcast, over_inertia, angular_acceleration, discrete_power, dissipated_power,
                exact_flow, implements, linear_friction)
 
 
@@ -195,6 +195,7 @@ class _Stokes(Term):
                   variable="", default=True),
     )
     friction = True
+    role = ROLE_LINEAR_FRICTION
     scene_doc = (
         "*Stokes friction* — `fluid.viscosity = η > 0` turns the body in a viscous fluid, "
         "torque −CΩ: a sphere of radius a (the paper's top) has C = 8πηa³; an ellipsoid "
@@ -267,6 +268,15 @@ class _Stokes(Term):
 
     def torque(self, phys, omega, gamma, scale):
         return -bcast(phys.stokes_resistance, omega) * omega
+
+    def linear_resistance(self, phys):
+        return phys.stokes_resistance
+
+    def with_linear_resistance(self, phys, C):
+        return {"stokes_resistance": C}
+
+    def discrete_friction(self, phys, h, x):
+        return bcast(phys.stokes_resistance, x) * x
 
     def dissipated_power(self, phys, omega, scale):
         return np.sum(bcast(phys.stokes_resistance, omega) * omega * omega, axis=-1)
