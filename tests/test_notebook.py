@@ -23,7 +23,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def test_explore_notebook_reproduces_the_energy_figure(tmp_path, monkeypatch):
     study = load_study(ROOT / "studies" / "energy_drift.toml")
-    get_study("energy_drift").run(study, tmp_path, reduced=True, progress=False)
+    get_study("energy_drift").STUDY.run(study, tmp_path, reduced=True, progress=False)
     nc = tmp_path / "energy_drift.nc"
     monkeypatch.setenv("LIETHERMO_STUDY_NC", str(nc))
     monkeypatch.setenv("JUPYTER_PLATFORM_DIRS", "1")  # silences jupyter_core's path-migration warning

@@ -313,23 +313,25 @@ def test_energy_drift_vi_bounded_rk2_fails_at_paper_h(energy_drift):
         assert ratio > 2 ** (p - 1), (scheme, ratio)
 
 
-def test_energy_drift_table_and_figure(energy_drift):
+def test_energy_drift_one_definition_of_a_blow_up(energy_drift):
+    """A member blows up when it fails or its max |relative energy error| passes
+    diverged_above: the netCDF, the table, the figure's titles and the verdicts count the same members."""
     out, report, ds = energy_drift
     df = pd.read_csv(out / "energy_drift.csv")
     study = load_study(STUDIES / "energy_drift.toml")
     assert set(df["method"]) == set(study["methods"]) | {"vi:node:explicit (paper convention)"}
-    assert set(df["energy"]) == {"node values", "paper convention"}
     row = df[(df["method"] == "vi") & (df["h (s)"] == 0.1)].iloc[0]
-    assert row["5% max|dE|/Emech0"] <= row["median max|dE|/Emech0"] <= row["95% max|dE|/Emech0"]
-    assert (out / "energy_drift_bands.png").is_file()
-    text = report.read_text()
-    assert "node values" in text and "paper convention" in text
+    assert row["5% max |rel. energy error|"] <= row["median max |rel. energy error|"] <= row["95% max |rel. energy error|"]
+    assert (out / "energy_drift_bands.png").is_file() and (out / "energy_drift_error.png").is_file()
     assert ds.sizes["member"] == int(study["reduced"]["scene"]["ensemble"]["members"])
-    # counts of members, next to the members column, not fractions
+    x = ds.sel(scheme="rk2", integrator_h=0.1)
+    blown = int(((x["status"] != 0) | ~(x["max_relative_energy_error"] <= 1.0)).sum())
+    assert 0 < blown < ds.sizes["member"] and int(x["blown_up"].sum()) == int(x["blown_up_members"]) == blown
     rk2 = df[(df["method"] == "rk2") & (df["h (s)"] == 0.1)].iloc[0]
-    assert rk2["failed members"] == int((ds["status"].sel(scheme="rk2", integrator_h=0.1) != 0).sum()) > 0
-    assert rk2["failed members"] <= rk2["diverged or failed members"] <= rk2["members"]
-    assert f"{rk2['diverged or failed members']} of {rk2['members']} members diverged or failed" in text
+    assert rk2["blown-up members"] == blown
+    text = report.read_text()
+    assert f"| no member of rk2 blows up | h = 0.1: {blown}, h = 0.05: 0 | 0 blown-up members at every h | FAILS |" in text
+    assert "| no member of vi blows up | h = 0.1: 0, h = 0.05: 0 | 0 blown-up members at every h | holds |" in text
 
 
 # ----------------------------------------------------------------------------- paper
@@ -378,11 +380,14 @@ def test_study_figures_were_checked_for_legibility(which, request):
     out = request.getfixturevalue(which)[0]
     pngs = sorted(out.glob("*.png"))
     assert pngs
+    # a figure written atomically was checked under its temporary name, ".NAME.png.<pid>.tmp"
+    saved = {str(Path(k).with_name(Path(k).name[1:].split(".png.")[0] + ".png")) if ".png." in k else k: v
+             for k, v in SAVED_FIGURES.items()}
     for png in pngs:
-        assert str(png.resolve()) in SAVED_FIGURES, png.name
+        assert str(png.resolve()) in saved, png.name
         if which != "paper":
-            assert SAVED_FIGURES[str(png.resolve())] in ("ConstrainedLayoutEngine", "TightLayoutEngine",
-                                                         "PlaceHolderLayoutEngine"), png.name
+            assert saved[str(png.resolve())] in ("ConstrainedLayoutEngine", "TightLayoutEngine",
+                                                 "PlaceHolderLayoutEngine"), png.name
 
 if __name__ == "__main__":  # pragma: no cover
     sys.exit(pytest.main([__file__, "-q"]))
@@ -448,25 +453,6 @@ def test_error_levels_span_the_decades_reached():
 def _last_section(report: Path) -> str:
     text = report.read_text()
     return text[text.rindex("### Closing"):]
-
-
-def test_energy_drift_closes_with_the_cheapest_method_from_its_runs(energy_drift):
-    """The winner at each level is the (method, h) with the least kernel time per
-    member among those whose median max |E_k − E₀|/E_mech,0 is at most the level."""
-    out, report, ds = energy_drift
-    closing = _last_section(report)
-    assert "**Cheapest here**" in closing
-    cl = pd.read_csv(out / "closing.csv")
-    members = ds.sizes["member"]
-    for eps, g in cl.groupby("error ≤"):
-        best = np.inf
-        for scheme in ds["scheme"].values:
-            for h in ds["integrator_h"].values:
-                e = float(np.quantile(ds["max_relative_energy_error"].sel(scheme=scheme, integrator_h=h).values,
-                                      0.5, method="inverted_cdf"))
-                if e <= eps:
-                    best = min(best, float(ds["kernel_time"].sel(scheme=scheme, integrator_h=h)) / members)
-        assert g["cost (s)"].min() == pytest.approx(best, rel=1e-9), eps
 
 
 def test_convergence_and_paper_close_with_their_own_numbers(convergence, paper):

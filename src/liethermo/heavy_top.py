@@ -266,17 +266,10 @@ def run_chunk(scene: dict, lo: int, hi: int, *, progress_cb=None, kernel: str | 
     :mod:`liethermo.distributed`; member i's result depends only on (scene, i).
     ``progress_cb(n)`` gets the number of member-steps just done.
     """
-    from .dataset import trajectory_dataset
     from .findings import chunk_findings
-    from .initial import initial_conditions
-    from .resolve import resolve
     from .simulate import STATUS_MEANINGS
 
-    run = resolve(scene)
-    om0, R0 = initial_conditions(scene, lo, hi)
-    traj = run.simulate(om0, R0, kernel=kernel or "auto", threads=threads,
-                        progress=(lambda n, k=hi - lo: progress_cb(n * k)) if progress_cb else None)
-    ds = trajectory_dataset(traj, omega0=om0, R0=R0, member_offset=lo)
+    traj, ds = _chunk(scene, lo, hi, progress_cb=progress_cb, kernel=kernel, threads=threads)
     st = ChunkStats(members=hi - lo, kernel_time=traj.wall_time, compile_time=traj.compile_time)
     ncounts = len(STATUS_MEANINGS)
     st.counts = [int(c) for c in np.bincount(traj.status, minlength=ncounts)[:ncounts]]
@@ -301,6 +294,39 @@ def run_chunk(scene: dict, lo: int, hi: int, *, progress_cb=None, kernel: str | 
     with np.errstate(over="ignore", invalid="ignore"):
         st.findings = chunk_findings(ds, traj.physics)
     return ds, st
+
+
+def _chunk(scene, lo: int, hi: int, *, progress_cb=None, kernel=None, threads=None) -> tuple:
+    """(trajectory, labelled dataset) of members ``lo:hi``."""
+    from .dataset import trajectory_dataset
+    from .initial import initial_conditions
+    from .resolve import resolve
+
+    run = resolve(scene)
+    om0, R0 = initial_conditions(scene, lo, hi)
+    traj = run.simulate(om0, R0, kernel=kernel or "auto", threads=threads,
+                        progress=(lambda n, k=hi - lo: progress_cb(n * k)) if progress_cb else None)
+    return traj, trajectory_dataset(traj, omega0=om0, R0=R0, member_offset=lo)
+
+
+def law_defects(traj) -> dict:
+    """Per member, the defects of the exact laws a run of the top can be held to:
+    |Γ| = 1 on the stored nodes and, where every step is stored, the
+    Kelvin–Noether law (discrete for the variational integrators, continuous by
+    the trapezoid rule for every method: :mod:`liethermo.studies.tools`)."""
+    from .studies.tools import continuous_kelvin_noether_residual, kelvin_noether_residual
+
+    with np.errstate(invalid="ignore"):
+        gdef = np.nanmax(np.abs(np.linalg.norm(traj.gamma, axis=-1) - 1.0), axis=1)
+    out = {"gamma_norm": (gdef, "1", "max over stored nodes of ||Gamma_k| - 1|")}
+    if traj.every == 1:
+        out["kelvin_noether_discrete"] = (
+            kelvin_noether_residual(traj), "1", "max residual of the discrete Kelvin-Noether law / max |mu| "
+            "(variational integrators; NaN where it does not apply)")
+        out["kelvin_noether_continuous"] = (
+            continuous_kelvin_noether_residual(traj), "1", "max defect of the continuous Kelvin-Noether law "
+            "by the trapezoid rule between nodes / max |mu|")
+    return out
 
 
 def finish_summary(summ: RunSummary, st: ChunkStats) -> RunSummary:
@@ -518,6 +544,32 @@ class HeavyTop(Model):
     def relative_energy_error(self, ds):
         with np.errstate(divide="ignore", invalid="ignore"):
             return ds["energy_error"].values / np.abs(ds["mechanical_energy_initial"].values)[:, None]
+
+    energy_convention_names = ("paper",)  # the step velocity with node values (the paper's)
+
+    def energy_conventions(self, ds) -> dict:
+        if "energy_error_paper" not in ds:
+            return {}
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            return {"paper": ds["energy_error_paper"].values / np.abs(ds["mechanical_energy_initial"].values)[:, None]}
+
+    def dissipation_overrides(self, scene, factor: float) -> dict:
+        from .kernels.terms import registry
+
+        return {s.path: float(f"{float(factor) * scene[s.section][s.name]:.15g}") for t in registry()
+                if t.friction for s in t.settings
+                if isinstance(scene[s.section][s.name], (int, float)) and not isinstance(scene[s.section][s.name], bool)}
+
+    def kernel_for(self, scene) -> str:
+        from .simulate import kernel_for
+
+        return kernel_for(scene["integrator"]["method"], int(scene["ensemble"]["members"]),
+                          int(scene["integrator"]["steps"]))
+
+    def run_with_laws(self, scene, *, kernel=None, threads=None):
+        traj, ds = _chunk(scene, 0, int(scene["ensemble"]["members"]), kernel=kernel, threads=threads)
+        return ds, ChunkStats(members=ds.sizes["member"], kernel_time=traj.wall_time,
+                              compile_time=traj.compile_time), law_defects(traj)
 
     def ode(self, scene, lo, hi):
         from .initial import initial_conditions

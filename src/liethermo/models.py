@@ -188,6 +188,34 @@ class Model:
         """(member, t) the energy error of a run relative to its natural scale (1)."""
         return None
 
+    #: the names :meth:`energy_conventions` may return
+    energy_convention_names: tuple[str, ...] = ()
+
+    def energy_conventions(self, ds) -> dict:
+        """Other readings of the relative energy error that a run's dataset
+        records besides :meth:`relative_energy_error`: ``{name: (member, t)
+        array}`` ({} when none, or not for this run's method)."""
+        return {}
+
+    def dissipation_overrides(self, scene, factor: float) -> dict:
+        """Scene overrides that multiply every dissipative coefficient of
+        ``scene`` by ``factor`` ({}: the scene has nothing to scale)."""
+        return {}
+
+    def kernel_for(self, scene) -> str | None:
+        """The kernel :meth:`run_chunk` picks for all of ``scene``'s members (passed
+        back as ``kernel=``, shorter runs of the same ensemble time the same loop)."""
+        return None
+
+    def run_with_laws(self, scene, *, kernel: str | None = None, threads: int | None = None):
+        """Every member of ``scene`` run as :meth:`run_chunk` runs them, and the
+        defects of the exact laws (besides energy) of the continuous motion:
+        ``(dataset, stats, {name: (per-member max defect, units, long name)})``,
+        NaN where the law does not hold for the member's physics or cannot be
+        checked on the stored steps."""
+        ds, st = self.run_chunk(scene, 0, int(scene["ensemble"]["members"]), kernel=kernel, threads=threads)
+        return ds, st, {}
+
     #: ``ode(scene, lo, hi)``: members ``lo:hi`` as a continuous system for scipy's
     #: ``solve_ivp``, ``(y0 (members, n), [f(t, y) per member], state)`` where
     #: ``state(y)`` gives :meth:`study_state`'s variables at one time (those it can);

@@ -1,333 +1,170 @@
-"""Energy-drift study: total-energy error over an ensemble of initial conditions.
+"""Energy drift: the model's relative energy error over a random ensemble, per method and swept h (any model).
 
-Members are drawn by :func:`liethermo.initial.initial_conditions` (random
-attitudes, uniform on SO(3); random spin directions; spin magnitudes in
-``ensemble.spin_range`` × |initial.omega|).  Each method spec (``vi`` =
-legendre start, ``vi4``, ``vi6``, ``rk2``, ``rk4``, the paper's
-``vi:node:explicit``, …) runs at every swept h to ``t_end``.  The total
-energy E = K + V + U is conserved by the continuous system, so E_k − E₀ is
-pure error; it is computed on NODE values (Ω(t_k), Γ_k, S_k; the dataset's
-``energy_error``) and measured relative to the initial mechanical energy
-above the resting state, E_mech,0 = K₀ + V₀ + mgℓ.  For the specs listed in
-``options.paper_convention`` the study also reports the paper's convention
-(step velocity Ω_k with Γ_k, S_k; the dataset's ``energy_error_paper``) as
-rows of their own, labelled "(paper convention)".
-
-Per method and h the study reports the median and 5–95 % band over members
-of max_k |E_k − E₀| / E_mech,0, the median final error, a fitted drift rate
-(least-squares slope of (E_k − E₀)/E_mech,0 against t, per member) and the
-number of members that failed (status ≠ 0) or diverged (max relative error
-> ``diverged_above``).  Failed members count as +inf in every quantile.
-The figure shows the quantile bands of |E_k − E₀| / E_mech,0 over time, one
-panel per method and h; blown-up members are drawn at ``CLIP``.
-"""
+Per member: max and final |error|, the drift rate (least-squares slope in t), and whether it **blew up**
+(failed, or max |error| > ``diverged_above``: one definition for the table, the figure and the verdicts).
+``paper_convention`` methods are also read in the model's other conventions (the top's step velocity)."""
 
 from __future__ import annotations
-
-import time
-from functools import partial
-from pathlib import Path
 
 import numpy as np
 import xarray as xr
 
-from ..dataset import status_flags
-from ..initial import initial_conditions
-from ..physics import physics_of_scene
-from .common import (method_overrides, study_options, StudyError, cached_point, dim_name, expand_sweep, parse_method, point_key, progress_bar,
-                     stack_points, study_name, study_netcdf_path, study_scene, write_netcdf_atomic,
-                     write_report, write_table, start_study, study_history, closing_section)
-from .tools import NODE_VALUES_NOTE, energy_errors, run_spec
+from .common import StudyError, dim_name
+from .framework import Figure, Option, Stage, Study, Table, Verdict, first_point
 
-PAPER = " (paper convention)"
-
-EXTRA_KEYS = ()
-DEFAULT_OPTIONS = {"t_end": 30.0, "band_dt": 0.2, "member_chunk": 1024, "diverged_above": 1.0,
-                   "paper_convention": ["vi:node:explicit"]}
 QUANTILES = (0.05, 0.5, 0.95)
-CLIP = 1e3  # relative energy errors above this are drawn at the top of the band figure
+CLIP = 1e3  # the band figure draws larger errors at this value
+H = dim_name("integrator.h")
 
 
-def options(study: dict) -> dict:
-    return study_options(study, DEFAULT_OPTIONS, "energy_drift")
+def _check(ctx) -> None:
+    for h, what in ((p.get("integrator.h"), w) for p in ctx.points or [{}] for w in ("t_end", "band_dt")):
+        if h is None:
+            raise StudyError('sweep."integrator.h": an energy-drift study sweeps the time step')
+        if abs(ctx.opt[what] / h - round(ctx.opt[what] / h)) > 1e-9 or round(ctx.opt[what] / h) < 1:
+            raise StudyError(f"options.{what} = {ctx.opt[what]} must be a multiple of every swept h (h = {h})")
+    for m in ctx.opt["paper_convention"] or []:
+        if m not in ctx.methods or not ctx.model.energy_convention_names:
+            raise StudyError(f"options.paper_convention: {m!r} must be a method of the study, on a model with "
+                             f"another energy convention (not {ctx.model.name})")
 
 
-def validate(study: dict) -> None:
-    opt = options(study)
-    hs = study.get("sweep", {}).get("integrator.h")
-    if not hs:
-        raise StudyError('sweep."integrator.h": an energy-drift study sweeps the time step')
-    for h in hs:
-        for what, T in (("t_end", opt["t_end"]), ("band_dt", opt["band_dt"])):
-            r = T / h
-            if abs(r - round(r)) > 1e-9 or round(r) < 1:
-                raise StudyError(f"options.{what} = {T} must be a multiple of every swept h (h = {h})")
-    if not study.get("methods"):
-        raise StudyError("methods: an energy-drift study needs at least one method")
-    for m in opt["paper_convention"]:
-        if m not in study["methods"] or parse_method(m)["family"] != "vi":
-            raise StudyError(f"options.paper_convention: {m!r} must be a variational method of `methods`")
+def _sfx(ctx) -> list[str]:
+    return [""] + [f"_{c}" for c in ctx.model.energy_convention_names]
 
 
-def _point(scene, spec: dict, opt: dict) -> xr.Dataset:
-    h = float(scene["integrator"]["h"])
-    steps = int(round(opt["t_end"] / h))
-    band_every = int(round(opt["band_dt"] / h))
-    N = int(scene["ensemble"]["members"])
-    conventions = ["node"] + (["paper"] if spec["label"] in opt["paper_convention"] else [])
-    t = np.arange(steps + 1) * h
-    tb = t[::band_every]
-    out = {c: {"band": np.empty((N, tb.size)), "max": np.empty(N), "final": np.empty(N),
-               "drift": np.empty(N)} for c in conventions}
-    emech = np.empty(N)
-    status = np.empty(N, np.int8)
-    newton = np.full(N, np.nan)
-    wall = 0.0
+def ensemble(ctx, coords) -> xr.Dataset:
+    opt, m, model, h = ctx.opt, coords["scheme"], ctx.model, float(coords["point"]["integrator.h"])
+    steps, be = round(opt["t_end"] / h), round(opt["band_dt"] / h)
+    sc = ctx.scene(coords["point"]).with_overrides({**model.method_overrides(m), "integrator.steps": steps,
+                                                    "output.every": 1})
+    N, t = int(sc["ensemble"]["members"]), np.arange(steps + 1) * h
+    rel, status, wall = {c: np.full((N, t.size), np.nan) for c in _sfx(ctx)}, np.empty(N, np.int8), 0.0
     for lo in range(0, N, int(opt["member_chunk"])):
         hi = min(N, lo + int(opt["member_chunk"]))
-        om0, R0 = initial_conditions(scene, lo, hi)
-        phys = physics_of_scene(scene, hi - lo)
-        tr = run_spec(phys, om0, R0, h, steps, spec)
-        wall += tr.wall_time
-        err = energy_errors(tr, om0, R0)
-        ok = tr.status == 0
-        em = err["scale"]
-        for c in conventions:
-            with np.errstate(over="ignore", invalid="ignore"):  # members blowing up before they fail
-                rel = err[c] / em[:, None]
-                arel = np.abs(rel)
-            arel[~np.isfinite(arel)] = np.inf  # after a failure: counts as +inf
-            o = out[c]
-            o["band"][lo:hi] = arel[:, ::band_every]
-            o["max"][lo:hi] = np.where(ok, arel.max(axis=1), np.inf)
-            o["final"][lo:hi] = arel[:, -1]
-            tc = t - t.mean()  # least-squares slope of rel(t) per member (1/s)
-            with np.errstate(invalid="ignore", over="ignore"):
-                slope = (rel - rel.mean(axis=1, keepdims=True)) @ tc / (tc @ tc)
-            o["drift"][lo:hi] = np.where(ok, slope, np.nan)
-        emech[lo:hi] = em
-        status[lo:hi] = tr.status
-        if tr.family == "vi":
-            newton[lo:hi] = tr.newton_iterations / np.maximum(tr.steps_done, 1)
-    q = np.asarray(QUANTILES)
-    data = {}
-    for c in ("node", "paper"):  # every point has both (NaN where a convention does not apply)
-        o = out.get(c)
-        nanN = np.full(N, np.nan)
-        sfx = "" if c == "node" else "_paper"
-        data[f"relative_energy_error_quantiles{sfx}"] = (
-            ("quantile", "t"), np.quantile(o["band"], q, axis=0, method="inverted_cdf") if o
-            else np.full((q.size, tb.size), np.nan))
-        data[f"max_relative_energy_error{sfx}"] = (("member",), o["max"] if o else nanN)
-        data[f"final_relative_energy_error{sfx}"] = (("member",), o["final"] if o else nanN)
-        data[f"energy_drift_rate{sfx}"] = (("member",), o["drift"] if o else nanN)
-    data.update({
-        "mechanical_energy_initial": (("member",), emech),
-        "status": (("member",), status),
-        "newton_iterations_mean": (("member",), newton),
-        "kernel_time": ((), wall),
-    })
-    return xr.Dataset(data, coords={"quantile": q, "t": tb, "member": np.arange(N)})
+        ds, st = model.run_chunk(sc, lo, hi)
+        status[lo:hi], wall = ds["status"].values, wall + st.kernel_time
+        rel[""][lo:hi] = model.relative_energy_error(ds)
+        for c, r in model.energy_conventions(ds).items():
+            rel[f"_{c}"][lo:hi] = r
+    data, ok, tc = {"status": ("member", status), "kernel_time": ((), wall)}, status == 0, t - t.mean()
+    for c, r in rel.items():
+        with np.errstate(over="ignore", invalid="ignore"):
+            arel = np.where(np.isfinite(r), np.abs(r), np.inf)  # after a failure: +inf
+            slope = (r - r.mean(axis=1, keepdims=True)) @ tc / (tc @ tc)
+        asked = np.nan if c and m not in (opt["paper_convention"] or []) else 1.0  # NaN: a convention not asked
+        data.update({f"relative_energy_error_quantiles{c}": (("quantile", "t"), asked * np.quantile(
+            arel[:, ::be], QUANTILES, axis=0, method="inverted_cdf")), f"max_relative_energy_error{c}": (
+            "member", asked * np.where(ok, arel.max(axis=1), np.inf)), f"final_relative_energy_error{c}": (
+            "member", asked * arel[:, -1]), f"energy_drift_rate{c}": ("member", asked * np.where(ok, slope, np.nan))})
+    data["blown_up"] = ("member", (~ok | ~(data["max_relative_energy_error"][1] <= opt["diverged_above"])).astype(np.int8))
+    return xr.Dataset(data, coords={"quantile": list(QUANTILES), "t": t[::be], "member": np.arange(N)})
 
 
-def _summary_row(ds: xr.Dataset, label: str, h: float, opt: dict, sfx: str = "") -> dict:
-    mx = ds[f"max_relative_energy_error{sfx}"].values
-    fin = ds[f"final_relative_energy_error{sfx}"].values
-    dr = ds[f"energy_drift_rate{sfx}"].values
-    st = ds["status"].values
-    q05, q50, q95 = np.quantile(mx, QUANTILES, method="inverted_cdf")
-    dr_ok = dr[np.isfinite(dr)]
-    return {
-        "method": label + (PAPER if sfx else ""), "energy": "paper convention" if sfx else "node values",
-        "h (s)": h, "members": mx.size,
-        "median max|dE|/Emech0": q50, "5% max|dE|/Emech0": q05, "95% max|dE|/Emech0": q95,
-        "median final |dE|/Emech0": float(np.quantile(fin, 0.5, method="inverted_cdf")),
-        "median drift rate (1/s)": float(np.median(dr_ok)) if dr_ok.size else float("nan"),
-        "median |drift rate| (1/s)": float(np.median(np.abs(dr_ok))) if dr_ok.size else float("nan"),
-        "failed members": int(np.sum(st != 0)),
-        "diverged or failed members": int(np.sum((st != 0) | ~(mx <= opt["diverged_above"]))),
-    }
+def quantities(ctx) -> dict:
+    return {"kernel_time": ("s", "kernel wall time of the point's ensemble"), "quantile": ("1", "quantile over members"),
+            "blown_up": ("1", f"1: the member failed or its max |relative energy error| > {ctx.opt['diverged_above']:g}"),
+            "blown_up_members": ("1", "members that blew up"), H: ("s", "time step h"),
+            "median_max_relative_energy_error": ("1", "median max |rel. energy error|"),
+            **{f"{v}{c}": (u, w + (f" ({c[1:]} convention; NaN where not asked)" if c else "")) for c in _sfx(ctx)
+               for v, u, w in (("relative_energy_error_quantiles", "1", "quantiles over members of |relative energy "
+                                "error|"), ("max_relative_energy_error", "1", "max over t of |relative energy error| "
+                                "(failed: inf)"), ("final_relative_energy_error", "1", "|relative energy error| at t_end"),
+                               ("energy_drift_rate", "s-1", "least-squares slope of the relative energy error in t"))}}
 
 
-def run(study: dict, outdir: Path, *, reduced: bool, progress: bool | None, dask: str | None = None,
-        history: str | None = None) -> Path:
-    study, outdir, opt = start_study(study, outdir, reduced, validate, options)
-    specs = [parse_method(m) for m in study["methods"]]
-    points = expand_sweep(study.get("sweep"))
-    keys = list(points[0])
-    allpts = [dict(pt, scheme=s["label"]) for pt in points for s in specs]
-    t_start = time.perf_counter()
-    tasks = []  # (pt, spec, scene, key): one per point and method
-    for pt in points:
-        for spec in specs:
-            scene = study_scene(study, dict(pt, **method_overrides(spec), **{
-                "integrator.steps": int(round(opt["t_end"] / pt.get("integrator.h", 0.1))),
-                "output.every": 1, "output.compare": []}))
-            tasks.append((pt, spec, scene, point_key({"pt": pt, "spec": spec, "opt": opt, "scene": scene})))
-    if dask is not None:  # compute the missing points as Dask tasks into the same cache
-        from ..distributed import map_cached_points
-
-        map_cached_points(outdir, [(key, _point, (scene, spec, opt)) for _, spec, scene, key in tasks], dask,
-                          progress=progress)
-    bar = progress_bar(len(allpts), progress, f"{study_name(study)} points")
-    dsets, rows = [], []
-    try:
-        for pt, spec, scene, key in tasks:
-            ds = cached_point(outdir, key, partial(_point, scene, spec, opt))
-            dsets.append(ds)
-            extra = {k: v for k, v in pt.items() if k != "integrator.h"}
-            rows.append(_summary_row(ds, spec["label"], float(scene["integrator"]["h"]), opt) | extra)
-            if spec["label"] in opt["paper_convention"]:
-                rows.append(_summary_row(ds, spec["label"], float(scene["integrator"]["h"]), opt, "_paper")
-                            | extra)
-            bar.update(1)
-    finally:
-        bar.close()
-    ds = stack_points(dsets, allpts, keys + ["scheme"])
-    for sfx, what in (("", "on node values"),
-                      ("_paper", "in the paper's convention (step velocity with Gamma_k, S_k; NaN where not "
-                                 "requested or not a variational method)")):
-        ds[f"relative_energy_error_quantiles{sfx}"].attrs.update(
-            units="1", long_name=f"quantiles over members of |E_k - E_0| / E_mech,0 {what} (failed members: +inf)")
-        ds[f"max_relative_energy_error{sfx}"].attrs.update(units="1", long_name=f"max_k |E_k - E_0| / E_mech,0 {what}")
-        ds[f"final_relative_energy_error{sfx}"].attrs.update(units="1",
-                                                             long_name=f"|E_K - E_0| / E_mech,0 at t_end {what}")
-        ds[f"energy_drift_rate{sfx}"].attrs.update(
-            units="s-1", long_name=f"least-squares slope of (E_k - E_0)/E_mech,0 in t {what}")
-    ds["kernel_time"].attrs.update(units="s", long_name="kernel wall time of the point")
-    ds["quantile"].attrs.update(units="1", long_name="quantile over members")
-    ds["member"].attrs.update(units="1", long_name="ensemble member")
-    ds["mechanical_energy_initial"].attrs.update(units="J", long_name="initial mechanical energy above the "
-                                                 "resting state K_0 + V_0 + m g l")
-    ds["status"].attrs.update(units="1", long_name="member status", **status_flags(np.int8))
-    ds["newton_iterations_mean"].attrs.update(units="1", long_name="mean Newton iterations per step, summed "
-                                              "over its solves (3 for vi4, 9 for vi6; NaN: explicit method)")
-    ds["kernel_time"].attrs.update(units="s", long_name="kernel wall time of the point's ensemble")
-    ds["t"].attrs.update(units="s", long_name="time since the start of the run, t_k = k h (band grid)")
-    ds["quantile"].attrs.update(units="1", long_name="quantile over members")
-    ds["member"].attrs.update(units="1", long_name="ensemble member")
-    ds.attrs.update({"title": "liethermo energy-drift study: energy error over a random ensemble",
-                     "study": study_name(study), "kind": "energy_drift", "reduced": int(reduced),
-                     "t_end": opt["t_end"], "members": int(ds.sizes["member"])})
-    nc = write_netcdf_atomic(ds, study_netcdf_path(study, outdir),
-                             history=study_history("energy_drift", study, outdir, reduced, history))
-    figs = _figures(ds, outdir, keys)
-    members = int(ds.sizes["member"])
-    table = write_table(rows, outdir, "energy_drift",
-                        f"Relative energy error over {members} members, t_end = {opt['t_end']} s")
-    notes = (f"{members} initial conditions (random attitudes uniform on SO(3), random spin directions, "
-             f"|Ω| in spin_range × |initial.omega|). Error: (E_k − E₀)/E_mech,0 with E_mech,0 = K₀ + V₀ + mgℓ "
-             "(dimensionless). Rows marked *node values* use Ω(t_k), Γ_k, S_k for every method (`vi` = legendre "
-             "start, symmetric entropy update; `vi:node:explicit` = the paper's start and entropy update); rows "
-             "marked *paper convention* evaluate the same run's energy with the step velocity Ω_k instead "
-             f"(`energy_error_paper`). 'failed members': members with status ≠ 0 (they blew up: the state "
-             f"became non-finite, or Newton did not converge), out of 'members'; 'diverged or failed members': "
-             f"those and the members whose max relative error passed {opt['diverged_above']:g}. Drift rate: per-member least-squares slope in t (s⁻¹). "
-             f"Wall time {time.perf_counter() - t_start:.1f} s.")
-    files = f"netCDF: `{nc.name}`; figures: " + ", ".join(f"`{f.name}`" for f in figs)
-    return write_report(outdir, f"Energy-drift study: {study_name(study)}" + (" (reduced)" if reduced else ""),
-                        [table, _finding(rows, ds), notes, NODE_VALUES_NOTE, files,
-                         _closing(tasks, dsets, opt, members, outdir)])
+def derive(ds, ctx) -> xr.Dataset:
+    ds["median_max_relative_energy_error"] = ds["max_relative_energy_error"].quantile(
+        0.5, "member", method="inverted_cdf").drop_vars("quantile")
+    ds["blown_up_members"] = ds["blown_up"].sum("member")
+    return ds
 
 
-def _closing(tasks, dsets, opt, members: int, outdir) -> str:
-    """Cheapest (method, h) per level of the median max |E_k − E₀|/E_mech,0 (node values)."""
-    pts = []
-    for (pt, spec, scene, _), d in zip(tasks, dsets):
-        mx = d["max_relative_energy_error"].values
-        pts.append({"method": spec["label"], "error": float(np.quantile(mx, 0.5, method="inverted_cdf")),
-                    "cost": float(d["kernel_time"]) / mx.size, "setting": f"h = {float(scene['integrator']['h']):g} s"})
-    return closing_section(pts, regime=f"random ensemble of {members} members, t_end = {opt['t_end']} s", unit="s",
-                           error="median over members of max_k |E_k − E₀|/E_mech,0, node values (1)",
-                           cost="kernel wall time per member (s), as the study's runs measured it (default "
-                                "kernel choice and threads)", outdir=outdir)
+def tables(ds, ctx) -> list[Table]:
+    d, rows, q = first_point(ds, ctx, keep=(H,)), [], lambda x, p: float(np.quantile(x, p, method="inverted_cdf"))
+    for h, m, c in ((h, m, c) for h in d[H].values for m in ctx.methods for c in _sfx(ctx)):
+        x = d.sel({H: h, "scheme": m})
+        mx, dr = x[f"max_relative_energy_error{c}"].values, x[f"energy_drift_rate{c}"].values
+        dr = dr[np.isfinite(dr)]
+        if not np.isnan(mx).all():
+            rows.append({"method": m + (f" ({c[1:]} convention)" if c else ""), "h (s)": float(h), "members": mx.size,
+                         "median max |rel. energy error|": q(mx, 0.5), "5% max |rel. energy error|": q(mx, 0.05),
+                         "95% max |rel. energy error|": q(mx, 0.95),
+                         "median final |rel. energy error|": q(x[f"final_relative_energy_error{c}"].values, 0.5),
+                         "median drift rate (1/s)": float(np.median(dr)) if dr.size else np.nan,
+                         "median |drift rate| (1/s)": float(np.median(np.abs(dr))) if dr.size else np.nan,
+                         "blown-up members": int(x["blown_up_members"])})
+    return [Table("energy_drift", f"Relative energy error over {ds.sizes['member']} members, t_end = "
+                  f"{ctx.opt['t_end']:g} s (blown up: failed, or max |error| > {ctx.opt['diverged_above']:g})", rows)]
 
 
-def _finding(rows: list, ds: xr.Dataset) -> str:
-    """Per h: the methods ranked by the median of max |E_k − E_0|/E_mech,0, node values
-    and paper convention apart."""
-    out = ["**Finding.** Median over members of max_k |E_k − E₀| / E_mech,0, ranked per h (node values "
-           "unless marked):", ""]
-    by_h: dict = {}
-    for r in rows:
-        by_h.setdefault(r["h (s)"], []).append(r)
-    for h, rs in by_h.items():
-        rs = sorted(rs, key=lambda r: (not np.isfinite(r["median max|dE|/Emech0"]), r["median max|dE|/Emech0"]))
-        out.append(f"- h = {h:g} s: " + "; ".join(
-            f"{r['method']} {r['median max|dE|/Emech0']:.3g}"
-            + (f" ({r['diverged or failed members']} of {r['members']} members diverged or failed)"
-               if r["diverged or failed members"] > 0 else "")
-            for r in rs))
-    return "\n".join(out)
+def verdicts(ds, ctx) -> list[Verdict]:
+    d, out = first_point(ds, ctx, keep=(H,)), []
+    hs = d[H].values
+    for m in ctx.methods:
+        p, b, e = ctx.model.method_order(m), *(d[v].sel(scheme=m).values for v in ("blown_up_members",
+                                                                                  "median_max_relative_energy_error"))
+        out.append(Verdict(f"no member of {m} blows up", ", ".join(f"h = {h:g}: {n}" for h, n in zip(hs, b)),
+                           "0 blown-up members at every h", bool((b == 0).all())))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            obs = np.log(e[:-1] / e[1:]) / np.log(hs[:-1] / hs[1:])
+        ok = np.isfinite(obs) & (b[:-1] == 0) & (b[1:] == 0) & (e[1:] > 1e-12)
+        out.append(Verdict(f"{m}'s median max error falls at order ≥ {p - 1} as h shrinks", ", ".join(
+            f"{o:.2f}" for o in obs) or "one h", f"observed order ≥ {p} − 1 between neighbouring h (blown up or "
+            "below 1e-12: not decided)", bool((obs[ok] >= p - 1).all()) if ok.any() else None))
+    return out
 
 
-def _figures(ds: xr.Dataset, outdir: Path, keys) -> list[Path]:
-    """One panel per method (rows) and h (columns), so that no band hides
-    another: the 5–95 % band and the median over the members of
-    |E_k − E₀|/E_mech,0 (node values; dashed: the median in the paper's
-    convention).  A member that failed or whose error passed CLIP has blown
-    up: it is drawn at CLIP (dotted line), and the panel's title counts them."""
-    import matplotlib
+def findings(ds, ctx) -> list[str]:
+    d, base, out = first_point(ds, ctx, keep=(H,)), ctx.methods[0], []
+    for h in d[H].values:
+        e = d["median_max_relative_energy_error"].sel({H: h}).to_series().sort_values()
+        beats = ", ".join(m for m in e.index if e[m] > e[base] or not np.isfinite(e[m])) or "no other method"
+        out.append(f"At h = {h:g} s {e.index[0]} has the least median max error ({e.iloc[0]:.3g}); the baseline {base} "
+                   f"({e[base]:.3g}) beats {beats}.")
+    return out
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.lines import Line2D
-    from matplotlib.patches import Patch
 
-    hdim = dim_name("integrator.h")
-    other = {dim_name(k): 0 for k in keys if k != "integrator.h"}
-    if other:
-        ds = ds.isel(other)
-    hs = ds[hdim].values
-    methods = [str(m) for m in ds["scheme"].values]
-    N = int(ds.sizes["member"])
-    t = ds["t"].values
-    later = t > 0  # E_k − E₀ is 0 at t = 0: not on a log axis
-    fig, axes = plt.subplots(len(methods), len(hs), figsize=(1.2 + 3.3 * len(hs), 1.0 + 1.75 * len(methods)),
-                             sharex=True, sharey=True, squeeze=False, layout="constrained")
-    positive, blown = [], False
-    for r, m in enumerate(methods):
-        for c, h in enumerate(hs):
-            ax = axes[r, c]
-            sel = {hdim: h, "scheme": m}
-            q = ds["relative_energy_error_quantiles"].sel(sel).values
-            lo, med, hi = (np.where(np.isnan(x), CLIP, np.minimum(x, CLIP)) for x in q)  # inf, NaN: blown up
-            positive += [x[later & (x > 0)] for x in (lo, med)]
-            ax.fill_between(t[later], lo[later], hi[later], color=f"C{r}", alpha=0.3, lw=0)
-            ax.plot(t[later], med[later], "-", color=f"C{r}", lw=1.4)
-            qp = ds["relative_energy_error_quantiles_paper"].sel(sel).values
-            if not np.all(np.isnan(qp)):
-                medp = np.minimum(np.where(np.isnan(qp[1]), CLIP, qp[1]), CLIP)
-                ax.plot(t[later], medp[later], "--", color="k", lw=1.0)
-            status = ds["status"].sel(sel).values
-            mx = ds["max_relative_energy_error"].sel(sel).values
-            n_blown = int(np.sum((status != 0) | ~(mx < CLIP)))
-            blown |= bool(n_blown) or bool(np.any(hi >= CLIP))
-            title = f"{m}, h = {h:g} s"
-            if n_blown:
-                title += f": {n_blown} of {N} blown up"
-            ax.set_title(title, fontsize=9)
-            ax.set_yscale("log")
-            ax.grid(True, which="major", alpha=0.3)
-    low = min((float(x.min()) for x in positive if x.size), default=1e-8)
-    bottom = 10.0 ** np.floor(np.log10(max(low, 1e-16)))
-    top = 3 * CLIP if blown else 10.0 ** np.ceil(np.log10(max(float(x.max()) for x in positive if x.size)))
-    for ax in axes.ravel():
-        ax.set_ylim(bottom, top)
-        if blown:
-            ax.axhline(CLIP, color="0.4", lw=0.8, ls=":")
-    for ax in axes[-1]:
-        ax.set_xlabel("t (s)")
-    fig.supylabel("|E_k − E_0| / E_mech,0 (1), node values")
-    handles = [Patch(color="0.5", alpha=0.3, label="5–95 % of the members"),
-               Line2D([], [], color="0.3", lw=1.4, label="median"),
-               Line2D([], [], color="k", ls="--", lw=1.0, label="median, paper's convention (step velocity)")]
-    if blown:
-        handles.append(Line2D([], [], color="0.4", ls=":", lw=0.8,
-                              label=f"blown up: failed (non-finite), or the error above {CLIP:g}; drawn at {CLIP:g}"))
-    fig.legend(handles=handles, loc="outside lower center", ncol=2, fontsize=8)
-    fig.suptitle(f"energy error over {N} members per method and h")
-    path = Path(outdir) / "energy_drift_bands.png"
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return [path]
+def draw_bands(d, ctx, fig):
+    hs, t, rows = d[H].values, d["t"].values, -(-d.sizes[H] // 3)
+    fig.set_size_inches(15.5, 1.0 + 4.4 * rows)
+    axes = fig.subplots(rows, min(3, len(hs)), squeeze=False, sharey=True).ravel()
+    for ax, h in zip(axes, hs):
+        x = d.sel({H: h})
+        for m in ctx.methods:
+            for c in _sfx(ctx):
+                q = np.minimum(x[f"relative_energy_error_quantiles{c}"].sel(scheme=m).values, CLIP)[:, t > 0]
+                if not np.isnan(q).all():
+                    ax.plot(t[t > 0], q[1], "--" if c else "-", color=ctx.color(m), lw=1.2, label=m + (
+                        f", {c[1:]} convention" if c else ""))
+                    ax.fill_between(t[t > 0], q[0], q[2], color=ctx.color(m), alpha=0 if c else 0.12, lw=0)
+        blown = ", ".join(f"{m} {n}/{d.sizes['member']}" for m, n in x["blown_up_members"].to_series().items() if n)
+        ax.set(yscale="log", xlabel="t (s)", title=f"h = {h:g} s" + (f"\nblown up: {blown}" if blown else ""))
+        ax.grid(True, which="major", alpha=0.3)
+    axes[0].set_ylabel(f"|relative energy error| (1), median and 5–95 %; ≥ {CLIP:g} drawn at {CLIP:g}")
+    for ax in axes[len(hs):]:
+        ax.set_visible(False)
+    fig.legend(*axes[0].get_legend_handles_labels(), title="scheme", loc="outside right upper", fontsize=8)
+
+
+STUDY = Study(
+    kind="energy_drift", title="Energy drift over a random ensemble", models=None,
+    description="Median and 5-95 % band of the relative energy error per method and h; drift rates; blow-ups",
+    options=(Option("t_end", 30.0, "number>0", "s", "simulated time"), Option("band_dt", 0.2, "number>0", "s",
+                                                                              "time grid of the stored bands"),
+             Option("member_chunk", 1024, "int>=1", "1", "members simulated at a time (bounds memory)"),
+             Option("diverged_above", 1.0, "number>0", "1", "a member whose max |error| passes this blew up"),
+             Option("paper_convention", None, "list[str]", "", "methods also read in the model's other energy "
+                    "convention(s)", optional=True)),
+    check=_check, stages=(Stage("runs", ensemble, over=("point", "scheme")),),
+    quantities=quantities, derive=derive, tables=tables, verdicts=verdicts, findings=findings,
+    figures=(Figure("energy_drift_bands", kind="custom", draw=draw_bands, select=lambda ds, ctx: first_point(
+        ds, ctx, keep=(H,)), claim="how each method's energy error grows over time at each h, and where it blows up"),
+             Figure("energy_drift_error", x=H, y=("median_max_relative_energy_error",), logx=True, logy=True,
+                    select=lambda ds, ctx: first_point(ds, ctx, keep=(H,)),
+                    claim="the median max error against h: a method's slope is its order until it blows up")),
+    report=("Scene `{scene}` ({model}), {members} members with random initial conditions, t_end = {opt[t_end]} s, "
+            "every step stored. The relative energy error is the model's (node values for every method); a member "
+            "**blew up** when its run failed or its max |error| passed {opt[diverged_above]:g}."),
+    facts=lambda ds, ctx: {"members": ds.sizes["member"]},
+)

@@ -195,6 +195,21 @@ class Fluid(Model):
     def relative_energy_error(self, ds):
         return ds["energy_error"].values
 
+    def dissipation_overrides(self, scene, factor: float) -> dict:
+        return {"fluid.kinematic_viscosity": float(f"{float(factor) * scene['fluid']['kinematic_viscosity']:.15g}")}
+
+    def run_with_laws(self, scene, *, kernel=None, threads=None):
+        ds, st = self.run_chunk(scene, 0, int(scene["ensemble"]["members"]), kernel=kernel, threads=threads)
+        with np.errstate(invalid="ignore"):
+            cas = np.nanmax(np.abs(ds["casimir_drift"].values), axis=(1, 2))
+            L = ds["angular_momentum"].values
+            dL = np.nanmax(np.linalg.norm(L - L[:, :1], axis=-1), axis=1)
+        if scene["fluid"]["kinematic_viscosity"] > 0:  # viscosity changes the spectrum of W
+            cas = np.full_like(cas, np.nan)
+        return ds, st, {"casimirs": (cas, "1", "max over t and k of the relative Casimir change "
+                                                    "(the law at zero viscosity; NaN with viscosity)"),
+                        "angular_momentum": (dL, "kg m2 s-1", "max over t of |L - L(0)|")}
+
     def initial_conditions(self, scene, lo: int, hi: int):
         from .run import initial_fields
 
