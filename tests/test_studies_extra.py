@@ -23,10 +23,12 @@ ROOT = Path(__file__).resolve().parents[1]
 STUDIES = ROOT / "studies"
 
 
-def _run(kind: str, outdir: Path, file: str | None = None) -> Path:
+def _run(kind: str, outdir: Path, scene: str | None = None) -> Path:
     from liethermo.studies import get_study
+    from liethermo.studies.common import with_scene
 
-    study = load_study(STUDIES / f"{file or kind}.toml")
+    study = load_study(STUDIES / f"{kind}.toml")
+    study = with_scene(study, scene) if scene else study
     validate_study(study)
     mod = get_study(kind)
     return getattr(mod, "STUDY", mod).run(study, outdir, reduced=True, progress=False)
@@ -41,7 +43,7 @@ def wp(tmp_path_factory):
 @pytest.fixture(scope="module")
 def wpz(tmp_path_factory):
     out = tmp_path_factory.mktemp("work_precision_zeitlin")
-    return _run("work_precision", out, "work_precision_zeitlin"), out
+    return _run("work_precision", out, "zeitlin_decay"), out
 
 
 @pytest.fixture(scope="module")
@@ -107,7 +109,7 @@ def test_work_precision_on_the_fluid(wpz):
     """The same study on a fluid scene: its own methods, the vorticity relative to |W(0)| (heat and entropy start at
     zero and have no relative scale), orders 2/4/6/4, and scipy skipped in one line."""
     report, out = wpz
-    ds = cf.open_dataset(out / "work_precision_zeitlin.nc")
+    ds = cf.open_dataset(out / "work_precision_zeitlin_decay.nc")
     assert list(ds["scheme"].values) == ["split", "split4", "split6", "rk4"] and "solver" not in ds.dims
     assert list(ds["state"].values) == ["vorticity"] and ds.attrs["model"] == "zeitlin"
     assert "solve_ivp is skipped" in report.read_text()
