@@ -1,131 +1,118 @@
-"""Viscous decay of the Zeitlin fluid: a viscosity sweep over an ensemble.
-
-Per viscosity: the heat against the energy lost (their difference is the
-method's total-energy error), the entropy produced (never decreasing, in
-every member and every output), the enstrophy's decay, the spectrum's
-evolution and the angular momentum kept."""
-
-from __future__ import annotations
-
-from pathlib import Path
+"""Viscous decay of the Zeitlin fluid, one run per viscosity: the heat against the energy lost (their
+difference is the method's energy error), entropy, enstrophy, the spectrum over time, the angular momentum."""
 
 import numpy as np
-import pandas as pd
 import xarray as xr
 
-from ..io import write_netcdf_atomic
-from ..zeitlin import run as zr
-from ..zeitlin.plotting import save, spectrum_lines
-from ._zeitlin import zeitlin_scene
-from .common import (StudyError, cached_point, expand_sweep, point_key, start_study, study_history,
-                     study_netcdf_path, study_options, write_report, write_table)
+from ..zeitlin.plotting import spectrum_lines
+from .common import StudyError, dim_name
+from .framework import PALETTE, Figure, Option, Stage, Study, Table, Verdict, run_scene
 
-EXTRA_KEYS = ()
 SWEEP_KEY = "fluid.kinematic_viscosity"
-DEFAULT_OPTIONS = {"method": "split"}
+NU = dim_name(SWEEP_KEY)
 
 
-def options(s: dict) -> dict:
-    return study_options(s, DEFAULT_OPTIONS, "zeitlin_decay")
-
-
-def validate(s: dict) -> None:
-    zeitlin_scene(s)
-    if list((s.get("sweep") or {})) != [SWEEP_KEY]:
+def _check(ctx):
+    if list(ctx.study.get("sweep") or {}) != [SWEEP_KEY]:
         raise StudyError(f"sweep: a zeitlin_decay study sweeps exactly one key, {SWEEP_KEY!r}")
-    if options(s)["method"] not in zr.METHOD_ORDER:
-        raise StudyError(f"options.method: one of {', '.join(zr.METHOD_ORDER)}")
 
 
-def run(study: dict, outdir: Path, *, reduced: bool, progress=None, dask=None, history=None) -> Path:
-    s, outdir, opt = start_study(study, outdir, reduced, validate, options)
-    points = expand_sweep(s["sweep"])
-    rows, dss = [], []
-    for pt in points:
-        sc = zeitlin_scene(s, pt)
-        # each viscosity's ensemble is a point of the resume cache: a stopped study goes on from it
-        key = point_key({"kind": "zeitlin_decay", "scene": sc.to_dict(), "method": opt["method"]})
-        ds = cached_point(outdir, key, lambda sc=sc: zr.simulate(sc, method=opt["method"], progress=progress))
-        nu = float(pt[SWEEP_KEY])
-        H, q = ds["energy"].values, ds["heat"].values
-        lost = H[:, :1] - H
-        L = ds["angular_momentum"].values
-        Z = ds["enstrophy"].values
-        dS = np.diff(ds["entropy"].values, axis=1)
-        rows.append({"viscosity (s-1)": nu, "heat / H(0) at the end": float(np.mean(q[:, -1] / H[:, 0])),
-                     "max |q − (H(0) − H)| / H(0)": float(np.max(np.abs(q - lost) / H[:, :1])),
-                     "entropy produced (J K-1)": float(np.mean(ds["entropy"].values[:, -1])),
-                     "smallest entropy change per output (J K-1)": float(dS.min()),
-                     "enstrophy Z(t_end) / Z(0)": float(np.mean(Z[:, -1] / Z[:, 0])),
-                     "angular momentum drift (relative)": float(np.max(np.abs(L - L[:, :1])) / np.abs(L).max()),
-                     "members failed": int((ds["status"] != 0).sum())})
-        dss.append(ds.drop_vars([v for v in ("vorticity_real", "vorticity_imag") if v in ds])
-                   .expand_dims({"viscosity": [nu]}))
-    df = pd.DataFrame(rows)
-    out = xr.concat(dss, dim="viscosity")
-    out["viscosity"].attrs = {"units": "s-1", "long_name": "kinematic viscosity nu (sweep)", "scene_key": SWEEP_KEY}
-    sc0 = zeitlin_scene(s, points[0])
-    ref = zr.simulate(sc0.with_overrides({"integrator.steps": sc0["output"]["every"]}), method=opt["method"],
-                      progress=False)
-    for v in ref.data_vars:
-        if v in out:
-            out[v].attrs = dict(ref[v].attrs)
-    for c in ("t", "k", "l", "member"):
-        out[c].attrs = dict(ref[c].attrs)
-    out.attrs.update(title="liethermo: Zeitlin fluid, viscous decay (viscosity sweep)", method=opt["method"],
-                     N=int(sc0["zeitlin"]["N"]), h=float(sc0["integrator"]["h"]))
-    write_netcdf_atomic(out, study_netcdf_path(s, outdir),
-                        history=study_history("zeitlin_decay", s, outdir, reduced, history))
-    figs = _figures(out, outdir)
-    table = write_table(df, outdir, "decay", "Energy into heat, entropy, enstrophy and angular momentum per viscosity")
-    text = (f"Scene {sc0.name!r}: N = {sc0['zeitlin']['N']}, {sc0['ensemble']['members']} members, method "
-            f"{opt['method']}, h = {sc0['integrator']['h']:g} s, t = "
-            f"{sc0['integrator']['h'] * sc0['integrator']['steps']:g} s.  The heat equals the energy lost up "
-            f"to the method's total-energy error; the entropy change per output is never negative; the "
-            f"angular momentum (the l = 1 modes) is not damped.\n\n" + "\n\n".join(f"![{f.stem}]({f.name})" for f in figs))
-    return write_report(outdir, "Zeitlin fluid: viscous decay", [text, table])
+def decay(ctx, coords) -> xr.Dataset:
+    sc = ctx.scene(coords["point"])
+    return run_scene(sc, ctx.opt["method"], h=sc["integrator"]["h"], steps=sc["integrator"]["steps"],
+                     every=sc["output"]["every"], output__vorticity=False)[0]
 
 
-def _figures(ds, outdir) -> list[Path]:
-    import matplotlib
+def derive(ds, ctx):
+    H, q, S, Z, L = (ds[v] for v in ("energy", "heat", "entropy", "enstrophy", "angular_momentum"))
+    mta = ("member", "t", "axis")
+    return ds.assign(heat_fraction=(q.isel(t=-1) / H.isel(t=0)).mean("member"),
+                     max_energy_error=abs(ds["energy_error"]).max(mta[:2]),
+                     entropy_produced=S.isel(t=-1).mean("member"), min_entropy_change=S.diff("t").min(mta[:2]),
+                     enstrophy_ratio=(Z.isel(t=-1) / Z.isel(t=0)).mean("member"),
+                     angular_momentum_drift=abs(L - L.isel(t=0)).max(mta) / abs(L).max(mta),
+                     members_failed=(ds["status"] != 0).sum("member"))
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
-    t = ds["t"].values
-    nus = ds["viscosity"].values
-    out = []
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2), layout="constrained")
-    for nu in nus:
-        d = ds.sel(viscosity=nu)
-        H0 = d["energy"].values[:, :1]
-        lost = np.nanmean((H0 - d["energy"].values) / H0, axis=0)
-        heat = np.nanmean(d["heat"].values / H0, axis=0)
-        axes[0].plot(lost, heat, label=f"ν = {nu:g}")
-        axes[1].plot(t, np.nanmean(d["entropy"].values, axis=0), label=f"ν = {nu:g}")
-        Z = d["enstrophy"].values
-        axes[2].semilogy(t, np.nanmean(Z / Z[:, :1], axis=0), label=f"ν = {nu:g}")
-    lim = axes[0].get_xlim()
-    axes[0].plot(lim, lim, "k:", lw=0.8, label="q = H(0) − H")
-    axes[0].set_xlabel("energy lost (H(0) − H)/H(0)")
-    axes[0].set_ylabel("heat q / H(0)")
-    axes[1].set_xlabel("time t (s)")
-    axes[1].set_ylabel("entropy produced (J K⁻¹)")
+#: name: (units, long name, the table's column)
+SUMMARY = {
+    "heat_fraction": ("1", "member mean of q(t_end) / H(0)", "heat / H(0) at the end"),
+    "max_energy_error": ("1", "max over members and t of |H + q - H(0)| / H(0)", "max |H + q − H(0)| / H(0)"),
+    "entropy_produced": ("J K-1", "member mean of the entropy produced by t_end", "entropy produced (J K-1)"),
+    "min_entropy_change": ("J K-1", "smallest entropy change per output", "smallest entropy change per output (J K-1)"),
+    "enstrophy_ratio": ("1", "member mean of Z(t_end) / Z(0)", "enstrophy Z(t_end) / Z(0)"),
+    "angular_momentum_drift": ("1", "max |L - L(0)| / max |L|", "angular momentum drift (relative)"),
+    "members_failed": ("1", "members that failed", "members failed"),
+}
+
+
+def tables(ds, ctx):
+    rows = ds[list(SUMMARY)].to_dataframe().rename(columns={k: v[2] for k, v in SUMMARY.items()})
+    return [Table("decay", "Energy into heat, entropy, enstrophy and angular momentum per viscosity",
+                  rows.rename_axis("viscosity (s-1)").reset_index().to_dict("records"))]
+
+
+def verdicts(ds, ctx):
+    nu, heat = ds[NU].values, ds["heat_fraction"].values
+    dS, dL, bad = ds["min_entropy_change"].values, ds["angular_momentum_drift"].values, int(ds["members_failed"].sum())
+    return [Verdict("more viscosity turns more energy into heat", ", ".join(f"{v:.3g}" for v in heat),
+                    "heat / H(0) grows with ν", bool(np.all(np.diff(heat[np.argsort(nu)]) > 0))),
+            Verdict("the entropy never decreases", f"smallest change {dS.min():.3g} J K-1",
+                    "≥ 0 in every output of every member", bool(dS.min() >= 0)),
+            Verdict("viscosity keeps the angular momentum", f"{dL.max():.2g}", "drift < 1e-10", dL.max() < 1e-10),
+            Verdict("every member completes", f"{bad} failed", "0 failed", bad == 0)]
+
+
+def findings(ds, ctx):
+    return ["Member means: " + "; ".join(
+        f"at ν = {nu:g} s⁻¹ the heat takes {100 * d['heat_fraction'].item():.1f} % of H(0), |H + q − H(0)|/H(0) ≤ "
+        f"{d['max_energy_error'].item():.2g}" for nu, d in ds.groupby(NU)) + " (at ν = 0 the method's energy error)."]
+
+
+def draw_decay(ds, ctx, fig):
+    axes = fig.subplots(1, 3)
+    H0, Z = ds["energy"].isel(t=0), ds["enstrophy"]
+    xy = (((H0 - ds["energy"]) / H0, ds["heat"] / H0), (ds["t"], ds["entropy"]), (ds["t"], Z / Z.isel(t=0)))
+    mean = lambda v, nu: (v.sel({NU: nu}).mean("member") if "member" in v.dims else v).values  # noqa: E731
+    for i, nu in enumerate(ds[NU].values):
+        for a, (x, y) in zip(axes, xy):
+            a.plot(mean(x, nu), mean(y, nu), color=PALETTE[i % len(PALETTE)], label=f"ν = {nu:g} s⁻¹")
+    axes[0].plot(axes[0].get_xlim(), axes[0].get_xlim(), "k:", lw=0.8, label="q = H(0) − H")
+    for a, x, y in zip(axes, ("energy lost (H(0) − H)/H(0) (1)", "time t (s)", "time t (s)"),
+                       ("heat q / H(0) (1)", "entropy produced (J K⁻¹)", "enstrophy Z / Z(0) (1)")):
+        a.set(xlabel=x, ylabel=y, yscale="log" if a is axes[2] else "linear")
+        a.grid(True, alpha=0.3)
     axes[1].ticklabel_format(axis="y", style="sci", scilimits=(-2, 3))
-    axes[2].set_xlabel("time t (s)")
-    axes[2].set_ylabel("enstrophy Z(t)/Z(0)")
-    for a in axes:
-        a.legend(fontsize=8)
-    fig.suptitle("Zeitlin fluid: energy into heat, entropy, enstrophy (member means)", fontsize=10)
-    out.append(save(fig, Path(outdir) / "decay.png"))
-    fig, axes = plt.subplots(1, len(nus), figsize=(3.8 * len(nus) + 0.6, 3.6), sharey=True, squeeze=False,
-                             layout="constrained")
-    for a, nu in zip(axes[0], nus):
-        spectrum_lines(a, ds["l"].values, t, np.nanmean(ds["energy_spectrum"].sel(viscosity=nu).values, axis=0), 5)
-        a.set_title(f"ν = {nu:g} s⁻¹", fontsize=9)
-        a.set_xlabel("degree l")
-    axes[0][0].set_ylabel("E_l (J)")
-    axes[0][-1].legend(fontsize=7)
-    fig.suptitle("energy spectrum over time", fontsize=10)
-    out.append(save(fig, Path(outdir) / "spectrum.png"))
-    return out
+    fig.legend(*axes[0].get_legend_handles_labels(), fontsize=8, loc="outside right upper")
+    return axes
+
+
+def draw_spectrum(ds, ctx, fig):
+    nus = ds[NU].values
+    axes = fig.subplots(-(-len(nus) // 3), min(3, len(nus)), sharey=True, squeeze=False).ravel()
+    for a, nu in zip(axes, nus):
+        spectrum_lines(a, ds["l"].values, ds["t"].values, ds["energy_spectrum"].sel({NU: nu}).values, 5)
+        a.set(title=f"ν = {nu:g} s⁻¹", xlabel="degree l", ylabel="E_l (J)")
+    for a in axes[len(nus):]:
+        a.set_visible(False)
+    fig.legend(*axes[0].get_legend_handles_labels(), fontsize=7, loc="outside right upper")
+    return axes
+
+
+STUDY = Study(
+    kind="zeitlin_decay", title="Zeitlin fluid: viscous decay", models=("zeitlin",), needs_methods=False,
+    description="Energy into heat and entropy per viscosity, over an ensemble",
+    options=(Option("method", "split", "one of split|split4|split6|rk4|reference", "", "the method run"),),
+    check=_check, stages=(Stage("decay", decay, over=("point",)),),
+    quantities={NU: ("s-1", "kinematic viscosity nu (sweep)"), **{k: v[:2] for k, v in SUMMARY.items()}},
+    derive=derive, tables=tables, verdicts=verdicts, findings=findings,
+    facts=lambda ds, ctx: {"sc": ctx.scene(ctx.points[0] if ctx.points else None)},
+    figures=(Figure("decay", kind="custom", draw=draw_decay, select=lambda ds, ctx: ds, size=(15, 4.4),
+                    claim="the heat follows the energy lost (the dotted diagonal), the entropy rises, and the "
+                          "enstrophy decays faster at larger ν (member means)"),
+             Figure("spectrum", kind="custom", draw=draw_spectrum, select=lambda ds, ctx: ds, size=(12, 4),
+                    claim="at ν = 0 the energy spreads to high degrees; viscosity drains them, the highest most")),
+    report=("Scene `{scene}`: N = {sc[zeitlin][N]}, {sc[ensemble][members]} members, method {opt[method]}, "
+            "{sc[integrator][steps]} steps of h = {sc[integrator][h]:g} s. The heat equals the energy lost up to "
+            "the method's energy error H + q − H(0); the verdicts check the other laws."),
+)
