@@ -2,7 +2,7 @@
 
 ``python benchmarks/timing_noise.py`` times the paper scene's ``vi`` and ``rk4``
 (``--members`` members of the scene's own ensemble, ``--steps`` steps, keeping
-the last state) with :func:`liethermo.studies.timing.measure`: one warm-up call
+the last state) with :func:`liethermo.timing.measure`: one warm-up call
 each (compilation or the numba cache), then ``--repeats`` interleaved rounds in
 rotated order, numba and BLAS pinned to ``--threads`` threads.  A sample is the
 kernel time the run reports (``Trajectory.wall_time``).  It prints per method the
@@ -45,7 +45,7 @@ def main(argv=None) -> int:
     from liethermo.initial import initial_conditions
     from liethermo.resolve import resolve
     from liethermo.scene import load_scene
-    from liethermo.studies.timing import describe, format_seconds, measure
+    from liethermo.timing import describe, format_seconds, measure
 
     def candidate(method: str):
         scene = load_scene("paper", {"ensemble.members": args.members, "integrator.steps": args.steps,

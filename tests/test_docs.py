@@ -282,7 +282,7 @@ def test_errata_e4_paper_start_node_velocity(model_md):
     𝕀⁻¹μ₀ = (−1.249, 1.031, 1.016) rad/s, not Ω(0) — half a step of the gravity
     torque, 1.30 rad/s — an energy error of 3.1 % of E_mech,0 at k = 0; the
     legendre start gives Ω(0) exactly."""
-    from liethermo.studies.tools import energy_errors
+    from liethermo.laws import energy_errors
 
     phys = paper_physics()
     assert _quotes(model_md, "$\\mathbb{I}^{-1}\\mu_0 = (-1.249, 1.031, 1.016)$")
@@ -370,7 +370,7 @@ def test_energy_diagnostics_table(model_md):
     convention for vi (legendre, symmetric), 0.022 and 0.099 for vi with the
     paper's start, 0.011 for rk2 and 8.1e-5 for rk4."""
     from liethermo.initial import initial_conditions
-    from liethermo.studies.tools import energy_errors
+    from liethermo.laws import energy_errors
 
     sc = load_scene("paper", {"ensemble.members": 24, "ensemble.seed": 0})
     om, R = initial_conditions(sc)

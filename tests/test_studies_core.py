@@ -489,7 +489,7 @@ def test_the_scipy_baseline_integrates_every_term_the_kernels_do(extra):
     from liethermo.physics import physics_of_scene
     from liethermo.scene import load_scene
     from liethermo.simulate import simulate
-    from liethermo.studies.tools import continuous_rhs
+    from liethermo.laws import continuous_rhs
 
     sc = load_scene("paper")
     phys = replace(physics_of_scene(sc, 1), **{k: np.array([v]) for k, v in extra.items()})

@@ -17,7 +17,7 @@ from liethermo.physics import mechanical_energy_scale, potential_energy
 from liethermo.simulate import simulate
 from liethermo.studies.common import StudyError
 from liethermo.studies.runner import load_study, validate_study
-from liethermo.studies.tools import continuous_kelvin_noether_residual, kelvin_noether_residual
+from liethermo.laws import continuous_kelvin_noether_residual, kelvin_noether_residual
 
 STUDIES = Path(__file__).resolve().parents[1] / "studies"
 

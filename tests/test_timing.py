@@ -1,4 +1,4 @@
-"""Repeated, interleaved timings (liethermo.studies.timing) with fake clocks and callables."""
+"""Repeated, interleaved timings (liethermo.timing) with fake clocks and callables."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import numpy as np  # noqa: F401  (loads the BLAS that threadpoolctl limits)
 import pytest
 import threadpoolctl
 
-from liethermo.studies.timing import (Cost, compare, describe, equal_cost_check, format_cost,
+from liethermo.timing import (Cost, compare, describe, equal_cost_check, format_cost,
                                       format_seconds, measure, pinned_threads, rank)
 
 

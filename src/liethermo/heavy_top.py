@@ -313,8 +313,8 @@ def law_defects(traj) -> dict:
     """Per member, the defects of the exact laws a run of the top can be held to:
     |Γ| = 1 on the stored nodes and, where every step is stored, the
     Kelvin–Noether law (discrete for the variational integrators, continuous by
-    the trapezoid rule for every method: :mod:`liethermo.studies.tools`)."""
-    from .studies.tools import continuous_kelvin_noether_residual, kelvin_noether_residual
+    the trapezoid rule for every method: :mod:`liethermo.laws`)."""
+    from .laws import continuous_kelvin_noether_residual, kelvin_noether_residual
 
     with np.errstate(invalid="ignore"):
         gdef = np.nanmax(np.abs(np.linalg.norm(traj.gamma, axis=-1) - 1.0), axis=1)
@@ -574,7 +574,7 @@ class HeavyTop(Model):
     def ode(self, scene, lo, hi):
         from .initial import initial_conditions
         from .physics import physics_of_scene
-        from .studies.tools import continuous_rhs
+        from .laws import continuous_rhs
 
         om, R = initial_conditions(scene, lo, hi)
         phys = physics_of_scene(scene, hi - lo)  # the same physics for every member

@@ -1,40 +1,12 @@
-"""Helpers shared by the study modules: sweeps, resume cache, tables, reports.
+"""What the study framework (:mod:`liethermo.studies.framework`) and the
+runner share: resolving a study file (its ``[reduced]`` and ``[model.<name>]``
+tables), sweep points and their keys, the scene of a point, the atomic
+writers and the resume cache (from the I/O layer), tables and reports.
 
-Contract of a study module ``liethermo.studies.<kind>``:
-
-1. It exposes ``run(study, outdir, *, reduced, progress, dask=None, history=None) -> Path``
-   returning the path of its markdown report (``outdir/report.md``);
-   ``history`` (the command line, or by default the API call, see
-   :func:`study_history`) goes into the netCDF's ``history`` attribute.
-   ``study`` is the parsed TOML as given (the ``[reduced]`` table still in
-   it); the module calls :func:`resolve_study` to apply the reduced mode.
-2. It may expose ``EXTRA_KEYS`` (top-level TOML keys it accepts besides
-   :data:`BASE_KEYS`) and ``validate(study)`` raising :class:`StudyError`;
-   the runner calls both before any work starts.
-3. Each sweep point (and method) is computed through :func:`cached_point`,
-   so an interrupted study resumes without recomputing finished points.
-4. It writes one netCDF (:func:`study_netcdf_path`: sweep keys as dimensions
-   named by :func:`dim_name`, the run datasets' variable names plus the
-   study's statistics), tables as CSV (:func:`write_table`), PNG figures, and the
-   report; the first table of the report is its key table, which the
-   command line prints.
-5. The method axis of a study dataset is called ``scheme`` (a dimension
-   named ``method`` clashes with ``DataArray.sel(method=...)``); its labels
-   are the method specs of :func:`parse_method` (``"vi:staggered"``, …).
-
-Study TOML layout::
-
-    [study]
-    kind = "convergence"
-    name = "convergence"
-    base_scene = "paper"          # a built-in scene, a scene file (relative to the study file) or an inline table
-    [scene.integrator]            # optional: scene keys applied on top of the base scene
-    steps = 100
-    [sweep]
-    "integrator.h" = [0.1, 0.05]
-    methods = ["vi", "rk2"]       # (top-level key, before any table)
-    [reduced.sweep]               # reduced mode: tables merge key by key, other values replace
-    "integrator.h" = [0.1]
+The method axis of a study dataset is called ``scheme`` (a dimension named
+``method`` clashes with ``DataArray.sel(method=...)``); its labels are the
+method labels of the base scene's model (``"vi:staggered"``, ``"split4"``, …).
+See docs/studies.md for the study file.
 """
 
 from __future__ import annotations
@@ -47,7 +19,7 @@ import json
 import math
 import os
 from pathlib import Path
-from typing import Any, Callable, Iterable
+from typing import Any, Iterable
 
 import numpy as np
 import xarray as xr
@@ -115,19 +87,6 @@ def base_model(study: dict) -> str:
     return model_of(load_scene(_base_scene(study), validate_scene=False)).name
 
 
-def start_study(study: dict, outdir, reduced: bool, validate: Callable[[dict], None],
-                options: Callable[[dict], dict]) -> tuple[dict, Path, dict]:
-    """The opening of every study's ``run``: the resolved study (reduced mode
-    applied), validated, its options, and the output folder (created once the
-    study and its options are known to be valid)."""
-    s = resolve_study(study, reduced)
-    validate(s)
-    opt = options(s)
-    out = Path(outdir)
-    out.mkdir(parents=True, exist_ok=True)
-    return s, out, opt
-
-
 def nested(overrides: dict | None) -> dict:
     """``{"section.key": v}`` (or already nested ``{section: {key: v}}``) → nested dict."""
     out: dict[str, dict[str, Any]] = {}
@@ -190,16 +149,6 @@ def study_netcdf_path(study: dict, outdir: Path) -> Path:
 
 # ----------------------------------------------------------------------------- sweeps
 
-def study_options(study: dict, defaults: dict, kind: str) -> dict:
-    """The study's ``[options]`` over its kind's defaults; an unknown option is an error."""
-    opt = copy.deepcopy(defaults)
-    for k, v in (study.get("options", {}) or {}).items():
-        if k not in defaults:
-            raise StudyError(f"options.{k}: unknown option of a {kind} study; known: "
-                             f"{', '.join(sorted(defaults))}")
-        opt[k] = v
-    return opt
-
 
 def expand_sweep(sweep: dict | None) -> list[dict]:
     """Cartesian product of ``{"section.key": [values]}``, in the order given
@@ -251,20 +200,6 @@ def status_units(not_run: bool = False) -> tuple[str, str]:
 
     codes = ([(-1, "not run")] if not_run else []) + sorted(STATUS_MEANINGS.items())
     return "1", "member status (" + ", ".join(f"{k} {v}" for k, v in codes) + ")"
-
-
-#: (units, long_name) of the variables several studies write, under one name
-_SHARED_UNITS = {
-    "gamma_defect": ("1", "max_k ||Gamma_k| - 1|"),
-    "max_relative_energy_error": ("1", "max_k |E_k - E_0| / E_mech,0, node values (failed: inf)"),
-    "final_relative_energy_error": ("1", "|E_K - E_0| / E_mech,0 at t_end, node values"),
-    "relative_energy_error_quantiles": ("1", "quantiles over members of |E_k - E_0| / E_mech,0, node values"),
-}
-
-
-def shared_units(*names: str) -> dict:
-    """The (units, long_name) of variables several studies write (one spelling)."""
-    return {k: _SHARED_UNITS[k] for k in names}
 
 
 def fmt(v) -> str:
@@ -428,41 +363,24 @@ def method_choice(spec) -> "MethodChoice":
     return _parse_choice(spec["label"] if isinstance(spec, dict) else spec)
 
 
-def method_kwargs(spec: dict) -> dict:
-    """The ``simulate`` keywords of a parsed method spec (passing
-    :func:`method_choice` as the method, :func:`simulate` needs none)."""
-    return method_choice(spec).asked()
-
-
 def method_overrides(spec: dict) -> dict:
     """Scene overrides that make a scene run a parsed method spec."""
     return method_choice(spec).overrides()
 
 
-# ----------------------------------------------------------------------------- closing table
-
-#: the laws the closing tables report, in the words of the reports
-CLOSING_LAWS = (("unit_gamma", "|Γ| = 1"), ("kelvin_noether", "Kelvin–Noether"),
-                ("entropy_monotone", "entropy monotone"))
-#: costs within this factor of the least count as a tie: the figures are timings on a shared machine
-COST_TIE = 1.1
-
-
-def step_text(hs) -> str:
-    """"h = a s", or "h = a–b s" where a method ran at several steps."""
-    lo, hi = float(min(hs)), float(max(hs))
-    return f"h = {lo:.3g} s" if f"{lo:.3g}" == f"{hi:.3g}" else f"h = {lo:.3g}–{hi:.3g} s"
+# ----------------------------------------------------------------------------- laws a method keeps
 
 
 def kept_laws(label: str) -> str:
-    """The laws of :data:`CLOSING_LAWS` that the method of spec ``label``
+    """The laws among |Γ| = 1, Kelvin–Noether and entropy monotone that the method of ``label``
     declares (:mod:`liethermo.methods`), e.g. "|Γ| = 1, Kelvin–Noether";
     a method from outside liethermo (scipy's) declares none."""
     from ..methods import METHODS
 
     name = str(label).split(":")[0]
     laws = METHODS[name].laws if name in METHODS else ()
-    kept = [text for law, text in CLOSING_LAWS if law in laws]
+    kept = [text for law, text in (("unit_gamma", "|Γ| = 1"), ("kelvin_noether", "Kelvin–Noether"),
+                                   ("entropy_monotone", "entropy monotone")) if law in laws]
     return ", ".join(kept) if kept else "none of these"
 
 
@@ -475,107 +393,3 @@ def keeps_geometry(label: str) -> bool:
     return name in METHODS and {LAW_UNIT_GAMMA, LAW_KELVIN_NOETHER} <= set(METHODS[name].laws)
 
 
-def error_levels(errors, count: int = 3) -> list[float]:
-    """Up to ``count`` powers of ten, from the least accurate level the data
-    reach to the most accurate one, evenly spread over the decades."""
-    e = np.asarray([x for x in errors if np.isfinite(x) and x > 0], float)
-    if e.size == 0:
-        return []
-    hi = math.ceil(math.log10(e.max()))
-    lo = math.ceil(math.log10(e.min()))  # the finest power of ten some point reaches
-    if hi <= lo:
-        return [10.0 ** lo]
-    ks = np.unique(np.round(np.linspace(hi, lo, min(count, hi - lo + 1))).astype(int))[::-1]
-    return [10.0 ** int(k) for k in ks]
-
-
-def cheapest_per_level(points, levels) -> list[dict]:
-    """For each error level ε: the points (dicts with ``method``, ``error``,
-    ``cost`` and optionally ``setting``) whose error is ≤ ε, the cheapest
-    first, with every method whose own cheapest such point costs at most
-    :data:`COST_TIE` × the least (a tie on a shared machine).  Returns
-    ``{"level", "winners": [point, …]}`` per level (``winners`` empty: no
-    point reached it)."""
-    out = []
-    for eps in levels:
-        best: dict[str, dict] = {}
-        for p in points:
-            if np.isfinite(p["error"]) and p["error"] <= eps and np.isfinite(p["cost"]):
-                if p["method"] not in best or p["cost"] < best[p["method"]]["cost"]:
-                    best[p["method"]] = p
-        ranked = sorted(best.values(), key=lambda p: p["cost"])
-        if ranked:
-            ranked = [p for p in ranked if p["cost"] <= COST_TIE * ranked[0]["cost"]]
-        out.append({"level": float(eps), "winners": ranked})
-    return out
-
-
-def closing_section(points, *, regime: str, error: str, cost: str, levels=None, unit: str = "s",
-                    outdir=None) -> str:
-    """The closing section of a study report, from the study's own numbers:
-    for each error level, the method that reaches it at least cost and what
-    it keeps (its declared laws) — and, where it keeps neither |Γ| = 1 nor
-    the Kelvin–Noether law, the cheapest method that keeps both and its cost
-    relative to the winner — then one sentence naming the winners.
-
-    ``points``: dicts ``{"method": spec label, "error": …, "cost": …,
-    "setting": text (e.g. "h = 0.1 s")}``; ``error`` and ``cost`` say what the
-    numbers are (with units); ``levels``: the error levels (default
-    :func:`error_levels` of the points' errors); ``outdir``: also write the
-    table as ``closing.csv``."""
-    import pandas as pd
-
-    points = list(points)
-    levels = error_levels([p["error"] for p in points]) if levels is None else [float(x) for x in levels]
-    rows = []
-    said = []
-    for r in cheapest_per_level(points, levels):
-        w = r["winners"]
-        if not w:
-            rows.append({"error ≤": r["level"], "cheapest method": "not reached", "at": "—",
-                         "error": float("nan"), f"cost ({unit})": float("nan"), "keeps": "—",
-                         "cheapest keeping |Γ| = 1 and Kelvin–Noether": "—"})
-            said.append(f"no method reached {r['level']:.0e}")
-            continue
-        geo = None  # the cheapest point reaching the level with a method that keeps |Γ| and Kelvin–Noether
-        if not any(keeps_geometry(p["method"]) for p in w):
-            ok = [p for p in points if keeps_geometry(p["method"]) and np.isfinite(p["error"])
-                  and p["error"] <= r["level"] and np.isfinite(p["cost"])]
-            geo = min(ok, key=lambda p: p["cost"]) if ok else None
-        alt = (f"{geo['method']} ({geo['cost'] / w[0]['cost']:.3g}× the cost)" if geo is not None
-               else "the same" if any(keeps_geometry(p["method"]) for p in w) else "none reached it")
-        for p in w:
-            rows.append({"error ≤": r["level"], "cheapest method": p["method"], "at": p.get("setting", "—"),
-                         "error": float(p["error"]), f"cost ({unit})": float(p["cost"]),
-                         "keeps": kept_laws(p["method"]), "cheapest keeping |Γ| = 1 and Kelvin–Noether": alt})
-        names = " and ".join(f"{p['method']} ({p['cost']:.3g} {unit})" for p in w)
-        said.append(f"to {r['level']:.0e}: {names}" + (" — a tie within "
-                                                       f"{round(100 * (COST_TIE - 1))} %" if len(w) > 1 else "")
-                    + (f" (keeping |Γ| = 1 and Kelvin–Noether: {alt})" if geo is not None else ""))
-    df = pd.DataFrame(rows, columns=["error ≤", "cheapest method", "at", "error", f"cost ({unit})", "keeps",
-                                     "cheapest keeping |Γ| = 1 and Kelvin–Noether"])
-    title = f"Closing: the cheapest method per error level ({regime})"
-    footer = (f"Error: {error}. Cost: {cost}. \"keeps\": the laws the method declares "
-              f"(`liethermo.methods`) among |Γ| = 1, Kelvin–Noether and entropy monotone.")
-    if outdir is not None:
-        table = write_table(df, outdir, "closing", title)
-    else:
-        table = markdown_table(df, title, "")
-    sentence = ("**Cheapest here** " + ("; ".join(said) if said else "— no point has a finite error and cost")
-                + ".")
-    return "\n\n".join([table.rstrip("\n"), footer, sentence])
-
-
-def closing_fact(regime: str, missing: str, fact_rows=None, fact_title: str = "", sentence: str = "") -> str:
-    """The closing section of a study that measures no cost against error:
-    one sentence on what the cheapest-method table would need (``missing``),
-    and the analogous fact the study does measure (``fact_rows`` under
-    ``fact_title``, with ``sentence`` built from them)."""
-    import pandas as pd
-
-    parts = [f"### Closing: cost against error ({regime})", "", missing]
-    if fact_rows:
-        parts += ["", markdown_table(pd.DataFrame(list(fact_rows)), fact_title, "").rstrip("\n")]
-    if sentence:
-        parts += ["", sentence]
-    return "\n".join(parts)

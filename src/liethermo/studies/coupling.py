@@ -16,7 +16,8 @@ from ..kernels.terms import ROLE_LINEAR_FRICTION, ROLE_THERMAL_COUPLING, key_of
 from ..physics import inertia_scale, internal_energy_change, physics_of_scene
 from .common import StudyError, dim_name, parse_method, shared_units, status_units
 from .framework import Figure, Option, Stage, Study, Table, Verdict
-from .tools import (column, direction_angle, energy_errors, ensemble, pad_members, quantile_columns, reference_label,
+from ..laws import energy_errors
+from .tools import (column, direction_angle, ensemble, pad_members, quantile_columns, reference_label,
                     rotation_angle, run_spec, same_members, settling_time)
 
 SWEEP_KEY = key_of(ROLE_THERMAL_COUPLING)

@@ -12,7 +12,7 @@ import math
 import numpy as np
 import xarray as xr
 
-from . import timing
+from .. import timing
 from .common import StudyError
 from .framework import Figure, Option, Stage, Study, Table, Verdict, first_point
 from ..models import Model

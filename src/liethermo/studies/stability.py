@@ -13,7 +13,7 @@ from ..physics import kinetic_energy, physics_of_scene, potential_energy
 from ..simulate import simulate
 from .common import StudyError, keeps_geometry, method_choice, status_units
 from .framework import Figure, Option, Stage, Study, Table, Verdict
-from .timing import pinned_threads
+from ..timing import pinned_threads
 
 CLASSES = ["accurate", "bounded", "unbounded", "newton_not_converged", "non_finite"]
 

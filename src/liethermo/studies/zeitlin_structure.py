@@ -8,7 +8,7 @@ from functools import partial
 import numpy as np
 import xarray as xr
 
-from . import timing
+from .. import timing
 from .common import StudyError, cached_point
 from .framework import MARKERS, Figure, Option, Stage, Study, Table, Verdict, _key, run_scene
 
