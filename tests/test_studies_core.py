@@ -358,7 +358,6 @@ def test_paper_study_figures_and_errata(paper):
     assert "FAILS" not in report.read_text()
 
 
-
 @pytest.mark.parametrize("which", ["convergence", "energy_drift", "paper"])
 def test_study_netcdf_is_cf_clean(which, request):
     """compliance-checker at the declared CF version: no error, no check that
@@ -369,7 +368,6 @@ def test_study_netcdf_is_cf_clean(which, request):
     out, _, ds = request.getfixturevalue(which)
     assert_cf_clean(out / f"{which}.nc")
     assert ds.attrs["history"].split(": ", 1)[1].startswith(f"liethermo.study('{STUDIES / which}.toml', reduced=True")
-
 
 
 @pytest.mark.parametrize("which", ["convergence", "energy_drift", "paper"])
@@ -397,42 +395,7 @@ if __name__ == "__main__":  # pragma: no cover
     sys.exit(pytest.main([__file__, "-q"]))
 
 
-# ----------------------------------------------------------------------------- closing tables
-
-CLOSING_POINTS = [
-    {"method": "rk2", "error": 2e-3, "cost": 0.5, "setting": "h = 0.1 s"},
-    {"method": "vi", "error": 1e-3, "cost": 1.0, "setting": "h = 0.1 s"},
-    {"method": "vi4", "error": 9e-4, "cost": 1.05, "setting": "h = 0.2 s"},
-    {"method": "vi", "error": 1e-6, "cost": 8.0, "setting": "h = 0.01 s"},
-    {"method": "rk4", "error": 5e-4, "cost": 2.0, "setting": "h = 0.1 s"},
-    {"method": "rk4", "error": 1e-7, "cost": 3.0, "setting": "h = 0.05 s"},
-    {"method": "rk4", "error": float("inf"), "cost": 0.1, "setting": "h = 0.4 s"},
-]
-
-
-def test_closing_table_names_the_cheapest_method_per_level_from_the_numbers(tmp_path):
-    levels = [1e-2, 1e-3, 1e-6, 1e-9]
-    r = common.cheapest_per_level(CLOSING_POINTS, levels)
-    assert [p["method"] for p in r[0]["winners"]] == ["rk2"]
-    assert [p["method"] for p in r[1]["winners"]] == ["vi", "vi4"]  # 1.05 is a tie within 10 %
-    assert [(p["method"], p["cost"]) for p in r[2]["winners"]] == [("rk4", 3.0)]
-    assert r[3]["winners"] == []  # the failed (infinite-error) point never wins
-    text = common.closing_section(CLOSING_POINTS, regime="test", error="e (1)", cost="c (s)", levels=levels,
-                                  outdir=tmp_path)
-    sentence = text.rstrip().splitlines()[-1]
-    assert sentence.startswith("**Cheapest here**")
-    assert "to 1e-02: rk2 (0.5 s)" in sentence and "to 1e-06: rk4 (3 s)" in sentence
-    assert "vi (1 s) and vi4 (1.05 s)" in sentence and "no method reached 1e-09" in sentence
-    df = pd.read_csv(tmp_path / "closing.csv")
-    assert df.loc[df["cheapest method"] == "vi4", "keeps"].item() == "|Γ| = 1, Kelvin–Noether"
-    # rk2 wins 1e-2 at 0.5 s; the cheapest structure-preserving method there is vi at 1 s: 2×
-    alt = df.set_index("cheapest method")["cheapest keeping |Γ| = 1 and Kelvin–Noether"]
-    assert alt["rk2"] == "vi (2× the cost)" and alt["rk4"] == "vi (2.67× the cost)" and alt["vi"] == "the same"
-    assert "(keeping |Γ| = 1 and Kelvin–Noether: vi (2× the cost))" in sentence
-    # change the numbers and the winner changes with them
-    cheaper_vi = [dict(p, cost=0.01) if p["method"] == "vi" else p for p in CLOSING_POINTS]
-    assert "to 1e-06: vi (0.01 s)" in common.closing_section(cheaper_vi, regime="t", error="e", cost="c",
-                                                             levels=levels)
+# ----------------------------------------------------------------------------- laws the methods declare
 
 
 def test_kept_laws_are_the_declared_ones():
@@ -446,17 +409,6 @@ def test_kept_laws_are_the_declared_ones():
     assert common.kept_laws("split") == "|Γ| = 1, entropy monotone"
     assert common.kept_laws("split4") == common.kept_laws("split6") == "|Γ| = 1"
     assert common.kept_laws("rk4") == common.kept_laws("scipy DOP853") == "none of these"
-
-
-def test_error_levels_span_the_decades_reached():
-    assert common.error_levels([3e-2, 4e-5, 2e-9, float("inf"), float("nan")]) == [1e-1, 1e-4, 1e-8]
-    assert common.error_levels([0.5]) == [1.0]
-    assert common.error_levels([float("inf")]) == []
-
-
-def _last_section(report: Path) -> str:
-    text = report.read_text()
-    return text[text.rindex("### Closing"):]
 
 
 def test_convergence_closes_with_its_own_numbers(convergence):

@@ -14,7 +14,7 @@ import xarray as xr
 from ..dataset import node_energies
 from ..kernels.terms import ROLE_LINEAR_FRICTION, ROLE_THERMAL_COUPLING, key_of
 from ..physics import inertia_scale, internal_energy_change, physics_of_scene
-from .common import StudyError, dim_name, parse_method, shared_units, status_units
+from .common import StudyError, dim_name, parse_method, status_units
 from .framework import Figure, Option, Stage, Study, Table, Verdict
 from ..laws import energy_errors
 from .tools import (column, direction_angle, ensemble, pad_members, quantile_columns, reference_label,
@@ -99,7 +99,7 @@ def derive(ds, ctx):
 
 
 _VS, _VR, _E = "at alpha = 0 (same member)", "the reference's (same member and alpha)", "|E_k - E_0|/E_mech,0"
-Q = {**shared_units("gamma_defect", "max_relative_energy_error"), "relative_energy_error_quantiles": ("1", _E),
+Q = {"relative_energy_error_quantiles": ("1", _E),
      DIM: ("K-1", "thermal expansion alpha: I(S) = I0 (1 + alpha (theta - T0))^2"), "status": status_units(True),
      "settling_time": ("s", "settling time of E_mech above rest"), "t": ("s", "time t_k = k h"),
      "final_attitude": ("1", "attitude R at t_end"), "final_temperature": ("K", "temperature T = -dL/dS at t_end"),

@@ -477,6 +477,8 @@ COMMON_QUANTITIES = {
     "t": ("s", "time"),
     "axis": ("1", "body axis"),
     "status": ("1", "member status (0 ok)"),
+    "gamma_defect": ("1", "max_k ||Gamma_k| - 1|"),
+    "max_relative_energy_error": ("1", "max_k |E_k - E_0| / E_mech,0, node values (failed: inf)"),
 }
 
 
