@@ -357,7 +357,7 @@ def _parse_choice(label):
         raise StudyError(f"methods: {exc}") from None
 
 
-def method_choice(spec) -> "MethodChoice":
+def method_choice(spec):
     """The :class:`liethermo.methods.MethodChoice` of a method label or of a
     parsed spec (:func:`parse_method`)."""
     return _parse_choice(spec["label"] if isinstance(spec, dict) else spec)

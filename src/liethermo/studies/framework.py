@@ -57,12 +57,10 @@ _RULES = {
     "number>=0": ("a number ≥ 0", lambda v: _num(v) and v >= 0),
     "number": ("a number", _num),
     "fraction": ("a number in (0, 1)", lambda v: _num(v) and 0 < v < 1),
-    "int>=1": ("an integer ≥ 1", lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 1),
-    "int>=0": ("an integer ≥ 0", lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 0),
-    "int>=2": ("an integer ≥ 2", lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 2),
-    "int>=3": ("an integer ≥ 3", lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 3),
     "bool": ("true or false", lambda v: isinstance(v, bool)),
     "str": ("a string", lambda v: isinstance(v, str)),
+    **{f"int>={n}": (f"an integer ≥ {n}", lambda v, n=n: isinstance(v, int) and not isinstance(v, bool) and v >= n)
+       for n in range(4)},
 }
 
 
@@ -185,11 +183,6 @@ class Study:
     figures: tuple[Figure, ...] = ()
     extra_keys: tuple[str, ...] = ()
 
-    # ------------------------------------------------------------ the module contract
-    @property
-    def EXTRA_KEYS(self):  # noqa: N802 - the contract's name
-        return self.extra_keys
-
     def option_values(self, s: dict) -> dict:
         given = s.get("options", {}) or {}
         if not isinstance(given, dict):
@@ -306,12 +299,13 @@ class Context:
 # ----------------------------------------------------------------------------- runs
 
 def run_scene(scene, method: str, *, h: float, steps: int, every: int = 1, members: int | None = None,
-              threads: int | None = None, **overrides):
+              threads: int | None = None, kernel: str | None = None, **overrides):
     """Members ``0:members`` of ``scene`` run with ``method`` (a label of the
     scene's model) at step ``h``: ``(labelled dataset, stats)`` from the model
     (:meth:`liethermo.models.Model.run_chunk`), storing what the model's
     :meth:`~liethermo.models.Model.study_state` reads.  ``stats.kernel_time``
-    is the integration's wall time, compilation excluded."""
+    is the integration's wall time, compilation excluded; ``kernel``, ``threads``:
+    the ensemble loop and its threads (the model's choice by default)."""
     from ..models import model_of
 
     model = model_of(scene)
@@ -322,7 +316,7 @@ def run_scene(scene, method: str, *, h: float, steps: int, every: int = 1, membe
         over["ensemble.members"] = int(members)
     sc = scene.with_overrides(over)
     n = int(sc["ensemble"]["members"])
-    return model.run_chunk(sc, 0, n, threads=threads)
+    return model.run_chunk(sc, 0, n, threads=threads, kernel=kernel)
 
 
 # ----------------------------------------------------------------------------- computing
@@ -346,14 +340,11 @@ def _tasks(study: Study, ctx: Context, stage: Stage) -> list[dict]:
     return [dict(zip([a for a, _ in axes], combo)) for combo in itertools.product(*(v for _, v in axes))]
 
 
-def _key(study: Study, ctx: Context, stage: Stage, coords: dict) -> str:
+def task_key(study: Study, ctx: Context, stage: Stage, coords: dict) -> str:
+    """The name of a task's file in the resume cache (``ctx.outdir/points/<key>.nc``)."""
     scene = ctx.scene(coords.get("point"))
     return point_key({"kind": study.kind, "stage": stage.name, "coords": coords, "opt": ctx.opt,
                       "scene": scene})
-
-
-def _sub(coords: dict, over: tuple[str, ...]) -> dict:
-    return {k: coords[k] for k in over}
 
 
 def run_stage_task(kind: str, stage_name: str, ctx: Context, coords: dict, needed: dict) -> xr.Dataset:
@@ -370,16 +361,12 @@ def _compute(study: Study, ctx: Context, progress, dask) -> dict[str, list[tuple
 
     stages = {s.name: s for s in study.stages}
     plan = {s.name: _tasks(study, ctx, s) for s in study.stages}
-    keys = {s.name: [_key(study, ctx, s, c) for c in plan[s.name]] for s in study.stages}
+    keys = {s.name: [task_key(study, ctx, s, c) for c in plan[s.name]] for s in study.stages}
     results: dict[str, list[tuple[dict, xr.Dataset]]] = {}
     done: dict[tuple[str, str], xr.Dataset] = {}
 
     def needed(stage: Stage, coords: dict) -> dict:
-        out = {}
-        for n in stage.needs:
-            sub = _sub(coords, stages[n].over)
-            out[n] = done[(n, point_key(sub))]
-        return out
+        return {n: done[(n, point_key({k: coords[k] for k in stages[n].over}))] for n in stage.needs}
 
     total = sum(len(v) for v in plan.values())
     client_cm = None
@@ -454,10 +441,11 @@ def _label(study: Study, ctx: Context, ds: xr.Dataset) -> None:
             ds[name].attrs.update(units=units, long_name=long_name)
         elif name in ds.data_vars and "units" not in ds[name].attrs:
             raise RuntimeError(f"the {study.kind} study writes {name!r} without declaring its quantity")
+    units = {f"{k.section}.{k.name}": k.unit for k in ctx.model.keys()}
     for k in ctx.sweep_keys:
         d = dim_name(k)
-        if d in ds.coords:
-            ds[d].attrs.update(scene_key=k, long_name=f"sweep over {k}")
+        if d in ds.coords:  # a sweep key's coordinate: its unit is the key's
+            ds[d].attrs.update(scene_key=k, long_name=k, **({"units": units[k]} if units.get(k) else {}))
     sweep = ctx.study.get("sweep") or {}
     ds.attrs = {"title": f"liethermo {study.kind} study: {study.title}", "study": ctx.name, "kind": study.kind,
                 "model": ctx.model.name, "base_scene": ctx.scene_name, "reduced": int(ctx.reduced),
@@ -709,15 +697,8 @@ def _report(study: Study, ctx: Context, ds: xr.Dataset, nc: Path) -> Path:
     found = list(study.findings(ds, ctx)) if study.findings else []
     if found:
         sections.append("**Findings.** " + " ".join(found))
-    sections.append(f"Files: `{nc.name}` (every number above, with units), "
-                    + ", ".join(f"`{t.name}.csv`" for t in tables) + (", " if tables else "")
-                    + ", ".join(f"`{f.name}.png`" for f in study.figures) + ".")
+    files = [f"`{t.name}.csv`" for t in tables] + [f"`{f.name}.png`" for f in study.figures]
+    sections.append(f"Files: `{nc.name}` (every number above, with units)" + "".join(f", {f}" for f in files) + ".")
     title = f"{study.title}: {ctx.name}" + (" (reduced)" if ctx.reduced else "")
     return write_report(ctx.outdir, title, sections)
 
-
-def run(study: dict, outdir, **kw) -> Path:
-    """Run a study file's dict whatever its kind (the declared study of its kind)."""
-    from . import get_study
-
-    return get_study(study["study"]["kind"]).STUDY.run(study, outdir, **kw)

@@ -11,7 +11,7 @@ import tempfile
 import numpy as np
 
 from .common import StudyError, kept_laws
-from .framework import Stage, Study, Table, Verdict, _key, run_scene
+from .framework import Stage, Study, Table, Verdict, run_scene, task_key
 from .tools import NODE_VALUES_NOTE
 
 #: variant: (erratum, what differs from the printed scheme, method label, corrected inertia)
@@ -66,7 +66,7 @@ def _facts(ds, ctx):
     """The paper's figures, drawn from the figure runs' files (each written whole, then moved into place)."""
     from ..plotting import scene_figures
 
-    paths = {m: ctx.outdir / "points" / f"{_key(STUDY, ctx, STUDY.stages[0], {'run': f'paper_{m}'})}.nc"
+    paths = {m: ctx.outdir / "points" / f"{task_key(STUDY, ctx, STUDY.stages[0], {'run': f'paper_{m}'})}.nc"
              for m in ctx.methods}
     with tempfile.TemporaryDirectory(dir=ctx.outdir) as tmp:
         files = [os.replace(f, ctx.outdir / f.name) or f.name for f in scene_figures(paths, tmp, stem="paper")]

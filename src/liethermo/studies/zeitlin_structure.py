@@ -10,7 +10,7 @@ import xarray as xr
 
 from .. import timing
 from .common import StudyError, cached_point
-from .framework import MARKERS, Figure, Option, Stage, Study, Table, Verdict, _key, run_scene
+from .framework import MARKERS, Figure, Option, Stage, Study, Table, Verdict, run_scene, task_key
 
 RUN = {"h": ("s", "time step of the run", "h (s)"), "steps": ("1", "steps of the run", "steps"),
        "cost_per_simulated_second": ("s s-1", "CPU time per simulated second", "CPU time per simulated second (s)"),
@@ -60,7 +60,7 @@ def long_run(ctx, coords, calibrate) -> xr.Dataset:
     m, n, h = (coords["pair"] if coords["side"] == "splitting" else "rk4"), ctx.opt["samples"], ctx.opt["h"]
     if m == "rk4":  # its steps cost the splitting's measured run (from the cache) less a run's fixed cost
         split, c, T = {**coords, "side": "splitting"}, calibrate.sel(scheme="rk4"), ctx.opt["t_end"]
-        w = cached_point(ctx.outdir, _key(STUDY, ctx, STUDY.stages[1], split), partial(long_run, ctx, split, calibrate))
+        w = cached_point(ctx.outdir, task_key(STUDY, ctx, STUDY.stages[1], split), partial(long_run, ctx, split, calibrate))
         h = float(c["step_cost"] * T / (w["cost_per_simulated_second"] * T - c["run_overhead"]))
     per, h = _per(ctx, h)
     with timing.pinned_threads(1):
