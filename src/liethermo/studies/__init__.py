@@ -5,8 +5,9 @@ Its ``[study]`` table names the ``kind`` — one of :func:`kinds` (the registere
 ``liethermo.studies.<kind>`` — and the base scene; ``[sweep]`` maps scene
 keys ``"section.key"`` to lists of values (a Cartesian product); ``methods``
 lists the methods to compare; ``[reduced]`` overrides any of these for the
-reduced-size mode the test suite runs.  See :mod:`liethermo.studies.common`
-for the contract every study module follows.
+reduced-size mode the test suite runs, ``[model.<name>]`` for a base scene of
+that model.  Each kind's module declares one
+:class:`liethermo.studies.framework.Study` (docs/studies.md).
 """
 
 from __future__ import annotations

@@ -1,33 +1,20 @@
 """Studies as declarations: what a study says, and what the framework does with it.
 
-A study module defines one :class:`Study`::
-
-    STUDY = Study(
-        kind="convergence", title="Convergence", models=None,       # None: every model
-        options=(Option("h0", 0.1, "number>0", "s", "coarsest step"), ...),
-        axes=lambda ctx: {"h": [...]},                              # besides "point" and "scheme"
-        stages=(Stage("reference", reference, over=("point",)),
-                Stage("errors", errors, over=("point", "scheme", "h"), needs=("reference",))),
-        quantities={"error": ("1", "relative error"), ...},       # one definition per quantity
-        derive=derive, tables=tables, verdicts=verdicts, findings=findings,
-        figures=(Figure("errors", x="h", y=("error",), claim="..."),),
-        report="Scene `{scene}`, t = {opt[t_end]} s ...")
-
-A stage's function is pure: ``fn(ctx, coords, **needed) -> xr.Dataset`` for
-one combination of its axes (``coords["point"]`` is the sweep point's
-``{"section.key": value}``, ``coords["scheme"]`` a method label, the study's
-own axes by name), given the results of the stages it ``needs`` at the same
-coordinates.  The framework owns the rest: options and their one-line errors,
-task planning, the resume cache (a task's result is a file; a rerun after any
-signal computes only what is missing), Dask, the progress bar, stacking into
-one dataset with the sweep keys and axes as dimensions, CF attributes from
-the quantities, atomic writes of netCDF, CSV and PNG, the figures (one colour
-per method in every panel, log axes where values span decades, legends off
-the data), and the report with its verdict table and findings.
+A study module defines one :class:`Study`: its options with their rules, its
+stages (pure functions ``fn(ctx, coords, **needed) -> xr.Dataset`` over the
+sweep points, the methods and the study's own axes), its quantities with
+units, derived quantities, tables, verdicts, findings, figures and report
+template (docs/studies.md; ``convergence.py`` and ``entropy_rate.py`` are
+complete examples).  The framework owns the rest: the one-line option errors,
+task planning, the resume cache (a task's result is a file: a rerun after any
+signal computes only what is missing), Dask, the progress bar, stacking with
+the sweep keys and axes as dimensions, CF attributes, atomic netCDF, CSV and
+PNG files, the figures and the report with its verdict table.
 """
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import itertools
 import json
@@ -368,18 +355,15 @@ def _compute(study: Study, ctx: Context, progress, dask) -> dict[str, list[tuple
     def needed(stage: Stage, coords: dict) -> dict:
         return {n: done[(n, point_key({k: coords[k] for k in stages[n].over}))] for n in stage.needs}
 
-    total = sum(len(v) for v in plan.values())
-    client_cm = None
-    if dask is not None:
-        from ..distributed import client_for
+    with contextlib.ExitStack() as stack:
+        if dask is not None:
+            from ..distributed import client_for
 
-        client_cm = client_for(dask)
-        client = client_cm.__enter__()
-    bar = progress_bar(total, progress, f"{ctx.name} tasks")
-    try:
+            client = stack.enter_context(client_for(dask))
+        bar = stack.enter_context(progress_bar(sum(len(v) for v in plan.values()), progress, f"{ctx.name} tasks"))
         for stage in study.stages:
             todo = plan[stage.name]
-            if client_cm is not None and not stage.serial:
+            if dask is not None and not stage.serial:
                 from ..distributed import map_cached_points
 
                 # the needed stages are complete (stages run in order): their results travel with the task
@@ -394,10 +378,6 @@ def _compute(study: Study, ctx: Context, progress, dask) -> dict[str, list[tuple
                 out.append((c, ds))
                 bar.update(1)
             results[stage.name] = out
-    finally:
-        bar.close()
-        if client_cm is not None:
-            client_cm.__exit__(None, None, None)
     return results
 
 
@@ -459,12 +439,8 @@ def _label(study: Study, ctx: Context, ds: xr.Dataset) -> None:
 
 #: quantities several studies write (one definition each)
 COMMON_QUANTITIES = {
-    "h": ("s", "time step"),
-    "scheme": ("1", "method"),
-    "member": ("1", "ensemble member"),
-    "t": ("s", "time"),
-    "axis": ("1", "body axis"),
-    "status": ("1", "member status (0 ok)"),
+    "h": ("s", "time step"), "scheme": ("1", "method"), "member": ("1", "ensemble member"), "t": ("s", "time"),
+    "axis": ("1", "body axis"), "status": ("1", "member status (0 ok)"),
     "gamma_defect": ("1", "max_k ||Gamma_k| - 1|"),
     "max_relative_energy_error": ("1", "max_k |E_k - E_0| / E_mech,0, node values (failed: inf)"),
 }

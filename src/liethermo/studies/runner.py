@@ -13,7 +13,7 @@ from pathlib import Path
 
 from ..scene import SceneError
 from . import get_study, kinds
-from .common import (BASE_KEYS, STUDY_KEYS, StudyError, expand_sweep, first_table, parse_method, resolve_study,
+from .common import (BASE_KEYS, STUDY_KEYS, StudyError, expand_sweep, first_table, resolve_study,
                      study_scene, terminal_table, with_scene)
 
 if sys.version_info >= (3, 11):
@@ -52,8 +52,8 @@ def validate_study(study: dict) -> None:
         mod = get_study(kind)
     except ModuleNotFoundError as exc:
         raise StudyError(f"study.kind: the {kind!r} study is not available ({exc})") from None
-    decl = getattr(mod, "STUDY", None)
-    allowed = BASE_KEYS | frozenset(decl.extra_keys if decl else getattr(mod, "EXTRA_KEYS", ()))
+    decl = mod.STUDY
+    allowed = BASE_KEYS | frozenset(decl.extra_keys)
     for k in study:
         if not k.startswith("_") and k not in allowed:
             raise StudyError(f"{k}: unknown key in a {kind} study; known keys: {', '.join(sorted(allowed))}")
@@ -76,13 +76,8 @@ def validate_study(study: dict) -> None:
                                  f"{', '.join(sorted(allowed - {'model'}))}")
     for reduced in (False, True):
         s = resolve_study(study, reduced)
-        methods = s.get("methods", [])
-        if not isinstance(methods, list):
+        if not isinstance(s.get("methods", []), list):
             raise StudyError("methods: must be a list")
-        for m in methods if decl is None else ():  # a declared study asks its scene's model
-            if not isinstance(m, str):
-                raise StudyError(f"methods: {m!r} is not a method name")
-            parse_method(m)
         sweep = s.get("sweep", {})
         if not isinstance(sweep, dict):
             raise StudyError("sweep: must be a table of \"section.key\" = [values]")
@@ -96,10 +91,7 @@ def validate_study(study: dict) -> None:
                     raise StudyError(f"sweep {key!r}: {exc}") from None
         if not points:
             study_scene(s)
-        if decl is not None:
-            decl.validate(s)
-        elif hasattr(mod, "validate"):
-            mod.validate(s)
+        decl.validate(s)  # its options, methods (the scene's model knows them) and cross-option rules
 
 
 def default_outdir(study: dict, reduced: bool) -> Path:
@@ -124,8 +116,7 @@ def run_study(study: dict, outdir: Path, *, reduced: bool = False, progress: boo
             notes(f"liethermo: removed {n} temporary file{'s' if n != 1 else ''} ({human_bytes(size)}) "
                   f"left by interrupted or killed runs in {outdir}")
         mod = get_study(study["study"]["kind"])
-        run = mod.STUDY.run if hasattr(mod, "STUDY") else mod.run
-        return Path(run(study, outdir, reduced=reduced, progress=progress, dask=dask, history=history))
+        return Path(mod.STUDY.run(study, outdir, reduced=reduced, progress=progress, dask=dask, history=history))
     finally:
         lock.release()
 
