@@ -257,12 +257,14 @@ def test_command_line_writes_the_named_variables(tmp_path, capsys):
 # ----------------------------------------------------------------------------- studies (reduced)
 
 
-def _study(name, tmp_path):
+def _study(name, tmp_path, scene=None):
     from pathlib import Path
 
+    from liethermo.studies.common import with_scene
     from liethermo.studies.runner import load_study, run_study, validate_study
 
     study = load_study(Path(__file__).resolve().parents[1] / "studies" / f"{name}.toml")
+    study = with_scene(study, scene) if scene else study
     validate_study(study)
     return run_study(study, tmp_path / name, reduced=True, progress=False)
 
@@ -270,7 +272,7 @@ def _study(name, tmp_path):
 def test_convergence_study_reports_the_orders(tmp_path):
     import pandas as pd
 
-    report = _study("zeitlin_convergence", tmp_path)
+    report = _study("convergence", tmp_path, scene="zeitlin_decay")  # the top's study file on a fluid scene
     df = pd.read_csv(report.parent / "orders.csv").set_index("method")
     for m, order in (("split", 2), ("split4", 4), ("split6", 6), ("rk4", 4)):
         assert abs(df.loc[m, "order vorticity"] - order) < 0.2, (m, df.loc[m, "order vorticity"])
