@@ -27,6 +27,7 @@ ROOT = Path(__file__).resolve().parents[1]
     ("bool", True, 1, "must be true or false, got 1"),
     ("list[number>0]", [1, 2.0], [1, -2], "must be a non-empty list of number > 0s, got [1, -2]"),
     ("one of a|b", "b", "c", 'must be one of "a", "b", got \'c\''),
+    ("list?[str]", [], ["a", 1], "must be a list of strings, got ['a', 1]"),
 ])
 def test_option_rules_make_one_line_errors(rule, good, bad, says):
     o = Option("x", good, rule, "s" if rule == "number>0" else "1")

@@ -53,11 +53,12 @@ _RULES = {
 
 def _check_rule(rule: str, v) -> str | None:
     """None if ``v`` follows ``rule``, else what it must be."""
-    if rule.startswith("list[") and rule.endswith("]"):
-        inner = rule[5:-1]
+    if rule.startswith(("list[", "list?[")) and rule.endswith("]"):  # "list?": may be empty
+        inner = rule[rule.index("[") + 1:-1]
         what, _ = _RULES[inner]
-        if not isinstance(v, list) or not v or any(_check_rule(inner, x) for x in v):
-            return f"a non-empty list of {what.replace('a ', '', 1).replace('an ', '', 1)}s"
+        empty_ok = rule.startswith("list?")
+        if not isinstance(v, list) or not (v or empty_ok) or any(_check_rule(inner, x) for x in v):
+            return f"a {'' if empty_ok else 'non-empty '}list of {what.replace('a ', '', 1).replace('an ', '', 1)}s"
         return None
     if rule.startswith("one of "):
         choices = [c.strip() for c in rule[7:].split("|")]
