@@ -1,7 +1,6 @@
 """Energy drift: the model's relative energy error over a random ensemble, per method and swept h (any model).
-
-Per member: max and final |error|, the drift rate (least-squares slope in t), and whether it **blew up**
-(failed, or max |error| > ``diverged_above``: one definition for the table, the figure and the verdicts).
+Per member: max and final |error|, the drift rate (least-squares slope in t), and whether it **blew up** (failed,
+or max |error| > ``diverged_above``: one definition for the table, the figure and the verdicts).
 ``paper_convention`` methods are also read in the model's other conventions (the top's step velocity)."""
 
 from __future__ import annotations
@@ -44,9 +43,8 @@ def ensemble(ctx, coords) -> xr.Dataset:
         hi = min(N, lo + int(opt["member_chunk"]))
         ds, st = model.run_chunk(sc, lo, hi)
         status[lo:hi], wall = ds["status"].values, wall + st.kernel_time
-        rel[""][lo:hi] = model.relative_energy_error(ds)
-        for c, r in model.energy_conventions(ds).items():
-            rel[f"_{c}"][lo:hi] = r
+        for c, r in {"": model.relative_energy_error(ds), **model.energy_conventions(ds)}.items():
+            rel[f"_{c}" if c else ""][lo:hi] = r
     data, ok, tc = {"status": ("member", status), "kernel_time": ((), wall)}, status == 0, t - t.mean()
     for c, r in rel.items():
         with np.errstate(over="ignore", invalid="ignore"):
@@ -74,10 +72,8 @@ def quantities(ctx) -> dict:
 
 
 def derive(ds, ctx) -> xr.Dataset:
-    ds["median_max_relative_energy_error"] = ds["max_relative_energy_error"].quantile(
-        0.5, "member", method="inverted_cdf").drop_vars("quantile")
-    ds["blown_up_members"] = ds["blown_up"].sum("member")
-    return ds
+    return ds.assign(median_max_relative_energy_error=ds["max_relative_energy_error"].quantile(
+        0.5, "member", method="inverted_cdf").drop_vars("quantile"), blown_up_members=ds["blown_up"].sum("member"))
 
 
 def tables(ds, ctx) -> list[Table]:
@@ -102,8 +98,8 @@ def verdicts(ds, ctx) -> list[Verdict]:
     d, out = first_point(ds, ctx, keep=(H,)), []
     hs = d[H].values
     for m in ctx.methods:
-        p, b, e = ctx.model.method_order(m), *(d[v].sel(scheme=m).values for v in ("blown_up_members",
-                                                                                  "median_max_relative_energy_error"))
+        x, p = d.sel(scheme=m), ctx.model.method_order(m)
+        b, e = x["blown_up_members"].values, x["median_max_relative_energy_error"].values
         out.append(Verdict(f"no member of {m} blows up", ", ".join(f"h = {h:g}: {n}" for h, n in zip(hs, b)),
                            "0 blown-up members at every h", bool((b == 0).all())))
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -150,8 +146,8 @@ def draw_bands(d, ctx, fig):
 STUDY = Study(
     kind="energy_drift", title="Energy drift over a random ensemble", models=None,
     description="Median and 5-95 % band of the relative energy error per method and h; drift rates; blow-ups",
-    options=(Option("t_end", 30.0, "number>0", "s", "simulated time"), Option("band_dt", 0.2, "number>0", "s",
-                                                                              "time grid of the stored bands"),
+    options=(Option("t_end", 30.0, "number>0", "s", "simulated time"),
+             Option("band_dt", 0.2, "number>0", "s", "time grid of the stored bands"),
              Option("member_chunk", 1024, "int>=1", "1", "members simulated at a time (bounds memory)"),
              Option("diverged_above", 1.0, "number>0", "1", "a member whose max |error| passes this blew up"),
              Option("paper_convention", None, "list[str]", "", "methods also read in the model's other energy "

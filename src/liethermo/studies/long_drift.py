@@ -1,9 +1,7 @@
-"""Long drift: every method's energy error over a long horizon at equal measured cost (any model).
-
-Per factor on the scene's dissipation a serial calibration (:func:`.timing.measure`) sets each method's h
-to the first method's kernel time per simulated second; the long runs give per member the drift of the
-model's relative energy error and the defects of its exact laws (``Model.run_with_laws``); their costs
-are then checked for equality."""
+"""Long drift: every method's energy error over a long horizon at equal measured cost (any model). Per dissipation
+factor a serial calibration (:func:`.timing.measure`) sets each h to the first method's kernel time per simulated
+second; per member the long runs give the drift of the relative energy error and the defects of the model's exact
+laws (``Model.run_with_laws``); their costs are then checked for equality."""
 
 from __future__ import annotations
 
@@ -36,18 +34,15 @@ def plan_steps(h: float, opt: dict) -> tuple[float, int, int]:
     return float(h), max(every, (steps // every) * every), every
 
 
-def _scene(ctx, coords, method=None, h=None, steps=None, every=None):
+def _scene(ctx, coords, method, h, steps, every):
     base, model = ctx.scene(coords["point"]), ctx.model
-    over = dict(model.dissipation_overrides(base, coords["dissipation"]))
-    if method is not None:
-        over.update({**model.method_overrides(method), "integrator.h": float(h), "integrator.steps": int(steps),
-                     "output.every": int(every)})
-    return model, base.with_overrides(over)
+    return model, base.with_overrides({**model.dissipation_overrides(base, coords["dissipation"]),
+                                       **model.method_overrides(method), "integrator.h": float(h),
+                                       "integrator.steps": int(steps), "output.every": int(every)})
 
 
 def secant_step(tried: list[tuple[float, float]]) -> float:
-    """The next log h from the (log h, f = log(cost per simulated s / target)) tried: the
-    secant of the closest bracket once f has changed sign, else x + f."""
+    """The next log h from the (log h, f = log(cost / target)) tried: secant of the closest bracket, else x + f."""
     below, above = [t for t in tried if t[1] > 0], [t for t in tried if t[1] < 0]
     if below and above:
         (xa, fa), (xb, fb) = max(below), min(above)
@@ -56,8 +51,7 @@ def secant_step(tried: list[tuple[float, float]]) -> float:
 
 
 def calibrate(ctx, coords) -> xr.Dataset:
-    """Each method's h at the first method's kernel time per simulated second: rounds time every method at
-    its h, interleaved; the target is the first method's least cost so far; each keeps its closest h."""
+    """Each method's h at the first method's kernel time per simulated second (rounds timed interleaved)."""
     opt, ms = ctx.opt, ctx.methods
     model, sc = _scene(ctx, coords, ms[0], *plan_steps(opt["h_base"], opt))
     kernel, h, tried = model.kernel_for(sc), {m: float(opt["h_base"]) for m in ms}, {m: [] for m in ms}
@@ -68,7 +62,7 @@ def calibrate(ctx, coords) -> xr.Dataset:
         return n * h[m], lambda: model.run_chunk(s, 0, int(s["ensemble"]["members"]), kernel=kernel,
                                                  threads=opt["threads"])[1].kernel_time
 
-    def gap(t):  # log(cost per simulated s / target) of a tried (h, cost)
+    def gap(t):  # log(cost per simulated s / target) of a tried (h, cost); target: the first's least cost so far
         return math.log(t[1].best / min(c.best for _, c in tried[ms[0]]))
 
     for rnd in range(CALIBRATION_ITERATIONS):
@@ -82,7 +76,7 @@ def calibrate(ctx, coords) -> xr.Dataset:
             break
         for m in todo:
             h[m] = math.exp(secant_step([(math.log(t[0]), gap(t)) for t in tried[m]]))
-    got = [min(tried[m], key=lambda t: abs(gap(t))) for m in ms]
+    got = [min(tried[m], key=lambda t: abs(gap(t))) for m in ms]  # each keeps its closest h
     return xr.Dataset({"step": ("scheme", [g[0] for g in got]), "calibrated_cost": ("scheme", [g[1].best for g in got]),
                        "calibration_spread": ("scheme", [g[1].spread for g in got]), "calibration_rounds": ((), rnd + 1)},
                       coords={"scheme": ms}, attrs={"kernel": kernel or ""})
@@ -121,18 +115,17 @@ QUANTITIES = {
     "oscillation_amplitude": ("1", "RMS of the relative energy error about its least-squares line"),
     "max_relative_energy_error": ("1", "max over t of |relative energy error| (failed members: inf)"),
     "relative_energy_error_quantiles": ("1", "quantiles over members of |relative energy error| at band_t"),
-    "band_t": ("s", "time of the stored node (NaN: past the run's last node)"),
+    "band_t": ("s", "time of the stored node (NaN: past the run's last node)"), "steps": ("1", "steps of the run"),
     "quantile": ("1", "quantile over members"), "kernel_time": ("s", "kernel wall time of the long run"),
-    "cost_per_simulated_s": ("s", "long run's kernel time per simulated second"), "steps": ("1", "steps of the run"),
+    "cost_per_simulated_s": ("s", "long run's kernel time per simulated second"),
     "step": ("s", "time step h (calibrated to equal measured cost per simulated second)"),
-    "calibration_rounds": ("1", "rounds of the calibration"),
     "calibrated_cost": ("s", "calibration: min over repeats of kernel time per simulated second at this step"),
     "calibration_spread": ("1", "calibration: median / min - 1 of the repeats at this step"),
-    "failed_members": ("1", "members whose run failed"),
-    "median_drift_rate": ("s-1", "median drift rate (completed members)"), "median_abs_drift_rate": (
-        "s-1", "median |drift rate| (completed members)"), "median_oscillation_amplitude": (
-        "1", "median oscillation amplitude (completed members)"), "median_max_relative_energy_error": (
-        "1", "median max |relative energy error| (failed: inf)")}
+    "calibration_rounds": ("1", "rounds of the calibration"), "failed_members": ("1", "members whose run failed"),
+    "median_drift_rate": ("s-1", "median drift rate (completed members)"),
+    "median_abs_drift_rate": ("s-1", "median |drift rate| (completed members)"),
+    "median_oscillation_amplitude": ("1", "median oscillation amplitude (completed members)"),
+    "median_max_relative_energy_error": ("1", "median max |relative energy error| (failed: inf)")}
 #: the table's columns, by their netCDF names
 COLUMNS = ("step", "steps", "calibrated_cost", "calibration_spread", "cost_per_simulated_s", "median_drift_rate",
            "median_abs_drift_rate", "median_oscillation_amplitude", "median_max_relative_energy_error", "failed_members")
@@ -145,18 +138,19 @@ def derive(ds, ctx) -> xr.Dataset:
         median_max_relative_energy_error=ds["max_relative_energy_error"].median("member"), failed_members=(~ok).sum("member"))
 
 
+def _costs(d) -> dict:  # {dissipation: {method: kernel time per simulated second of its long run}}
+    return {f: d["cost_per_simulated_s"].sel(dissipation=f).to_series().to_dict() for f in d["dissipation"].values}
+
+
 def tables(ds, ctx) -> list[Table]:
-    d, rows, pairs = first_point(ds, ctx), [], []
-    laws = [v for v in d.data_vars if v.startswith("defect_")]
-    for f in d["dissipation"].values:
-        for m in ctx.methods:
-            x = d.sel(dissipation=f, scheme=m)
-            rows.append({"dissipation (1)": float(f), "scheme": m, **{f"{v} ({d[v].attrs['units']})": x[v].item()
-                                                                      for v in COLUMNS},
-                         **{f"max {v} ({d[v].attrs['units']})": float(x[v].max()) for v in laws}})
-        pairs += [{"dissipation (1)": float(f), "cheaper": lo, "dearer": hi, "ratio (1)": r}
-                  for lo, hi, r in timing.equal_cost_check(
-                      d["cost_per_simulated_s"].sel(dissipation=f).to_series().to_dict())]
+    d, rows = first_point(ds, ctx), []
+    u, laws = {v: f" ({d[v].attrs['units']})" for v in d.data_vars}, [v for v in d.data_vars if v.startswith("defect_")]
+    for f, m in ((f, m) for f in d["dissipation"].values for m in ctx.methods):
+        x = d.sel(dissipation=f, scheme=m)
+        rows.append({"dissipation (1)": float(f), "scheme": m, **{v + u[v]: x[v].item() for v in COLUMNS},
+                     **{f"max {v}{u[v]}": float(x[v].max()) for v in laws}})
+    pairs = [{"dissipation (1)": float(f), "cheaper": lo, "dearer": hi, "ratio (1)": r}
+             for f, c in _costs(d).items() for lo, hi, r in timing.equal_cost_check(c)]
     return [Table("long_drift", f"Energy drift at equal measured cost per simulated second ({ds.sizes['member']} "
                   f"members, t_end = {ctx.opt['t_end']:g} s; law defects: NaN where the law does not apply)", rows),
             Table("equal_cost", "Long runs more than 15 % apart in kernel time per simulated second (each ran once)",
@@ -164,14 +158,9 @@ def tables(ds, ctx) -> list[Table]:
 
 
 def verdicts(ds, ctx) -> list[Verdict]:
-    d, out = first_point(ds, ctx), []
-    for f in d["dissipation"].values:
-        x = d.sel(dissipation=f)
-        c = x["cost_per_simulated_s"].to_series().to_dict()
-        flagged = timing.equal_cost_check(c)
-        out.append(Verdict(f"dissipation × {f:g}: the long runs cost the same per simulated second",
-                           f"max / min {max(c.values()) / min(c.values()):.2f}", "no pair > 15 % apart", not flagged))
-    return out
+    return [Verdict(f"dissipation × {f:g}: the long runs cost the same per simulated second",
+                    f"max / min {max(c.values()) / min(c.values()):.2f}", "no pair > 15 % apart",
+                    not timing.equal_cost_check(c)) for f, c in _costs(first_point(ds, ctx)).items()]
 
 
 def findings(ds, ctx) -> list[str]:
@@ -179,10 +168,10 @@ def findings(ds, ctx) -> list[str]:
     for f in d["dissipation"].values:
         r = d["median_abs_drift_rate"].sel(dissipation=f).to_series().dropna().sort_values()
         if base in r:
-            beats = [m for m in r.index if r[m] > r[base]]
+            beats = ", ".join(m for m in r.index if r[m] > r[base])
+            tail = f"less than {beats}." if beats else "more than every other method."
             out.append(f"At dissipation × {f:g}, {r.index[0]} drifts least ({r.iloc[0]:.2e} s⁻¹); the baseline {base} "
-                       f"({r[base]:.2e} s⁻¹) " + (f"drifts less than {', '.join(beats)}." if beats else
-                                                  "drifts more than every other method."))
+                       f"({r[base]:.2e} s⁻¹) drifts {tail}")
     return out
 
 
@@ -225,15 +214,14 @@ STUDY = Study(
             Stage("runs", long_run, over=("point", "dissipation", "scheme"), needs=("calibration",))),
     quantities=QUANTITIES, derive=derive, tables=tables, verdicts=verdicts, findings=findings,
     figures=(Figure("long_drift", kind="custom", draw=draw, size=(15.5, 8.4), claim=(
-        "each method's median energy error over time at equal cost (bounded or drifting); the drift rate per "
-        "dissipation; what each long run cost per simulated second (equal by calibration; the equal-cost table "
-        "flags pairs more than 15 % apart)")),),
+        "each method's median energy error over time at equal cost (bounded or drifting); per dissipation the drift "
+        "rate and the long runs' cost per simulated second (the equal-cost table flags pairs > 15 % apart)")),),
     report=("Scene `{scene}` ({model}), {members} members, t_end = {opt[t_end]} s, dissipation × {factors} of the "
             "scene's ({coefficients}). **Equal cost, measured:** `{base}` at h = {opt[h_base]} s; each other h is "
-            "calibrated per dissipation on the long runs' kernel ({opt[threads]} thread(s)) over {horizon:g} s "
-            "simulated, in rounds of interleaved runs (≥ {opt[calibration_repeats]} each, minimum) until within "
-            "{rtol:g} %. Drift rate: least-squares slope of the model's relative energy error; oscillation: RMS about "
-            "it. Laws needing every step are checked on a window of {opt[kn_steps]} steps."),
+            "calibrated per dissipation on the long runs' kernel ({opt[threads]} thread(s), {horizon:g} s simulated, "
+            "interleaved, ≥ {opt[calibration_repeats]} repeats, minimum) to within {rtol:g} %. Drift rate: "
+            "least-squares slope of the relative energy error; oscillation: RMS about it. Laws needing every step: "
+            "{opt[kn_steps]} steps."),
     facts=lambda ds, ctx: {
         "members": ds.sizes["member"], "base": ctx.methods[0], "rtol": 100 * ctx.opt["calibration_rtol"],
         "factors": ", ".join(f"{f:g}" for f in ctx.opt["dissipation"]), "horizon": ctx.opt["calibration_horizon"]

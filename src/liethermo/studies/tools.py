@@ -1,7 +1,5 @@
-"""Helpers the study modules share: running a method spec, settling times,
-angles, members set side by side, table columns named after the quantities.
-(What a trajectory keeps — energy errors, Kelvin–Noether residuals — is
-:mod:`liethermo.laws`.)"""
+"""Helpers the study modules share: running a method spec, settling times, angles, members set side by side,
+table columns named after the quantities (what a trajectory keeps is :mod:`liethermo.laws`)."""
 
 from __future__ import annotations
 
@@ -28,9 +26,8 @@ def run_spec(phys: Physics, omega0, R0, h: float, steps: int, spec: dict, **kw) 
 
 
 def drift_fit(t: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per row of y (N, T): (least-squares slope of y against t, standard
-    deviation of the residual about that line).  Rows with a non-finite value
-    give NaN."""
+    """Per row of y (N, T): (least-squares slope of y against t, standard deviation of the residual about that
+    line); NaN for rows with a non-finite value."""
     t = np.asarray(t, float)
     tc = t - t.mean()
     with np.errstate(invalid="ignore", over="ignore"):
@@ -39,26 +36,16 @@ def drift_fit(t: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         resid = y - ym - slope[:, None] * tc[None, :]
         spread = np.sqrt(np.mean(resid * resid, axis=1))
     bad = ~np.all(np.isfinite(y), axis=1)
-    slope[bad] = np.nan
-    spread[bad] = np.nan
+    slope[bad], spread[bad] = np.nan, np.nan
     return slope, spread
 
 
-# ----------------------------------------------------------------------------- continuous rhs (scipy)
-
-
-# ----------------------------------------------------------------------------- settling and attitude
-
 def settling_time(t: np.ndarray, ratio: np.ndarray, fraction: float) -> np.ndarray:
-    """Per row of ``ratio`` (N, T) (a positive quantity relative to its initial
-    value, e.g. E_mech,k / E_mech,0): the first time it falls to ``fraction``
-    or below (s), log-linearly interpolated between the two nodes around the
-    crossing; 0 if it starts there, NaN if it never gets there (or a value
-    before the crossing is not finite)."""
-    t = np.asarray(t, float)
-    r = np.asarray(ratio, float)
-    out = np.full(r.shape[0], np.nan)
-    lf = math.log(fraction)
+    """Per row of ``ratio`` (N, T) (a positive quantity relative to its initial value, e.g. E_mech,k / E_mech,0):
+    the first time it falls to ``fraction`` or below (s), log-linearly interpolated between the two nodes around
+    the crossing; 0 if it starts there, NaN if it never gets there (or a value before it is not finite)."""
+    t, r = np.asarray(t, float), np.asarray(ratio, float)
+    out, lf = np.full(r.shape[0], np.nan), math.log(fraction)
     with np.errstate(invalid="ignore", divide="ignore"):
         below = r <= fraction
     for i in range(r.shape[0]):
@@ -79,14 +66,14 @@ def settling_time(t: np.ndarray, ratio: np.ndarray, fraction: float) -> np.ndarr
 
 
 def direction_angle(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Angle (rad) between the directions of vectors u and v (..., 3), accurate
-    for small and large angles (atan2 of |u×v| and u·v); |u|, |v| need not be 1."""
+    """Angle (rad) between the directions of u and v (..., 3), accurate for small and large angles (atan2 of |u×v|
+    and u·v); |u|, |v| need not be 1."""
     return np.arctan2(np.linalg.norm(np.cross(u, v), axis=-1), np.sum(u * v, axis=-1))
 
 
 def rotation_angle(Ra: np.ndarray, Rb: np.ndarray) -> np.ndarray:
-    """Angle (rad) of the rotation Ra Rbᵀ between attitudes (..., 3, 3), from the
-    Frobenius distance ‖Ra − Rb‖ = 2√2 sin(θ/2) (accurate for small angles)."""
+    """Angle (rad) of the rotation Ra Rbᵀ between attitudes (..., 3, 3), from the Frobenius distance
+    ‖Ra − Rb‖ = 2√2 sin(θ/2) (accurate for small angles)."""
     d = np.linalg.norm(np.asarray(Ra) - np.asarray(Rb), axis=(-2, -1))
     return 2.0 * np.arcsin(np.clip(d / (2.0 * math.sqrt(2.0)), 0.0, 1.0))
 
@@ -101,16 +88,14 @@ def quantile_band(a: np.ndarray, q=(0.05, 0.5, 0.95)) -> np.ndarray:
 
 
 def column(ds, name: str, stat: str = "") -> str:
-    """A table column for the quantity ``name`` of the study dataset: its netCDF
-    name and units (``"median settling_time (s)"``), so that a CSV or report
-    column is the quantity the netCDF defines."""
-    units = ds[name].attrs.get("units", "1")
-    return f"{stat} {name} ({units})".strip()
+    """A table column for the quantity ``name`` of the study dataset, its netCDF name and units
+    (``"median settling_time (s)"``): a CSV or report column is the quantity the netCDF defines."""
+    return f"{stat} {name} ({ds[name].attrs.get('units', '1')})".strip()
 
 
 def ensemble(ctx, point: dict, method: str, limit: int | None = None):
-    """``(scene, parsed method, physics, Ω₀, R₀, N)``: the first ``limit`` (all:
-    None) of the N members of a study's sweep point run with ``method``."""
+    """``(scene, parsed method, physics, Ω₀, R₀, N)``: the first ``limit`` (all: None) of the N members of a
+    study's sweep point run with ``method``."""
     from ..initial import initial_conditions
     from .common import method_overrides, parse_method
 
@@ -137,8 +122,7 @@ def reference_label(methods) -> str | None:
 
 
 def same_members(ds, methods) -> np.ndarray:
-    """(member,) bool: the members every method ran — the reference's (status ≥ 0
-    at every point), all of them without a reference."""
+    """(member,) bool: the members every method ran — the reference's (status ≥ 0 at every point), all without one."""
     ref = reference_label(methods)
     if ref is None:
         return np.ones(ds.sizes["member"], bool)
@@ -153,15 +137,10 @@ def quantile_columns(ds, d, names, members, stats=("5%", "median", "95%")) -> di
 
 
 def observed_orders(hs, errors) -> np.ndarray:
-    """log(e_i / e_{i+1}) / log(h_i / h_{i+1}) between consecutive levels (NaN
-    where an error is not finite and positive); one fewer than the levels."""
-    hs = np.asarray(hs, float)
-    e = np.asarray(errors, float)
+    """log(e_i / e_{i+1}) / log(h_i / h_{i+1}) between consecutive levels (NaN where an error is not finite and
+    positive); one fewer than the levels."""
+    hs, e = np.asarray(hs, float), np.asarray(errors, float)
     with np.errstate(invalid="ignore", divide="ignore"):
         p = np.log(e[:-1] / e[1:]) / np.log(hs[:-1] / hs[1:])
     p[~(np.isfinite(e[:-1]) & np.isfinite(e[1:]) & (e[:-1] > 0) & (e[1:] > 0))] = np.nan
     return p
-
-
-
-

@@ -1,9 +1,7 @@
-"""Work–precision: measured cost per member against the error at ``t_end``, on any model.
-
-The methods (default: the model's own) run one ensemble at steps h; a member's error is the largest |x − x_ref|
-/ |x(0)| at ``t_end`` over the model's state variables that do not start at zero.  A serial stage times all methods
-at one h interleaved (:func:`.timing.measure`), scipy's ``solve_ivp`` likewise; one time-to-ε computation follows.
-"""
+"""Work–precision: measured cost per member against the error at ``t_end``, on any model. The methods (default: the
+model's own) run one ensemble at steps h; a member's error is the largest |x − x_ref| / |x(0)| at ``t_end`` over the
+model's state variables that do not start at zero. A serial stage times all methods at one h interleaved
+(:func:`.timing.measure`), scipy's ``solve_ivp`` likewise; one time-to-ε computation follows."""
 
 from __future__ import annotations
 
