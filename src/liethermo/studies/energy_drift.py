@@ -150,7 +150,7 @@ STUDY = Study(
              Option("band_dt", 0.2, "number>0", "s", "time grid of the stored bands"),
              Option("member_chunk", 1024, "int>=1", "1", "members simulated at a time (bounds memory)"),
              Option("diverged_above", 1.0, "number>0", "1", "a member whose max |error| passes this blew up"),
-             Option("paper_convention", None, "list[str]", "", "methods also read in the model's other energy "
+             Option("paper_convention", None, "list?[str]", "", "methods also read in the model's other energy "
                     "convention(s)", optional=True)),
     check=_check, stages=(Stage("runs", ensemble, over=("point", "scheme")),),
     quantities=quantities, derive=derive, tables=tables, verdicts=verdicts, findings=findings,
