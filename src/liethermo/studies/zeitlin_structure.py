@@ -1,9 +1,7 @@
-"""Long runs of the Zeitlin fluid: Casimir and energy drift of the split family against RK4 at equal *measured* cost:
-costs per step timed interleaved on one thread; RK4 (its cost per step does not depend on the state) at the step
-making its run cost the splitting's measured run; all cached; :func:`.timing.equal_cost_check` flags > 15 % gaps."""
+"""Long runs of the Zeitlin fluid: Casimir and energy drift of the split family against RK4 at equal measured CPU cost
+(one thread): RK4, whose cost per step does not depend on the state, at the step making its run cost the splitting's."""
 
 import time
-from functools import partial
 
 import numpy as np
 import xarray as xr
@@ -25,16 +23,13 @@ def _check(ctx):
     if "rk4" not in ctx.methods or len(ctx.methods) < 2:
         raise StudyError("methods: rk4 and at least one split method (the comparison is against RK4)")
     for coords in ({"N": N, "viscosity": nu} for N in ctx.opt["N"] for nu in ctx.opt["viscosity"]):
-        _scene(ctx, coords)  # the scene's own rules
+        _setup(ctx, coords, ctx.opt["h"])  # the scene's own rules
 
 
-def _scene(ctx, coords):
-    return ctx.scene(None, zeitlin__N=int(coords["N"]), fluid__kinematic_viscosity=float(coords["viscosity"]))
-
-
-def _per(ctx, h):  # steps per sample, and the step near h at which the samples end at t_end
+def _setup(ctx, coords, h):  # the scene, the steps per sample and the step near h at which the samples end at t_end
+    sc = ctx.scene(None, zeitlin__N=int(coords["N"]), fluid__kinematic_viscosity=float(coords["viscosity"]))
     per = max(int(round(ctx.opt["t_end"] / h / ctx.opt["samples"])), 1)
-    return per, ctx.opt["t_end"] / (per * ctx.opt["samples"])
+    return sc, per, ctx.opt["t_end"] / (per * ctx.opt["samples"])
 
 
 def _cpu(sc, m, h, n, every):  # a run and its CPU time (one thread: the machine's other load does not enter)
@@ -44,7 +39,7 @@ def _cpu(sc, m, h, n, every):  # a run and its CPU time (one thread: the machine
 
 def calibrate(ctx, coords) -> xr.Dataset:
     """CPU time per step at h, (best of 2k steps − best of k) / k, and of a run besides steps, 2 best(k) − best(2k)."""
-    sc, (k0, h) = _scene(ctx, coords), _per(ctx, ctx.opt["h"])
+    sc, k0, h = _setup(ctx, coords, ctx.opt["h"])
     with timing.pinned_threads(1):
         k = {m: next(k0 << i for i in range(30) if _cpu(sc, m, h, k0 << i, k0 << i)[1] >= 0.02) for m in ctx.methods}
     c = timing.measure({(m, n): (lambda m=m, n=n: _cpu(sc, m, h, n, n)[1]) for m in k for n in (k[m], 2 * k[m])},
@@ -60,11 +55,11 @@ def long_run(ctx, coords, calibrate) -> xr.Dataset:
     m, n, h = (coords["pair"] if coords["side"] == "splitting" else "rk4"), ctx.opt["samples"], ctx.opt["h"]
     if m == "rk4":  # its steps cost the splitting's measured run (from the cache) less a run's fixed cost
         split, c, T = {**coords, "side": "splitting"}, calibrate.sel(scheme="rk4"), ctx.opt["t_end"]
-        w = cached_point(ctx.outdir, _key(STUDY, ctx, STUDY.stages[1], split), partial(long_run, ctx, split, calibrate))
+        w = cached_point(ctx.outdir, _key(STUDY, ctx, STUDY.stages[1], split), lambda: long_run(ctx, split, calibrate))
         h = float(c["step_cost"] * T / (w["cost_per_simulated_second"] * T - c["run_overhead"]))
-    per, h = _per(ctx, h)
+    sc, per, h = _setup(ctx, coords, h)
     with timing.pinned_threads(1):
-        ds, cpu = _cpu(_scene(ctx, coords), m, h, per * n, per)
+        ds, cpu = _cpu(sc, m, h, per * n, per)
     L, ma, dC = ds["angular_momentum"], ("member", "axis"), abs(ds["casimir_drift"]).max("member")
     curves = {"casimir2_drift": dC.sel(k=2), "casimir4_drift": dC.sel(k=4), "energy_drift": abs(ds["energy_error"]).max(
         "member"), "angular_momentum_drift": abs(L - L.isel(t=0)).max(ma) / abs(L.isel(t=0)).max(ma)}
@@ -81,12 +76,10 @@ def tables(ds, ctx):
 
 
 def verdicts(ds, ctx):
-    end = ds.isel(t=-1)
-    w = end["cost_per_simulated_second"].stack(run=("N", "viscosity", "pair")).transpose("run", "side")
+    w = ds["cost_per_simulated_second"].stack(run=("N", "viscosity", "pair")).transpose("run", "side")
     bad = "".join(f"; flagged N = {N}, ν = {nu:g}, {p}" for (N, nu, p), v in zip(w["run"].values, w.values)
                   if timing.equal_cost_check(dict(zip(("splitting", "rk4"), v))))
-    sp, rk = end.sel(side="splitting"), end.sel(side="rk4")
-    c_s, c_r = (x["casimir2_drift"].where(x["viscosity"] == 0) for x in (sp, rk))
+    c_s, c_r = ds["casimir2_drift"].isel(t=-1).where(ds["viscosity"] == 0).transpose("side", ...)  # splitting, rk4
     ratio = float((w.max("side") / w.min("side")).max())
     return [Verdict("each pair ran at equal measured cost", f"largest ratio {ratio:.2f}{bad}",
                     "costs per simulated second within 15 % (equal_cost_check)", not bad),
@@ -126,8 +119,8 @@ def draw(ds, ctx, fig):
 
 
 STUDY = Study(
-    kind="zeitlin_structure", title="Zeitlin fluid: structure over long runs", models=("zeitlin",),
-    description="Casimir and energy drift, split family against RK4 at equal measured cost",
+    kind="zeitlin_structure", title="Zeitlin fluid: structure over long runs", models=("zeitlin",), tables=tables,
+    description="Casimir and energy drift, split family against RK4 at equal measured cost", verdicts=verdicts,
     options=(Option("N", [32, 64], "list[int>=3]", "1", "matrix sizes"), Option("h", 0.02, "number>0", "s", "step"),
              Option("viscosity", [0.0, 1e-4], "list[number>=0]", "s-1", "viscosities"),
              Option("t_end", 100.0, "number>0", "s", "run length"), Option("samples", 50, "int>=1", "1", "samples")),
@@ -137,14 +130,11 @@ STUDY = Study(
             Stage("long", long_run, over=("N", "viscosity", "pair", "side"), needs=("calibrate",), serial=True)),
     quantities={"N": ("1", "matrix size N"), "viscosity": ("s-1", "kinematic viscosity nu"),
                 "pair": ("1", "the splitting RK4 is compared with"), "side": ("1", "run of the pair"),
-                "step_cost": ("s", "CPU time per step at h (one thread)"),
-                "step_cost_spread": ("1", "its spread"), "run_overhead": ("s", "CPU time of a run besides its steps"),
-                **{k: v[:2] for k, v in RUN.items()}}, tables=tables, verdicts=verdicts, findings=findings,
-    figures=(Figure("drift", kind="custom", draw=draw, select=lambda ds, ctx: ds, claim=(
-        "at ν = 0 the splitting keeps tr W² to round-off (zeros not drawn) where RK4 at its cost drifts (at ν > 0 "
-        "viscosity changes tr W² alike for every method); RK4 keeps H + q better")),),
-    report=("{members} members of `{scene}` at each N, t_end = {opt[t_end]:g} s, {opt[samples]} samples; splitting at "
-            "h = {opt[h]:g} s. Drifts: maxima over members; Casimirs over tr((−iW)²)(0)^(k/2). **Timings:** RK4's "
-            "step, its drifts, the costs and the equal-cost verdict rest on CPU times (cached, reused on resume)."),
-    facts=lambda ds, ctx: {"members": ctx.scene()["ensemble"]["members"]},
+                "step_cost": ("s", "CPU time per step at h (one thread)"), "step_cost_spread": ("1", "its spread"),
+                "run_overhead": ("s", "CPU time of a run besides its steps"), **{k: v[:2] for k, v in RUN.items()}},
+    figures=(Figure("drift", kind="custom", draw=draw, select=lambda ds, ctx: ds, claim="at ν = 0 the splitting "
+                    "keeps tr W² to round-off (zeros not drawn), RK4 at its cost does not; RK4 keeps H + q better"),),
+    report=("{members} members of `{scene}` per N, t_end = {opt[t_end]:g} s, {opt[samples]} samples, splitting at h = "
+            "{opt[h]:g} s; Casimirs over tr((−iW)²)(0)^(k/2). **Timed:** RK4's step and drifts, the costs (CPU time)."),
+    facts=lambda ds, ctx: {"members": ctx.scene()["ensemble"]["members"]}, findings=findings,
 )
