@@ -194,5 +194,5 @@ STUDY = Study(
                     claim="over the long low-viscosity horizon the median energy error stays bounded")),
     report=("Scene `{scene}` (𝕀(S) = 𝕀₀(1 + α(θ − T₀))²), the same random members at every alpha, node values "
             "(kinetic energy from the node velocity 𝕀(S_k)⁻¹μ_k), t_end = {opt[t_end]} s. The reference (DOP853 with "
-            "substeps) runs the first {opt[reference_members]} members; methods are compared there only. Not timed."),
+            "substeps) runs the first {opt[reference_members]} members, compared there. No cost is reported."),
 )

@@ -167,6 +167,6 @@ STUDY = Study(
              Figure("flat_spin_settling", x=DIM, y=("settling_time",), logx=True, logy=True, select=lambda ds, ctx: ds
                     .isel(member=same_members(ds, ctx.methods)).median("member", keep_attrs=True), claim="the median "
                     "settling time over the members the reference ran falls as 1/λ, alike for every method")),
-    report=("Scene `{scene}`, node values over t_end = {opt[lambda_t_end]} s² kg⁻¹ m⁻² / λ ({opt[nodes]} nodes), not "
-            "timed. The reference (DOP853 with substeps) runs the first {opt[reference_members]} members only."),
+    report=("Scene `{scene}`, node values over t_end = {opt[lambda_t_end]} s² kg⁻¹ m⁻² / λ ({opt[nodes]} nodes). The "
+            "reference (DOP853 with substeps) runs the first {opt[reference_members]} members. No cost is reported."),
 )
