@@ -316,11 +316,11 @@ def test_structure_study_compares_at_equal_measured_cost(tmp_path):
     assert rk4["|H + q − H(0)|/H(0)"] < split["|H + q − H(0)|/H(0)"]  # RK4 wins the energy
     # RK4's steps cost what the splitting's run cost less a run's fixed cost (rounded to whole steps per sample)
     full = load_dataset(report.parent / "zeitlin_structure.nc")
-    ds = full.sel(N=12, viscosity=0.0, pair="split")
+    ds = full.sel(N=12, kinematic_viscosity=0.0, pair="split")
     c, w = ds.sel(scheme="rk4"), float(ds["cost_per_simulated_second"].sel(side="splitting"))
     per = round(5.0 / float(c["step_cost"] * 5.0 / (w * 5.0 - c["run_overhead"])) / 5)
     assert rk4["h (s)"] == 5.0 / (per * 5) and rk4["steps"] == 5 * per
-    assert full["casimir2_drift"].dims == ("N", "viscosity", "pair", "side", "t")
+    assert full["casimir2_drift"].dims == ("N", "kinematic_viscosity", "pair", "side", "t")
     assert (report.parent / "drift.png").stat().st_size > 10_000
 
 

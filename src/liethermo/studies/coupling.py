@@ -1,10 +1,7 @@
-"""Coupling: the top whose inertia 𝕀(S) = 𝕀₀(1 + α(θ − T₀))² grows with its entropy against the
-decoupled top (α = 0), member by member (member i starts alike at every α): settling time (the
-model's mechanical energy above rest falls to ``settle_fraction`` of its start), final attitude,
-temperature T = −∂L/∂S, inertia factor and energy error, on node values.  Methods meet the
-reference member by member; statistics that set methods side by side are over the members the
-reference ran.  At α = ``check_alpha``: the energy error over a long low-viscosity horizon.  The
-orders on this model: the convergence study on its scene (``studies/coupling_convergence.toml``)."""
+"""Coupling: the top whose inertia 𝕀(S) = 𝕀₀(1 + α(θ − T₀))² grows with its entropy against the decoupled top (α = 0),
+member by member (member i starts alike at every α): settling time (E_mech above rest falls to ``settle_fraction`` of
+its start), final attitude, temperature T = −∂L/∂S, inertia factor, energy error on node values; methods meet the
+reference on its members.  At α = ``check_alpha``: the energy error over a long low-viscosity horizon."""
 
 from __future__ import annotations
 
@@ -29,20 +26,17 @@ def _check(ctx) -> None:
     o, sweep = ctx.opt, ctx.study.get("sweep") or {}
     if list(sweep) != [SWEEP_KEY] or min(sweep[SWEEP_KEY]) < 0 or 0.0 not in sweep[SWEEP_KEY]:
         raise StudyError(f"sweep: a coupling study sweeps {SWEEP_KEY!r} over values ≥ 0 (1/K) that must include 0")
-    if o["motion_method"] not in ctx.methods or any(parse_method(m)["start"] not in (None, "legendre")
-                                                    for m in ctx.methods):
+    if o["motion_method"] not in ctx.methods or {parse_method(m)["start"] for m in ctx.methods} - {None, "legendre"}:
         raise StudyError("methods: the legendre start (the coupled top needs it), options.motion_method among them")
     phys = physics_of_scene(ctx.scene({SWEEP_KEY: o["check_alpha"]}))
     if float(phys.linear_resistance().max()) <= 0 or float(phys.potential_span().max()) == 0:
-        raise StudyError(f"scene: {key_of(ROLE_LINEAR_FRICTION)} must be > 0 (friction heats the top) and the "
-                         "potential ≠ 0 (settling and tilt are measured from rest)")
+        raise StudyError(f"scene: {key_of(ROLE_LINEAR_FRICTION)} must be > 0 and the potential ≠ 0 (settling to rest)")
 
 
 def _energy(ctx, point, method, limit, **kw):
     """(physics, trajectory, node energies, |E_k − E₀|/E_mech,0 (inf where not finite), E_mech,0, N)."""
     scene, spec, phys, om, R, N = ensemble(ctx, point, method, limit)
-    h = float(scene["integrator"]["h"])
-    steps = int(round(kw.pop("t_end") / h))
+    steps = int(round(kw.pop("t_end") / (h := float(scene["integrator"]["h"]))))
     every = max(1, steps // kw.pop("nodes", steps))
     tr = run_spec(phys, om, R, h, (steps // every) * every, spec, every=every, **kw)
     with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
@@ -56,7 +50,7 @@ def run(ctx, coords) -> xr.Dataset:
     nref, is_ref = ctx.opt["reference_members"], parse_method(coords["scheme"])["method"] == "reference"
     phys, tr, e, arel, _, N = _energy(ctx, coords["point"], coords["scheme"], nref if is_ref else None,
                                       t_end=ctx.opt["t_end"], attitude=True)
-    nt = min(ctx.opt["trace_members"], nref, N)  # members every method runs
+    nt, q = min(ctx.opt["trace_members"], nref, N), [0.05, 0.5, 0.95]  # nt: members every method runs
     with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
         ratio = (em := phys.mechanical_energy(e["K"], e["V"])) / em[:, :1]
         s = np.broadcast_to(np.asarray(inertia_scale(phys, tr.sigma), float), tr.sigma.shape)
@@ -68,15 +62,13 @@ def run(ctx, coords) -> xr.Dataset:
     data = {k: (("member", "row", "col")[:v.ndim], pad_members(v, N)) for k, v in per.items()}
     data.update(status=("member", pad_members(tr.status.astype(np.int8), N, np.int8(-1)).astype(np.int8)),
                 temperature_trace=(("trace", "t"), e["T"][:nt]), inertia_factor_trace=(("trace", "t"), s[:nt]),
-                relative_energy_error_quantiles=(("quantile", "t"), np.quantile(arel[:nref], [.05, .5, .95], axis=0)))
-    return xr.Dataset(data, coords={"member": np.arange(N), "trace": np.arange(nt), "t": tr.times,
-                                    "quantile": [0.05, 0.5, 0.95]})
+                relative_energy_error_quantiles=(("quantile", "t"), np.quantile(arel[:nref], q, axis=0)))
+    return xr.Dataset(data, coords={"member": np.arange(N), "trace": np.arange(nt), "t": tr.times, "quantile": q})
 
 
 def drift(ctx, coords) -> xr.Dataset:
     """Long horizon at low viscosity: the relative energy error in each half, and the heat released."""
-    o = ctx.opt
-    pt = {SWEEP_KEY: o["check_alpha"], key_of(ROLE_LINEAR_FRICTION): o["drift_viscosity"]}
+    o, pt = ctx.opt, {SWEEP_KEY: ctx.opt["check_alpha"], key_of(ROLE_LINEAR_FRICTION): ctx.opt["drift_viscosity"]}
     phys, tr, e, arel, scale, _ = _energy(ctx, pt, coords["scheme"], o["drift_members"], t_end=o["drift_t_end"],
                                           nodes=o["drift_nodes"])
     half, heat = tr.times.size // 2, internal_energy_change(phys, tr.sigma) / scale[:, None]
@@ -88,13 +80,11 @@ def drift(ctx, coords) -> xr.Dataset:
 def derive(ds, ctx):
     """Against the same member at α = 0 (same method), and against the reference (same member and α)."""
     ref = reference_label(ctx.methods)
-    angle = lambda a, b: xr.apply_ufunc(lambda x, y: np.degrees(rotation_angle(x, y)), a, b,  # noqa: E731
-                                        input_core_dims=[["row", "col"]] * 2)
     for tag, base in {"change": ds.sel({DIM: 0.0}, drop=True),
                       **({"minus_reference": ds.sel(scheme=ref, drop=True)} if ref else {})}.items():
-        for v in ("settling_time", "final_temperature"):
-            ds[f"{v}_{tag}"] = ds[v] - base[v]
-        ds[f"attitude_{tag}"] = angle(ds["final_attitude"], base["final_attitude"])
+        ds.update({f"{v}_{tag}": ds[v] - base[v] for v in ("settling_time", "final_temperature")})
+        ds[f"attitude_{tag}"] = xr.apply_ufunc(lambda x, y: np.degrees(rotation_angle(x, y)), ds["final_attitude"],
+                                               base["final_attitude"], input_core_dims=[["row", "col"]] * 2)
     return ds
 
 
@@ -119,16 +109,14 @@ def tables(ds, ctx) -> list[Table]:
     mm, same, ref, o = ctx.opt["motion_method"], same_members(ds, ctx.methods), reference_label(ctx.methods), ctx.opt
     key, meth, vs = [], [], ("settling_time", "final_temperature", "attitude")
     for a in ds[DIM].values:
-        d = ds.sel({DIM: a, "scheme": mm})
-        r = d["status"].values >= 0
+        r = (d := ds.sel({DIM: a, "scheme": mm}))["status"].values >= 0
         key.append({column(ds, DIM): float(a), "method": mm, "members": int(r.sum()),
                     "not settled": int(np.isnan(d["settling_time"].values[r]).sum()),
                     "later than at alpha = 0": int((d["settling_time_change"].values[r] > 0).sum()),
                     **quantile_columns(ds, d, ("settling_time", "settling_time_change", "attitude_change",
                                                "final_temperature", "final_inertia_factor"), r),
                     **quantile_columns(ds, d, ("final_tilt",), r, ("median",)),
-                    column(ds, "final_temperature_change", "max |…|"):
-                        float(np.nanmax(np.abs(d["final_temperature_change"].values[r])))})
+                    **{column(ds, v, "max |…|"): float(np.nanmax(abs(d[v][r]))) for v in ["final_temperature_change"]}})
         for m in ctx.methods:
             d = ds.sel({DIM: a, "scheme": m})
             meth.append({column(ds, DIM): float(a), "method": m, "members": int(same.sum()), "failed (all members)":
@@ -147,9 +135,8 @@ def tables(ds, ctx) -> list[Table]:
 
 
 def verdicts(ds, ctx) -> list[Verdict]:
-    mm, same, ref, d = ctx.opt["motion_method"], same_members(ds, ctx.methods), reference_label(ctx.methods), \
-        ds.sel(scheme=ctx.opt["motion_method"])
-    ran = (d["status"] >= 0).all(DIM).values
+    mm, same, ref = ctx.opt["motion_method"], same_members(ds, ctx.methods), reference_label(ctx.methods)
+    ran = ((d := ds.sel(scheme=mm))["status"] >= 0).all(DIM).values
     dts = {float(a): float(np.median(d["settling_time_change"].sel({DIM: a}).values[ran])) for a in ds[DIM] if a > 0}
     dT = float(np.nanmax(np.abs(d["final_temperature_change"].values[:, ran])))
     rise = float(np.median(d["final_temperature"].isel({DIM: 0}).values[ran]) - physics_of_scene(ctx.scene()).T0[0])
@@ -163,9 +150,8 @@ def verdicts(ds, ctx) -> list[Verdict]:
         a, b, ha, hb = (float(np.median(ds[v].sel(scheme=m).values)) for v in DRIFT)
         out += [Verdict(f"{m} meets the reference member by member", f"max |settling_time_minus_reference| {e:.2g} s",
                         f"≤ 0.1 × least median settling_time_change ({small:.2g} s)", e <= small)] if ref else []
-        out.append(Verdict(f"{m}'s energy error does not drift (long horizon)", f"{a:.2g} → {b:.2g}, heat × "
-                           f"{hb / ha:.2f}", "second half ≤ 1.05 × first × max(1, heat growth)", b <= 1.05 * a * hb / ha
-                           or b <= 1.05 * a))
+        out.append(Verdict(f"{m}'s energy error does not drift (long run)", f"{a:.2g} → {b:.2g}, heat × {hb / ha:.2f}",
+                           "2nd half ≤ 1.05 × 1st × max(1, heat growth)", b <= max(1.05 * a * hb / ha, 1.05 * a)))
     return out
 
 
@@ -175,16 +161,11 @@ def findings(ds, ctx) -> list[str]:
     d, st0 = ds.sel({"scheme": mm, DIM: a}), float(np.nanmedian(ds["settling_time"].sel({"scheme": mm, DIM: 0.0})))
     dt, up = float(np.nanmedian(d["settling_time_change"])), 100 * (float(d["final_inertia_factor"].median()) - 1)
     e = {m: float(ds["max_relative_energy_error"].sel(scheme=m).values[:, same].max()) for m in ctx.methods}
-    return [f"At alpha = {a:g} K-1 the coupled top ({mm}) settles {dt:.3g} s later in the median over members "
-            f"({100 * dt / st0:+.2g} % of {st0:.4g} s), its inertia up {up:.2g} %, at the decoupled top's final "
-            "temperature: the coupling changes how fast the energy above rest turns into heat, not how much."] + ([
-            f"What the reference wins: the coupled model's energy kept to {e[ref]:.1e}, against " + ", ".join(
-                f"{m} {v:.1e}" for m, v in e.items() if m != ref) + f" (max over alpha and the same {int(same.sum())} "
-            "members), and the settling time the others are judged by."] if ref else [])
-
-
-def _at_check(ds, ctx, **sel):  # at alpha = check_alpha, the traced members named for the legend
-    return ds.sel({DIM: ctx.opt["check_alpha"], **sel}).assign_coords(trace=[f"member {int(i)}" for i in ds["trace"]])
+    return [f"At alpha = {a:g} K-1 the coupled top ({mm}) settles {dt:.3g} s later (median, {100 * dt / st0:+.2g} % of "
+            f"{st0:.4g} s), its inertia up {up:.2g} %, at the decoupled top's final temperature: the coupling changes "
+            "how fast energy above rest turns into heat, not how much."] + ([f"What the reference wins: energy kept "
+            f"to {e[ref]:.1e} against " + ", ".join(f"{m} {v:.1e}" for m, v in e.items() if m != ref) + " (max over "
+            f"alpha, same {int(same.sum())} members), and the settling time the others meet."] if ref else [])
 
 
 STUDY = Study(
@@ -199,21 +180,19 @@ STUDY = Study(
              Option("drift_nodes", 1000, "int>=1", "1", "stored nodes of the long run")),
     models=("top",), check=_check, quantities=Q, derive=derive, tables=tables, verdicts=verdicts, findings=findings,
     stages=(Stage("run", run, over=("point", "scheme")), Stage("drift", drift, over=("scheme",))),
-    figures=(Figure("coupling_settling", x=DIM, y=("settling_time", "settling_time_change"), select=lambda ds, ctx: ds[
-                 ["settling_time", "settling_time_change"]].isel(member=same_members(ds, ctx.methods)).median(
-                 "member", keep_attrs=True), claim="median over the members the reference ran: the methods agree on "
-                 "the settling time; the coupled top settles later than the decoupled one, the more at larger alpha"),
+    figures=(Figure("coupling_settling", x=DIM, y=("settling_time", "settling_time_change"), select=lambda ds, ctx: ds
+                    .isel(member=same_members(ds, ctx.methods)).median("member", keep_attrs=True), claim="median over "
+                    "the reference's members: methods agree; the coupled top settles later, the more at larger alpha"),
              Figure("coupling_traces", x="t", y=("temperature_trace", "inertia_factor_trace"), hue="trace", logx=False,
-                    select=lambda ds, ctx: _at_check(ds, ctx, scheme=ctx.opt["motion_method"]), claim="at alpha = "
-                    "{opt[check_alpha]} K-1 the friction heats the top and its inertia grows with the temperature "
-                    "({opt[motion_method]}, one line per traced member; T = −∂L/∂S dips while the top spins fast)"),
+                    select=lambda ds, ctx: ds.sel({DIM: ctx.opt["check_alpha"], "scheme": ctx.opt["motion_method"]})
+                    .assign_coords(trace=[f"member {int(i)}" for i in ds["trace"]]), claim="{opt[motion_method]}, "
+                    "alpha = {opt[check_alpha]} K-1: friction heats the top, its inertia grows; T dips in fast spin"),
              Figure("coupling_energy", x="t", y=("relative_energy_error_quantiles",), logx=False,
-                    select=lambda ds, ctx: _at_check(ds, ctx, quantile=0.5), claim="at alpha = {opt[check_alpha]} K-1 "
-                    "the median energy error over the same members stops changing once the top rests"),
+                    select=lambda ds, ctx: ds.sel({DIM: ctx.opt["check_alpha"], "quantile": 0.5}), claim="at alpha = "
+                    "{opt[check_alpha]} K-1 the median energy error over the same members stops changing at rest"),
              Figure("coupling_drift", x="drift_time", y=("drift_error_median",), logx=False,
                     claim="over the long low-viscosity horizon the median energy error stays bounded")),
     report=("Scene `{scene}` (𝕀(S) = 𝕀₀(1 + α(θ − T₀))²), the same random members at every alpha, node values "
             "(kinetic energy from the node velocity 𝕀(S_k)⁻¹μ_k), t_end = {opt[t_end]} s. The reference (DOP853 with "
-            "substeps) runs the first {opt[reference_members]} members; methods meet it, and each other, there only. "
-            "No cost is reported: these runs are not timed interleaved and repeated; work_precision ranks costs."),
+            "substeps) runs the first {opt[reference_members]} members, compared there. No cost is reported."),
 )

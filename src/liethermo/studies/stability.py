@@ -1,11 +1,12 @@
 """Stability: where each method stays bounded and accurate over a (h|Ω₀|, κ = c h / I_min) map at a fixed step (one
-member per cell, errors on node values against the reference), named hard cases, and the VI's Newton limit; a negative
-substep f h is singular at κ = −2/f, a friction mode grows around it (:func:`liethermo.methods.negative_substep_limits`)."""
+member per cell, node-value errors against the reference), named hard cases, and the VI's Newton limit; a negative
+substep f h is singular at κ = −2/f, a friction mode grows around it (:func:`.methods.negative_substep_limits`)."""
 
 from __future__ import annotations
 
 import numpy as np
 import xarray as xr
+from numpy.linalg import norm
 
 from ..initial import initial_conditions
 from ..methods import negative_substep_limits
@@ -37,12 +38,12 @@ def run(phys, om, R, h, steps, method, ref=True):
          tr.steps_done, 1), "failed_at_step": np.where(tr.status != 0, tr.fail_step, -1), "max_h_omega": tr.max_h_omega}
     if rf is not None:
         with np.errstate(invalid="ignore", over="ignore"):
-            e = np.maximum(np.linalg.norm(tr.omega - rf.omega, axis=-1) / np.linalg.norm(om, axis=1)[:, None],
-                           np.linalg.norm(tr.gamma - rf.gamma, axis=-1))
+            e = np.maximum(norm(tr.omega - rf.omega, axis=-1) / norm(om, axis=1)[:, None],
+                           norm(tr.gamma - rf.gamma, axis=-1))
             e, E = np.where(np.isfinite(e), e, np.inf), [phys.mechanical_energy(kinetic_energy(phys, w, None),
-                                                         potential_energy(phys, g)) for w, g in ((tr.omega, tr.gamma), (om, R[:, 2]))]
-            d.update(error_max=e.max(axis=1), error_end=e[:, -1], gamma_defect=np.nanmax(np.abs(np.linalg.norm(
-                tr.gamma, axis=-1) - 1.0), axis=1), energy_growth=np.nanmax(np.where(np.isfinite(E[0]), E[0], np.nan), axis=1) / E[1])
+                potential_energy(phys, g)) for w, g in ((tr.omega, tr.gamma), (om, R[:, 2]))]
+            d.update(error_max=e.max(axis=1), error_end=e[:, -1], gamma_defect=np.nanmax(np.abs(norm(tr.gamma, axis=-1)
+                - 1.0), axis=1), energy_growth=np.nanmax(np.where(np.isfinite(E[0]), E[0], np.nan), axis=1) / E[1])
     return tr, d
 
 
@@ -58,8 +59,8 @@ def map_cells(ctx, coords) -> xr.Dataset:
     HW, KA = np.meshgrid(hw, ka, indexing="ij")
     phys, om, R = _spun(ctx.scene(opt["map_scene"]), HW.ravel(), h)
     C = phys.linear_resistance()[0]  # its shape kept, its largest entry c = κ I_min / h
-    phys = phys.with_linear_resistance((KA.ravel() * phys.inertia.min(axis=1) / h)[:, None] * (C / C.max() if C.max()
-                                                                                           > 0 else np.ones(3))[None])
+    C = C / C.max() if C.max() > 0 else np.ones(3)
+    phys = phys.with_linear_resistance((KA.ravel() * phys.inertia.min(axis=1) / h)[:, None] * C[None])
     _, d = run(phys, om, R, h, int(opt["steps"]), coords["scheme"])
     bounded = (d["energy_growth"] <= opt["growth_limit"]) & (d["gamma_defect"] <= 0.1)
     d["regime"] = np.select([d["status"] == 2, d["status"] == 1, ~bounded, d["error_max"] > opt["error_threshold"]],
@@ -88,12 +89,13 @@ def newton_limit(ctx, coords) -> xr.Dataset:
     return xr.Dataset({k: ("limit_h_omega", v) for k, v in d.items()}, coords={"limit_h_omega": hw})
 
 
-DIAG = {"status": status_units(), "error_max": ("1", "error, max over the run"), "error_end": ("1", "error at the end"),
-        "gamma_defect": ("1", "max_k ||Gamma_k| - 1|"), "energy_growth": ("1", "max_k E_mech,k / E_mech,0 (above rest)"),
-        "newton_max": ("1", "max Newton iterations in one step"), "newton_mean": ("1", "mean Newton iterations per step"),
-        "failed_at_step": ("1", "step whose computation failed (-1: none)"), "max_h_omega": ("rad", "max_k h |Omega_k|"),
+DIAG = {"status": status_units(), "error_max": ("1", "error, max over the run"), "h_omega0": ("rad", "h |Omega_0|"),
+        "error_end": ("1", "error at the end"), "energy_growth": ("1", "max_k E_mech,k / E_mech,0 (above rest)"),
+        "gamma_defect": ("1", "max_k ||Gamma_k| - 1|"), "newton_max": ("1", "max Newton iterations in one step"),
+        "newton_mean": ("1", "mean Newton iterations per step"), "max_h_omega": ("rad", "max_k h |Omega_k|"),
+        "failed_at_step": ("1", "step whose computation failed (-1: none)"),
         "jacobian_cond_max": ("1", "max over accepted steps of the 2-norm condition number of the Newton Jacobian"),
-        "h_omega0": ("rad", "h |Omega_0|"), "kappa": ("1", "kappa = c h / I_min (friction per step)")}
+        "kappa": ("1", "kappa = c h / I_min (friction per step)")}
 QUANTITIES = {**DIAG, **{f"case_{k}": (u, f"named case: {n}") for k, (u, n) in DIAG.items()},
               **{f"limit_{k}": (u, f"Newton limit push: {n}") for k, (u, n) in DIAG.items()},
               "regime": ("1", "regime code, 0 accurate ... 4 non-finite"),
@@ -101,16 +103,12 @@ QUANTITIES = {**DIAG, **{f"case_{k}": (u, f"named case: {n}") for k, (u, n) in D
               "limit_h_omega": ("rad", "h |Omega_0| of the Newton limit push")}
 
 
-def _band(m):
-    c = method_choice(m)
-    return negative_substep_limits(c.name, c.friction, c.composition or "small_error") if c.family == "vi" else {
-        "min_factor": np.nan, "kappa_singular": [], "growth_band": None}
-
-
 def _summary(ds, ctx):
     hw, ka, rows = ds["h_omega"].values, ds["kappa"].values, []
     for m in ctx.methods:
-        r, band = ds["regime"].sel(scheme=m).values, _band(m)["growth_band"]
+        r, mc = ds["regime"].sel(scheme=m).values, method_choice(m)
+        band = negative_substep_limits(mc.name, mc.friction, mc.composition or "small_error")["growth_band"] if (
+            mc.family == "vi") else None  # the κ band where a friction mode of the VI grows
         ok, acc, bad = hw[np.all(r <= 1, axis=1)], hw[np.all(r == 0, axis=1)], np.any(r >= 2, axis=0)
         inband = (ka >= band[0]) & (ka <= band[1]) if band else np.zeros(ka.size, bool)
         rows.append({"method": m, **{c: int(np.sum(r == i)) for i, c in enumerate(CLASSES)},
@@ -162,8 +160,9 @@ def findings(ds, ctx) -> list[str]:
     if "limit_h_omega" in ds.dims:
         hw, st, nm = ds["limit_h_omega"].values, ds["limit_status"].values, ds["limit_newton_max"].values
         ok, fail = (st == 0) & (hw >= 10), ", ".join(f"{v:g}" for v in hw[st != 0][:1]) or "none tried"
-        out.append(f"The VI's Newton iterations grow by {np.polyfit(np.log10(hw[ok]), nm[ok], 1)[0] if ok.sum() > 1 else np.nan:.1f}"
-                   f" per decade of h|Ω₀| (the step velocity solves a cubic); first failure at h|Ω₀| = {fail}.")
+        slope = np.polyfit(np.log10(hw[ok]), nm[ok], 1)[0] if ok.sum() > 1 else np.nan
+        out.append(f"The VI's Newton iterations grow by {slope:.1f} per decade of h|Ω₀| (the step velocity solves a "
+                   f"cubic); first failure at h|Ω₀| = {fail}.")
     return out
 
 
@@ -177,24 +176,23 @@ STUDY = Study(
     kind="stability", title="Stability: bounded and accurate regimes, hard cases, Newton limits", models=("top",),
     description="Where each method stays bounded and accurate over (h|Ω₀|, κ); hard cases; Newton limit",
     options=(Option("h", 0.1, "number>0", "s", "the map's step"), Option("steps", 100, "int>=1", "1", "steps per run"),
-             Option("h_omega", [0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0, 10.0], "list[number>0]", "rad", "h|Ω₀| of the map"),
-             Option("kappa", [0.001, 0.01, 0.1, 0.5, 1.0, 2.0, 5.0, 10.0], "list[number>0]", "1", "κ of the map"),
+             Option("h_omega", [0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0, 10.0], "list[number>0]", "rad", "map's h|Ω₀|"),
+             Option("kappa", [0.001, 0.01, 0.1, 0.5, 1.0, 2.0, 5.0, 10.0], "list[number>0]", "1", "map's κ"),
              Option("error_threshold", 0.05, "number>0", "1"), Option("growth_limit", 2.0, "number>0", "1"),
              _Table("cases", [], "list of tables", "", "name, description, h, steps, scene"),
              _Table("map_scene", {}, "table", "", "scene overrides of the map")),
     axes=lambda ctx: {"case": [c["name"] for c in ctx.opt["cases"]]}, check=_check,
-    stages=(Stage("map", map_cells, over=("scheme",)), Stage("cases", case_run, over=("case", "scheme"), prefix="case_"),
+    stages=(Stage("map", map_cells, ("scheme",)), Stage("cases", case_run, over=("case", "scheme"), prefix="case_"),
             Stage("limit", newton_limit, over=(), prefix="limit_")),
     quantities=QUANTITIES, tables=tables, verdicts=verdicts, findings=findings,
     figures=(Figure("regimes", kind="heatmap", x="h_omega", hue="kappa", facet="scheme", y=("regime",), logy=False,
                     claim="each method's regime per cell (" + ", ".join(f"{i} {c}" for i, c in enumerate(CLASSES)) +
-                    "): the VI family stays bounded outside its growth band, the explicit methods do not at large h|Ω₀|"),
+                    "): the VIs stay bounded outside their growth band, the explicit methods not at large h|Ω₀|"),
              Figure("errors", kind="heatmap", x="h_omega", hue="kappa", facet="scheme", y=("error_max",), logy=True,
                     select=lambda ds, ctx: ds.assign(error_max=ds["error_max"].where(~np.isfinite(ds["error_max"]) | (
-                        ds["error_max"] <= 1e3), 1e3)), claim="the error per cell (finite errors above 1e3 drawn at "
-                    "1e3: no accuracy left); hatched cells: the state overflowed")),
-    report=("Map scene `{scene}` with the overrides {opt[map_scene]}, h = {opt[h]} s, {opt[steps]} steps. Error: max_k max("
-            "|Ω_k − Ω_ref(t_k)|/|Ω₀|, |Γ_k − Γ_ref(t_k)|) on node values against the reference; accurate: error ≤ "
+                        ds["error_max"] <= 1e3), 1e3)), claim="errors above 1e3 drawn at 1e3; hatched: overflow")),
+    report=("Map scene `{scene}` (overrides {opt[map_scene]}), h = {opt[h]} s, {opt[steps]} steps. Error: max_k max("
+            "|Ω_k − Ω_ref(t_k)|/|Ω₀|, |Γ_k − Γ_ref(t_k)|), node values against the reference; accurate: error ≤ "
             "{opt[error_threshold]}; bounded: E_mech above rest ≤ {opt[growth_limit]}× its start and ||Γ| − 1| ≤ 0.1. "
-            "The last method listed is the baseline. Named cases: {cases}."),
+            "Baseline: the last method. Named cases: {cases}."),
     facts=lambda ds, ctx: {"cases": "; ".join(f"*{c['name']}* ({c.get('description', '')})" for c in ctx.opt["cases"])})

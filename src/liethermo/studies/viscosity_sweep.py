@@ -3,8 +3,6 @@ of the friction linear in Ω; entropy rates are the model's dissipated power ove
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import xarray as xr
 
@@ -23,8 +21,7 @@ DIM = dim_name(SWEEP_KEY)
 def _check(ctx) -> None:
     sweep = ctx.study.get("sweep") or {}
     if list(sweep) != [SWEEP_KEY] or any(not isinstance(v, (int, float)) or v <= 0 for v in sweep[SWEEP_KEY]):
-        raise StudyError(f"sweep: a viscosity_sweep study sweeps {SWEEP_KEY!r} alone, over viscosities > 0 (a "
-                         f"settling time needs friction), got {sweep}")
+        raise StudyError(f"sweep: a viscosity_sweep study sweeps {SWEEP_KEY!r} alone, viscosities > 0, got {sweep}")
     if ctx.opt["outputs"] < 10:
         raise StudyError(f"options.outputs: must be an integer ≥ 10, got {ctx.opt['outputs']!r}")
     try:
@@ -37,10 +34,9 @@ def settling_times(t: np.ndarray, E: np.ndarray, threshold: float) -> np.ndarray
     """Per member, the time after which E stays below threshold·E[:, 0] (linear interpolation; NaN: censored)."""
     thr, out = threshold * E[:, 0], np.full(E.shape[0], np.nan)
     for m, above in enumerate(~(E < thr[:, None])):  # NaN counts as above
-        j = np.flatnonzero(above)[-1] if above.any() else None
-        if j is None:
+        if not above.any():
             out[m] = t[0]
-        elif j < t.size - 1:
+        elif (j := np.flatnonzero(above)[-1]) < t.size - 1:
             s = (E[m, j] - thr[m]) / (E[m, j] - E[m, j + 1]) if E[m, j] > E[m, j + 1] else 1.0
             out[m] = t[j] + np.clip(s, 0.0, 1.0) * (t[j + 1] - t[j])
     return out
@@ -48,29 +44,25 @@ def settling_times(t: np.ndarray, E: np.ndarray, threshold: float) -> np.ndarray
 
 def sweep(ctx, coords) -> xr.Dataset:
     scene, opt = ctx.scene(coords["point"]), ctx.opt
-    n, (om, R) = int(scene["ensemble"]["members"]), initial_conditions(scene)
-    phys = physics_of_scene(scene, n)
-    h, times = float(opt["h"]), [float(x) for x in opt["entropy_times"]]
+    n, (om, R), h = int(scene["ensemble"]["members"]), initial_conditions(scene), float(opt["h"])
+    phys, times = physics_of_scene(scene, n), [float(x) for x in opt["entropy_times"]]
     c, g = float(phys.linear_resistance()[0].max()), 0.5 * float(phys.potential_span()[0])
-    tau = max(float(phys.inertia[0].max()) / c, c / g if g > 0 else 0.0)
-    lo = max(float(opt["t_end_min"]), max(times))  # t_end: the slowest relaxation (under- or over-damped) × factor
+    tau = max(float(phys.inertia[0].max()) / c, c / g if g > 0 else 0.0)  # the slowest relaxation (either damping)
+    lo = max(float(opt["t_end_min"]), max(times))
     t_end = float(np.clip(opt["t_end_factor"] * tau, lo, max(lo, float(opt["t_end_max"]))))
-    every = max(1, int(round(t_end / h / int(opt["outputs"]))))
-    every = min(every, max(1, int(math.floor(min(times) / h + 1e-9))))  # the first entropy time is resolved
-    steps = int(math.ceil(t_end / (h * every))) * every
-    tr = run_spec(phys, om, R, h, steps, parse_method(opt["method"]), every=every)
-    t, sig, e = tr.times, tr.sigma, node_energies(tr)
-    E = phys.mechanical_energy(e["K"], e["V"])
+    # about `outputs` nodes, the first entropy time resolved
+    every = min(max(1, int(round(t_end / h / int(opt["outputs"])))), max(1, int(np.floor(min(times) / h + 1e-9))))
+    tr = run_spec(phys, om, R, h, int(np.ceil(t_end / (h * every))) * every, parse_method(opt["method"]), every=every)
+    t, sig, E = tr.times, tr.sigma, phys.mechanical_energy((e := node_energies(tr))["K"], e["V"])
     by = [np.full(n, np.nan) if ti > t[-1] else np.array([np.interp(ti, t, y) for y in sig]) for ti in times]
+    mb = "member"
     return xr.Dataset({
-        "settling_time": ("member", settling_times(t, E, float(opt["threshold"]))),
-        "entropy_produced": ("member", sig[:, -1]),
-        "entropy_by_time": (("member", "entropy_time"), np.stack(by, axis=1)),
-        "mech_energy_initial": ("member", E[:, 0]), "mech_energy_final": ("member", E[:, -1]),
-        "heat_ratio": ("member", e["dU"][:, -1] / (E[:, 0] - E[:, -1])),
-        "entropy_rate_initial": ("member", phys.dissipated_power(om) / temperature(phys, om, np.zeros(n))),
-        "status": ("member", tr.status.astype(np.int8)), "t_end": ((), float(t[-1])),
-    }, coords={"member": np.arange(n), "entropy_time": times})
+        "settling_time": (mb, settling_times(t, E, float(opt["threshold"]))), "entropy_produced": (mb, sig[:, -1]),
+        "entropy_by_time": ((mb, "entropy_time"), np.stack(by, axis=1)), "mech_energy_initial": (mb, E[:, 0]),
+        "mech_energy_final": (mb, E[:, -1]), "heat_ratio": (mb, e["dU"][:, -1] / (E[:, 0] - E[:, -1])),
+        "entropy_rate_initial": (mb, phys.dissipated_power(om) / temperature(phys, om, np.zeros(n))),
+        "status": (mb, tr.status.astype(np.int8)), "t_end": ((), float(t[-1]))},
+        coords={mb: np.arange(n), "entropy_time": times})
 
 
 QUANTITIES = {
@@ -87,13 +79,13 @@ QUANTITIES = {
 
 
 def derive(ds, ctx):
-    ds = ds.assign_coords(quantile=[0.25, 0.5, 0.75])
+    st, ds = ds["settling_time"].values, ds.assign_coords(quantile=[0.25, 0.5, 0.75])
     ds["settling_time_quartiles"] = ((DIM, "quantile"), np.array([np.quantile(r[np.isfinite(r)], ds["quantile"].values)
-                                      if np.isfinite(r).any() else np.full(3, np.nan) for r in ds["settling_time"].values]))
+                                      if np.isfinite(r).any() else np.full(3, np.nan) for r in st]))
     ds["entropy_by_time_mean"] = ds["entropy_by_time"].mean("member", skipna=False)
     phys = physics_of_scene(scene := ctx.scene(ctx.points[0]))  # c is linear in μ: μ_crit = μ c_crit / c
     g, per_mu = 0.5 * float(phys.potential_span()[0]), scene_value(scene, SWEEP_KEY) / phys.linear_resistance().max()
-    ds["mu_crit"] = 2 * math.sqrt(float(phys.inertia[0].min()) * g) * per_mu if g > 0 else math.inf
+    ds["mu_crit"] = 2 * np.sqrt(float(phys.inertia[0].min()) * g) * per_mu if g > 0 else np.inf
     return ds
 
 
@@ -103,9 +95,9 @@ def tables(ds, ctx) -> list[Table]:
         d, (q25, med, q75) = ds.sel({DIM: mu}), ds["settling_time_quartiles"].sel({DIM: mu}).values.tolist()
         rows.append({"μ (kg m⁻¹ s⁻¹)": float(mu), "t_end (s)": float(d["t_end"]), "settling time median (s)": med,
                      "q25 (s)": q25, "q75 (s)": q75, "μ × median (kg m⁻¹)": float(mu) * med,
-                     "censored": int(np.isnan(d["settling_time"].values).sum()), "failed": int((d["status"] != 0).sum()),
-                     **{f"mean ΔS by {t:g} s (J/K)": float(v) for t, v in zip(d["entropy_time"].values,
-                                                                             d["entropy_by_time_mean"].values)},
+                     "censored": int(np.isnan(d["settling_time"]).sum()), "failed": int((d["status"] != 0).sum()),
+                     **{f"mean ΔS by {t:g} s (J/K)": float(v)
+                        for t, v in zip(d["entropy_time"].values, d["entropy_by_time_mean"].values)},
                      "mean ΔS total (J/K)": float(d["entropy_produced"].mean()),
                      "(U − U₀)/ΔE_mech (mean)": float(d["heat_ratio"].mean())})
     return [Table("viscosity_sweep", "Settling time and entropy production against viscosity", rows)]
@@ -129,12 +121,10 @@ def verdicts(ds, ctx) -> list[Verdict]:
 def findings(ds, ctx) -> list[str]:
     e0, rate = float(ds["mech_energy_initial"].isel({DIM: 0}).mean()), ds["entropy_rate_initial"].mean("member").values
     e0 /= float(ctx.scene(ctx.points[0])["thermo"]["T0"])
-    return [f"The entropy produced by settling is set by the initial data: mean E_mech(0)/T₀ = {e0:.4e} J/K against "
-            f"the measured {float(ds['entropy_produced'].mean()):.4e} J/K; viscosity sets how fast it is produced "
-            f"(the mean initial rate P/T₀ runs from {rate.min():.3g} to {rate.max():.3g} W/K), not how much.",
-            f"The pendulum mode is over-damped above μ_crit ≈ {float(ds['mu_crit']):.3g} kg m⁻¹ s⁻¹: below it settling "
-            "takes ∝ 1/μ, above it the top creeps down at rate mgℓ/c and settling takes longer again. One method and "
-            "no reference: this study measures no error and no cost."]
+    return [f"The entropy produced by settling is set by the initial data (mean E_mech(0)/T₀ = {e0:.4e} J/K, measured "
+            f"{float(ds['entropy_produced'].mean()):.4e} J/K); viscosity sets how fast (mean initial rate P/T₀ from "
+            f"{rate.min():.3g} to {rate.max():.3g} W/K), not how much.", f"The pendulum mode is over-damped above "
+            f"μ_crit ≈ {float(ds['mu_crit']):.3g} kg m⁻¹ s⁻¹ (settling ∝ 1/μ below, slower above). No error, no cost."]
 
 
 STUDY = Study(
@@ -149,12 +139,9 @@ STUDY = Study(
     needs_methods=False, check=_check, stages=(Stage("sweep", sweep, over=("point",)),),
     quantities=QUANTITIES, derive=derive, tables=tables, verdicts=verdicts, findings=findings,
     figures=(Figure("settling_time", x=DIM, y=("settling_time_quartiles",), hue="quantile", logy=True,
-                    select=lambda ds, ctx: ds, claim="the settling time falls like 1/μ while under-damped and grows "
-                    "again above μ_crit (quartiles over the members; censored members left out)"),
+                    select=lambda ds, ctx: ds, claim="settled members' quartiles: ∝ 1/μ below μ_crit, longer above"),
              Figure("entropy_by_time", x=DIM, y=("entropy_by_time_mean",), hue="entropy_time",
-                    select=lambda ds, ctx: ds, claim="by a fixed early time more entropy is produced at larger μ; "
-                    "the total (table) is the same for every μ")),
-    report=("Scene `{scene}`, method `{opt[method]}`, h = {opt[h]} s, the same random members for every μ. Settled: "
-            "E_mech above rest stays below {opt[threshold]} × its initial value; *censored*: not settled by t_end = "
-            "{opt[t_end_factor]} × max(I_max/c, c/mgℓ) in [max({opt[t_end_min]}, the entropy times), {opt[t_end_max]}]"
-            " s. Heat balance (U(S) − U(S₀))/ΔE_mech at t_end on node values."))
+                    select=lambda ds, ctx: ds, claim="by a fixed early time more entropy at larger μ; the same total")),
+    report=("Scene `{scene}`, method `{opt[method]}`, h = {opt[h]} s, the same members at every μ. Settled: E_mech "
+            "above rest stays below {opt[threshold]} × its start; *censored*: not settled by t_end = "
+            "{opt[t_end_factor]} × max(I_max/c, c/mgℓ) in [max({opt[t_end_min]}, entropy times), {opt[t_end_max]}] s."))

@@ -1,9 +1,7 @@
-"""Long runs of the Zeitlin fluid: Casimir and energy drift of the split family against RK4 at equal *measured* cost:
-costs per step timed interleaved on one thread; RK4 (its cost per step does not depend on the state) at the step
-making its run cost the splitting's measured run; all cached; :func:`.timing.equal_cost_check` flags > 15 % gaps."""
+"""Long runs of the Zeitlin fluid: Casimir and energy drift of the split family against RK4 at equal measured CPU cost
+(one thread): RK4, whose cost per step does not depend on the state, at the step making its run cost the splitting's."""
 
 import time
-from functools import partial
 
 import numpy as np
 import xarray as xr
@@ -24,17 +22,15 @@ RUN = {"h": ("s", "time step of the run", "h (s)"), "steps": ("1", "steps of the
 def _check(ctx):
     if "rk4" not in ctx.methods or len(ctx.methods) < 2:
         raise StudyError("methods: rk4 and at least one split method (the comparison is against RK4)")
-    for coords in ({"N": N, "viscosity": nu} for N in ctx.opt["N"] for nu in ctx.opt["viscosity"]):
-        _scene(ctx, coords)  # the scene's own rules
+    nus = ctx.opt["kinematic_viscosity"]
+    for coords in ({"N": N, "kinematic_viscosity": nu} for N in ctx.opt["N"] for nu in nus):
+        _setup(ctx, coords, ctx.opt["h"])  # the scene's own rules
 
 
-def _scene(ctx, coords):
-    return ctx.scene(None, zeitlin__N=int(coords["N"]), fluid__kinematic_viscosity=float(coords["viscosity"]))
-
-
-def _per(ctx, h):  # steps per sample, and the step near h at which the samples end at t_end
+def _setup(ctx, coords, h):  # the scene, the steps per sample and the step near h at which the samples end at t_end
+    sc = ctx.scene(None, zeitlin__N=int(coords["N"]), fluid__kinematic_viscosity=float(coords["kinematic_viscosity"]))
     per = max(int(round(ctx.opt["t_end"] / h / ctx.opt["samples"])), 1)
-    return per, ctx.opt["t_end"] / (per * ctx.opt["samples"])
+    return sc, per, ctx.opt["t_end"] / (per * ctx.opt["samples"])
 
 
 def _cpu(sc, m, h, n, every):  # a run and its CPU time (one thread: the machine's other load does not enter)
@@ -44,7 +40,7 @@ def _cpu(sc, m, h, n, every):  # a run and its CPU time (one thread: the machine
 
 def calibrate(ctx, coords) -> xr.Dataset:
     """CPU time per step at h, (best of 2k steps − best of k) / k, and of a run besides steps, 2 best(k) − best(2k)."""
-    sc, (k0, h) = _scene(ctx, coords), _per(ctx, ctx.opt["h"])
+    sc, k0, h = _setup(ctx, coords, ctx.opt["h"])
     with timing.pinned_threads(1):
         k = {m: next(k0 << i for i in range(30) if _cpu(sc, m, h, k0 << i, k0 << i)[1] >= 0.02) for m in ctx.methods}
     c = timing.measure({(m, n): (lambda m=m, n=n: _cpu(sc, m, h, n, n)[1]) for m in k for n in (k[m], 2 * k[m])},
@@ -60,11 +56,11 @@ def long_run(ctx, coords, calibrate) -> xr.Dataset:
     m, n, h = (coords["pair"] if coords["side"] == "splitting" else "rk4"), ctx.opt["samples"], ctx.opt["h"]
     if m == "rk4":  # its steps cost the splitting's measured run (from the cache) less a run's fixed cost
         split, c, T = {**coords, "side": "splitting"}, calibrate.sel(scheme="rk4"), ctx.opt["t_end"]
-        w = cached_point(ctx.outdir, task_key(STUDY, ctx, STUDY.stages[1], split), partial(long_run, ctx, split, calibrate))
+        w = cached_point(ctx.outdir, task_key(STUDY, ctx, STUDY.stages[1], split), lambda: long_run(ctx, split, calibrate))
         h = float(c["step_cost"] * T / (w["cost_per_simulated_second"] * T - c["run_overhead"]))
-    per, h = _per(ctx, h)
+    sc, per, h = _setup(ctx, coords, h)
     with timing.pinned_threads(1):
-        ds, cpu = _cpu(_scene(ctx, coords), m, h, per * n, per)
+        ds, cpu = _cpu(sc, m, h, per * n, per)
     L, ma, dC = ds["angular_momentum"], ("member", "axis"), abs(ds["casimir_drift"]).max("member")
     curves = {"casimir2_drift": dC.sel(k=2), "casimir4_drift": dC.sel(k=4), "energy_drift": abs(ds["energy_error"]).max(
         "member"), "angular_momentum_drift": abs(L - L.isel(t=0)).max(ma) / abs(L.isel(t=0)).max(ma)}
@@ -76,17 +72,16 @@ def long_run(ctx, coords, calibrate) -> xr.Dataset:
 def tables(ds, ctx):
     df = ds[list(RUN)].isel(t=-1, drop=True).to_dataframe().reset_index()
     df["side"] = np.where(df["side"] == "rk4", "rk4", df["pair"])  # the method of the run
-    df = df.rename(columns={"side": "method", "viscosity": "viscosity (s-1)", **{k: v[2] for k, v in RUN.items()}})
+    df = df.rename(columns={"side": "method", "kinematic_viscosity": "kinematic viscosity (s-1)",
+                            **{k: v[2] for k, v in RUN.items()}})
     return [Table("drift", "Drift after t_end at equal measured cost per simulated second", df.to_dict("records"))]
 
 
 def verdicts(ds, ctx):
-    end = ds.isel(t=-1)
-    w = end["cost_per_simulated_second"].stack(run=("N", "viscosity", "pair")).transpose("run", "side")
+    w = ds["cost_per_simulated_second"].stack(run=("N", "kinematic_viscosity", "pair")).transpose("run", "side")
     bad = "".join(f"; flagged N = {N}, ν = {nu:g}, {p}" for (N, nu, p), v in zip(w["run"].values, w.values)
                   if timing.equal_cost_check(dict(zip(("splitting", "rk4"), v))))
-    sp, rk = end.sel(side="splitting"), end.sel(side="rk4")
-    c_s, c_r = (x["casimir2_drift"].where(x["viscosity"] == 0) for x in (sp, rk))
+    c_s, c_r = ds["casimir2_drift"].isel(t=-1).where(ds["kinematic_viscosity"] == 0).transpose("side", ...)  # split, rk4
     ratio = float((w.max("side") / w.min("side")).max())
     return [Verdict("each pair ran at equal measured cost", f"largest ratio {ratio:.2f}{bad}",
                     "costs per simulated second within 15 % (equal_cost_check)", not bad),
@@ -96,11 +91,11 @@ def verdicts(ds, ctx):
 
 
 def findings(ds, ctx):
-    sp, rk = (ds.isel(t=-1).sel(side=s).where(ds["viscosity"] == 0) for s in ("splitting", "rk4"))
+    sp, rk = (ds.isel(t=-1).sel(side=s).where(ds["kinematic_viscosity"] == 0) for s in ("splitting", "rk4"))
     cost = lambda b, s: timing.Cost(b, b * (1 + s), s, 1, (b,))  # noqa: E731 (best and spread as stored)
     costs = "; ".join(f"N = {N}, ν = {nu:g}: {timing.describe({m: cost(*d.sel(scheme=m).values) for m in ctx.methods})}"
-                      for N in ds["N"].values for nu in ds["viscosity"].values
-                      for d in [ds[["step_cost", "step_cost_spread"]].sel(N=N, viscosity=nu).to_array()])
+                      for N in ds["N"].values for nu in ds["kinematic_viscosity"].values
+                      for d in [ds[["step_cost", "step_cost_spread"]].sel(N=N, kinematic_viscosity=nu).to_array()])
     return [f"CPU time per step at h (one thread; a gap within the spread is a tie): {costs}.",
             f"At ν = 0 the splitting wins the Casimirs (tr W² drift ≤ {float(sp['casimir2_drift'].max()):.1e}, RK4 ≥ "
             f"{float(rk['casimir2_drift'].min()):.1e}); RK4, the baseline, wins the energy (|H + q − H(0)|/H(0) ≤ "
@@ -108,14 +103,14 @@ def findings(ds, ctx):
 
 
 def draw(ds, ctx, fig):
-    cases = [(N, nu) for N in ds["N"].values for nu in ds["viscosity"].values]
+    cases = [(N, nu) for N in ds["N"].values for nu in ds["kinematic_viscosity"].values]
     fig.set_size_inches(10.5, 0.8 + 2.9 * len(cases))
     axes = fig.subplots(len(cases), 2, squeeze=False, sharex=True)
     for i, (row, (N, nu)) in enumerate(zip(axes, cases)):
         for a, var in zip(row, ("casimir2_drift", "energy_drift")):
             for j, p in enumerate(ds["pair"].values):
                 for s, m in zip(("splitting", "rk4"), (p, "rk4")):
-                    y = ds[var].sel(N=N, viscosity=nu, pair=p, side=s)
+                    y = ds[var].sel(N=N, kinematic_viscosity=nu, pair=p, side=s)
                     a.semilogy(ds["t"], y.where(y > 0), color=ctx.color(m), ls=("-", "--", ":", "-.")[j % 4], ms=3,
                                marker=MARKERS[j % len(MARKERS)], label=m if m != "rk4" else f"rk4 at {p}'s cost")
             a.set(title=f"N = {N}, ν = {nu:g} s⁻¹", ylabel=f"{RUN[var][2]} (1)",
@@ -126,25 +121,22 @@ def draw(ds, ctx, fig):
 
 
 STUDY = Study(
-    kind="zeitlin_structure", title="Zeitlin fluid: structure over long runs", models=("zeitlin",),
-    description="Casimir and energy drift, split family against RK4 at equal measured cost",
+    kind="zeitlin_structure", title="Zeitlin fluid: structure over long runs", models=("zeitlin",), tables=tables,
+    description="Casimir and energy drift, split family against RK4 at equal measured cost", verdicts=verdicts,
     options=(Option("N", [32, 64], "list[int>=3]", "1", "matrix sizes"), Option("h", 0.02, "number>0", "s", "step"),
-             Option("viscosity", [0.0, 1e-4], "list[number>=0]", "s-1", "viscosities"),
+             Option("kinematic_viscosity", [0.0, 1e-4], "list[number>=0]", "s-1", "viscosities"),
              Option("t_end", 100.0, "number>0", "s", "run length"), Option("samples", 50, "int>=1", "1", "samples")),
-    axes=lambda ctx: {"N": ctx.opt["N"], "viscosity": ctx.opt["viscosity"],
+    axes=lambda ctx: {"N": ctx.opt["N"], "kinematic_viscosity": ctx.opt["kinematic_viscosity"],
                       "pair": [m for m in ctx.methods if m != "rk4"], "side": ["splitting", "rk4"]}, check=_check,
-    stages=(Stage("calibrate", calibrate, over=("N", "viscosity"), serial=True),
-            Stage("long", long_run, over=("N", "viscosity", "pair", "side"), needs=("calibrate",), serial=True)),
-    quantities={"N": ("1", "matrix size N"), "viscosity": ("s-1", "kinematic viscosity nu"),
+    stages=(Stage("calibrate", calibrate, over=("N", "kinematic_viscosity"), serial=True),
+            Stage("long", long_run, over=("N", "kinematic_viscosity", "pair", "side"), needs=("calibrate",), serial=True)),
+    quantities={"N": ("1", "matrix size N"), "kinematic_viscosity": ("s-1", "kinematic viscosity nu"),
                 "pair": ("1", "the splitting RK4 is compared with"), "side": ("1", "run of the pair"),
-                "step_cost": ("s", "CPU time per step at h (one thread)"),
-                "step_cost_spread": ("1", "its spread"), "run_overhead": ("s", "CPU time of a run besides its steps"),
-                **{k: v[:2] for k, v in RUN.items()}}, tables=tables, verdicts=verdicts, findings=findings,
-    figures=(Figure("drift", kind="custom", draw=draw, select=lambda ds, ctx: ds, claim=(
-        "at ν = 0 the splitting keeps tr W² to round-off (zeros not drawn) where RK4 at its cost drifts (at ν > 0 "
-        "viscosity changes tr W² alike for every method); RK4 keeps H + q better")),),
-    report=("{members} members of `{scene}` at each N, t_end = {opt[t_end]:g} s, {opt[samples]} samples; splitting at "
-            "h = {opt[h]:g} s. Drifts: maxima over members; Casimirs over tr((−iW)²)(0)^(k/2). **Timings:** RK4's "
-            "step, its drifts, the costs and the equal-cost verdict rest on CPU times (cached, reused on resume)."),
-    facts=lambda ds, ctx: {"members": ctx.scene()["ensemble"]["members"]},
+                "step_cost": ("s", "CPU time per step at h (one thread)"), "step_cost_spread": ("1", "its spread"),
+                "run_overhead": ("s", "CPU time of a run besides its steps"), **{k: v[:2] for k, v in RUN.items()}},
+    figures=(Figure("drift", kind="custom", draw=draw, select=lambda ds, ctx: ds, claim="at ν = 0 the splitting "
+                    "keeps tr W² to round-off (zeros not drawn), RK4 at its cost does not; RK4 keeps H + q better"),),
+    report=("{members} members of `{scene}` per N, t_end = {opt[t_end]:g} s, {opt[samples]} samples, splitting at h = "
+            "{opt[h]:g} s; Casimirs over tr((−iW)²)(0)^(k/2). **Timed:** RK4's step and drifts, the costs (CPU time)."),
+    facts=lambda ds, ctx: {"members": ctx.scene()["ensemble"]["members"]}, findings=findings,
 )
