@@ -371,3 +371,20 @@ class MethodChoice:
     def order(self) -> int:
         """The observed order on node values this choice declares (:meth:`Method.order`)."""
         return self.method.order(self.start, self.friction or "trapezoid")
+
+
+def kept_laws(label: str) -> str:
+    """The laws among |Γ| = 1, Kelvin–Noether and entropy monotone that the method of ``label``
+    declares, e.g. "|Γ| = 1, Kelvin–Noether"; a method from outside liethermo (scipy's) declares none."""
+    name = str(label).split(":")[0]
+    laws = METHODS[name].laws if name in METHODS else ()
+    kept = [text for law, text in ((LAW_UNIT_GAMMA, "|Γ| = 1"), (LAW_KELVIN_NOETHER, "Kelvin–Noether"),
+                                   (LAW_ENTROPY_MONOTONE, "entropy monotone")) if law in laws]
+    return ", ".join(kept) if kept else "none of these"
+
+
+def keeps_geometry(label: str) -> bool:
+    """Whether the method of ``label`` declares both |Γ| = 1 and the discrete
+    Kelvin–Noether law (the variational family)."""
+    name = str(label).split(":")[0]
+    return name in METHODS and {LAW_UNIT_GAMMA, LAW_KELVIN_NOETHER} <= set(METHODS[name].laws)

@@ -366,30 +366,3 @@ def method_choice(spec):
 def method_overrides(spec: dict) -> dict:
     """Scene overrides that make a scene run a parsed method spec."""
     return method_choice(spec).overrides()
-
-
-# ----------------------------------------------------------------------------- laws a method keeps
-
-
-def kept_laws(label: str) -> str:
-    """The laws among |Γ| = 1, Kelvin–Noether and entropy monotone that the method of ``label``
-    declares (:mod:`liethermo.methods`), e.g. "|Γ| = 1, Kelvin–Noether";
-    a method from outside liethermo (scipy's) declares none."""
-    from ..methods import METHODS
-
-    name = str(label).split(":")[0]
-    laws = METHODS[name].laws if name in METHODS else ()
-    kept = [text for law, text in (("unit_gamma", "|Γ| = 1"), ("kelvin_noether", "Kelvin–Noether"),
-                                   ("entropy_monotone", "entropy monotone")) if law in laws]
-    return ", ".join(kept) if kept else "none of these"
-
-
-def keeps_geometry(label: str) -> bool:
-    """Whether the method of spec ``label`` declares both |Γ| = 1 and the
-    discrete Kelvin–Noether law (the variational family)."""
-    from ..methods import LAW_KELVIN_NOETHER, LAW_UNIT_GAMMA, METHODS
-
-    name = str(label).split(":")[0]
-    return name in METHODS and {LAW_UNIT_GAMMA, LAW_KELVIN_NOETHER} <= set(METHODS[name].laws)
-
-

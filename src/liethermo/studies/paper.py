@@ -10,7 +10,8 @@ import tempfile
 
 import numpy as np
 
-from .common import StudyError, kept_laws
+from ..methods import kept_laws
+from .common import StudyError
 from .framework import Stage, Study, Table, Verdict, run_scene, task_key
 from .tools import NODE_VALUES_NOTE
 

@@ -12,7 +12,8 @@ from ..initial import initial_conditions
 from ..methods import negative_substep_limits
 from ..physics import kinetic_energy, physics_of_scene, potential_energy
 from ..simulate import simulate
-from .common import StudyError, keeps_geometry, method_choice, status_units
+from ..methods import keeps_geometry
+from .common import StudyError, method_choice, status_units
 from .framework import Figure, Option, Stage, Study, Table, Verdict
 from ..timing import pinned_threads
 
