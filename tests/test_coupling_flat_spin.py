@@ -27,7 +27,7 @@ import pytest
 from cfcheck import assert_cf_clean
 from liethermo import cf
 from liethermo.studies import get_study
-from liethermo.studies.common import StudyError, parse_method
+from liethermo.studies.common import StudyError, method_choice
 from liethermo.studies.runner import load_study, validate_study
 from liethermo.studies.tools import direction_angle, rotation_angle, settling_time
 
@@ -204,4 +204,4 @@ def test_coupling_invalid_studies_are_rejected(tmp_path, old, new, needle):
 def test_method_specs_of_the_study_files_parse():
     for kind in ("coupling", "flat_spin", "coupling_convergence"):
         for m in load_study(STUDIES / f"{kind}.toml")["methods"]:
-            parse_method(m)
+            method_choice(m)

@@ -52,16 +52,15 @@ def test_one_method_choice_from_a_scene_a_label_or_keywords():
 
     from liethermo.methods import MethodChoice
     from liethermo.simulate import simulate
-    from liethermo.studies.common import StudyError, method_overrides, parse_method
+    from liethermo.studies.common import StudyError, method_choice
 
     for label, want in [("vi:node:explicit", ("vi", "node", "trapezoid", "explicit", None)),
                         ("vi4:staggered:triple_jump", ("vi4", "legendre", "trapezoid", "symmetric", "triple_jump")),
                         ("rk4", ("rk4", "node", None, None, None))]:
         c = MethodChoice.parse(label)
         assert (c.name, c.start, c.friction, c.entropy, c.composition) == want and c.label == label
-        spec = parse_method(label)
-        assert spec["start"] == (c.start if c.family == "vi" else None) and spec["composition"] == c.composition
-        sc = load_scene("paper", {**method_overrides(spec), "integrator.steps": 4, "output.compare": []})
+        assert method_choice(label) == c
+        sc = load_scene("paper", {**c.overrides(), "integrator.steps": 4, "output.compare": []})
         run = resolve(sc)
         assert run.choice == MethodChoice.from_scene(sc) and (run.choice.name, run.choice.start,
                                                               run.choice.friction, run.choice.entropy,
@@ -69,7 +68,7 @@ def test_one_method_choice_from_a_scene_a_label_or_keywords():
         om0, R0 = liethermo.initial.initial_conditions(sc, 0, 1)
         assert run.simulate(om0, R0).choice == run.choice
     with pytest.raises(StudyError, match="unknown variant 'fast'"):
-        parse_method("vi:fast")
+        method_choice("vi:fast")
     with pytest.raises(ValueError, match="fixes them"):
         simulate(resolve(load_scene("paper")).physics, np.ones((1, 3)), np.eye(3)[None], 0.1, 1,
                  MethodChoice.parse("vi"), start="node")

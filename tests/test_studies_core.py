@@ -65,18 +65,18 @@ def test_every_kind_has_a_module_and_a_study_file():
     ("vi:node:explicit", ("vi", "node", "trapezoid", "explicit")),
     ("vi:explicit:endpoint:staggered", ("vi", "staggered", "endpoint", "explicit")),
     ("vi4:node:explicit", ("vi4", "legendre", "trapezoid", "symmetric")),  # compositions ignore variants
-    ("rk4", ("rk4", None, None, None)),
+    ("rk4", ("rk4", "node", None, None)),
 ])
-def test_parse_method_variants(spec, want):
-    d = common.parse_method(spec)
-    assert (d["method"], d["start"], d["friction"], d["entropy"]) == want and d["label"] == spec
+def test_method_choice_variants(spec, want):
+    c = common.method_choice(spec)
+    assert (c.name, c.start, c.friction, c.entropy) == want and c.label == spec
 
 
 @pytest.mark.parametrize("spec, needle", [("vi:fast", "unknown variant"), ("vi:node:legendre", "more than one"),
                                           ("rk2:node", "takes no variant"), ("rk3", "unknown method")])
-def test_parse_method_rejects(spec, needle):
+def test_method_choice_rejects(spec, needle):
     with pytest.raises(common.StudyError, match=needle):
-        common.parse_method(spec)
+        common.method_choice(spec)
 
 
 def test_expand_sweep_is_an_ordered_cartesian_product():

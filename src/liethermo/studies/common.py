@@ -332,37 +332,15 @@ def stack_points(datasets: list[xr.Dataset], points: list[dict], keys: list[str]
 
 # ----------------------------------------------------------------------------- method variants
 
-def parse_method(spec: str) -> dict:
-    """A method spec → ``{"label", "method", "family", "start", "friction",
-    "entropy", "composition"}`` (what the studies key their cached points on).
-
-    The spec is a :class:`liethermo.methods.MethodChoice` label (``"vi"``,
-    ``"vi:node:explicit"``, ``"vi4:triple_jump"``; :meth:`MethodChoice.parse`
-    says what it takes); the values are its effective ones (None where a
-    choice does not apply: an explicit method has no start), so the dict
-    says what really ran.  :func:`method_choice` gives the choice itself."""
-    choice = method_choice(spec)
-    return {"label": spec, "method": choice.name, "family": choice.family,
-            "start": choice.start if choice.family == "vi" else None, "friction": choice.friction,
-            "entropy": choice.entropy, "composition": choice.composition}
-
-
 @functools.lru_cache(maxsize=256)
-def _parse_choice(label):
+def method_choice(label: str):
+    """The :class:`liethermo.methods.MethodChoice` of a method label of the top
+    (``"vi"``, ``"vi:node:explicit"``, ``"vi4:triple_jump"``): its name,
+    family, effective start, friction, entropy update and composition, and the
+    scene overrides that run it; a bad label is a :class:`StudyError`."""
     from ..methods import MethodChoice
 
     try:
         return MethodChoice.parse(label)
     except ValueError as exc:
         raise StudyError(f"methods: {exc}") from None
-
-
-def method_choice(spec):
-    """The :class:`liethermo.methods.MethodChoice` of a method label or of a
-    parsed spec (:func:`parse_method`)."""
-    return _parse_choice(spec["label"] if isinstance(spec, dict) else spec)
-
-
-def method_overrides(spec: dict) -> dict:
-    """Scene overrides that make a scene run a parsed method spec."""
-    return method_choice(spec).overrides()

@@ -11,7 +11,7 @@ import xarray as xr
 from ..dataset import node_energies
 from ..kernels.terms import ROLE_LINEAR_FRICTION, ROLE_THERMAL_COUPLING, key_of
 from ..physics import inertia_scale, internal_energy_change, physics_of_scene
-from .common import StudyError, dim_name, parse_method, status_units
+from .common import StudyError, dim_name, method_choice, status_units
 from .framework import Figure, Option, Stage, Study, Table, Verdict
 from ..laws import energy_errors
 from .tools import (column, direction_angle, ensemble, pad_members, quantile_columns, reference_label,
@@ -26,7 +26,7 @@ def _check(ctx) -> None:
     o, sweep = ctx.opt, ctx.study.get("sweep") or {}
     if list(sweep) != [SWEEP_KEY] or min(sweep[SWEEP_KEY]) < 0 or 0.0 not in sweep[SWEEP_KEY]:
         raise StudyError(f"sweep: a coupling study sweeps {SWEEP_KEY!r} over values ≥ 0 (1/K) that must include 0")
-    if o["motion_method"] not in ctx.methods or {parse_method(m)["start"] for m in ctx.methods} - {None, "legendre"}:
+    if o["motion_method"] not in ctx.methods or {c.start for c in map(method_choice, ctx.methods) if c.family == "vi"} - {"legendre"}:
         raise StudyError("methods: the legendre start (the coupled top needs it), options.motion_method among them")
     phys = physics_of_scene(ctx.scene({SWEEP_KEY: o["check_alpha"]}))
     if float(phys.linear_resistance().max()) <= 0 or float(phys.potential_span().max()) == 0:
@@ -47,7 +47,7 @@ def _energy(ctx, point, method, limit, **kw):
 
 def run(ctx, coords) -> xr.Dataset:
     """Per member of one (α, method): settling, final state, temperature, inertia, energy error."""
-    nref, is_ref = ctx.opt["reference_members"], parse_method(coords["scheme"])["method"] == "reference"
+    nref, is_ref = ctx.opt["reference_members"], method_choice(coords["scheme"]).name == "reference"
     phys, tr, e, arel, _, N = _energy(ctx, coords["point"], coords["scheme"], nref if is_ref else None,
                                       t_end=ctx.opt["t_end"], attitude=True)
     nt, q = min(ctx.opt["trace_members"], nref, N), [0.05, 0.5, 0.95]  # nt: members every method runs

@@ -11,7 +11,7 @@ from ..dataset import node_energies
 from ..kernels.terms import LAW_MOMENTUM_NORM, ROLE_MOMENTUM_FRICTION, key_of
 from ..methods import judge_order
 from ..physics import kinetic_energy, physics_of_scene
-from .common import StudyError, dim_name, parse_method, status_units
+from .common import StudyError, dim_name, method_choice, status_units
 from .framework import Figure, Option, Stage, Study, Table, Verdict
 from .tools import (column, direction_angle, ensemble, observed_orders, pad_members, quantile_columns, reference_label,
                     run_spec, same_members, settling_time)
@@ -43,7 +43,7 @@ def _spin(ctx, point: dict, method: str, h: float | None, limit: int | None):
 def run(ctx, coords) -> xr.Dataset:
     """One (λ, method): per-member settling, axis, Casimir and energy balance, and quantiles."""
     tr, phys, om, mu, cas, t_end, N = _spin(ctx, coords["point"], coords["scheme"], None, ctx.opt["reference_members"]
-                                            if parse_method(coords["scheme"])["method"] == "reference" else None)
+                                            if method_choice(coords["scheme"]).name == "reference" else None)
     ok, q = tr.status == 0, [0.05, 0.5, 0.95]
     with np.errstate(invalid="ignore", over="ignore"):
         e, K0 = node_energies(tr), kinetic_energy(phys, om, None)
@@ -120,7 +120,7 @@ def verdicts(ds, ctx) -> list[Verdict]:
     for m in [m for m in ctx.methods if m != ref]:
         c, p, q = float(ds["casimir_drift"].sel(scheme=m).max()), _orders(ds, m)[-1], ctx.model.method_order(m)
         out.append(Verdict(f"{m} keeps the Casimir |μ|", f"max casimir_drift {c:.1e}", "≤ 1e-11 (round-off)",
-                           c <= 1e-11) if parse_method(m)["family"] == "vi" else Verdict(
+                           c <= 1e-11) if method_choice(m).family == "vi" else Verdict(
             f"{m}'s Casimir drift falls at its order {q}", f"{p:.2f} (finest pair of casimir_h)",
             "not below the declared order", None if not np.isfinite(p) else judge_order(p, q) != "below declared"))
         e = float(np.abs(ds["settling_time_minus_reference"].sel(scheme=m).values[..., same]).max()) if ref else 0

@@ -20,9 +20,9 @@ NODE_VALUES_NOTE = (
     "and so adds an O(h) error of the diagnostic itself (\"paper convention\").")
 
 
-def run_spec(phys: Physics, omega0, R0, h: float, steps: int, spec: dict, **kw) -> Trajectory:
-    """:func:`simulate` with the method choice of a parsed spec."""
-    return simulate(phys, omega0, R0, h, steps, method_choice(spec), **kw)
+def run_spec(phys: Physics, omega0, R0, h: float, steps: int, spec, **kw) -> Trajectory:
+    """:func:`simulate` with a method label or its :func:`~.common.method_choice`."""
+    return simulate(phys, omega0, R0, h, steps, method_choice(spec) if isinstance(spec, str) else spec, **kw)
 
 
 def drift_fit(t: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -97,10 +97,8 @@ def ensemble(ctx, point: dict, method: str, limit: int | None = None):
     """``(scene, parsed method, physics, Ω₀, R₀, N)``: the first ``limit`` (all: None) of the N members of a
     study's sweep point run with ``method``."""
     from ..initial import initial_conditions
-    from .common import method_overrides, parse_method
-
-    spec = parse_method(method)
-    scene = ctx.scene({**point, **method_overrides(spec)})
+    spec = method_choice(method)
+    scene = ctx.scene({**point, **spec.overrides()})
     N = int(scene["ensemble"]["members"])
     n = min(N, limit) if limit else N
     om, R = initial_conditions(scene, 0, n)
@@ -116,9 +114,7 @@ def pad_members(a: np.ndarray, n: int, fill=np.nan) -> np.ndarray:
 
 def reference_label(methods) -> str | None:
     """The study's reference method among ``methods``, if any."""
-    from .common import parse_method
-
-    return next((m for m in methods if parse_method(m)["method"] == "reference"), None)
+    return next((m for m in methods if method_choice(m).name == "reference"), None)
 
 
 def same_members(ds, methods) -> np.ndarray:

@@ -10,7 +10,7 @@ from ..dataset import node_energies
 from ..initial import initial_conditions
 from ..kernels.terms import ROLE_LINEAR_FRICTION, key_of
 from ..physics import physics_of_scene, temperature
-from .common import StudyError, dim_name, parse_method, scene_value, status_units
+from .common import StudyError, dim_name, method_choice, scene_value, status_units
 from .framework import Figure, Option, Stage, Study, Table, Verdict
 from .tools import run_spec
 
@@ -25,7 +25,7 @@ def _check(ctx) -> None:
     if ctx.opt["outputs"] < 10:
         raise StudyError(f"options.outputs: must be an integer ≥ 10, got {ctx.opt['outputs']!r}")
     try:
-        parse_method(ctx.opt["method"])
+        method_choice(ctx.opt["method"])
     except StudyError as e:
         raise StudyError(f"options.method: {str(e).removeprefix('methods: ')}") from None
 
@@ -52,7 +52,7 @@ def sweep(ctx, coords) -> xr.Dataset:
     t_end = float(np.clip(opt["t_end_factor"] * tau, lo, max(lo, float(opt["t_end_max"]))))
     # about `outputs` nodes, the first entropy time resolved
     every = min(max(1, int(round(t_end / h / int(opt["outputs"])))), max(1, int(np.floor(min(times) / h + 1e-9))))
-    tr = run_spec(phys, om, R, h, int(np.ceil(t_end / (h * every))) * every, parse_method(opt["method"]), every=every)
+    tr = run_spec(phys, om, R, h, int(np.ceil(t_end / (h * every))) * every, opt["method"], every=every)
     t, sig, E = tr.times, tr.sigma, phys.mechanical_energy((e := node_energies(tr))["K"], e["V"])
     by = [np.full(n, np.nan) if ti > t[-1] else np.array([np.interp(ti, t, y) for y in sig]) for ti in times]
     mb = "member"
