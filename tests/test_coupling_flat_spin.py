@@ -29,7 +29,7 @@ from liethermo import cf
 from liethermo.studies import get_study
 from liethermo.studies.common import StudyError, method_choice
 from liethermo.studies.runner import load_study, validate_study
-from liethermo.studies.tools import direction_angle, rotation_angle, settling_time
+from liethermo.analysis import direction_angle, rotation_angle, settling_time
 
 STUDIES = Path(__file__).resolve().parents[1] / "studies"
 VI = ("vi", "vi4", "vi6")

@@ -87,31 +87,11 @@ def base_model(study: dict) -> str:
     return model_of(load_scene(_base_scene(study), validate_scene=False)).name
 
 
-def nested(overrides: dict | None) -> dict:
-    """``{"section.key": v}`` (or already nested ``{section: {key: v}}``) → nested dict."""
-    out: dict[str, dict[str, Any]] = {}
-    for k, v in (overrides or {}).items():
-        if isinstance(v, dict) and "." not in k:
-            out.setdefault(k, {}).update(v)
-            continue
-        if k.count(".") != 1:
-            raise StudyError(f"sweep/override key {k!r} must read 'section.key'")
-        section, key = k.split(".")
-        out.setdefault(section, {})[key] = v
-    return out
-
-
 def study_scene(study: dict, overrides: dict | None = None) -> dict:
     """The validated scene of a study point: base scene ← inline ``[scene]``
-    table ← ``overrides`` (``{"section.key": value}`` or nested)."""
-    scene = load_scene(_base_scene(study), study.get("scene") or None, validate_scene=False)
-    return load_scene(scene, nested(overrides) or None)
-
-
-def scene_value(scene: dict, key: str):
-    """The value of the dotted scene key ``key`` ("section.name") in a resolved scene."""
-    section, name = key.split(".", 1)
-    return scene[section][name]
+    table ← ``overrides`` (``{"section.key": value}``)."""
+    scene = load_scene(load_scene(_base_scene(study), study.get("scene") or None, validate_scene=False))
+    return scene.with_overrides(overrides) if overrides else scene
 
 
 def _base_scene(study: dict):

@@ -14,8 +14,8 @@ from ..physics import inertia_scale, internal_energy_change, physics_of_scene
 from .common import StudyError, dim_name, method_choice, status_units
 from .framework import Figure, Option, Stage, Study, Table, Verdict
 from ..laws import energy_errors
-from .tools import (column, direction_angle, ensemble, pad_members, quantile_columns, reference_label,
-                    rotation_angle, run_spec, same_members, settling_time)
+from ..analysis import direction_angle, rotation_angle, settling_time
+from .tools import column, ensemble, pad_members, quantile_columns, reference_label, run_spec, same_members
 
 SWEEP_KEY = key_of(ROLE_THERMAL_COUPLING)
 DIM = dim_name(SWEEP_KEY)

@@ -13,8 +13,8 @@ from ..methods import judge_order
 from ..physics import kinetic_energy, physics_of_scene
 from .common import StudyError, dim_name, method_choice, status_units
 from .framework import Figure, Option, Stage, Study, Table, Verdict
-from .tools import (column, direction_angle, ensemble, observed_orders, pad_members, quantile_columns, reference_label,
-                    run_spec, same_members, settling_time)
+from ..analysis import direction_angle, observed_orders, settling_time
+from .tools import column, ensemble, pad_members, quantile_columns, reference_label, run_spec, same_members
 
 SWEEP_KEY = key_of(ROLE_MOMENTUM_FRICTION)
 DIM, ROUNDOFF = dim_name(SWEEP_KEY), 1e-12  # ROUNDOFF: a Casimir drift below it is round-off, no order is fitted

@@ -136,7 +136,6 @@ class Table:
     name: str
     title: str
     rows: list
-    footer: str = ""
 
 
 @dataclass(frozen=True)
@@ -169,7 +168,6 @@ class Study:
     findings: Callable | None = None  # (ds, ctx) -> [sentence]
     facts: Callable | None = None  # (ds, ctx) -> {name: value} for the report template
     figures: tuple[Figure, ...] = ()
-    extra_keys: tuple[str, ...] = ()
 
     def option_values(self, s: dict) -> dict:
         given = s.get("options", {}) or {}
@@ -558,20 +556,9 @@ def _draw_lines(f: Figure, ds: xr.Dataset, ctx: Context):
         elif len(panels) > 1:
             ax.set_title(str(ds[var].attrs.get("long_name", var)))
         ax.grid(True, which="both", alpha=0.3)
-    _legend(fig, axes, handles, f.hue)
+    if len(handles) > 1:  # one legend for every panel, outside the axes: it covers no data
+        fig.legend(handles.values(), handles.keys(), fontsize=8, title=f.hue, loc="outside right upper")
     return fig
-
-
-def _legend(fig, axes, handles: dict, title: str) -> None:
-    if len(handles) <= 1:
-        return
-    # one legend for every panel, outside the axes: it covers no data
-    fig.legend(handles.values(), handles.keys(), fontsize=8, title=title, loc="outside right upper")
-
-
-def _dim_label(ds, dim) -> str:
-    key = ds[dim].attrs.get("scene_key") if dim in ds.coords else None
-    return key or (axis_label(ds[dim]) if dim in ds.coords else dim)
 
 
 def _fmt_coord(v) -> str:
@@ -608,12 +595,12 @@ def _draw_heatmap(f: Figure, ds: xr.Dataset, ctx: Context):
             ax.add_patch(plt.Rectangle((j - 0.5, i - 0.5), 1, 1, fill=False, hatch="xx", color="0.4", lw=0))
         ax.set_xticks(range(z.shape[1]), [_fmt_coord(v) for v in d[xdim].values], rotation=45, fontsize=7)
         ax.set_yticks(range(z.shape[0]), [_fmt_coord(v) for v in d[ydim].values], fontsize=7)
-        ax.set_xlabel(_dim_label(ds, xdim))
-        ax.set_ylabel(_dim_label(ds, ydim))
+        ax.set_xlabel(axis_label(ds[xdim]) if xdim in ds.coords else xdim)
+        ax.set_ylabel(axis_label(ds[ydim]) if ydim in ds.coords else ydim)
         if fi is not None:
             ax.set_title(f"{f.facet} = {_fmt_coord(ds[f.facet].values[fi])}")
-    fig.colorbar(im, ax=axes, label=axis_label(ds[var]) + ("; hatched: not finite" if np.isnan(
-        np.asarray(ds[var].values, float)).any() or np.isinf(np.asarray(ds[var].values, float)).any() else ""))
+    bad_any = not np.isfinite(np.asarray(ds[var].values, float)).all()
+    fig.colorbar(im, ax=axes, label=axis_label(ds[var]) + ("; hatched: not finite" if bad_any else ""))
     return fig
 
 
@@ -642,15 +629,6 @@ def draw_figures(study: Study, ctx: Context, ds: xr.Dataset) -> list[tuple[Figur
 
 # ----------------------------------------------------------------------------- the report
 
-def verdict_table(verdicts: list[Verdict]) -> str:
-    import pandas as pd
-
-    rows = [{"claim": v.claim, "measured": v.measured, "rule": v.rule,
-             "verdict": "holds" if v.holds else "—" if v.holds is None else "FAILS"} for v in verdicts]
-    return markdown_table(pd.DataFrame(rows, columns=["claim", "measured", "rule", "verdict"]), "Verdicts",
-                          "Each verdict follows from the tables above by its rule.")
-
-
 def _report(study: Study, ctx: Context, ds: xr.Dataset, nc: Path) -> Path:
     import pandas as pd
 
@@ -660,8 +638,7 @@ def _report(study: Study, ctx: Context, ds: xr.Dataset, nc: Path) -> Path:
     sections = []
     tables = list(study.tables(ds, ctx)) if study.tables else []
     verdicts = list(study.verdicts(ds, ctx)) if study.verdicts else []
-    md = [write_table(pd.DataFrame(list(t.rows)), ctx.outdir, t.name, t.title).rstrip("\n")
-          + (f"\n\n{t.footer}" if t.footer else "") for t in tables]
+    md = [write_table(pd.DataFrame(list(t.rows)), ctx.outdir, t.name, t.title).rstrip("\n") for t in tables]
     if md:
         sections.append(md[0])
     text = (study.report or study.description).format_map(fields)
@@ -670,7 +647,10 @@ def _report(study: Study, ctx: Context, ds: xr.Dataset, nc: Path) -> Path:
     for f, path in draw_figures(study, ctx, ds):
         sections.append(f"![{f.name}]({path.name})\n\n*{f.name}.png:* {f.claim.format_map(fields)}")
     if verdicts:
-        sections.append(verdict_table(verdicts))
+        rows = [{"claim": v.claim, "measured": v.measured, "rule": v.rule,
+                 "verdict": "holds" if v.holds else "—" if v.holds is None else "FAILS"} for v in verdicts]
+        sections.append(markdown_table(pd.DataFrame(rows), "Verdicts",
+                                       "Each verdict follows from the tables above by its rule."))
     found = list(study.findings(ds, ctx)) if study.findings else []
     if found:
         sections.append("**Findings.** " + " ".join(found))

@@ -14,7 +14,7 @@ from .. import timing
 from .common import StudyError
 from .framework import Figure, Option, Stage, Study, Table, Verdict, first_point
 from ..models import Model
-from .tools import drift_fit
+from ..analysis import drift_fit
 
 CALIBRATION_ITERATIONS = 6  # rounds of the calibration, at most
 QUANTILES = (0.05, 0.5, 0.95)

@@ -53,27 +53,21 @@ def validate_study(study: dict) -> None:
     except ModuleNotFoundError as exc:
         raise StudyError(f"study.kind: the {kind!r} study is not available ({exc})") from None
     decl = mod.STUDY
-    allowed = BASE_KEYS | frozenset(decl.extra_keys)
-    for k in study:
-        if not k.startswith("_") and k not in allowed:
-            raise StudyError(f"{k}: unknown key in a {kind} study; known keys: {', '.join(sorted(allowed))}")
-    red = study.get("reduced", {})
-    if not isinstance(red, dict):
-        raise StudyError("reduced: must be a table")
-    for k in red:
-        if k not in allowed:
-            raise StudyError(f"reduced.{k}: unknown key in a {kind} study; known keys: {', '.join(sorted(allowed))}")
-    per = study.get("model", {})
     from ..models import models
 
     names = [m.name for m in models()]
+    per = study.get("model", {})
+    tables = [("", study, BASE_KEYS), ("reduced.", study.get("reduced", {}), BASE_KEYS)]
     for name, sec in (per.items() if isinstance(per, dict) else [("", None)]):
         if name not in names or not isinstance(sec, dict):
             raise StudyError(f"model.{name}: must be a table named after a model ({', '.join(names)})")
-        for k in sec:
-            if k not in allowed - {"model"}:
-                raise StudyError(f"model.{name}.{k}: unknown key in a {kind} study; known keys: "
-                                 f"{', '.join(sorted(allowed - {'model'}))}")
+        tables.append((f"model.{name}.", sec, BASE_KEYS - {"model"}))
+    for where, table, allowed in tables:
+        if not isinstance(table, dict):
+            raise StudyError(f"{where.rstrip('.')}: must be a table")
+        for k in table:
+            if not k.startswith("_") and k not in allowed:
+                raise StudyError(f"{where}{k}: unknown key in a {kind} study; known keys: {', '.join(sorted(allowed))}")
     for reduced in (False, True):
         s = resolve_study(study, reduced)
         if not isinstance(s.get("methods", []), list):

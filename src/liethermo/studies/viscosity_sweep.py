@@ -10,7 +10,7 @@ from ..dataset import node_energies
 from ..initial import initial_conditions
 from ..kernels.terms import ROLE_LINEAR_FRICTION, key_of
 from ..physics import physics_of_scene, temperature
-from .common import StudyError, dim_name, method_choice, scene_value, status_units
+from .common import StudyError, dim_name, method_choice, status_units
 from .framework import Figure, Option, Stage, Study, Table, Verdict
 from .tools import run_spec
 
@@ -84,7 +84,8 @@ def derive(ds, ctx):
                                       if np.isfinite(r).any() else np.full(3, np.nan) for r in st]))
     ds["entropy_by_time_mean"] = ds["entropy_by_time"].mean("member", skipna=False)
     phys = physics_of_scene(scene := ctx.scene(ctx.points[0]))  # c is linear in μ: μ_crit = μ c_crit / c
-    g, per_mu = 0.5 * float(phys.potential_span()[0]), scene_value(scene, SWEEP_KEY) / phys.linear_resistance().max()
+    section, key = SWEEP_KEY.split(".")
+    g, per_mu = 0.5 * float(phys.potential_span()[0]), scene[section][key] / phys.linear_resistance().max()
     ds["mu_crit"] = 2 * np.sqrt(float(phys.inertia[0].min()) * g) * per_mu if g > 0 else np.inf
     return ds
 
