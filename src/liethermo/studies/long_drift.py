@@ -90,6 +90,10 @@ def long_run(ctx, coords, calibration) -> xr.Dataset:
     kw = dict(kernel=calibration.attrs.get("kernel") or None, threads=opt["threads"])
     with timing.pinned_threads(opt["threads"]):
         ds, st, laws = model.run_with_laws(sc, **kw)
+        n, cost = int(sc["ensemble"]["members"]), st.kernel_time  # its cost: the least of its timed repeats
+        if opt["calibration_repeats"] > 1:  # as many as the calibration's
+            cost = min(cost, timing.measure({m: lambda: model.run_chunk(sc, 0, n, **kw)[1].kernel_time}, warm=0,
+                                            repeats=opt["calibration_repeats"] - 1, threads=opt["threads"])[m].best)
         _, win = _scene(ctx, coords, m, h, min(int(opt["kn_steps"]), steps), 1)
         laws = {**model.run_with_laws(win, **kw)[2], **laws}  # the long run's where it gives the law
     rel, t, status = model.relative_energy_error(ds), ds["t"].values, ds["status"].values
@@ -103,8 +107,8 @@ def long_run(ctx, coords, calibration) -> xr.Dataset:
         "max_relative_energy_error": ("member", np.where(status == 0, np.nanmax(arel, axis=1), np.inf)),
         "status": ("member", status.astype(np.int8)),
         "relative_energy_error_quantiles": (("quantile", "sample"), np.pad(band, ((0, 0), pad), constant_values=np.nan)),
-        "band_t": ("sample", np.pad(t, pad, constant_values=np.nan)), "kernel_time": ((), st.kernel_time),
-        "cost_per_simulated_s": ((), st.kernel_time / (steps * h)), "steps": ((), steps),
+        "band_t": ("sample", np.pad(t, pad, constant_values=np.nan)), "kernel_time": ((), cost),
+        "cost_per_simulated_s": ((), cost / (steps * h)), "steps": ((), steps),
         **{f"defect_{k}": ("member", v[0], {"units": v[1], "long_name": v[2]}) for k, v in laws.items()}},
         coords={"member": ds["member"].values, "quantile": list(QUANTILES)})
 
@@ -116,7 +120,7 @@ QUANTITIES = {
     "max_relative_energy_error": ("1", "max over t of |relative energy error| (failed members: inf)"),
     "relative_energy_error_quantiles": ("1", "quantiles over members of |relative energy error| at band_t"),
     "band_t": ("s", "time of the stored node (NaN: past the run's last node)"), "steps": ("1", "steps of the run"),
-    "quantile": ("1", "quantile over members"), "kernel_time": ("s", "kernel wall time of the long run"),
+    "quantile": ("1", "quantile over members"), "kernel_time": ("s", "kernel wall time of the long run (least of its timed repeats)"),
     "cost_per_simulated_s": ("s", "long run's kernel time per simulated second"),
     "step": ("s", "time step h (calibrated to equal measured cost per simulated second)"),
     "calibrated_cost": ("s", "calibration: min over repeats of kernel time per simulated second at this step"),
