@@ -27,7 +27,8 @@ from typing import Any, Callable
 import numpy as np
 import xarray as xr
 
-from .. import __version__, cf
+from .. import cf
+from ..version import __version__
 
 from .common import (StudyError, cached_point, coord_value, dim_name, expand_sweep, markdown_table, point_key,
                      progress_bar, resolve_study, stack_points, study_history, study_name, study_netcdf_path,
