@@ -40,10 +40,9 @@ def _axes(ctx) -> dict:
 
 def _run(ctx, point, method: str, h: float, members: int):
     """Members 0:members at step h to t_end on the kernel a large run uses, on ``threads`` threads."""
-    scene, steps, model = ctx.scene(point), round(ctx.opt["t_end"] / h), ctx.model
-    sc = scene.with_overrides({**model.study_outputs, **model.method_overrides(method), "integrator.h": h,
-                               "integrator.steps": steps, "output.every": steps, "ensemble.members": members})
-    return model.run_chunk(sc, 0, members, kernel="fast", threads=ctx.opt["threads"])
+    steps = round(ctx.opt["t_end"] / h)
+    return run_scene(ctx.scene(point), method, h=h, steps=steps, every=steps, members=members, kernel="fast",
+                     threads=ctx.opt["threads"])
 
 
 def _state(model, ds) -> dict:
