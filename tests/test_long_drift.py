@@ -94,13 +94,15 @@ def test_plan_steps_cover_t_end():
 
 
 def test_the_same_study_on_the_fluid():
-    """long_drift.toml on a fluid scene: its [model.zeitlin] table gives the fluid's methods and size,
-    the full-size options are the same; the fluid's model scales its viscosity and checks its laws."""
+    """long_drift.toml on a fluid scene: its [model.zeitlin] table gives the fluid's methods, size and
+    horizon, the other options are the top's; the fluid's model scales its viscosity and checks its laws."""
     from liethermo.studies.common import resolve_study, with_scene
 
     a = load_study(STUDIES / "long_drift.toml")
     b = with_scene(a, "zeitlin_decay")
-    assert resolve_study(a, False)["options"] == resolve_study(b, False)["options"]
+    oa, ob = resolve_study(a, False)["options"], resolve_study(b, False)["options"]
+    assert {k for k in {**oa, **ob} if oa.get(k) != ob.get(k)} == {"t_end", "outputs", "kn_steps", "calibration_horizon"}
+    assert ob["t_end"] == 100.0 and ob["dissipation"] == oa["dissipation"]
     assert resolve_study(b, False)["methods"] == ["split", "split4", "split6", "rk4"]
     validate_study(b)
     ctx = STUDY.context(b, reduced=True)
@@ -124,3 +126,25 @@ def test_invalid_long_drift_rejected(tmp_path, old, new, needle):
     p.write_text(text.replace(old, new, 1))
     with pytest.raises(StudyError, match=needle):
         validate_study(load_study(p))
+
+
+def test_equal_cost_is_timed_on_the_process_clock_after_the_runs(monkeypatch):
+    """The check's cost is each whole long run timed by the process's CPU clock (the machine's other load
+    does not enter it): with a clock that advances 0.5 s per reading, every run costs 0.5 s, spread 0."""
+    import types
+
+    import xarray as xr
+
+    from liethermo.studies import long_drift
+
+    ticks = iter(0.5 * np.arange(10_000))
+    monkeypatch.setattr(long_drift, "time", types.SimpleNamespace(process_time=lambda: next(ticks)))
+    ctx = STUDY.context(load_study(STUDIES / "long_drift.toml"), reduced=True)
+    ctx.opt.update(t_end=1.0, outputs=10, calibration_repeats=2)
+    ctx.methods = ["vi", "rk4"]
+    cal = xr.Dataset({"step": ("scheme", [0.01, 0.03])}, coords={"scheme": ctx.methods}, attrs={"kernel": ""})
+    got = long_drift.costs(ctx, {"point": None, "dissipation": 0.0}, cal)
+    for m, h in (("vi", 0.01), ("rk4", 0.03)):
+        _, steps, _ = plan_steps(h, ctx.opt)
+        assert float(got["cost_per_simulated_s"].sel(scheme=m)) == pytest.approx(0.5 / (steps * h), rel=1e-12)
+        assert float(got["cost_spread"].sel(scheme=m)) == 0.0

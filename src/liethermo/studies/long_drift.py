@@ -1,11 +1,14 @@
 """Long drift: every method's energy error over a long horizon at equal measured cost (any model). Per dissipation
-factor a serial calibration (:func:`.timing.measure`) sets each h to the first method's kernel time per simulated
+factor a serial calibration (:func:`.timing.measure`) sets each h to the first method's CPU time per simulated
 second; per member the long runs give the drift of the relative energy error and the defects of the model's exact
-laws (``Model.run_with_laws``); their costs are then checked for equality."""
+laws (``Model.run_with_laws``); after them the long runs are timed again, interleaved, and checked for equal cost.
+Costs are the process's CPU time (one thread): the machine's other load does not enter them, as it enters wall time."""
 
 from __future__ import annotations
 
+import functools
 import math
+import time
 
 import numpy as np
 import xarray as xr
@@ -50,27 +53,30 @@ def secant_step(tried: list[tuple[float, float]]) -> float:
     return tried[-1][0] + tried[-1][1]
 
 
+def _run(model, sc, kernel, threads) -> None:  # a run of scene sc, timed by measure's clock: CPU time
+    model.run_chunk(sc, 0, int(sc["ensemble"]["members"]), kernel=kernel, threads=threads)
+
+
 def calibrate(ctx, coords) -> xr.Dataset:
-    """Each method's h at the first method's kernel time per simulated second (rounds timed interleaved)."""
+    """Each method's h at the first method's CPU time per simulated second, both timed in the same interleaved round
+    (a machine that slows down between rounds moves both)."""
     opt, ms = ctx.opt, ctx.methods
     model, sc = _scene(ctx, coords, ms[0], *plan_steps(opt["h_base"], opt))
     kernel, h, tried = model.kernel_for(sc), {m: float(opt["h_base"]) for m in ms}, {m: [] for m in ms}
 
-    def run(m):  # (simulated seconds, a run of m at h[m] that returns its kernel time)
+    def run(m):  # (simulated seconds, a run of m at h[m] that returns its CPU time)
         n = max(opt["calibration_steps"], round(opt["calibration_horizon"] * opt["t_end"] / h[m]))
-        s = _scene(ctx, coords, m, h[m], n, n)[1]
-        return n * h[m], lambda: model.run_chunk(s, 0, int(s["ensemble"]["members"]), kernel=kernel,
-                                                 threads=opt["threads"])[1].kernel_time
+        return n * h[m], functools.partial(_run, model, _scene(ctx, coords, m, h[m], n, n)[1], kernel, opt["threads"])
 
-    def gap(t):  # log(cost per simulated s / target) of a tried (h, cost); target: the first's least cost so far
-        return math.log(t[1].best / min(c.best for _, c in tried[ms[0]]))
+    def gap(t):  # log(cost per simulated s / target) of a tried (h, cost, target): the first's in the same round
+        return math.log(t[1].best / t[2].best)
 
     for rnd in range(CALIBRATION_ITERATIONS):
         runs = {m: run(m) for m in ms}
         costs = timing.measure({m: r[1] for m, r in runs.items()}, repeats=opt["calibration_repeats"],
-                               warm=int(rnd == 0), threads=opt["threads"])
+                               warm=int(rnd == 0), threads=opt["threads"], clock=time.process_time)
         for m in ms:
-            tried[m].append((h[m], costs[m].per(runs[m][0])))
+            tried[m].append((h[m], costs[m].per(runs[m][0]), costs[ms[0]].per(runs[ms[0]][0])))
         todo = [m for m in ms[1:] if abs(math.expm1(gap(tried[m][-1]))) >= opt["calibration_rtol"]]
         if not todo:
             break
@@ -82,18 +88,25 @@ def calibrate(ctx, coords) -> xr.Dataset:
                       coords={"scheme": ms}, attrs={"kernel": kernel or ""})
 
 
+def costs(ctx, coords, calibration) -> xr.Dataset:
+    """After the long runs: each method's whole run (one stored node) timed again, interleaved with the others'."""
+    opt, ms, kernel, runs = ctx.opt, ctx.methods, calibration.attrs.get("kernel") or None, {}
+    for m, (h, steps, _) in ((m, plan_steps(float(calibration["step"].sel(scheme=m)), opt)) for m in ms):
+        runs[m] = steps * h, functools.partial(_run, *_scene(ctx, coords, m, h, steps, steps), kernel, opt["threads"])
+    c = timing.measure({m: r[1] for m, r in runs.items()}, repeats=opt["calibration_repeats"], warm=0,
+                       threads=opt["threads"], clock=time.process_time)
+    return xr.Dataset({"cost_per_simulated_s": ("scheme", [c[m].best / runs[m][0] for m in ms]),
+                       "cost_spread": ("scheme", [c[m].spread for m in ms])}, coords={"scheme": ms})
+
+
 def long_run(ctx, coords, calibration) -> xr.Dataset:
     """One method's long run at its calibrated step, and the window of every step."""
     opt, m = ctx.opt, coords["scheme"]
     h, steps, every = plan_steps(float(calibration["step"].sel(scheme=m)), opt)
-    model, sc = _scene(ctx, coords, m, h, steps, every)
-    kw = dict(kernel=calibration.attrs.get("kernel") or None, threads=opt["threads"])
+    (model, sc), kw = _scene(ctx, coords, m, h, steps, every), dict(kernel=calibration.attrs.get("kernel") or None,
+                                                                    threads=opt["threads"])
     with timing.pinned_threads(opt["threads"]):
-        ds, st, laws = model.run_with_laws(sc, **kw)
-        n, cost = int(sc["ensemble"]["members"]), st.kernel_time  # its cost: the least of its timed repeats
-        if opt["calibration_repeats"] > 1:  # as many as the calibration's
-            cost = min(cost, timing.measure({m: lambda: model.run_chunk(sc, 0, n, **kw)[1].kernel_time}, warm=0,
-                                            repeats=opt["calibration_repeats"] - 1, threads=opt["threads"])[m].best)
+        ds, _, laws = model.run_with_laws(sc, **kw)
         _, win = _scene(ctx, coords, m, h, min(int(opt["kn_steps"]), steps), 1)
         laws = {**model.run_with_laws(win, **kw)[2], **laws}  # the long run's where it gives the law
     rel, t, status = model.relative_energy_error(ds), ds["t"].values, ds["status"].values
@@ -107,8 +120,7 @@ def long_run(ctx, coords, calibration) -> xr.Dataset:
         "max_relative_energy_error": ("member", np.where(status == 0, np.nanmax(arel, axis=1), np.inf)),
         "status": ("member", status.astype(np.int8)),
         "relative_energy_error_quantiles": (("quantile", "sample"), np.pad(band, ((0, 0), pad), constant_values=np.nan)),
-        "band_t": ("sample", np.pad(t, pad, constant_values=np.nan)), "kernel_time": ((), cost),
-        "cost_per_simulated_s": ((), cost / (steps * h)), "steps": ((), steps),
+        "band_t": ("sample", np.pad(t, pad, constant_values=np.nan)), "steps": ((), steps),
         **{f"defect_{k}": ("member", v[0], {"units": v[1], "long_name": v[2]}) for k, v in laws.items()}},
         coords={"member": ds["member"].values, "quantile": list(QUANTILES)})
 
@@ -120,19 +132,18 @@ QUANTITIES = {
     "max_relative_energy_error": ("1", "max over t of |relative energy error| (failed members: inf)"),
     "relative_energy_error_quantiles": ("1", "quantiles over members of |relative energy error| at band_t"),
     "band_t": ("s", "time of the stored node (NaN: past the run's last node)"), "steps": ("1", "steps of the run"),
-    "quantile": ("1", "quantile over members"), "kernel_time": ("s", "kernel wall time of the long run (least of its timed repeats)"),
-    "cost_per_simulated_s": ("s", "long run's kernel time per simulated second"),
+    "quantile": ("1", "quantile over members"), "cost_spread": ("1", "median / min - 1 of the long run's repeats"),
+    "cost_per_simulated_s": ("s", "CPU time per simulated second of the long run (timed after the runs, interleaved, min)"),
     "step": ("s", "time step h (calibrated to equal measured cost per simulated second)"),
-    "calibrated_cost": ("s", "calibration: min over repeats of kernel time per simulated second at this step"),
+    "calibrated_cost": ("s", "calibration: min over repeats of CPU time per simulated second at this step"),
     "calibration_spread": ("1", "calibration: median / min - 1 of the repeats at this step"),
     "calibration_rounds": ("1", "rounds of the calibration"), "failed_members": ("1", "members whose run failed"),
-    "median_drift_rate": ("s-1", "median drift rate (completed members)"),
-    "median_abs_drift_rate": ("s-1", "median |drift rate| (completed members)"),
+    "median_drift_rate": ("s-1", "median drift rate (completed)"), "median_abs_drift_rate": ("s-1", "median |drift rate| (completed)"),
     "median_oscillation_amplitude": ("1", "median oscillation amplitude (completed members)"),
     "median_max_relative_energy_error": ("1", "median max |relative energy error| (failed: inf)")}
 #: the table's columns, by their netCDF names
-COLUMNS = ("step", "steps", "calibrated_cost", "calibration_spread", "cost_per_simulated_s", "median_drift_rate",
-           "median_abs_drift_rate", "median_oscillation_amplitude", "median_max_relative_energy_error", "failed_members")
+COLUMNS = ("step", "steps", "calibrated_cost", "calibration_spread", "cost_per_simulated_s", "cost_spread",
+           "median_drift_rate", "median_abs_drift_rate", "median_oscillation_amplitude", "median_max_relative_energy_error", "failed_members")
 
 
 def derive(ds, ctx) -> xr.Dataset:
@@ -142,7 +153,7 @@ def derive(ds, ctx) -> xr.Dataset:
         median_max_relative_energy_error=ds["max_relative_energy_error"].median("member"), failed_members=(~ok).sum("member"))
 
 
-def _costs(d) -> dict:  # {dissipation: {method: kernel time per simulated second of its long run}}
+def _costs(d) -> dict:  # {dissipation: {method: CPU time per simulated second of its long run}}
     return {f: d["cost_per_simulated_s"].sel(dissipation=f).to_series().to_dict() for f in d["dissipation"].values}
 
 
@@ -157,7 +168,7 @@ def tables(ds, ctx) -> list[Table]:
              for f, c in _costs(d).items() for lo, hi, r in timing.equal_cost_check(c)]
     return [Table("long_drift", f"Energy drift at equal measured cost per simulated second ({ds.sizes['member']} "
                   f"members, t_end = {ctx.opt['t_end']:g} s; law defects: NaN where the law does not apply)", rows),
-            Table("equal_cost", "Long runs more than 15 % apart in kernel time per simulated second (each ran once)",
+            Table("equal_cost", "Long runs more than 15 % apart in CPU time per simulated second (timed after the runs)",
                   pairs or [{"dissipation (1)": "any", "cheaper": "—", "dearer": "—", "ratio (1)": np.nan}])]
 
 
@@ -172,8 +183,7 @@ def findings(ds, ctx) -> list[str]:
     for f in d["dissipation"].values:
         r = d["median_abs_drift_rate"].sel(dissipation=f).to_series().dropna().sort_values()
         if base in r:
-            beats = ", ".join(m for m in r.index if r[m] > r[base])
-            tail = f"less than {beats}." if beats else "more than every other method."
+            tail = f"less than {b}." if (b := ", ".join(m for m in r.index if r[m] > r[base])) else "more than every other method."
             out.append(f"At dissipation × {f:g}, {r.index[0]} drifts least ({r.iloc[0]:.2e} s⁻¹); the baseline {base} "
                        f"({r[base]:.2e} s⁻¹) drifts {tail}")
     return out
@@ -183,7 +193,7 @@ def draw(d, ctx, fig):
     """A panel per dissipation (median |error| against t), then drift rate and long-run cost per dissipation."""
     fs, q = d["dissipation"].values, d["relative_energy_error_quantiles"].sel(quantile=0.5)
     panels = [(f"dissipation × {f:g}", f) for f in fs] + [("median |drift rate|", "median_abs_drift_rate"), (
-        "kernel time per simulated s", "cost_per_simulated_s")]
+        "CPU time per simulated s", "cost_per_simulated_s")]
     axes = fig.subplots(-(-len(panels) // 3), 3, squeeze=False).ravel()
     for ax, (title, f) in zip(axes, panels):
         for m in ctx.methods:
@@ -215,15 +225,17 @@ STUDY = Study(
              Option("threads", 1, "int>=1", "1", "threads of every run (timings on one vary least)")),
     axes=lambda ctx: {"dissipation": ctx.opt["dissipation"]}, check=_check,
     stages=(Stage("calibration", calibrate, over=("point", "dissipation"), serial=True),
-            Stage("runs", long_run, over=("point", "dissipation", "scheme"), needs=("calibration",))),
+            Stage("runs", long_run, over=("point", "dissipation", "scheme"), needs=("calibration",)),
+            Stage("costs", costs, over=("point", "dissipation"), needs=("calibration",), serial=True)),
     quantities=QUANTITIES, derive=derive, tables=tables, verdicts=verdicts, findings=findings,
     figures=(Figure("long_drift", kind="custom", draw=draw, size=(15.5, 8.4), claim=(
         "each method's median energy error over time at equal cost (bounded or drifting); per dissipation the drift "
-        "rate and the long runs' cost per simulated second (the equal-cost table flags pairs > 15 % apart)")),),
+        "rate and the long runs' CPU time per simulated second (the equal-cost table flags pairs > 15 % apart)")),),
     report=("Scene `{scene}` ({model}), {members} members, t_end = {opt[t_end]} s, dissipation × {factors} of the "
             "scene's ({coefficients}). **Equal cost, measured:** `{base}` at h = {opt[h_base]} s; each other h is "
-            "calibrated per dissipation on the long runs' kernel ({opt[threads]} thread(s), {horizon:g} s simulated, "
-            "interleaved, ≥ {opt[calibration_repeats]} repeats, minimum) to within {rtol:g} %. Drift rate: "
+            "calibrated per dissipation in CPU time on the long runs' kernel ({opt[threads]} thread(s), {horizon:g} s "
+            "simulated, interleaved, ≥ {opt[calibration_repeats]} repeats, minimum) to within {rtol:g} %; after the long "
+            "runs each is timed again the same way, and the equal-cost check uses those times. Drift rate: "
             "least-squares slope of the relative energy error; oscillation: RMS about it. Laws needing every step: "
             "{opt[kn_steps]} steps."),
     facts=lambda ds, ctx: {
