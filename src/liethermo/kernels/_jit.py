@@ -101,6 +101,26 @@ LANE_OPTIONS = {"forceinline": True, "fastmath": False, "error_model": "numpy", 
 
 
 @intrinsic
+def align_frame(typingctx):
+    """Align the calling function's stack frame to 64 bytes (LLVM ``alignstack``).
+
+    The vectorized sweeps keep tuples and spilled zmm registers on the stack,
+    which LLVM addresses with unaligned moves at offsets from a stack pointer
+    that the ABI aligns to 16 bytes only; where the frame lands mod 64 (set by
+    address-space randomisation, i.e. by the process) decides how many of those
+    moves split a cache line.  Measured (Zen 4): RK4 on 64 members of the paper
+    scene without viscosity took 0.097 or 0.19 ms of CPU time per simulated
+    second, by process; with the frame aligned, 0.097–0.102 in 8 of 8."""
+    def codegen(context, builder, signature, args):
+        attrs = builder.function.attributes
+        attrs.alignstack = 64
+        attrs.add("nounwind")  # numba's functions return their errors; llvmlite prints no attribute of an empty set
+        return context.get_dummy_value()
+
+    return types.none(), codegen
+
+
+@intrinsic
 def _fma_intrinsic(typingctx, a, b, c):
     sig = types.float64(types.float64, types.float64, types.float64)
 

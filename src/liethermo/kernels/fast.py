@@ -50,7 +50,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._jit import jit, lane, ld, select, st
+from ._jit import align_frame, jit, lane, ld, select, st
 from .gen import (finite, none_dispatch, or_zero, overload_by_capability, tree_finite,
                   tree_sum_finite, unflatten)
 from .layout import (FS_MAX_H_OMEGA, IS_FAIL_STEP, IS_NEWTON_MAX, IS_NEWTON_TOTAL, IS_STATUS,
@@ -241,6 +241,7 @@ def _rk_sweep(tab, model, shared, S, nb, h, flip):
     """One step of the tableau ``tab`` for lanes [0, nb) from one state buffer
     to the other.  A lane whose new state is not (cheaply) finite or whose
     inline exp was out of range gets FLAG_EXACT.  Returns the flagged count."""
+    align_frame()
     src, dst = _rk_buffers(flip)
     nflag = 0
     for i in range(nb):
@@ -322,6 +323,7 @@ def _split_sweep(factors, model, shared, S, nb, h, flip):
     dependent chain: run a lane at a time, its latency sets the cost of the
     step (the out-of-order window holds about one lane's step); a stage at
     a time, the lanes of a stage are independent and fill the vector units."""
+    align_frame()
     ns = len(factors)
     nflag = 0
     for k in range(ns):
@@ -353,6 +355,7 @@ def _split_step(factors, model, shared, S, nb, h, par):
 def _rk_exact(tab, model, shared, S, nb, h, flip):
     """Redo the FLAG_EXACT lanes with the straightforward kernel's operations;
     returns the number of lanes that failed (FLAG_NONFINITE)."""
+    align_frame()
     src, dst = _rk_buffers(flip)
     nfail = 0
     for i in range(nb):
@@ -392,6 +395,7 @@ def _vi_prepare(model, shared, S, nb, vv, vvn, h, hn, g2, wl, wr, mode, tol, fir
     predictor never leaves the registers).  Returns the number of lanes whose
     entropy needs the exact operations (FLAG_EXACT) and the number whose
     Newton iteration does (NEWTON_REDO)."""
+    align_frame()
     nexact = 0
     nredo = 0
     for i in range(nb):
@@ -449,6 +453,7 @@ def _vi_prepare(model, shared, S, nb, vv, vvn, h, hn, g2, wl, wr, mode, tol, fir
 @jit
 def _vi_entropy_exact(model, shared, S, nb, vv, h, wl, wr, mode):
     """σ' with the straightforward kernel's operations for FLAG_EXACT lanes."""
+    align_frame()
     for i in range(nb):
         if ld(S, O_FLAG + i) != FLAG_EXACT:
             continue
@@ -466,6 +471,7 @@ def _newton_sweep(model, shared, S, nb, vvn, hn, wl, wr, tol, it):
     straightforward kernel's stopping rules, per lane).  A lane whose iteration
     needs the exact operations stops with NEWTON_REDO and its iterate and
     count unchanged.  Returns the number of lanes still running."""
+    align_frame()
     nrun = 0
     for i in range(nb):
         md = lane_model(shared, model, S, i)
@@ -529,6 +535,7 @@ def _newton_compact(model, shared, S, S2, idx, nb, nparam, vvn, hn, wl, wr, tol,
     its+1 … maxiter) on a compact copy: their rows go to lanes 0 … k−1 of the
     scratch buffer S2, _newton_sweep runs there (same arithmetic per lane) and
     the results come back."""
+    align_frame()
     k = np.int64(0)
     for i in range(nb):
         if ld(S, O_RUN + i) != 0.0:
@@ -630,6 +637,7 @@ def _vi_substep(model, shared, S, S2, idx, nb, nparam, vv, vvn, h, hn, g2, wl, w
                 maxiter):
     """One substep of lanes [0, nb) up to _vi_check; returns the number of
     failed lanes (FLAG_NEWTON or FLAG_NONFINITE)."""
+    align_frame()
     first = maxiter >= 1
     nexact, nredo = _vi_prepare(model, shared, S, nb, vv, vvn, h, hn, g2, wl, wr, mode, tol, first)
     if nexact:
@@ -751,6 +759,7 @@ def block_step(stepper, model, shared, S, S2, idx, nb, nparam, nrows, n, cur, do
     (FLAG_NEWTON or FLAG_NONFINITE, their last accepted state at ``cur``) and
     the lane count.  Explicit: from one state buffer to the other (the
     failed lanes keep their state in the source buffer)."""
+    align_frame()
     par = 0 if cur == O_Y else 1
     return _rk_step(stepper.tab, model, shared, S, nb, h, par), nb
 
@@ -758,6 +767,7 @@ def block_step(stepper, model, shared, S, S2, idx, nb, nparam, nrows, n, cur, do
 def _split_block_step(stepper, model, shared, S, S2, idx, nb, nparam, nrows, n, cur, done, h, Y,
                       ISTAT, FSTAT):
     """A splitting: as an explicit step, its Strang steps a stage at a time."""
+    align_frame()
     par = 0 if cur == O_Y else 1
     return _split_step(stepper.factors, model, shared, S, nb, h, par), nb
 
@@ -810,6 +820,7 @@ next_rows = by_stepper(next_rows, lambda stepper, cur: O_Y, inline_explicit="ir"
 def advance_blocks(stepper, model, shared, Y, P, b0, b1, h, every, n_out, OUT, ISTAT, FSTAT):
     """Blocks b0 … b1−1, ``every`` × ``n_out`` steps of the method whose
     kernel data is ``stepper`` (:mod:`.steppers`; see the module docstring)."""
+    align_frame()
     N, n = Y.shape
     nparam = P.shape[1] if shared is None else 0
     for bi in range(b0, b1):

@@ -36,7 +36,7 @@ import math
 
 import numpy as np
 
-from ._jit import jit, lane
+from ._jit import align_frame, jit, lane
 from .gen import abs_or_zero, tree_finite, unflatten
 from .layout import (FS_MAX_H_OMEGA, IS_FAIL_STEP, IS_NEWTON_MAX, IS_NEWTON_TOTAL, IS_NSUB,
                      IS_STATUS, IS_STEPS, NEWTON_OK, STATUS_NEWTON, STATUS_NONFINITE, STATUS_OK,
@@ -175,6 +175,7 @@ def advance_members(stepper, model, shared, Y, P, m0, m1, h, every, n_out, OUT, 
     """Members m0 … m1−1, ``every`` × ``n_out`` steps of the method whose
     kernel data is ``stepper`` (:mod:`.steppers`), output after every
     ``every`` steps."""
+    align_frame()
     for m in range(m0, m1):
         if ISTAT[m, IS_STATUS] != STATUS_OK:
             continue
@@ -211,6 +212,7 @@ def vi_start_members(model, shared, Y, P, m0, m1, h0, wl, wr, legendre, tol, max
       given; μ₀ is its node momentum (:func:`.vi.momentum_map`);
     * ``legendre`` True: μ₀ = 𝕀Ω(0) is given; X₀ solves the Newton equation
       from it (a member whose solve fails gets STATUS_NEWTON at step 1)."""
+    align_frame()
     for m in range(m0, m1):
         if ISTAT[m, IS_STATUS] != STATUS_OK:
             continue
