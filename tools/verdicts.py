@@ -4,9 +4,12 @@
 
 For every study folder present in both (each with its ``report.md``), prints
 the verdict tables of the two runs side by side and, per row, ``same`` or
-``DIFFERS``; a ranking stated in one run and a tie within noise in the
-other counts as agreement only where the report says "tie" (the measured
-spread covered the gap).  Exit status 1 when a verdict differs.
+``DIFFERS``.  A row whose claim ranks costs to an error (``"to error 1e-06: …"`` or
+``"split6 is the cheapest to error 1e-09"``, measured ``"a (…) < b (…) and c
+(…) tie within noise < …"``) is matched by that error; two rankings agree when no pair of
+candidates is ordered one way in one run and the other way in the other (a
+tie within noise in either run contradicts nothing).  Exit status 1 when a
+verdict differs.
 """
 
 from __future__ import annotations
@@ -33,6 +36,31 @@ def verdict_rows(report: Path) -> dict[str, tuple[str, str]]:
     return out
 
 
+def ranking(measured: str) -> list[set[str]] | None:
+    """The groups of a ranking, cheapest first (``None``: not a ranking)."""
+    if " < " not in measured and "tie within noise" not in measured:
+        return None
+    groups = []
+    for part in measured.split(" < "):
+        names = re.findall(r"(?:^|, | and )([\w:. -]+?) \(", part.replace(" tie within noise", ""))
+        groups.append({n.strip() for n in names})
+    return groups
+
+
+def rankings_agree(a: list[set[str]], b: list[set[str]]) -> bool:
+    """No pair strictly ordered one way in ``a`` and the other way in ``b``."""
+    pos = lambda groups: {n: i for i, g in enumerate(groups) for n in g}  # noqa: E731
+    pa, pb = pos(a), pos(b)
+    common = [n for n in pa if n in pb]
+    return not any((pa[x] - pa[y]) * (pb[x] - pb[y]) < 0 for x in common for y in common)
+
+
+def _key(claim: str, measured: str) -> str:
+    """A ranking's row is keyed by what it ranks for (``to error 1e-06``), whatever it concludes."""
+    m = re.search(r"to error [0-9.e+-]+", claim) if ranking(measured) is not None else None
+    return m.group(0) if m else claim
+
+
 def compare(a: Path, b: Path) -> int:
     bad = 0
     for sa in sorted(p for p in a.iterdir() if (p / "report.md").is_file()):
@@ -40,14 +68,19 @@ def compare(a: Path, b: Path) -> int:
         if not (sb / "report.md").is_file():
             print(f"{sa.name}: only in {a}")
             continue
-        ra, rb = verdict_rows(sa / "report.md"), verdict_rows(sb / "report.md")
+        ra, rb = ({_key(c, m): (c, m, v) for c, (m, v) in verdict_rows(s / "report.md").items()} for s in (sa, sb))
         print(f"\n## {sa.name}\n")
         print("| claim | run A measured | A | run B measured | B | |\n|---|---|---|---|---|---|")
-        for claim in dict.fromkeys([*ra, *rb]):
-            ma, va = ra.get(claim, ("—", "missing"))
-            mb, vb = rb.get(claim, ("—", "missing"))
-            same = va == vb or ("tie" in (ma + mb).lower() and "missing" not in (va, vb))
+        for key in dict.fromkeys([*ra, *rb]):
+            ca, ma, va = ra.get(key, (key, "—", "missing"))
+            cb, mb, vb = rb.get(key, (key, "—", "missing"))
+            ga, gb = ranking(ma), ranking(mb)
+            if ga is not None and gb is not None:  # a ranking: no pair ordered both ways
+                same = rankings_agree(ga, gb)
+            else:
+                same = va == vb and ca == cb
             bad += not same
+            claim = ca if ca == cb else f"{ca} (B: {cb})"
             print(f"| {claim} | {ma} | {va} | {mb} | {vb} | {'same' if same else 'DIFFERS'} |")
     print(f"\n{bad} verdict(s) differ")
     return 1 if bad else 0
