@@ -41,6 +41,10 @@ How it is fast
 * A failed member (Newton failure or non-finite state) is written back at
   once and its lane is filled with the block's last lane, so dead members
   cost nothing and never touch their neighbours' values.
+* The sweeps align their stack frames to 64 bytes (:func:`._jit.align_frame`):
+  LLVM keeps tuples and spilled zmm registers there, and from a frame aligned
+  to 16 bytes only, whether those moves split cache lines depended on where
+  the process's stack happened to land (RK4 ran at one of two speeds, 2x apart).
 * 1/T(σ) and log1p in the entropy are inline polynomials in the sweeps; a
   lane outside their range is flagged and recomputed with the
   straightforward kernel's operations.
