@@ -101,7 +101,7 @@ LANE_OPTIONS = {"forceinline": True, "fastmath": False, "error_model": "numpy", 
 
 
 @intrinsic
-def align_frame(typingctx):
+def _align_frame_intrinsic(typingctx):
     """Align the calling function's stack frame to 64 bytes (LLVM ``alignstack``).
 
     The vectorized sweeps keep tuples and spilled zmm registers on the stack,
@@ -160,6 +160,13 @@ def fma_exact(a: float, b: float, c: float) -> float:
 
 #: ``fma(a, b, c)`` = a·b + c with one rounding (see module docstring)
 fma = fma_exact if numba.config.DISABLE_JIT else _fma_intrinsic
+
+
+def _align_frame_py() -> None:
+    """Plain Python has no stack frame to align."""
+
+
+align_frame = _align_frame_py if numba.config.DISABLE_JIT else _align_frame_intrinsic
 
 
 @intrinsic
