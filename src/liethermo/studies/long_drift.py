@@ -57,6 +57,14 @@ def _run(model, sc, kernel, threads) -> None:  # a run of scene sc, timed by mea
     model.run_chunk(sc, 0, int(sc["ensemble"]["members"]), kernel=kernel, threads=threads)
 
 
+def _cpu_costs(ctx, coords, steps: dict, kernel, warm: int) -> dict:
+    """{m: Cost per simulated second} of runs at ``steps[m] = (h, n)``, one stored node, CPU time, interleaved."""
+    runs = {m: functools.partial(_run, *_scene(ctx, coords, m, h, n, n), kernel, ctx.opt["threads"])
+            for m, (h, n) in steps.items()}
+    c = timing.measure(runs, repeats=ctx.opt["calibration_repeats"], warm=warm, threads=ctx.opt["threads"], clock=time.process_time)
+    return {m: c[m].per(n * h) for m, (h, n) in steps.items()}
+
+
 def calibrate(ctx, coords) -> xr.Dataset:
     """Each method's h at the first method's CPU time per simulated second, both timed in the same interleaved round
     (a machine that slows down between rounds moves both)."""
@@ -64,19 +72,14 @@ def calibrate(ctx, coords) -> xr.Dataset:
     model, sc = _scene(ctx, coords, ms[0], *plan_steps(opt["h_base"], opt))
     kernel, h, tried = model.kernel_for(sc), {m: float(opt["h_base"]) for m in ms}, {m: [] for m in ms}
 
-    def run(m):  # (simulated seconds, a run of m at h[m] that returns its CPU time)
-        n = max(opt["calibration_steps"], round(opt["calibration_horizon"] * opt["t_end"] / h[m]))
-        return n * h[m], functools.partial(_run, model, _scene(ctx, coords, m, h[m], n, n)[1], kernel, opt["threads"])
-
     def gap(t):  # log(cost per simulated s / target) of a tried (h, cost, target): the first's in the same round
         return math.log(t[1].best / t[2].best)
 
     for rnd in range(CALIBRATION_ITERATIONS):
-        runs = {m: run(m) for m in ms}
-        costs = timing.measure({m: r[1] for m, r in runs.items()}, repeats=opt["calibration_repeats"],
-                               warm=int(rnd == 0), threads=opt["threads"], clock=time.process_time)
+        n = {m: max(opt["calibration_steps"], round(opt["calibration_horizon"] * opt["t_end"] / h[m])) for m in ms}
+        costs = _cpu_costs(ctx, coords, {m: (h[m], n[m]) for m in ms}, kernel, warm=int(rnd == 0))
         for m in ms:
-            tried[m].append((h[m], costs[m].per(runs[m][0]), costs[ms[0]].per(runs[ms[0]][0])))
+            tried[m].append((h[m], costs[m], costs[ms[0]]))
         todo = [m for m in ms[1:] if abs(math.expm1(gap(tried[m][-1]))) >= opt["calibration_rtol"]]
         if not todo:
             break
@@ -90,13 +93,10 @@ def calibrate(ctx, coords) -> xr.Dataset:
 
 def costs(ctx, coords, calibration) -> xr.Dataset:
     """After the long runs: each method's whole run (one stored node) timed again, interleaved with the others'."""
-    opt, ms, kernel, runs = ctx.opt, ctx.methods, calibration.attrs.get("kernel") or None, {}
-    for m, (h, steps, _) in ((m, plan_steps(float(calibration["step"].sel(scheme=m)), opt)) for m in ms):
-        runs[m] = steps * h, functools.partial(_run, *_scene(ctx, coords, m, h, steps, steps), kernel, opt["threads"])
-    c = timing.measure({m: r[1] for m, r in runs.items()}, repeats=opt["calibration_repeats"], warm=0,
-                       threads=opt["threads"], clock=time.process_time)
-    return xr.Dataset({"cost_per_simulated_s": ("scheme", [c[m].best / runs[m][0] for m in ms]),
-                       "cost_spread": ("scheme", [c[m].spread for m in ms])}, coords={"scheme": ms})
+    c = _cpu_costs(ctx, coords, {m: plan_steps(float(calibration["step"].sel(scheme=m)), ctx.opt)[:2]
+                                 for m in ctx.methods}, calibration.attrs.get("kernel") or None, warm=0)
+    return xr.Dataset({"cost_per_simulated_s": ("scheme", [x.best for x in c.values()]),
+                       "cost_spread": ("scheme", [x.spread for x in c.values()])}, coords={"scheme": list(c)})
 
 
 def long_run(ctx, coords, calibration) -> xr.Dataset:
