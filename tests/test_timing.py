@@ -7,6 +7,7 @@ import numpy as np  # noqa: F401  (loads the BLAS that threadpoolctl limits)
 import pytest
 import threadpoolctl
 
+from liethermo import timing
 from liethermo.timing import (Cost, compare, describe, equal_cost_check, format_cost,
                                       format_seconds, measure, pinned_threads, rank)
 
@@ -133,6 +134,29 @@ def test_equal_cost_check_flags_16_percent_and_not_14():
     assert equal_cost_check({"a": 2.0, "b": 1.0, "c": Cost.of([1.5])}, tolerance=0.5) == [("b", "a", 2.0)]
     with pytest.raises(ValueError, match="'b'"):
         equal_cost_check({"a": 1.0, "b": 0.0})
+
+
+
+def test_equalize_steps_matches_targets_timed_in_the_same_measurement():
+    """Costs per simulated second = (per-step cost + a run's fixed cost / n) / h on a machine whose speed changes
+    by 30 % between measurements: each run reaches its target's cost within rtol, measured in the same round,
+    the target keeps its step, and an unreachable rtol stops after ``rounds``."""
+    speed, span = iter([1.0, 1.3, 0.9, 1.2, 1.1, 1.25, 0.95] * 3), 10.0
+    per_step = {"split": 3e-3, "rk4": 1e-3, "vi": 2e-3}
+
+    def cost_of(h):
+        s = next(speed)
+        return {k: Cost.of([s * (per_step[k] * span / v + 0.02) / span]) for k, v in h.items()}
+
+    got, rounds = timing.equalize_steps(cost_of, dict.fromkeys(per_step, 0.02), {"rk4": "split", "vi": "split"})
+    assert got["split"][0] == 0.02 and 1 < rounds < 6
+    for k in ("rk4", "vi"):
+        assert abs(got[k][1].best / got[k][2].best - 1) < 0.03, got[k]
+    assert got["rk4"][0] == pytest.approx(0.02 / 3, rel=0.05)  # a third of the work per step: a third of the step
+    fixed = lambda h: {"a": Cost.of([1.0]), "b": Cost.of([2.0])}  # noqa: E731 (b's cost does not follow its step)
+    assert timing.equalize_steps(fixed, {"a": 1.0, "b": 1.0}, {"b": "a"}, rounds=2)[1] == 2
+    with pytest.raises(ValueError, match="rtol"):
+        timing.equalize_steps(cost_of, {"a": 1.0}, {}, rtol=0)
 
 
 def _blas_threads():

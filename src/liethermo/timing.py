@@ -5,7 +5,8 @@
   :class:`Cost` per candidate: the minimum over repeats with the spread beside it.
 * :func:`rank` and :func:`compare` state an order only where the gap exceeds the
   measured spread (and :data:`NOISE_FLOOR`), else a tie within noise; :func:`describe` words it for reports.
-* :func:`equal_cost_check` flags runs meant to cost the same that do not.
+* :func:`equalize_steps` sets time steps so that runs cost the same per simulated second;
+  :func:`equal_cost_check` flags runs meant to cost the same that do not.
 
 Plain Python: no arrays, no I/O.
 """
@@ -15,6 +16,7 @@ from __future__ import annotations
 import itertools
 import math
 import numbers
+import random
 import statistics
 import time
 from contextlib import contextmanager
@@ -87,7 +89,7 @@ class Cost:
 
 def measure(candidates: Mapping[str, Callable[[], float | None]], *, repeats: int = 5,
             min_time: float = 0.0, warm: int = 1, clock: Callable[[], float] = time.perf_counter,
-            threads: int | None = 1, max_rounds: int = 10_000) -> dict[str, Cost]:
+            threads: int | None = 1, max_rounds: int = 10_000, relayout: bool = True) -> dict[str, Cost]:
     """Time each candidate and return its :class:`Cost`.
 
     Each candidate is first called ``warm`` times untimed (compilation, caches).  Then
@@ -96,7 +98,14 @@ def measure(candidates: Mapping[str, Callable[[], float | None]], *, repeats: in
     every candidate's samples add up to ``min_time`` s (at most ``max_rounds`` rounds).  A
     sample is what the call returns, if a number (its own measured time, e.g. a kernel
     time), else ``clock()`` after minus before.  With ``threads`` set, the whole
-    measurement runs inside :func:`pinned_threads`; ``None`` leaves the pools alone."""
+    measurement runs inside :func:`pinned_threads`; ``None`` leaves the pools alone.
+
+    With ``relayout`` (the default) each call is preceded by a heap block of a random size (64 KiB at most),
+    held during the call, so that the arrays a call allocates land at another offset in every repeat.  Repeated
+    identical calls otherwise reuse the same addresses, and a placement that costs more (a block whose rows
+    alias the stack's 4 KiB offsets) slows every repeat alike: on a 2-core Zen 4 one 64-member RK2 run took
+    17.3–20.3 ms per minimum of 3 over 30 placements, against 17.1–18.2 ms with a new offset per repeat.
+    The sizes come from a generator seeded per measurement (the same sequence each time)."""
     names = list(candidates)
     if not names:
         raise ValueError("candidates must name at least one callable")
@@ -105,15 +114,16 @@ def measure(candidates: Mapping[str, Callable[[], float | None]], *, repeats: in
     if threads is not None:
         with pinned_threads(threads):
             return measure(candidates, repeats=repeats, min_time=min_time, warm=warm,
-                           clock=clock, threads=None, max_rounds=max_rounds)
+                           clock=clock, threads=None, max_rounds=max_rounds, relayout=relayout)
     for name in names:
         for _ in range(warm):
             candidates[name]()
     samples: dict[str, list[float]] = {name: [] for name in names}
-    rounds = 0
+    rounds, sizes = 0, random.Random(len(names))
     while rounds < max_rounds and (rounds < repeats or any(sum(s) < min_time for s in samples.values())):
         k = rounds % len(names)
         for name in names[k:] + names[:k]:
+            pad = bytearray(sizes.randrange(1024, 65536)) if relayout else None  # noqa: F841 (held during the call)
             t0 = clock()
             got = candidates[name]()
             t1 = clock()
@@ -198,5 +208,44 @@ def equal_cost_check(costs: Mapping[str, float | Cost], tolerance: float = 0.15
     return sorted((f for f in flagged if f[2] > 1.0 + tolerance), key=lambda f: -f[2])
 
 
+def secant_step(tried: list[tuple[float, float]]) -> float:
+    """The next log h from the (log h, f = log(cost / target)) tried: secant of the closest bracket, else x + f
+    (exact where the cost per simulated second is a fixed cost per step over h)."""
+    below, above = [t for t in tried if t[1] > 0], [t for t in tried if t[1] < 0]
+    if below and above:
+        (xa, fa), (xb, fb) = max(below), min(above)
+        return xa - fa * (xb - xa) / (fb - fa)
+    return tried[-1][0] + tried[-1][1]
+
+
+def equalize_steps(cost_of: Callable[[dict], Mapping], steps: Mapping, targets: Mapping, *, rtol: float = 0.03,
+                   rounds: int = 6) -> tuple[dict, int]:
+    """Time steps at which each run ``k`` of ``targets`` costs what the run ``targets[k]`` costs per simulated second.
+
+    ``cost_of({k: h})`` times every run at its step in one interleaved measurement (:func:`measure`) and returns
+    ``{k: Cost}`` per simulated second; a run is compared with its target **timed in the same measurement** (a
+    machine that changes speed between measurements moves both).  Runs that are not in ``targets`` keep their
+    step.  Each round moves the steps still more than ``rtol`` off by :func:`secant_step` in log h, for at most
+    ``rounds`` rounds.  Returns ``({k: (h, cost, the target's cost)}``, each run at its closest step tried), and the
+    number of rounds."""
+    _number("rtol", rtol, positive=True), _integer("rounds", rounds, 1)
+    h, tried = dict(steps), {k: [] for k in targets}
+
+    def gap(t):
+        return math.log(t[1].best / t[2].best)
+
+    for rnd in range(1, rounds + 1):
+        c = cost_of(dict(h))
+        for k in targets:
+            tried[k].append((h[k], c[k], c[targets[k]]))
+        todo = [k for k in targets if abs(math.expm1(gap(tried[k][-1]))) >= rtol]
+        if not todo:
+            break
+        for k in todo:
+            h[k] = math.exp(secant_step([(math.log(t[0]), gap(t)) for t in tried[k]]))
+    best = {k: min(v, key=lambda t: abs(gap(t))) for k, v in tried.items()}
+    return {k: best.get(k, (h[k], c[k], c[k])) for k in h}, rnd
+
+
 __all__ = ["NOISE_FLOOR", "Cost", "pinned_threads", "measure", "rank", "compare", "describe", "format_cost",
-           "format_seconds", "equal_cost_check"]
+           "format_seconds", "equal_cost_check", "equalize_steps", "secant_step"]
