@@ -13,7 +13,8 @@ import pytest
 
 from liethermo import cf
 from liethermo.studies.common import StudyError
-from liethermo.studies.long_drift import STUDY, plan_steps, secant_step
+from liethermo.studies.long_drift import STUDY, plan_steps
+from liethermo.timing import secant_step
 from liethermo.studies.runner import load_study, validate_study
 
 STUDIES = Path(__file__).resolve().parents[1] / "studies"
@@ -101,7 +102,8 @@ def test_the_same_study_on_the_fluid():
     a = load_study(STUDIES / "long_drift.toml")
     b = with_scene(a, "zeitlin_decay")
     oa, ob = resolve_study(a, False)["options"], resolve_study(b, False)["options"]
-    assert {k for k in {**oa, **ob} if oa.get(k) != ob.get(k)} == {"t_end", "outputs", "kn_steps", "calibration_horizon"}
+    assert {k for k in {**oa, **ob} if oa.get(k) != ob.get(k)} == {"t_end", "outputs", "kn_steps", "calibration_horizon",
+                                                                "calibration_repeats"}
     assert ob["t_end"] == 100.0 and ob["dissipation"] == oa["dissipation"]
     assert resolve_study(b, False)["methods"] == ["split", "split4", "split6", "rk4"]
     validate_study(b)

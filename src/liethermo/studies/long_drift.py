@@ -7,7 +7,6 @@ Costs are the process's CPU time (one thread): the machine's other load does not
 from __future__ import annotations
 
 import functools
-import math
 import time
 
 import numpy as np
@@ -44,15 +43,6 @@ def _scene(ctx, coords, method, h, steps, every):
                                        "integrator.steps": int(steps), "output.every": int(every)})
 
 
-def secant_step(tried: list[tuple[float, float]]) -> float:
-    """The next log h from the (log h, f = log(cost / target)) tried: secant of the closest bracket, else x + f."""
-    below, above = [t for t in tried if t[1] > 0], [t for t in tried if t[1] < 0]
-    if below and above:
-        (xa, fa), (xb, fb) = max(below), min(above)
-        return xa - fa * (xb - xa) / (fb - fa)
-    return tried[-1][0] + tried[-1][1]
-
-
 def _run(model, sc, kernel, threads) -> None:  # a run of scene sc, timed by measure's clock: CPU time
     model.run_chunk(sc, 0, int(sc["ensemble"]["members"]), kernel=kernel, threads=threads)
 
@@ -66,28 +56,18 @@ def _cpu_costs(ctx, coords, steps: dict, kernel, warm: int) -> dict:
 
 
 def calibrate(ctx, coords) -> xr.Dataset:
-    """Each method's h at the first method's CPU time per simulated second, both timed in the same interleaved round
-    (a machine that slows down between rounds moves both)."""
+    """Each method's h at the first method's CPU time per simulated second (:func:`.timing.equalize_steps`)."""
     opt, ms = ctx.opt, ctx.methods
     model, sc = _scene(ctx, coords, ms[0], *plan_steps(opt["h_base"], opt))
-    kernel, h, tried = model.kernel_for(sc), {m: float(opt["h_base"]) for m in ms}, {m: [] for m in ms}
+    kernel, first = model.kernel_for(sc), [1]
 
-    def gap(t):  # log(cost per simulated s / target) of a tried (h, cost, target): the first's in the same round
-        return math.log(t[1].best / t[2].best)
-
-    for rnd in range(CALIBRATION_ITERATIONS):
+    def cost_of(h):  # the first measurement warms every run (compilation)
         n = {m: max(opt["calibration_steps"], round(opt["calibration_horizon"] * opt["t_end"] / h[m])) for m in ms}
-        costs = _cpu_costs(ctx, coords, {m: (h[m], n[m]) for m in ms}, kernel, warm=int(rnd == 0))
-        for m in ms:
-            tried[m].append((h[m], costs[m], costs[ms[0]]))
-        todo = [m for m in ms[1:] if abs(math.expm1(gap(tried[m][-1]))) >= opt["calibration_rtol"]]
-        if not todo:
-            break
-        for m in todo:
-            h[m] = math.exp(secant_step([(math.log(t[0]), gap(t)) for t in tried[m]]))
-    got = [min(tried[m], key=lambda t: abs(gap(t))) for m in ms]  # each keeps its closest h
-    return xr.Dataset({"step": ("scheme", [g[0] for g in got]), "calibrated_cost": ("scheme", [g[1].best for g in got]),
-                       "calibration_spread": ("scheme", [g[1].spread for g in got]), "calibration_rounds": ((), rnd + 1)},
+        return _cpu_costs(ctx, coords, {m: (h[m], n[m]) for m in ms}, kernel, warm=first.pop() if first else 0)
+    got, rounds = timing.equalize_steps(cost_of, {m: float(opt["h_base"]) for m in ms}, {m: ms[0] for m in ms[1:]},
+                                        rtol=opt["calibration_rtol"], rounds=CALIBRATION_ITERATIONS)
+    return xr.Dataset({"step": ("scheme", [got[m][0] for m in ms]), "calibrated_cost": ("scheme", [got[m][1].best for m in ms]),
+                       "calibration_spread": ("scheme", [got[m][1].spread for m in ms]), "calibration_rounds": ((), rounds)},
                       coords={"scheme": ms}, attrs={"kernel": kernel or ""})
 
 
@@ -220,7 +200,7 @@ STUDY = Study(
              Option("kn_steps", 2000, "int>=1", "1", "steps of the window stored at every step"),
              Option("calibration_steps", 2000, "int>=1", "1", "steps of a calibration run, at least"),
              Option("calibration_horizon", 1.0, "number>0", "1", "simulated time of a calibration run / t_end"),
-             Option("calibration_repeats", 3, "int>=1", "1", "samples per method and round, at least"),
+             Option("calibration_repeats", 5, "int>=1", "1", "samples per method and round, at least"),
              Option("calibration_rtol", 0.03, "number>0", "1", "calibration stops within this of equal cost"),
              Option("threads", 1, "int>=1", "1", "threads of every run (timings on one vary least)")),
     axes=lambda ctx: {"dissipation": ctx.opt["dissipation"]}, check=_check,

@@ -7,8 +7,8 @@ import numpy as np
 import xarray as xr
 
 from .. import timing
-from .common import StudyError, cached_point
-from .framework import MARKERS, Figure, Option, Stage, Study, Table, Verdict, run_scene, task_key
+from .common import StudyError
+from .framework import MARKERS, Figure, Option, Stage, Study, Table, Verdict, run_scene
 
 RUN = {"h": ("s", "time step of the run", "h (s)"), "steps": ("1", "steps of the run", "steps"),
        "cost_per_simulated_second": ("s s-1", "CPU time per simulated second", "CPU time per simulated second (s)"),
@@ -17,6 +17,7 @@ RUN = {"h": ("s", "time step of the run", "h (s)"), "steps": ("1", "steps of the
        "energy_drift": ("1", "max over members of |H + q - H(0)| / H(0)", "|H + q − H(0)|/H(0)"),
        "angular_momentum_drift": ("1", "max |L - L(0)| / max |L(0)|", "angular momentum drift"),
        "iterations_per_step": ("1", "mean fixed-point iterations per step (0 for rk4)", "fixed-point its/step")}
+SIDES = ("splitting", "rk4")
 
 
 def _check(ctx):
@@ -38,35 +39,47 @@ def _cpu(sc, m, h, n, every):  # a run and its CPU time (one thread: the machine
     return run_scene(sc, m, h=h, steps=n, every=every, threads=1, output__vorticity=False)[0], time.process_time() - t
 
 
+def _run_setup(ctx, coords, calibrate, side):  # scene, steps per sample, step of one run of the pair
+    return _setup(ctx, coords, ctx.opt["h"] if side == "splitting" else float(calibrate["rk4_step"]))
+
+
+def _costs(ctx, coords, h: dict) -> dict:
+    """{side: Cost per simulated second} of the pair's runs' first ``timed_fraction`` × t_end, interleaved."""
+    sc, m = _setup(ctx, coords, ctx.opt["h"])[0], {"splitting": coords["pair"], "rk4": "rk4"}
+    n = {k: max(1, round(ctx.opt["timed_fraction"] * ctx.opt["t_end"] / v)) for k, v in h.items()}
+    c = timing.measure({k: lambda k=k: _cpu(sc, m[k], h[k], n[k], n[k])[1] for k in h}, repeats=3, warm=0, threads=1)
+    return {k: c[k].per(n[k] * h[k]) for k in h}
+
+
 def calibrate(ctx, coords) -> xr.Dataset:
-    """CPU time per step at h, (best of 2k steps − best of k) / k, and of a run besides steps, 2 best(k) − best(2k)."""
-    sc, k0, h = _setup(ctx, coords, ctx.opt["h"])
-    with timing.pinned_threads(1):
-        k = {m: next(k0 << i for i in range(30) if _cpu(sc, m, h, k0 << i, k0 << i)[1] >= 0.02) for m in ctx.methods}
-    c = timing.measure({(m, n): (lambda m=m, n=n: _cpu(sc, m, h, n, n)[1]) for m in k for n in (k[m], 2 * k[m])},
-                       repeats=5, min_time=0.1, threads=1)
-    return xr.Dataset({"step_cost": ("scheme", [(c[m, 2 * k[m]].best - c[m, k[m]].best) / k[m] for m in k]),
-                       "step_cost_spread": ("scheme", [max(c[m, k[m]].spread, c[m, 2 * k[m]].spread) for m in k]),
-                       "run_overhead": ("scheme", [max(2 * c[m, k[m]].best - c[m, 2 * k[m]].best, 0.0) for m in k])},
-                      coords={"scheme": ctx.methods})
+    """RK4's step at the splitting's CPU time per simulated second (:func:`.timing.equalize_steps`)."""
+    h = _setup(ctx, coords, ctx.opt["h"])[2]
+    got, rounds = timing.equalize_steps(lambda hs: _costs(ctx, coords, hs), dict.fromkeys(SIDES, h),
+                                        {"rk4": "splitting"}, rounds=6)
+    return xr.Dataset({"rk4_step": got["rk4"][0], "calibration_rounds": rounds,
+                       "calibrated_cost": ("side", [got[s][1].best for s in SIDES]),
+                       "calibration_spread": ("side", [got[s][1].spread for s in SIDES])}, coords={"side": list(SIDES)})
 
 
 def long_run(ctx, coords, calibrate) -> xr.Dataset:
-    """One run of a pair to t_end, one thread: the splitting at h, RK4 at its step of equal cost."""
-    m, n, h = (coords["pair"] if coords["side"] == "splitting" else "rk4"), ctx.opt["samples"], ctx.opt["h"]
-    if m == "rk4":  # its steps cost the splitting's measured run (from the cache) less a run's fixed cost
-        split, c, T = {**coords, "side": "splitting"}, calibrate.sel(scheme="rk4"), ctx.opt["t_end"]
-        w = cached_point(ctx.outdir, task_key(STUDY, ctx, STUDY.stages[1], split), lambda: long_run(ctx, split, calibrate))
-        h = float(c["step_cost"] * T / (w["cost_per_simulated_second"] * T - c["run_overhead"]))
-    sc, per, h = _setup(ctx, coords, h)
+    """One run of a pair to t_end, one thread: the splitting at h, RK4 at its calibrated step."""
+    m, n = (coords["pair"] if coords["side"] == "splitting" else "rk4"), ctx.opt["samples"]
+    sc, per, h = _run_setup(ctx, coords, calibrate, coords["side"])
     with timing.pinned_threads(1):
-        ds, cpu = _cpu(sc, m, h, per * n, per)
+        ds = _cpu(sc, m, h, per * n, per)[0]
     L, ma, dC = ds["angular_momentum"], ("member", "axis"), abs(ds["casimir_drift"]).max("member")
     curves = {"casimir2_drift": dC.sel(k=2), "casimir4_drift": dC.sel(k=4), "energy_drift": abs(ds["energy_error"]).max(
         "member"), "angular_momentum_drift": abs(L - L.isel(t=0)).max(ma) / abs(L.isel(t=0)).max(ma)}
     return xr.Dataset({k: ("t", v.values) for k, v in curves.items()}, coords={"t": np.arange(n + 1) * (ctx.opt[
-        "t_end"] / n)}).assign(h=h, steps=per * n, cost_per_simulated_second=cpu / ctx.opt["t_end"],
-                               iterations_per_step=float(ds["fixed_point_iterations"].isel(t=slice(1, None)).mean()))
+        "t_end"] / n)}).assign(h=h, steps=per * n, iterations_per_step=float(ds["fixed_point_iterations"].isel(
+            t=slice(1, None)).mean()))
+
+
+def costs(ctx, coords, calibrate) -> xr.Dataset:
+    """After the long runs: the first stretch of both runs of the pair, each at its run's step, timed again."""
+    c = _costs(ctx, coords, {s: _run_setup(ctx, coords, calibrate, s)[2] for s in SIDES})
+    return xr.Dataset({"cost_per_simulated_second": ("side", [c[s].best for s in SIDES]),
+                       "cost_spread": ("side", [c[s].spread for s in SIDES])}, coords={"side": list(SIDES)})
 
 
 def tables(ds, ctx):
@@ -84,7 +97,7 @@ def verdicts(ds, ctx):
     c_s, c_r = ds["casimir2_drift"].isel(t=-1).where(ds["kinematic_viscosity"] == 0).transpose("side", ...)  # split, rk4
     ratio = float((w.max("side") / w.min("side")).max())
     return [Verdict("each pair ran at equal measured cost", f"largest ratio {ratio:.2f}{bad}",
-                    "costs per simulated second within 15 % (equal_cost_check)", not bad),
+                    "timed again after the runs: within 15 % (equal_cost_check)", not bad),
             Verdict("at ν = 0 the splitting keeps tr W², RK4 at its cost does not", f"splitting ≤ "
                     f"{float(c_s.max()):.2g}, RK4 ≥ {float(c_r.min()):.2g}", "splitting < 1e-12, RK4 > 100 × it",
                     bool(c_s.max() < 1e-12 and (c_r > 100 * c_s).sum() == c_s.count()) if c_s.count() else None)]
@@ -92,11 +105,11 @@ def verdicts(ds, ctx):
 
 def findings(ds, ctx):
     sp, rk = (ds.isel(t=-1).sel(side=s).where(ds["kinematic_viscosity"] == 0) for s in ("splitting", "rk4"))
-    cost = lambda b, s: timing.Cost(b, b * (1 + s), s, 1, (b,))  # noqa: E731 (best and spread as stored)
-    costs = "; ".join(f"N = {N}, ν = {nu:g}: {timing.describe({m: cost(*d.sel(scheme=m).values) for m in ctx.methods})}"
-                      for N in ds["N"].values for nu in ds["kinematic_viscosity"].values
-                      for d in [ds[["step_cost", "step_cost_spread"]].sel(N=N, kinematic_viscosity=nu).to_array()])
-    return [f"CPU time per step at h (one thread; a gap within the spread is a tie): {costs}.",
+    hr = ds["h"].sel(side="rk4")
+    steps = "; ".join(f"N = {N}, ν = {nu:g}: " + ", ".join(f"{p} {float(hr.sel(N=N, kinematic_viscosity=nu, pair=p)):.3g} s"
+                                                          for p in ds["pair"].values)
+                      for N in ds["N"].values for nu in ds["kinematic_viscosity"].values)
+    return [f"RK4's step at the cost of each splitting at h = {ctx.opt['h']:g} s (CPU time, one thread): {steps}.",
             f"At ν = 0 the splitting wins the Casimirs (tr W² drift ≤ {float(sp['casimir2_drift'].max()):.1e}, RK4 ≥ "
             f"{float(rk['casimir2_drift'].min()):.1e}); RK4, the baseline, wins the energy (|H + q − H(0)|/H(0) ≤ "
             f"{float(rk['energy_drift'].max()):.1e}, the splitting ≥ {float(sp['energy_drift'].min()):.1e})."]
@@ -125,18 +138,24 @@ STUDY = Study(
     description="Casimir and energy drift, split family against RK4 at equal measured cost", verdicts=verdicts,
     options=(Option("N", [32, 64], "list[int>=3]", "1", "matrix sizes"), Option("h", 0.02, "number>0", "s", "step"),
              Option("kinematic_viscosity", [0.0, 1e-4], "list[number>=0]", "s-1", "viscosities"),
-             Option("t_end", 100.0, "number>0", "s", "run length"), Option("samples", 50, "int>=1", "1", "samples")),
+             Option("t_end", 100.0, "number>0", "s", "run length"), Option("samples", 50, "int>=1", "1", "samples"),
+             Option("timed_fraction", 0.1, "number>0", "1", "the stretch of a run timed for its cost / t_end")),
     axes=lambda ctx: {"N": ctx.opt["N"], "kinematic_viscosity": ctx.opt["kinematic_viscosity"],
                       "pair": [m for m in ctx.methods if m != "rk4"], "side": ["splitting", "rk4"]}, check=_check,
-    stages=(Stage("calibrate", calibrate, over=("N", "kinematic_viscosity"), serial=True),
-            Stage("long", long_run, over=("N", "kinematic_viscosity", "pair", "side"), needs=("calibrate",), serial=True)),
+    stages=(Stage("calibrate", calibrate, over=("N", "kinematic_viscosity", "pair"), serial=True),
+            Stage("long", long_run, over=("N", "kinematic_viscosity", "pair", "side"), needs=("calibrate",)),
+            Stage("costs", costs, over=("N", "kinematic_viscosity", "pair"), needs=("calibrate",), serial=True)),
     quantities={"N": ("1", "matrix size N"), "kinematic_viscosity": ("s-1", "kinematic viscosity nu"),
                 "pair": ("1", "the splitting RK4 is compared with"), "side": ("1", "run of the pair"),
-                "step_cost": ("s", "CPU time per step at h (one thread)"), "step_cost_spread": ("1", "its spread"),
-                "run_overhead": ("s", "CPU time of a run besides its steps"), **{k: v[:2] for k, v in RUN.items()}},
+                "rk4_step": ("s", "RK4's step at the splitting's cost (calibrated)"), "calibration_rounds": ("1", "rounds"),
+                "calibrated_cost": ("s s-1", "calibration: CPU time per simulated second"), "calibration_spread":
+                ("1", "its spread"), "cost_spread": ("1", "spread of cost_per_simulated_second's repeats"),
+                **{k: v[:2] for k, v in RUN.items()}},
     figures=(Figure("drift", kind="custom", draw=draw, select=lambda ds, ctx: ds, claim="at ν = 0 the splitting "
                     "keeps tr W² to round-off (zeros not drawn), RK4 at its cost does not; RK4 keeps H + q better"),),
     report=("{members} members of `{scene}` per N, t_end = {opt[t_end]:g} s, {opt[samples]} samples, splitting at h = "
-            "{opt[h]:g} s; Casimirs over tr((−iW)²)(0)^(k/2). **Timed:** RK4's step and drifts, the costs (CPU time)."),
+            "{opt[h]:g} s; Casimirs over tr((−iW)²)(0)^(k/2). Costs: CPU time per simulated second of each run's first "
+            "{opt[timed_fraction]:g} × t_end, one thread, interleaved, minimum of 3; RK4's step set to the splitting's "
+            "cost before the runs, both timed again after them. **Timed:** RK4's step and drifts, the costs."),
     facts=lambda ds, ctx: {"members": ctx.scene()["ensemble"]["members"]}, findings=findings,
 )
