@@ -110,7 +110,7 @@ def _align_frame_intrinsic(typingctx):
     address-space randomisation, i.e. by the process) decides how many of those
     moves split a cache line.  Measured (Zen 4): RK4 on 64 members of the paper
     scene without viscosity took 0.097 or 0.19 ms of CPU time per simulated
-    second, by process; with the frame aligned, 0.097–0.102 in 8 of 8."""
+    second, by process; with the frame aligned, 0.097–0.100 in 8 of 8."""
     def codegen(context, builder, signature, args):
         attrs = builder.function.attributes
         attrs.alignstack = 64
