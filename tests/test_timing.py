@@ -159,6 +159,22 @@ def test_equalize_steps_matches_targets_timed_in_the_same_measurement():
         timing.equalize_steps(cost_of, {"a": 1.0}, {}, rtol=0)
 
 
+
+def test_relayout_moves_what_a_repeat_allocates():
+    """Identical calls reuse the same heap addresses; with relayout each repeat's arrays land elsewhere."""
+    import ctypes
+
+    seen = {}
+    for relayout in (False, True):
+        addrs = seen.setdefault(relayout, [])
+
+        def call(addrs=addrs):
+            block = bytearray(50_000)
+            addrs.append(ctypes.addressof((ctypes.c_char * 1).from_buffer(block)))
+        measure({"a": call, "b": call}, repeats=8, warm=0, threads=None, relayout=relayout)
+    assert len(set(seen[True])) >= 4 and len(set(seen[False])) < len(set(seen[True]))
+
+
 def _blas_threads():
     return [p["num_threads"] for p in threadpoolctl.threadpool_info() if p["user_api"] == "blas"]
 
