@@ -44,12 +44,12 @@ def _run_setup(ctx, coords, calibrate, side):  # scene, steps per sample, step o
 
 
 def _costs(ctx, coords, h: dict) -> dict:
-    """{side: Cost per simulated second}, one thread, interleaved, min of 2: the splitting's whole run (its fixed-point
-    iterations per step grow along a run: 7 → 13.5 at N = 32), RK4's first ``timed_fraction`` × t_end (fixed per step)."""
+    """{side: Cost per simulated second}, one thread, interleaved, min over ≥ 2 repeats and ≥ 1 s of CPU time each: the
+    splitting's whole run (its iterations per step grow along a run), RK4's first ``timed_fraction`` × t_end (fixed per step)."""
     sc, m, f = _setup(ctx, coords, ctx.opt["h"])[0], {"splitting": coords["pair"], "rk4": "rk4"}, ctx.opt["timed_fraction"]
     n = {k: max(1, round((1.0 if k == "splitting" else f) * ctx.opt["t_end"] / v)) for k, v in h.items()}
     [_cpu(sc, m[k], h[k], 1, 1) for k in h]  # load or compile the kernels before timing
-    c = timing.measure({k: lambda k=k: _cpu(sc, m[k], h[k], n[k], n[k])[1] for k in h}, repeats=2, warm=0, threads=1)
+    c = timing.measure({k: lambda k=k: _cpu(sc, m[k], h[k], n[k], n[k])[1] for k in h}, repeats=2, min_time=1.0, warm=0)
     return {k: c[k].per(n[k] * h[k]) for k in h}
 
 
@@ -155,8 +155,8 @@ STUDY = Study(
                     "keeps tr W² to round-off (zeros not drawn), RK4 at its cost does not; RK4 keeps H + q better"),),
     report=("{members} members of `{scene}` per N, t_end = {opt[t_end]:g} s, {opt[samples]} samples, splitting at h = "
             "{opt[h]:g} s; Casimirs over tr((−iW)²)(0)^(k/2). Costs: CPU time per simulated second, one thread, interleaved, "
-            "minimum of 2, of the splitting's whole run (its fixed-point iterations per step grow along the run) and of "
-            "RK4's first {opt[timed_fraction]:g} × t_end (a fixed cost per step); RK4's step set from them before the "
-            "runs, both timed again after them. **Timed:** RK4's step and drifts, the costs."),
+            "minimum over ≥ 2 repeats and ≥ 1 s, of the splitting's whole run (its fixed-point iterations per step grow "
+            "along the run) and of RK4's first {opt[timed_fraction]:g} × t_end (a fixed cost per step); RK4's step set "
+            "from them before the runs, both timed again after them. **Timed:** RK4's step and drifts, the costs."),
     facts=lambda ds, ctx: {"members": ctx.scene()["ensemble"]["members"]}, findings=findings,
 )
