@@ -160,19 +160,22 @@ def test_equalize_steps_matches_targets_timed_in_the_same_measurement():
 
 
 
-def test_relayout_moves_what_a_repeat_allocates():
-    """Identical calls reuse the same heap addresses; with relayout each repeat's arrays land elsewhere."""
-    import ctypes
+def test_relayout_holds_a_block_of_another_size_during_each_call():
+    """With relayout every call runs with a heap block of a new size held (what the call allocates can land
+    elsewhere); without it the heap is the same at every call."""
+    import tracemalloc
 
     seen = {}
-    for relayout in (False, True):
-        addrs = seen.setdefault(relayout, [])
-
-        def call(addrs=addrs):
-            block = bytearray(50_000)
-            addrs.append(ctypes.addressof((ctypes.c_char * 1).from_buffer(block)))
-        measure({"a": call, "b": call}, repeats=8, warm=0, threads=None, relayout=relayout)
-    assert len(set(seen[True])) >= 4 and len(set(seen[False])) < len(set(seen[True]))
+    tracemalloc.start()
+    try:
+        for relayout in (False, True):
+            held = seen.setdefault(relayout, [])
+            measure({"a": lambda held=held: held.append(tracemalloc.get_traced_memory()[0])}, repeats=8, warm=0,
+                    threads=None, relayout=relayout)
+    finally:
+        tracemalloc.stop()
+    spread = {k: max(v) - min(v) for k, v in seen.items()}  # bytes traced at the calls (the lists grow a little)
+    assert spread[False] < 1024 < spread[True] and len(set(seen[True])) == 8, spread
 
 
 def _blas_threads():

@@ -100,12 +100,13 @@ def measure(candidates: Mapping[str, Callable[[], float | None]], *, repeats: in
     time), else ``clock()`` after minus before.  With ``threads`` set, the whole
     measurement runs inside :func:`pinned_threads`; ``None`` leaves the pools alone.
 
-    With ``relayout`` (the default) each call is preceded by a heap block of a random size (64 KiB at most),
-    held during the call, so that the arrays a call allocates land at another offset in every repeat.  Repeated
-    identical calls otherwise reuse the same addresses, and a placement that costs more (a block whose rows
-    alias the stack's 4 KiB offsets) slows every repeat alike: on a 2-core Zen 4 one 64-member RK2 run took
-    17.3–20.3 ms per minimum of 3 over 30 placements, against 17.1–18.2 ms with a new offset per repeat.
-    The sizes come from a generator seeded per measurement (the same sequence each time)."""
+    With ``relayout`` (the default) each call is preceded by a heap block of a random size (1–64 KiB), held
+    during the call, so that what the call allocates can land at another offset in each repeat.  Repeated
+    identical calls otherwise reuse the same addresses, and a placement that costs more slows every repeat
+    alike.  Whether the block moves a call's arrays depends on the allocator's free blocks: in a fresh process
+    a repeat's 50 kB array moved to 8 addresses in 16 calls, in a test worker's heap it stayed at one.  One
+    comparison on a 2-core Zen 4 (a 64-member RK2 run, minimum of 3, 30 heap states each): 17.3–20.3 ms
+    without, 17.1–18.2 ms with.  The sizes come from a generator seeded per measurement (the same each time)."""
     names = list(candidates)
     if not names:
         raise ValueError("candidates must name at least one callable")
