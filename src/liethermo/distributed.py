@@ -94,6 +94,11 @@ def make_client(address: Any = "local"):
                                    env={"NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"})
         client = Client(cluster)
         client._liethermo_cluster = cluster  # closed by close_client
+        # its scheduler runs in this process: a run stopped by Ctrl-C cancels tasks while the comms close, which
+        # it logs as CRITICAL ("Closed comm ... while trying to write"); silenced until close_client
+        log = logging.getLogger("distributed.scheduler")
+        client._liethermo_log_level = log.level
+        log.setLevel(logging.CRITICAL + 1)
         return client
     if str(address).endswith(".json"):
         return Client(scheduler_file=str(address))
@@ -124,6 +129,7 @@ def close_client(client) -> None:
     client.close()
     if cluster is not None:
         cluster.close()
+        logging.getLogger("distributed.scheduler").setLevel(client._liethermo_log_level)
 
 
 @contextlib.contextmanager
