@@ -303,12 +303,18 @@ def test_decay_study_turns_energy_into_heat(tmp_path):
         assert (report.parent / f).stat().st_size > 10_000
 
 
-def test_structure_study_compares_at_equal_measured_cost(tmp_path):
+def test_structure_study_compares_at_equal_measured_cost(tmp_path, monkeypatch):
     import pandas as pd
 
     from liethermo.cf import load_dataset
+    from liethermo.studies import zeitlin_structure
 
+    timed, cpu = [], zeitlin_structure._cpu
+    monkeypatch.setattr(zeitlin_structure, "_cpu", lambda sc, m, h, n, every: (n == every > 1 and timed.append((m, n)))
+                        or cpu(sc, m, h, n, every))
     report = _study("zeitlin_structure", tmp_path)
+    # the timings (one stored sample) take both sides over the splitting's 100 steps: a run's fixed cost weighs the same
+    assert {m for m, _ in timed} == {"split", "rk4"} and {n for _, n in timed} == {100}
     df = pd.read_csv(report.parent / "drift.csv")
     split, rk4 = df[df["method"] == "split"].iloc[0], df[df["method"] == "rk4"].iloc[0]
     assert split["tr W² drift"] < 1e-13 and split["tr W⁴ drift"] < 1e-13  # the spectrum is kept
