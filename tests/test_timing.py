@@ -136,7 +136,6 @@ def test_equal_cost_check_flags_16_percent_and_not_14():
         equal_cost_check({"a": 1.0, "b": 0.0})
 
 
-
 def test_equalize_steps_matches_targets_timed_in_the_same_measurement():
     """Costs per simulated second = (per-step cost + a run's fixed cost / n) / h on a machine whose speed changes
     by 30 % between measurements: each run reaches its target's cost within rtol, measured in the same round,
@@ -157,7 +156,6 @@ def test_equalize_steps_matches_targets_timed_in_the_same_measurement():
     assert timing.equalize_steps(fixed, {"a": 1.0, "b": 1.0}, {"b": "a"}, rounds=2)[1] == 2
     with pytest.raises(ValueError, match="rtol"):
         timing.equalize_steps(cost_of, {"a": 1.0}, {}, rtol=0)
-
 
 
 def test_relayout_holds_a_block_of_another_size_during_each_call():

@@ -310,8 +310,13 @@ def test_structure_study_compares_at_equal_measured_cost(tmp_path, monkeypatch):
     from liethermo.studies import zeitlin_structure
 
     timed, cpu = [], zeitlin_structure._cpu
-    monkeypatch.setattr(zeitlin_structure, "_cpu", lambda sc, m, h, n, every: (n == every > 1 and timed.append((m, n)))
-                        or cpu(sc, m, h, n, every))
+
+    def spy(sc, m, h, n, every):  # a timed run stores one sample (the long runs store several)
+        if n == every > 1:
+            timed.append((m, n))
+        return cpu(sc, m, h, n, every)
+
+    monkeypatch.setattr(zeitlin_structure, "_cpu", spy)
     report = _study("zeitlin_structure", tmp_path)
     # the timings (one stored sample) take both sides over the splitting's 100 steps: a run's fixed cost weighs the same
     assert {m for m, _ in timed} == {"split", "rk4"} and {n for _, n in timed} == {100}

@@ -59,11 +59,11 @@ def calibrate(ctx, coords) -> xr.Dataset:
     """Each method's h at the first method's CPU time per simulated second (:func:`.timing.equalize_steps`)."""
     opt, ms = ctx.opt, ctx.methods
     model, sc = _scene(ctx, coords, ms[0], *plan_steps(opt["h_base"], opt))
-    kernel, first = model.kernel_for(sc), [1]
+    kernel, warm = model.kernel_for(sc), iter([1])
 
     def cost_of(h):  # the first measurement warms every run (compilation)
         n = {m: max(opt["calibration_steps"], round(opt["calibration_horizon"] * opt["t_end"] / h[m])) for m in ms}
-        return _cpu_costs(ctx, coords, {m: (h[m], n[m]) for m in ms}, kernel, warm=first.pop() if first else 0)
+        return _cpu_costs(ctx, coords, {m: (h[m], n[m]) for m in ms}, kernel, warm=next(warm, 0))
     got, rounds = timing.equalize_steps(cost_of, {m: float(opt["h_base"]) for m in ms}, {m: ms[0] for m in ms[1:]},
                                         rtol=opt["calibration_rtol"], rounds=CALIBRATION_ITERATIONS)
     return xr.Dataset({"step": ("scheme", [got[m][0] for m in ms]), "calibrated_cost": ("scheme", [got[m][1].best for m in ms]),
