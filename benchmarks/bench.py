@@ -73,7 +73,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 
 def variant_physics(variant: str, N: int):
     """The physics of a benchmark variant, N members."""
-    from liethermo.physics import physics_of_scene
+    from liethermo.top.physics import physics_of_scene
     from liethermo.scene import load_scene
 
     if variant == "paper":
@@ -94,7 +94,7 @@ def variant_physics(variant: str, N: int):
 
 def random_ensemble(N: int, seed: int = 0):
     """(Ω₀, R₀) of N random members (see module docstring)."""
-    from liethermo.initial import quat_to_matrix
+    from liethermo.top.initial import quat_to_matrix
 
     rng = np.random.default_rng(seed)
     q = rng.standard_normal((N, 4))
@@ -106,13 +106,13 @@ def random_ensemble(N: int, seed: int = 0):
 
 
 def run(kernel, method, phys, om0, R0, h, steps, every, attitude, threads):
-    from liethermo.simulate import simulate
+    from liethermo.top.simulate import simulate
 
     kw = {"start": "node", "entropy": "explicit"} if method == "vi" else {}
     if phys.n and np.any(phys.thermal_expansion) and method == "vi":
         kw = {}  # the coupled top starts from its node momentum
     # the heat bound a run passes (its scene's): here the largest of this ensemble
-    from liethermo.physics import mechanical_energy_scale
+    from liethermo.top.physics import mechanical_energy_scale
 
     heat = float(np.max(mechanical_energy_scale(phys, om0, R0[:, 2, :]), initial=0.0)) if phys.n else None
     return simulate(phys, om0, R0, h, steps, method, every=every, attitude=attitude,
@@ -274,11 +274,11 @@ def asm_report() -> dict:
     the loop by one straight-line vector, which has no loop to count)."""
     import numba
 
-    from liethermo.kernels import fast as F
-    from liethermo.kernels import rk
-    from liethermo.kernels.terms.thermo import EXPLICIT
-    from liethermo.kernels.vi import vi_coefficients
-    from liethermo.physics import build_model
+    from liethermo.top.kernels import fast as F
+    from liethermo.top.kernels import rk
+    from liethermo.top.kernels.terms.thermo import EXPLICIT
+    from liethermo.top.kernels.vi import vi_coefficients
+    from liethermo.top.physics import build_model
 
     def fresh(f):
         return numba.njit(fastmath=False, error_model="numpy")(f.py_func)
@@ -287,7 +287,7 @@ def asm_report() -> dict:
     S = np.ones(F.buffer_size(0))
     vv = vi_coefficients(model, 0.1, 0.5, 0.5)
     out = {}
-    from liethermo.methods import METHODS as M
+    from liethermo.top.methods import METHODS as M
 
     for name, tab in (("rk2 sweep", rk.MIDPOINT), ("rk4 sweep", rk.RK4)):
         g = fresh(F._rk_sweep)
@@ -354,11 +354,11 @@ def main(argv=None) -> int:
     import numba
 
     from liethermo import __version__
-    from liethermo.kernels.parallel import default_threads
+    from liethermo.top.kernels.parallel import default_threads
 
     threads = args.threads or default_threads()
     t0 = time.perf_counter()
-    subprocess.run([sys.executable, "-c", "import liethermo.simulate"], check=True)
+    subprocess.run([sys.executable, "-c", "import liethermo.top.simulate"], check=True)
     import_s = time.perf_counter() - t0
     rows = []
     hdr = (f"{'variant':<15}{'kernel':<7}{'method':<7}{'members':>8}{'wall s':>9}{'ns/mstep':>10}"
@@ -408,7 +408,7 @@ def main(argv=None) -> int:
                     print(f"{variant:<15}{kernel:<7}{method:<7}{N:>8}{best:>9.3f}"
                           f"{row['ns_per_member_step']:>10.2f}{row['speedup']:>9.2f}{agree:>10}"
                           f"{row['n_ok']:>7}{row['newton_per_step']:>8.2f}{comp:>10.2f}")
-    print(f"import liethermo.simulate: {import_s:.2f} s (fresh interpreter, compiles nothing)")
+    print(f"import liethermo.top.simulate: {import_s:.2f} s (fresh interpreter, compiles nothing)")
     startup = None if args.no_startup else startup_report()
     if startup:
         print(f"{startup['command']}: cold start {startup['cold_s']:.1f} s (empty numba cache), "

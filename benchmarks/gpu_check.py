@@ -88,8 +88,8 @@ def _simulate(method, phys, om0, R0, h, steps, device, kernel="auto"):
 
     if device == "cpu":
         return run(kernel, method, phys, om0, R0, h, steps, steps, False, None)
-    from liethermo.physics import mechanical_energy_scale
-    from liethermo.simulate import simulate
+    from liethermo.top.physics import mechanical_energy_scale
+    from liethermo.top.simulate import simulate
 
     kw = {"start": "node", "entropy": "explicit"} if method == "vi" else {}
     heat = float(mechanical_energy_scale(phys, om0, R0[:, 2, :]).max())

@@ -3,7 +3,7 @@
     python benchmarks/gpu_compile_check.py [--cc 9.0] [--methods vi,rk4] [--scenes paper]
 
 numba-cuda compiles the device kernel of ``simulate(..., device="gpu")``
-(:mod:`liethermo.kernels.cuda`) through NVVM to PTX for the compute capability
+(:mod:`liethermo.top.kernels.cuda`) through NVVM to PTX for the compute capability
 given (default 9.0, the H100) — the step a first launch on the device does,
 so a kernel that prints OK here compiles there.  NVVM comes with
 ``pip install 'numba-cuda[cu13]'``; no driver or GPU is needed.  (numba-cuda
@@ -13,7 +13,7 @@ compute capability; without a device the script answers that question with
 device and the registers, spills and local memory per thread are printed.
 Each line also counts the FMAs in the PTX (the kernels' explicit ones) and
 the double-precision operations the assembler could still fuse (0 expected:
-:func:`liethermo.kernels.cuda.exact_arithmetic`).
+:func:`liethermo.top.kernels.cuda.exact_arithmetic`).
 
 Scenes: the paper's top, the triaxial ellipsoid (diagonal Stokes friction),
 the coupled top (entropy-dependent inertia), the flat spin (double-bracket
@@ -65,13 +65,13 @@ def _pretend_device(cc: tuple[int, int]) -> bool:
 def stepper_and_model(scene: str, overrides: dict, method: str):
     """The stepper, kernel model and state size ``simulate`` would build, or
     None when the method cannot run the scene (a splitting without an exact flow)."""
-    from liethermo.kernels import vi as _vi
-    from liethermo.kernels.split import can_split
-    from liethermo.kernels.steppers import Explicit, Split, Variational
-    from liethermo.kernels.terms.thermo import EXPLICIT, SYMMETRIC
-    from liethermo.methods import MethodChoice
-    from liethermo.physics import build_model
-    from liethermo.resolve import resolve
+    from liethermo.top.kernels import vi as _vi
+    from liethermo.top.kernels.split import can_split
+    from liethermo.top.kernels.steppers import Explicit, Split, Variational
+    from liethermo.top.kernels.terms.thermo import EXPLICIT, SYMMETRIC
+    from liethermo.top.methods import MethodChoice
+    from liethermo.top.physics import build_model
+    from liethermo.top.resolve import resolve
     from liethermo.scene import load_scene
 
     sc = load_scene(scene, {"ensemble.members": N, **overrides})
@@ -101,7 +101,7 @@ def stepper_and_model(scene: str, overrides: dict, method: str):
 
 
 def kernel_signature():
-    """The argument types of a launch by :func:`liethermo.kernels.cuda.advance_on_device`."""
+    """The argument types of a launch by :func:`liethermo.top.kernels.cuda.advance_on_device`."""
     from numba import types
 
     f1 = types.Array(types.float64, 1, "C")
@@ -161,7 +161,7 @@ def main(argv=None) -> int:
     patched = _pretend_device(cc)
     from numba import cuda
 
-    from liethermo.kernels.cuda import exact_arithmetic, kernel_for
+    from liethermo.top.kernels.cuda import exact_arithmetic, kernel_for
 
     print(f"compiling for compute capability {cc[0]}.{cc[1]}"
           + (" (no device here: numba-cuda told that capability)" if patched else ""))

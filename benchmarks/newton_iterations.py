@@ -30,10 +30,10 @@ from pathlib import Path
 
 import numpy as np
 
-from liethermo.initial import initial_conditions
-from liethermo.physics import physics_of_scene
+from liethermo.top.initial import initial_conditions
+from liethermo.top.physics import physics_of_scene
 from liethermo.scene import load_scene
-from liethermo.simulate import simulate
+from liethermo.top.simulate import simulate
 
 
 def per_step(phys, w0, R0, method, windows, **kw):
@@ -79,8 +79,8 @@ def stop_accuracy():
     from conftest import make_physics
     from test_vi import _legendre, _solve
 
-    from liethermo.kernels import layout as L
-    from liethermo.physics import build_model
+    from liethermo.top.kernels import layout as L
+    from liethermo.top.physics import build_model
 
     rng = np.random.default_rng(8)
     h, tol = 0.1, 1e-14

@@ -31,12 +31,12 @@ from dataclasses import replace
 
 import numpy as np
 
-from liethermo.initial import initial_conditions
-from liethermo.methods import METHODS
-from liethermo.dataset import node_energies
-from liethermo.physics import mechanical_energy_scale, physics_of_scene
+from liethermo.top.initial import initial_conditions
+from liethermo.top.methods import METHODS
+from liethermo.top.dataset import node_energies
+from liethermo.top.physics import mechanical_energy_scale, physics_of_scene
 from liethermo.scene import load_scene
-from liethermo.simulate import STATUS_OK, simulate
+from liethermo.top.simulate import STATUS_OK, simulate
 
 KAPPAS = (0.05, 0.3, 1.0, 2.0, 3.0, 4.7, 7.0, 8.0, 9.0, 10.0, 11.0, 12.0, 13.0, 14.0, 20.0, 30.0)
 STEPS = (0.01, 0.05, 0.1, 0.2)

@@ -42,8 +42,8 @@ def main(argv=None) -> int:
     ap.add_argument("--twin", action="store_true", help="time the first method twice, as a control")
     args = ap.parse_args(argv)
 
-    from liethermo.initial import initial_conditions
-    from liethermo.resolve import resolve
+    from liethermo.top.initial import initial_conditions
+    from liethermo.top.resolve import resolve
     from liethermo.scene import load_scene
     from liethermo.timing import describe, format_seconds, measure
 

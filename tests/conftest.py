@@ -32,7 +32,7 @@ import numpy as np
 import pytest
 
 from layout import SAVED_FIGURES, layout_problems
-from liethermo.physics import Physics
+from liethermo.top.physics import Physics
 
 
 @pytest.fixture(scope="session", autouse=True)

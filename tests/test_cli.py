@@ -130,7 +130,7 @@ def test_newton_maxiter_bounded(value, message):
 
 def test_paper_scene_derived_values():
     """The derived values of docs/model.md, "The paper scene"."""
-    from liethermo.physics import physics_of_scene
+    from liethermo.top.physics import physics_of_scene
 
     b = physics_of_scene(load_scene("paper"))
     assert b.mass[0] == pytest.approx(1.4137166941154071, rel=1e-15)
@@ -329,8 +329,8 @@ def test_summary_reads_at_any_scale():
     digits; a temperature that did not change prints once, not as a range."""
     import re
 
-    from liethermo.findings import finding_lines
-    from liethermo.heavy_top import RunSummary
+    from liethermo.top.findings import finding_lines
+    from liethermo.top.model import RunSummary
 
     s = RunSummary("paper", "rk2", 200000, 300, 0.1, wall_time=3.5, kernel_time=1e-4, compile_time=0.2,
                    status_counts={"ok": 82370, "newton_not_converged": 0, "non_finite": 117630},
@@ -489,7 +489,8 @@ def test_fluid_estimates_memory_of_the_basis_it_builds():
 
 
 def test_a_long_run_says_how_long_before_it_starts(tmp_path, monkeypatch, capsys):
-    from liethermo import cli, heavy_top
+    from liethermo import cli
+    from liethermo.top import model as heavy_top
 
     monkeypatch.setattr(heavy_top, "LONG_RUN_MEMBER_STEPS", 100)
     monkeypatch.setattr(cli, "LONG_RUN_SECONDS", 0.0)

@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 
 from conftest import OMEGA0, R0, fit_order, paper_physics
-from liethermo.dataset import initial_energy, node_energies
-from liethermo.methods import METHODS
-from liethermo.simulate import STATUS_OK, simulate
+from liethermo.top.dataset import initial_energy, node_energies
+from liethermo.top.methods import METHODS
+from liethermo.top.simulate import STATUS_OK, simulate
 
 
 def test_reference_on_spherical_top_exact_solution(spherical_top):

@@ -27,7 +27,8 @@ import pytest
 from cfcheck import assert_cf_clean
 from liethermo import cf
 from liethermo.studies import get_study
-from liethermo.studies.common import StudyError, method_choice
+from liethermo.studies.common import StudyError
+from liethermo.top.studies.tools import method_choice
 from liethermo.studies.runner import load_study, validate_study
 from liethermo.analysis import direction_angle, rotation_angle, settling_time
 

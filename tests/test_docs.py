@@ -24,12 +24,13 @@ import pytest
 
 from conftest import OMEGA0, R0, paper_physics
 from liethermo.cli import main
-from liethermo.kernels.vi import FRICTION_WEIGHTS
-from liethermo.methods import COMPOSITION_FACTORS
-from liethermo.physics import physics_of_scene
-from liethermo.scene import (KEYS, SCENES_MARKDOWN_COMMAND, SceneError, _toml_value, builtin_scenes,
-                             keys_table, load_scene, scenes_markdown)
-from liethermo.simulate import STATUS_OK, simulate
+from liethermo.top.kernels.vi import FRICTION_WEIGHTS
+from liethermo.top.methods import COMPOSITION_FACTORS
+from liethermo.top.physics import physics_of_scene
+from liethermo.scene import (SCENES_MARKDOWN_COMMAND, SceneError, _toml_value, builtin_scenes, keys_table,
+                             load_scene, scenes_markdown)
+from liethermo.top.scene import KEYS
+from liethermo.top.simulate import STATUS_OK, simulate
 
 ROOT = Path(__file__).resolve().parents[1]
 MODEL_MD = ROOT / "docs" / "model.md"
@@ -62,7 +63,7 @@ def test_scenes_md_is_generated_from_the_key_registry():
     regenerating the file fails here."""
     current = SCENES_MD.read_text(encoding="utf-8")
     assert current == scenes_markdown(), (
-        f"docs/scenes.md is out of date with liethermo.scene.KEYS; regenerate it with\n"
+        f"docs/scenes.md is out of date with the models' scene keys; regenerate it with\n"
         f"    cd {ROOT} && PYTHONPATH=src {SCENES_MARKDOWN_COMMAND}")
 
 
@@ -156,7 +157,7 @@ def test_composition_factors_are_the_documented_ones(model_md):
     γ₀ = 1 − 2γ₁, and its triple jump with δ₁ = 1/(2 − 2^{1/5}): the nine
     factors δ_iγ_j.  Each is a palindrome summing to 1; the decimals
     docs/model.md prints are the factors."""
-    from liethermo.methods import METHODS
+    from liethermo.top.methods import METHODS
 
     C = COMPOSITION_FACTORS
     p = 1.0 / (4.0 - 4.0 ** (1.0 / 3.0))
@@ -193,7 +194,7 @@ def test_composition_factors_are_the_documented_ones(model_md):
 def test_negative_substep_limits_are_the_documented_ones(model_md):
     """The table of docs/model.md, "Negative substeps": the κ where a negative
     substep's Newton matrix is singular and the band where a friction mode grows."""
-    from liethermo.methods import negative_substep_limits
+    from liethermo.top.methods import negative_substep_limits
 
     rows = (("vi4", "small_error", "| vi4 | −0.6580 | 3.0397 | 3.023 < κ < 3.055 |", -0.6580, [3.0397], (3.023, 3.055)),
             ("vi6", "small_error", "| vi6 | −0.7062 | 2.8319 | 2.728 < κ < 2.950 |", -0.7062, [2.8319], (2.728, 2.950)),
@@ -282,7 +283,7 @@ def test_errata_e4_paper_start_node_velocity(model_md):
     𝕀⁻¹μ₀ = (−1.249, 1.031, 1.016) rad/s, not Ω(0) — half a step of the gravity
     torque, 1.30 rad/s — an energy error of 3.1 % of E_mech,0 at k = 0; the
     legendre start gives Ω(0) exactly."""
-    from liethermo.laws import energy_errors
+    from liethermo.top.laws import energy_errors
 
     phys = paper_physics()
     assert _quotes(model_md, "$\\mathbb{I}^{-1}\\mu_0 = (-1.249, 1.031, 1.016)$")
@@ -369,8 +370,8 @@ def test_energy_diagnostics_table(model_md):
     max |E_k − E₀|/E_mech,0 is 0.0053 on node values and 0.096 in the paper's
     convention for vi (legendre, symmetric), 0.022 and 0.099 for vi with the
     paper's start, 0.011 for rk2 and 8.1e-5 for rk4."""
-    from liethermo.initial import initial_conditions
-    from liethermo.laws import energy_errors
+    from liethermo.top.initial import initial_conditions
+    from liethermo.top.laws import energy_errors
 
     sc = load_scene("paper", {"ensemble.members": 24, "ensemble.seed": 0})
     om, R = initial_conditions(sc)

@@ -25,13 +25,13 @@ import numpy as np
 import pytest
 
 from conftest import paper_physics, random_body, random_ensemble, stack
-from liethermo.kernels import fast as F
-from liethermo.kernels import layout as L
-from liethermo.kernels import parallel, rk, simple, vi
-from liethermo.kernels.steppers import Explicit
-from liethermo.kernels.terms.thermo import EXPLICIT, EXP_SMALL, SYMMETRIC
-from liethermo.physics import build_model
-from liethermo.simulate import simulate
+from liethermo.top.kernels import fast as F
+from liethermo.top.kernels import layout as L
+from liethermo.top.kernels import parallel, rk, simple, vi
+from liethermo.top.kernels.steppers import Explicit
+from liethermo.top.kernels.terms.thermo import EXPLICIT, EXP_SMALL, SYMMETRIC
+from liethermo.top.physics import build_model
+from liethermo.top.simulate import simulate
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -311,7 +311,7 @@ def test_kernels_are_vectorized():
 
 
 def test_import_compiles_nothing():
-    code = ("import liethermo, liethermo.simulate, liethermo.kernels.fast as F, liethermo.kernels.simple as S;"
+    code = ("import liethermo, liethermo.top.simulate, liethermo.top.kernels.fast as F, liethermo.top.kernels.simple as S;"
             "assert not F.advance_blocks.overloads and not S.advance_members.overloads")
     subprocess.run([sys.executable, "-c", code], check=True)
 
@@ -373,7 +373,7 @@ def test_auto_kernel_choice():
     """"auto" runs small runs (where compiling the vectorized loop would take
     longer than the run) on the one-member loop, large ones vectorized, the
     reference always one member at a time; an unknown kernel is refused."""
-    from liethermo.simulate import SMALL_RUN_MEMBER_STEPS, kernel_for
+    from liethermo.top.simulate import SMALL_RUN_MEMBER_STEPS, kernel_for
 
     assert kernel_for("vi", 1, 300) == "simple"
     assert kernel_for("vi", 4096, 300) == "fast"

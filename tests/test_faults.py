@@ -282,7 +282,7 @@ def test_disk_full_while_drawing_the_figures(tmp_path, monkeypatch, capsys):
     """A figure is complete or absent: one half-written when the disk fills is removed."""
     import errno
 
-    import liethermo.plotting as pl
+    import liethermo.top.plotting as pl
 
     def full(outputs, folder, stem="run", member=0):
         (Path(folder) / f"{stem}_energies.png").write_bytes(b"\x89PNG half")
@@ -299,7 +299,7 @@ def test_disk_full_while_drawing_the_figures(tmp_path, monkeypatch, capsys):
 def test_figure_drafts_of_killed_runs_are_removed(tmp_path, monkeypatch, capsys):
     """A run killed while drawing leaves its hidden draft folder; the next run
     drawing there removes it (one line), and leaves a live process's draft alone."""
-    import liethermo.plotting as pl
+    import liethermo.top.plotting as pl
 
     dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
                           text=True).stdout.strip()
@@ -421,9 +421,9 @@ args = json.loads(sys.argv[1])
 assert main(args + ["-o", sys.argv[2] + "/warm.nc", "--set", "ensemble.members=1"]) == 0  # the program loaded
 # the kernels of the measured run (its vectorized loop: a one-member run takes the other), no big arrays
 from liethermo import load_scene
-from liethermo.initial import initial_conditions
-from liethermo.physics import physics_of_scene
-from liethermo.simulate import simulate
+from liethermo.top.initial import initial_conditions
+from liethermo.top.physics import physics_of_scene
+from liethermo.top.simulate import simulate
 sc = load_scene("paper", [a for a in args if "=" in a])
 om0, R0 = initial_conditions(sc, 0, 1)
 i = sc.integrator

@@ -21,7 +21,7 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
 from layout import SAVED_FIGURES, layout_problems  # noqa: E402
-from liethermo.plotting import scene_figures  # noqa: E402
+from liethermo.top.plotting import scene_figures  # noqa: E402
 from liethermo.runner import run_scene  # noqa: E402
 
 
@@ -119,7 +119,7 @@ def test_plain_xarray_labels_fit_on_one_line(scene, over):
 def test_model_term_parameters_label_on_one_line():
     """The terms' parameters become dataset variables (friction, expansion,
     drag): their labels fit on one line too, and their formulas are kept."""
-    from liethermo.kernels.terms import registry
+    from liethermo.top.kernels.terms import registry
 
     for term in registry():
         for prm in term.parameters:
@@ -197,7 +197,7 @@ def top_ensemble(tmp_path_factory):
 
 @pytest.mark.parametrize("members", [24, 1])
 def test_run_figures_show_the_ensemble_as_median_and_band(top_ensemble, monkeypatch, members):
-    from liethermo import plotting
+    from liethermo.top import plotting
 
     d, paths = top_ensemble
     figs = _captured(monkeypatch, plotting, "_save")
@@ -228,7 +228,7 @@ def test_run_figures_show_the_ensemble_as_median_and_band(top_ensemble, monkeypa
 
 
 def test_center_of_mass_plot_has_equal_scales_and_explains_its_marks(top_ensemble, monkeypatch):
-    from liethermo import plotting
+    from liethermo.top import plotting
 
     d, paths = top_ensemble
     figs = _captured(monkeypatch, plotting, "_save")

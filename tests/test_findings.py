@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 
 from conftest import OMEGA0, paper_numbers
-from liethermo import plotting
-from liethermo.findings import exact_spherical_top, merge_findings
-from liethermo.heavy_top import ChunkStats
+from liethermo.top import plotting
+from liethermo.top.findings import exact_spherical_top, merge_findings
+from liethermo.top.model import ChunkStats
 from liethermo.runner import run_scene
 from liethermo.scene import load_scene
 

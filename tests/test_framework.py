@@ -75,7 +75,7 @@ def _toy_study(**opts):
 
 @pytest.fixture
 def toy_methods(monkeypatch):
-    from liethermo.heavy_top import HeavyTop
+    from liethermo.top.model import HeavyTop
     from liethermo.models import MethodInfo
 
     monkeypatch.setattr(HeavyTop, "methods", lambda self: {m: MethodInfo(m, 1, (), "") for m in "ab"})

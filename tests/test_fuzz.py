@@ -24,7 +24,7 @@ from hypothesis import strategies as st  # noqa: E402
 import tomli_w  # noqa: E402
 
 from liethermo.cli import main  # noqa: E402
-from liethermo.scene import DEFAULTS  # noqa: E402
+from liethermo.top.scene import DEFAULTS  # noqa: E402
 
 # reproducible in CI; no deadline: the first valid example compiles the kernels
 FUZZ = dict(deadline=None, derandomize=True, database=None,

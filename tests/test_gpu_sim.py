@@ -72,10 +72,10 @@ def _run_cases(out: Path) -> None:
     kernel) and on the simulated device, saved to ``out`` (npz)."""
     from dataclasses import replace
 
-    from liethermo.initial import initial_conditions
-    from liethermo.resolve import resolve
+    from liethermo.top.initial import initial_conditions
+    from liethermo.top.resolve import resolve
     from liethermo.scene import load_scene
-    from liethermo.simulate import simulate
+    from liethermo.top.simulate import simulate
 
     saved, devices = {}, {}
     for name, scene, method, kw, _ in CASES:
@@ -141,7 +141,7 @@ def test_simulated_gpu_agrees_with_cpu(results, case):
 def test_gpu_refused_without_device(paper):
     """No device here (the simulator is off in this process): refused before any work."""
     from liethermo.gpu import gpu_available
-    from liethermo.simulate import simulate
+    from liethermo.top.simulate import simulate
 
     ok, why = gpu_available()
     if ok:
@@ -158,7 +158,7 @@ def test_gpu_refused_without_numba_cuda(paper, monkeypatch):
     import importlib.util
 
     import liethermo.gpu as gpu
-    from liethermo.simulate import simulate
+    from liethermo.top.simulate import simulate
 
     real = importlib.util.find_spec
     monkeypatch.setattr(gpu.importlib.util, "find_spec",
@@ -170,7 +170,7 @@ def test_gpu_refused_without_numba_cuda(paper, monkeypatch):
 
 
 def test_gpu_rejects_reference_and_unknown_device(paper):
-    from liethermo.simulate import simulate
+    from liethermo.top.simulate import simulate
 
     phys, om, R = paper
     with pytest.raises(ValueError, match="'reference' runs on the CPU only"):

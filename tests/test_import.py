@@ -9,9 +9,9 @@ from pathlib import Path
 def test_import_compiles_nothing():
     code = """
 import numba.core.dispatcher as d
-import liethermo, liethermo.cli, liethermo.scene, liethermo.simulate, liethermo.runner
-from liethermo.kernels import simple, vi, rk, so3, equations, gen
-import liethermo.kernels.fast as fast
+import liethermo, liethermo.cli, liethermo.scene, liethermo.top.simulate, liethermo.runner
+from liethermo.top.kernels import simple, vi, rk, so3, equations, gen
+import liethermo.top.kernels.fast as fast
 jitted = [obj for mod in (simple, vi, rk, so3, equations, gen, fast) for obj in vars(mod).values()
           if isinstance(obj, d.Dispatcher)]
 assert len(jitted) > 10, len(jitted)
@@ -52,7 +52,7 @@ def test_stale_kernel_cache_is_dropped(tmp_path, monkeypatch):
     all kernel sources beside the cache and drops the cache when any source changes."""
     import numba
 
-    from liethermo.kernels._jit import _drop_stale_cache
+    from liethermo.top.kernels._jit import _drop_stale_cache
 
     monkeypatch.setattr(numba.config, "CACHE_DIR", "")
     (tmp_path / "terms").mkdir()
@@ -82,8 +82,8 @@ def test_cache_guard_targets_numbas_own_folder(tmp_path, monkeypatch):
     import numba
     from numba.core.caching import _CacheLocator
 
-    import liethermo.kernels.simple as simple
-    from liethermo.kernels._jit import _cache_dirs
+    import liethermo.top.kernels.simple as simple
+    from liethermo.top.kernels._jit import _cache_dirs
 
     monkeypatch.setattr(numba.config, "CACHE_DIR", str(tmp_path))
     here = Path(simple.__file__).resolve().parent
@@ -101,7 +101,7 @@ def test_generated_code_is_named_readable_and_dumpable(tmp_path):
     import sys
     import traceback
 
-    from liethermo.kernels.gen import compile_source
+    from liethermo.top.kernels.gen import compile_source
 
     f = compile_source("def impl(x):\n    return 1.0 / x\n", {}, label="demo reciprocal")
     try:
@@ -123,7 +123,7 @@ def test_generated_code_is_named_readable_and_dumpable(tmp_path):
     assert "# <liethermo-generated explicit_step ClassicalRK4 #" in text and "rk_rhs(model" in text
 
     # with the dump, a traceback names the dumped file, whose line is the one that failed
-    code = ("from liethermo.kernels.gen import compile_source\n"
+    code = ("from liethermo.top.kernels.gen import compile_source\n"
             "f = compile_source('def impl(x):\\n    return 1.0 / x\\n', {}, label='demo reciprocal')\n"
             "f(0.0)\n")
     res = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)

@@ -1,4 +1,4 @@
-"""The kernels' own exp and expm1 (liethermo.kernels.lanemath): accurate to the
+"""The kernels' own exp and expm1 (liethermo.top.kernels.lanemath): accurate to the
 last bit or so over the whole range, equal to the C library at the edges,
 the same bits in their small-argument forms and in plain Python, and
 vectorized by LLVM."""
@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 from numba import njit
 
-from liethermo.kernels._jit import ld, st
-from liethermo.kernels.lanemath import SMALL, SMALL_M1, exp_lane, exp_small, expm1_lane, expm1_small
+from liethermo.top.kernels._jit import ld, st
+from liethermo.top.kernels.lanemath import SMALL, SMALL_M1, exp_lane, exp_small, expm1_lane, expm1_small
 
 
 @njit
@@ -154,7 +154,7 @@ def test_small_forms_give_the_same_bits_and_flag_their_range():
 _PLAIN = r"""
 import sys
 import numpy as np
-from liethermo.kernels.lanemath import exp_lane, expm1_lane, exp_small, expm1_small
+from liethermo.top.kernels.lanemath import exp_lane, expm1_lane, exp_small, expm1_small
 x = np.load(sys.argv[1])
 out = np.array([[exp_lane(v), expm1_lane(v), exp_small(v)[0], expm1_small(v)[0]] for v in x])
 np.save(sys.argv[2], out)

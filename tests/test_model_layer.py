@@ -189,7 +189,7 @@ def test_a_model_of_the_tests_runs_through_the_api_and_the_command_line(toy, tmp
 
 
 def test_the_fluid_decay_study_goes_on_from_its_finished_points(tmp_path, monkeypatch):
-    from liethermo.studies import zeitlin_decay
+    from liethermo.zeitlin.studies import zeitlin_decay
     from liethermo.studies.runner import load_study, run_study
 
     study = load_study(Path(__file__).resolve().parents[1] / "studies" / "zeitlin_decay.toml")
@@ -209,7 +209,7 @@ def test_the_fluid_decay_study_goes_on_from_its_finished_points(tmp_path, monkey
 
 
 def test_the_fluid_structure_study_reruns_nothing_it_finished(tmp_path, monkeypatch):
-    from liethermo.studies import zeitlin_structure
+    from liethermo.zeitlin.studies import zeitlin_structure
     from liethermo.studies.runner import load_study, run_study
 
     study = load_study(Path(__file__).resolve().parents[1] / "studies" / "zeitlin_structure.toml")

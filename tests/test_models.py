@@ -20,11 +20,11 @@ import numpy as np
 import pytest
 
 from conftest import OMEGA0, R0, paper_physics
-from liethermo.dataset import initial_energy, node_energies
-from liethermo.kernels.terms.stokes import jeffery_resistance, oberbeck_resistance, pivot_drag
-from liethermo.physics import build_model, physics_of_scene
+from liethermo.top.dataset import initial_energy, node_energies
+from liethermo.top.kernels.terms.stokes import jeffery_resistance, oberbeck_resistance, pivot_drag
+from liethermo.top.physics import build_model, physics_of_scene
 from liethermo.scene import SceneError, builtin_scenes, load_scene
-from liethermo.simulate import STATUS_OK, simulate
+from liethermo.top.simulate import STATUS_OK, simulate
 
 
 def _scene_ic(scene):
@@ -210,7 +210,7 @@ def test_coupled_top_conserves_energy_and_heats_by_19_kelvin(egg):
     assert np.abs(dE).max() <= 1e-12 * emech
     T = node_energies(tr)["T"][0]
     assert 317.0 < T[-1] < 319.5
-    from liethermo.physics import inertia_scale
+    from liethermo.top.physics import inertia_scale
 
     growth = inertia_scale(phys, tr.sigma[:, -1:])[0, 0]
     assert 1.035 < growth < 1.045
@@ -400,10 +400,10 @@ def test_a_small_heat_capacity_keeps_the_vectorized_temperature():
     paper's top (c_v = 1300 J/K) keeps the cubic."""
     import math
 
-    from liethermo.kernels._jit import jit
-    from liethermo.kernels.terms import thermo
-    from liethermo.initial import heat_bound, initial_conditions
-    from liethermo.physics import mechanical_energy_scale
+    from liethermo.top.kernels._jit import jit
+    from liethermo.top.kernels.terms import thermo
+    from liethermo.top.initial import heat_bound, initial_conditions
+    from liethermo.top.physics import mechanical_energy_scale
 
     scene = load_scene("coupled_egg", {"body.thermal_expansion": 0.0, "ensemble.members": 64,
                                        "initial.omega": [0.0, 1.3, 1.3]})
@@ -451,7 +451,7 @@ def test_a_small_heat_capacity_gives_the_same_bits_however_the_ensemble_is_split
 # ------------------------------------------------------------------ the terms own their names
 
 def _term_names() -> set[str]:
-    from liethermo.kernels import terms
+    from liethermo.top.kernels import terms
 
     names = set()
     for t in terms.registry():

@@ -21,7 +21,7 @@ import numpy as np
 sys.path.insert(0, sys.argv[2])
 from dataclasses import replace
 from conftest import paper_physics, OMEGA0, R0
-from liethermo.simulate import simulate
+from liethermo.top.simulate import simulate
 out = {}
 phys = paper_physics(2)
 om = np.array([OMEGA0, [0.5, -1.0, 2.0]])

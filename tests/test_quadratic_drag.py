@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 
 from conftest import OMEGA0, R0, fit_order, paper_physics
-from liethermo import physics as ph
-from liethermo.dataset import initial_energy, node_energies
-from liethermo.kernels import terms
-from liethermo.kernels.terms.quadratic_drag import QuadraticDrag
+from liethermo.top import physics as ph
+from liethermo.top.dataset import initial_energy, node_energies
+from liethermo.top.kernels import terms
+from liethermo.top.kernels.terms.quadratic_drag import QuadraticDrag
 from liethermo.scene import SceneError, load_scene
-from liethermo.simulate import STATUS_OK, simulate
+from liethermo.top.simulate import STATUS_OK, simulate
 
 C2 = 3e-4  # kg m²: c₂|Ω|/I ≈ 0.6 s⁻¹ at the paper's spin
 
@@ -137,7 +137,7 @@ def test_entropy_never_decreases_and_the_kernels_agree(kernel):
     the symmetric entropy update makes σ non-decreasing at every step, and
     both ensemble loops give the same states."""
     from liethermo.scene import load_scene as ls
-    from liethermo.initial import initial_conditions
+    from liethermo.top.initial import initial_conditions
 
     sc = ls("free_ellipsoid", {"fluid.quadratic_drag": C2, "ensemble.members": 64})
     phys = ph.physics_of_scene(sc, 64)

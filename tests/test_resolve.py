@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 
 import liethermo
-from liethermo import physics
-from liethermo.resolve import _resolve, resolve
+from liethermo.top import physics
+from liethermo.top.resolve import _resolve, resolve
 from liethermo.scene import load_scene
 
 
@@ -19,8 +19,8 @@ def test_a_chunked_run_with_preflight_resolves_its_scene_once(tmp_path, monkeypa
         calls.append(members)
         return real(scene, members)
 
-    monkeypatch.setattr("liethermo.resolve.physics_of_scene", counting)
-    monkeypatch.setattr("liethermo.physics.physics_of_scene", counting)
+    monkeypatch.setattr("liethermo.top.resolve.physics_of_scene", counting)
+    monkeypatch.setattr("liethermo.top.physics.physics_of_scene", counting)
     _resolve.cache_clear()
     sc = load_scene("paper", {"ensemble.members": 5, "output.member_chunk": 2, "integrator.steps": 20,
                               "output.compare": [], "output.figures": False})
@@ -50,9 +50,10 @@ def test_one_method_choice_from_a_scene_a_label_or_keywords():
     resolved run and its trajectory carry the same choice."""
     import pytest
 
-    from liethermo.methods import MethodChoice
-    from liethermo.simulate import simulate
-    from liethermo.studies.common import StudyError, method_choice
+    from liethermo.top.methods import MethodChoice
+    from liethermo.top.simulate import simulate
+    from liethermo.studies.common import StudyError
+    from liethermo.top.studies.tools import method_choice
 
     for label, want in [("vi:node:explicit", ("vi", "node", "trapezoid", "explicit", None)),
                         ("vi4:staggered:triple_jump", ("vi4", "legendre", "trapezoid", "symmetric", "triple_jump")),
@@ -65,7 +66,7 @@ def test_one_method_choice_from_a_scene_a_label_or_keywords():
         assert run.choice == MethodChoice.from_scene(sc) and (run.choice.name, run.choice.start,
                                                               run.choice.friction, run.choice.entropy,
                                                               run.choice.composition) == want
-        om0, R0 = liethermo.initial.initial_conditions(sc, 0, 1)
+        om0, R0 = liethermo.top.initial.initial_conditions(sc, 0, 1)
         assert run.simulate(om0, R0).choice == run.choice
     with pytest.raises(StudyError, match="unknown variant 'fast'"):
         method_choice("vi:fast")
@@ -75,7 +76,7 @@ def test_one_method_choice_from_a_scene_a_label_or_keywords():
     with pytest.raises(ValueError, match="unknown integrator.start 'nodes'"):
         MethodChoice.of("vi", start="nodes")
     egg = resolve(load_scene("coupled_egg"))  # the coupled top's rule, the one its scene keys obey
-    om0, R0 = liethermo.initial.initial_conditions(egg.scene, 0, 1)
+    om0, R0 = liethermo.top.initial.initial_conditions(egg.scene, 0, 1)
     for kw, needle in ((dict(start="node"), "starts from its node momentum"),
                        (dict(friction="endpoint"), "trapezoid friction only")):
         with pytest.raises(ValueError, match=needle):

@@ -1,4 +1,4 @@
-"""The SO(3) lane functions the kernels use (liethermo.kernels.so3) against
+"""The SO(3) lane functions the kernels use (liethermo.top.kernels.so3) against
 their definitions, through small array wrappers compiled here."""
 
 from __future__ import annotations
@@ -6,8 +6,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from liethermo.kernels import so3
-from liethermo.kernels._jit import jit
+from liethermo.top.kernels import so3
+from liethermo.top.kernels._jit import jit
 
 
 @jit

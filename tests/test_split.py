@@ -9,10 +9,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from liethermo.initial import initial_conditions
-from liethermo.physics import physics_of_scene
+from liethermo.top.initial import initial_conditions
+from liethermo.top.physics import physics_of_scene
 from liethermo.scene import SceneError, load_scene
-from liethermo.simulate import STATUS_OK, simulate
+from liethermo.top.simulate import STATUS_OK, simulate
 
 
 def _members(n=8, **overrides):
@@ -73,7 +73,7 @@ def test_unit_gamma_rotation_and_vertical_momentum_over_1e5_steps(method):
     """Without friction, over 10⁵ steps: ||Γ| − 1| ≤ 3e-11, RᵀR = I to 3e-11 and
     Γ·μ kept to 3e-11 relative (every flow is a rotation of μ and Γ together
     or a kick along Γ×g⃗), as the method declares."""
-    from liethermo.methods import LAW_ROTATION, LAW_UNIT_GAMMA, LAW_VERTICAL_MOMENTUM, METHODS
+    from liethermo.top.methods import LAW_ROTATION, LAW_UNIT_GAMMA, LAW_VERTICAL_MOMENTUM, METHODS
 
     assert {LAW_UNIT_GAMMA, LAW_ROTATION, LAW_VERTICAL_MOMENTUM} <= set(METHODS[method].laws)
     phys, w0, R0 = _members(4, **{"fluid.viscosity": 0.0})
@@ -97,7 +97,7 @@ def _scaled_to_kappa(phys, kappa, h):
 def test_strang_entropy_never_decreases(kappa):
     """split: every member, every step, S_{k+1} ≥ S_k, as declared — its two
     friction flows run forward and the step adds their non-negative heat once."""
-    from liethermo.methods import LAW_ENTROPY_MONOTONE, METHODS
+    from liethermo.top.methods import LAW_ENTROPY_MONOTONE, METHODS
 
     assert LAW_ENTROPY_MONOTONE in METHODS["split"].laws
     phys, w0, R0 = _members(64)
@@ -115,7 +115,7 @@ def test_composed_entropy_is_monotone_only_up_to_the_measured_kappa(method, kapp
     (|Ω₀| up to 1.5·√2 rad/s) × 200 steps at h = 0.01, 0.1 and 0.2 s no step
     decreases S up to κ = 12 (split4) and 8 (split6); at κ = 13 and 10, h = 0.2 s,
     some steps do (by more than the member's whole E_mech,0/T₀: not round-off)."""
-    from liethermo.methods import LAW_ENTROPY_MONOTONE, METHODS
+    from liethermo.top.methods import LAW_ENTROPY_MONOTONE, METHODS
 
     assert LAW_ENTROPY_MONOTONE not in METHODS[method].laws
     phys, w0, R0 = _members(64)
@@ -134,7 +134,7 @@ def test_frictionless_energy_error_does_not_drift():
     oscillates; its largest value in the second half is not above the first
     half's by more than 20 %."""
     phys, w0, R0 = _members(4, **{"fluid.viscosity": 0.0})
-    from liethermo.dataset import initial_energy, node_energies
+    from liethermo.top.dataset import initial_energy, node_energies
 
     tr = simulate(phys, w0, R0, 0.05, 20_000, "split4", every=10)
     e = node_energies(tr)
@@ -177,8 +177,8 @@ def test_compositions_of_one_length_compile_apart():
     """Kahan–Li's and the triple jump's order-6 compositions both have nine
     factors; in one process each runs its own kernel (their markers differ by
     name, which numba keys its types and its cache on), and both kernels agree."""
-    from liethermo.kernels.split import splitting
-    from liethermo.methods import COMPOSITION_FACTORS
+    from liethermo.top.kernels.split import splitting
+    from liethermo.top.methods import COMPOSITION_FACTORS
 
     a = splitting(COMPOSITION_FACTORS[("small_error", 6)], 6)
     b = splitting(COMPOSITION_FACTORS[("triple_jump", 6)], 6)

@@ -243,7 +243,7 @@ def test_convergence_report_passes_the_paper_scheme(convergence):
     (1.69, 2, "below declared"), (5.45, 6, "as declared"), (5.35, 6, "below declared"),
     (float("nan"), 2, "not fitted")])
 def test_an_order_above_the_declared_one_is_no_failure(observed, declared, verdict):
-    from liethermo.methods import judge_order
+    from liethermo.top.methods import judge_order
 
     assert judge_order(observed, declared) == verdict
 
@@ -399,7 +399,7 @@ if __name__ == "__main__":  # pragma: no cover
 
 
 def test_kept_laws_are_the_declared_ones():
-    from liethermo.methods import LAW_ENTROPY_MONOTONE, METHODS, kept_laws
+    from liethermo.top.methods import LAW_ENTROPY_MONOTONE, METHODS, kept_laws
 
     assert kept_laws("vi:node:explicit") == "|Γ| = 1, Kelvin–Noether, entropy monotone"
     assert kept_laws("vi6") == "|Γ| = 1, Kelvin–Noether"
@@ -438,10 +438,10 @@ def test_the_scipy_baseline_integrates_every_term_the_kernels_do(extra):
 
     from scipy.integrate import solve_ivp
 
-    from liethermo.physics import physics_of_scene
+    from liethermo.top.physics import physics_of_scene
     from liethermo.scene import load_scene
-    from liethermo.simulate import simulate
-    from liethermo.laws import continuous_rhs
+    from liethermo.top.simulate import simulate
+    from liethermo.top.laws import continuous_rhs
 
     sc = load_scene("paper")
     phys = replace(physics_of_scene(sc, 1), **{k: np.array([v]) for k, v in extra.items()})

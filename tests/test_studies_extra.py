@@ -161,7 +161,7 @@ SMALL_STABILITY = {"methods": ["vi", "rk4"], "study": {"kind": "stability", "nam
 
 @pytest.fixture(scope="module")
 def stab_small(tmp_path_factory):
-    from liethermo.studies.stability import STUDY
+    from liethermo.top.studies.stability import STUDY
 
     out = tmp_path_factory.mktemp("stability_small")
     return STUDY.run(SMALL_STABILITY, out, reduced=False, progress=False), out
@@ -225,7 +225,7 @@ def test_stability_negative_substeps(stab):
     """vi4/vi6 (and vi4 with the triple jump): a substep of factor f < 0 makes the
     friction factor 1 + fκ/2 vanish at κ = −2/f; inside the growth band the composed
     step loses the small-step accuracy it has at small κ."""
-    from liethermo.methods import METHODS, friction_amplification, negative_substep_limits
+    from liethermo.top.methods import METHODS, friction_amplification, negative_substep_limits
 
     _, out = stab
     ds = cf.open_dataset(out / "stability.nc")
@@ -331,7 +331,7 @@ def test_viscosity_sweep_physics(visc):
 
 def test_resume_does_not_recompute(visc, monkeypatch):
     """A second run loads every sweep point from the cache."""
-    from liethermo.studies import viscosity_sweep
+    from liethermo.top.studies import viscosity_sweep
 
     _, out = visc
 

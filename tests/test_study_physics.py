@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 
 from conftest import random_body
-from liethermo.kernels import terms
-from liethermo.physics import mechanical_energy_scale, potential_energy
-from liethermo.simulate import simulate
+from liethermo.top.kernels import terms
+from liethermo.top.physics import mechanical_energy_scale, potential_energy
+from liethermo.top.simulate import simulate
 from liethermo.studies.common import StudyError
 from liethermo.studies.runner import load_study, validate_study
-from liethermo.laws import continuous_kelvin_noether_residual, kelvin_noether_residual
+from liethermo.top.laws import continuous_kelvin_noether_residual, kelvin_noether_residual
 
 STUDIES = Path(__file__).resolve().parents[1] / "studies"
 

@@ -1,4 +1,4 @@
-"""The variational integrator in node form (liethermo.kernels.vi) and its discrete laws."""
+"""The variational integrator in node form (liethermo.top.kernels.vi) and its discrete laws."""
 
 from __future__ import annotations
 
@@ -9,14 +9,14 @@ import numpy as np
 import pytest
 
 from conftest import H_PAPER, OMEGA0, R0, make_physics, paper_numbers, paper_physics, random_body
-from liethermo.kernels import layout as L
-from liethermo.kernels import vi
-from liethermo.kernels._jit import jit
-from liethermo.kernels.gen import abs_or_zero
-from liethermo.kernels.terms.thermo import SYMMETRIC
-from liethermo.methods import LAW_KELVIN_NOETHER, LAW_UNIT_GAMMA, METHODS
-from liethermo.physics import build_model
-from liethermo.simulate import STATUS_NEWTON, STATUS_OK, simulate
+from liethermo.top.kernels import layout as L
+from liethermo.top.kernels import vi
+from liethermo.top.kernels._jit import jit
+from liethermo.top.kernels.gen import abs_or_zero
+from liethermo.top.kernels.terms.thermo import SYMMETRIC
+from liethermo.top.methods import LAW_KELVIN_NOETHER, LAW_UNIT_GAMMA, METHODS
+from liethermo.top.physics import build_model
+from liethermo.top.simulate import STATUS_NEWTON, STATUS_OK, simulate
 
 REFERENCE = "data/reference/paper_vi_step_velocities.npz"
 
@@ -306,8 +306,8 @@ def test_casimir_holds_at_the_newton_solution_not_at_any_iterate():
     solution, but not whatever X is (unlike Kelvin–Noether and the free body's
     |μ|): on the flat_spin body at h = 0.1 s an iterate 10⁻⁶ off (relative)
     moves |μ| by 10⁻¹⁰ … 10⁻⁷ relative (docs/model.md, "Newton iteration")."""
-    from liethermo.initial import initial_conditions
-    from liethermo.physics import physics_of_scene
+    from liethermo.top.initial import initial_conditions
+    from liethermo.top.physics import physics_of_scene
     from liethermo.scene import load_scene
 
     sc = load_scene("flat_spin")
@@ -528,7 +528,7 @@ def test_newton_failure_is_reported_and_not_accepted(paper):
 def test_paper_numbers_match_the_scene_code():
     """The paper scene built by the scene code (scene → physics) equals the one
     built here from the paper's raw numbers."""
-    from liethermo.physics import physics_of_scene
+    from liethermo.top.physics import physics_of_scene
     from liethermo.scene import load_scene
 
     d = paper_numbers()
@@ -553,8 +553,8 @@ def test_friction_keeps_its_precision_at_tiny_steps():
     compositions stay within 2e-13 of it (the friction folded into I + w_L h C
     and rounded once would lose ~εI/(hc) of its precision: 1.4e-12 for vi4,
     9.7e-12 for vi6 here)."""
-    from liethermo.initial import initial_conditions
-    from liethermo.physics import physics_of_scene
+    from liethermo.top.initial import initial_conditions
+    from liethermo.top.physics import physics_of_scene
     from liethermo.scene import load_scene
 
     sc = load_scene("spherical_top")
@@ -574,7 +574,7 @@ def test_newton_jacobian_is_the_derivative_of_the_newton_function(name, keys):
     """The Jacobian the stability study conditions (vi.newton_jacobian) is
     dF/dX of the kernels' Newton function, nonlinear frictions included:
     central differences agree to 1e-7."""
-    from liethermo.physics import build_model, physics_of_scene
+    from liethermo.top.physics import build_model, physics_of_scene
     from liethermo.scene import load_scene
 
     model = build_model(physics_of_scene(load_scene(name, keys), 1)).model

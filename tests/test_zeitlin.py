@@ -9,7 +9,7 @@ import xarray as xr
 from scipy.special import sph_harm_y
 
 from liethermo.cli import main
-from liethermo.methods import COMPOSITION_FACTORS
+from liethermo.top.methods import COMPOSITION_FACTORS
 from liethermo.scene import SceneError, load_scene
 from liethermo.zeitlin import kernels as zk
 from liethermo.zeitlin import run as zr
@@ -307,7 +307,7 @@ def test_structure_study_compares_at_equal_measured_cost(tmp_path, monkeypatch):
     import pandas as pd
 
     from liethermo.cf import load_dataset
-    from liethermo.studies import zeitlin_structure
+    from liethermo.zeitlin.studies import zeitlin_structure
 
     timed, cpu = [], zeitlin_structure._cpu
 

@@ -35,20 +35,35 @@ class LiethermoAccessor:
         values = np.asarray(st.attrs.get("flag_values", range(len(meanings)))).tolist()
         return {m: int((st == v).sum()) for m, v in zip(meanings, values)}
 
+    def model(self):
+        """The model whose run wrote this dataset (from its stored scene; a file
+        without one is read by the registry's rule, :func:`liethermo.models.model_of`)."""
+        import sys
+
+        from .models import model_of
+
+        if sys.version_info >= (3, 11):
+            import tomllib
+        else:  # pragma: no cover
+            import tomli as tomllib
+        text = self._ds.attrs.get("scene", "")
+        try:
+            tables = tomllib.loads(text) if isinstance(text, str) else {}
+        except tomllib.TOMLDecodeError:
+            tables = {}
+        return model_of(tables)
+
     def relative_energy_error(self, convention: str = "node") -> xr.DataArray:
-        """(E_k − E₀)/E_mech,0 (dimensionless) with E_mech,0 = K₀ + V₀ + |m g ℓ|, the
-        energy friction can turn into heat.  ``convention="node"``: node values
-        (every method); ``"paper"``: the variational integrators' step velocity
-        with the node values (the paper's figure)."""
-        name = {"node": "energy_error", "paper": "energy_error_paper"}.get(convention)
-        if name is None:
-            raise ValueError(f"convention must be 'node' or 'paper', got {convention!r}")
-        if name not in self._ds:
-            raise KeyError(f"{name}: this dataset has no energy error in the {convention} convention "
-                           "(it exists for the variational integrators only)")
-        rel = self._ds[name] / self._ds["mechanical_energy_initial"]
-        rel.attrs = {"units": "1", "long_name": f"relative total energy error ({convention} values)"}
-        return rel
+        """The energy error relative to the run's natural energy scale (dimensionless),
+        as the file's model defines it.  The top: (E_k − E₀)/E_mech,0 with E_mech,0 =
+        K₀ + V₀ + |m g ℓ|, the energy friction can turn into heat; ``convention="node"``:
+        node values (every method), ``"paper"``: the variational integrators' step
+        velocity with the node values (the paper's figure)."""
+        model = self.model()
+        reader = getattr(model, "energy_error_of", None)
+        if reader is None:
+            raise KeyError(f"{model.title or model.name}: its files carry no relative energy error")
+        return reader(self._ds, convention)
 
     def quantiles(self, variable: str | xr.DataArray, q=(0.05, 0.5, 0.95), *,
                   only_ok: bool = False) -> xr.DataArray:

@@ -79,3 +79,28 @@ def observed_orders(hs, errors) -> np.ndarray:
         p = np.log(e[:-1] / e[1:]) / np.log(hs[:-1] / hs[1:])
     p[~(np.isfinite(e[:-1]) & np.isfinite(e[1:]) & (e[:-1] > 0) & (e[1:] > 0))] = np.nan
     return p
+
+
+#: how far an observed order may fall below the declared one p and still count as it:
+#: max(ORDER_TOLERANCE, ORDER_TOLERANCE_REL * p) (a slope fitted over a few halvings
+#: of h carries the next term of the error, relatively more at high orders)
+ORDER_TOLERANCE = 0.3
+ORDER_TOLERANCE_REL = 0.1
+
+
+def order_tolerance(declared: int) -> float:
+    return max(ORDER_TOLERANCE, ORDER_TOLERANCE_REL * declared)
+
+
+def judge_order(observed: float, declared: int, tolerance: float | None = None) -> str:
+    """``"as declared"`` (within ``tolerance`` of the declared order, default
+    :func:`order_tolerance`), ``"above declared"`` (more than ``tolerance``
+    above it: the error falls faster than the method promises on this
+    problem, which is no failure), or ``"below declared"`` (the failure);
+    ``"not fitted"`` for a NaN order."""
+    tol = order_tolerance(declared) if tolerance is None else tolerance
+    if not np.isfinite(observed):
+        return "not fitted"
+    if observed < declared - tol:
+        return "below declared"
+    return "above declared" if observed > declared + tol else "as declared"

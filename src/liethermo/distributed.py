@@ -6,7 +6,7 @@ task (:func:`compute_part`) that runs the *same* code as an in-process run
 (:func:`liethermo.runner.run_chunk`) and writes its own chunk file
 ``<OUT>.parts/part-<lo>-<hi>.nc`` atomically (temporary name, then
 ``os.replace``).  Member i's initial condition depends only on (seed, i)
-(:mod:`liethermo.initial`) and members never interact in the kernels, so the
+(:mod:`liethermo.top.initial`) and members never interact in the kernels, so the
 numbers do not depend on the split nor on the number of workers or threads:
 the combined file is identical to the in-process one.
 

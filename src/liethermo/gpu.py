@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import importlib.util
 
-#: the device names :func:`liethermo.simulate.simulate` takes
+#: the device names :func:`liethermo.top.simulate.simulate` takes
 DEVICES = ("cpu", "gpu")
 
 
@@ -43,17 +43,6 @@ def gpu_available() -> tuple[bool, str]:
         return False, f"the CUDA device cannot be opened ({' '.join(str(exc).split())})"
 
 
-def top_device_bytes(members: int, width: int, nparam: int, shared: bool, n_out: int) -> int:
-    """Device memory of one member chunk of the top (bytes): state, parameters
-    (one row when the members share them), status and the outputs of one
-    kernel call (at most :data:`OUT_BYTES`, at least one output)."""
-    from .kernels.layout import NFSTAT, NISTAT, OUT_BYTES
-
-    out = min(max(1, n_out) * width * members * 8, max(OUT_BYTES, width * members * 8))
-    return 8 * (width * members + (nparam if shared else nparam * members)
-                + (NISTAT + NFSTAT) * members) + out
-
-
 def device_memory() -> tuple[int, int] | None:
     """(free, total) bytes of the current CUDA device, or None."""
     ok, _ = gpu_available()
@@ -82,4 +71,4 @@ def require_gpu() -> str:
     return why
 
 
-__all__ = ["DEVICES", "device_memory", "gpu_available", "require_gpu", "top_device_bytes"]
+__all__ = ["DEVICES", "device_memory", "gpu_available", "require_gpu"]

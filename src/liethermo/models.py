@@ -16,8 +16,7 @@ model.
 What a model provides (:class:`Model`):
 
 * its scene: keys with units, defaults and rules, and how a scene of it is
-  recognised and loaded (``scene_model``: a :class:`liethermo.scene.OtherModel`;
-  None for the default model, whose keys are :data:`liethermo.scene.KEYS`);
+  recognised and loaded (``scene_model``: a :class:`liethermo.scene.SceneModel`);
 * its methods, ``{name: MethodInfo}`` (order, laws kept, how it steps);
 * its initial conditions for members ``lo:hi``;
 * :meth:`Model.run_chunk`: members ``lo:hi`` integrated into a labelled
@@ -76,16 +75,15 @@ class Model:
     title: str = ""
     #: one sentence for the command line's description
     description: str = ""
-    #: the scene side (:class:`liethermo.scene.OtherModel`; may be a property that
-    #: imports it on first use); None: the default model
+    #: the scene side (:class:`liethermo.scene.SceneModel`; may be a property that
+    #: imports it on first use)
     scene_model: Any = None
     #: the table whose presence marks a scene's tables as this model's (a light test,
     #: for the command line's help); None: ``scene_model.marks``
     scene_table: str | None = None
-    #: the model of a scene no other model owns (the heavy top)
-    is_default: bool = False
-    #: study kinds of this model: modules ``liethermo.studies.<kind>``
-    study_kinds: tuple[str, ...] = ()
+    #: the model's own study kinds, ``{kind: module}`` (the generic kinds of
+    #: :data:`liethermo.studies.GENERIC_KINDS` run on every model that offers what they need)
+    study_kinds: dict = {}
     #: the scene keys that make a run store less (named when an output does not fit on its disk)
     store_less: str = "output.every"
     #: scene keys (section, key) that do not change what a run writes: an output made
@@ -243,7 +241,7 @@ def unregister(name: str) -> None:
 
 #: the modules that register the built-in models, imported on first need (when a
 #: scene is loaded); each is light and registers one model
-MODEL_MODULES = ("liethermo.heavy_top", "liethermo.zeitlin.model")
+MODEL_MODULES = ("liethermo.top.model", "liethermo.zeitlin.model")
 
 
 def models() -> list[Model]:
@@ -262,19 +260,23 @@ def get_model(name: str) -> Model:
     raise KeyError(f"no model named {name!r}: known models {', '.join(m.name for m in models())}")
 
 
+#: The model of a scene that no registered model's table marks.  Every scene
+#: file and every stored scene text written before scenes named their model is
+#: the heavy top's, so they all read, and resume, as the top's.  This is the one
+#: place that rule is written.
+UNMARKED_SCENES_MODEL = "top"
+
+
 def model_of(scene) -> Model:
-    """The model whose scene ``scene`` is: the first registered model that
-    owns it, else the default model (the one without a scene model of its own)."""
+    """The model whose scene ``scene`` (a loaded scene or its tables) is: the
+    registered model that owns it, else :data:`UNMARKED_SCENES_MODEL`'s."""
     ms = models()
     for m in ms:
-        if not m.is_default and m.owns(scene):
+        if m.name != UNMARKED_SCENES_MODEL and m.owns(scene):
             return m
-    for m in ms:
-        if m.is_default:
-            return m
-    raise LookupError("no model owns this scene")  # pragma: no cover
+    return get_model(UNMARKED_SCENES_MODEL)
 
 
-def study_kinds() -> dict[str, Model]:
-    """``{study kind: model}`` over the registered models."""
-    return {k: m for m in models() for k in m.study_kinds}
+def study_kinds() -> dict[str, str]:
+    """``{study kind: module}`` of the registered models' own kinds."""
+    return {k: mod for m in models() for k, mod in m.study_kinds.items()}

@@ -2,16 +2,16 @@
 
 A scene is read from TOML (a file, or a built-in scene of ``liethermo/scenes/``)
 in sections and keys (``[integrator] h = 0.05``).  Resolution order: the
-defaults of :data:`KEYS` ← the built-in scene or file ← overrides
+model's defaults ← the built-in scene or file ← overrides
 (``--set SECTION.KEY=VALUE``, or ``{"section.key": value}`` in Python).
-:func:`validate` checks every rule *before* any work starts and raises
-:class:`SceneError` naming the key and the rule.  The result is a
-:class:`Scene`: frozen dataclasses per section (``scene.integrator.h``),
-which also read like the TOML tables (``scene["integrator"]["h"]``).
+Which model a scene is, the registry says (:func:`liethermo.models.model_of`);
+that model's scene side (a :class:`SceneModel`) checks every rule *before*
+any work starts and raises :class:`SceneError` naming the key and the rule.
 
-:data:`KEYS` is the one description of every key — default, unit, rule,
-meaning — from which the defaults, the validation messages, the command
-line's ``liethermo keys`` and ``docs/scenes.md`` are all produced.
+This module holds what every model's scene uses: the error, the value
+checks, :class:`Key` (a key's default, unit, rule and meaning, from which the
+defaults, the validation messages, ``liethermo keys`` and ``docs/scenes.md``
+are produced), merging tables and overrides, and :func:`load_scene`.
 """
 
 from __future__ import annotations
@@ -34,7 +34,6 @@ else:  # pragma: no cover
 
 import tomli_w
 
-from .methods import COMPOSITION_KINDS, ENTROPY_UPDATES, FRICTION, METHODS, STARTS
 from .scene_files import builtin_scene_tables, builtin_scene_text, builtin_scenes  # noqa: F401
 
 
@@ -72,12 +71,6 @@ def number(lo=None, hi=None, *, lo_open=False, hi_open=False):
         return float(v)
 
     return check
-
-
-#: most Newton iterations a step may take: a converging solve takes fewer than 30
-#: even at h|Ω| ≈ 1; the bound keeps a solve that does not converge from making
-#: one kernel call of the run driver (≈ 0.1 s) outlast a stop signal for long
-NEWTON_MAXITER_LIMIT = 200
 
 
 def integer(minimum=1, maximum=None):
@@ -171,233 +164,6 @@ class Key:
         return f"{self.section}.{self.name}"
 
 
-def _inertia_check(name, v, scene):
-    I = np.asarray(vector((3,), positive=True)(name, v, scene))
-    if np.any(2 * I > I.sum() * (1 + 1e-12)):
-        raise SceneError(name, "principal moments of a rigid body satisfy the triangle "
-                         "inequality I_i ≤ I_j + I_k", v)
-    return I.tolist()
-
-
-_inertia_check.__doc__ = "[I1, I2, I3] in kg m2"
-_com_check = vector((3,))
-_com_check.__doc__ = "[x, y, z] in m"
-_mass_check = number(0.0, lo_open=True)
-_mass_check.__doc__ = "a mass in kg"
-_cv_check = number(0.0, lo_open=True)
-_cv_check.__doc__ = "a heat capacity in J/K"
-
-
-def _rotation_check(name, v, scene):
-    R = np.asarray(vector((3, 3))(name, v, scene))
-    if np.abs(R.T @ R - np.eye(3)).max() > 1e-12 or abs(np.linalg.det(R) - 1.0) > 1e-12:
-        raise SceneError(name, "must be a rotation matrix (RᵀR = I to 1e-12, det R = +1)", v)
-    return R.tolist()
-
-
-def _spin_range_check(name, v, scene):
-    sr = vector((2,))(name, v, scene)
-    if not 0 <= sr[0] <= sr[1]:
-        raise SceneError(name, "must be [lo, hi] with 0 ≤ lo ≤ hi", v)
-    return sr
-
-
-def _compare_check(name, v, scene):
-    if not isinstance(v, list) or any(not isinstance(c, str) or c not in METHODS for c in v):
-        raise SceneError(name, f"must be a list of methods from {sorted(METHODS)}", v)
-    return list(v)
-
-
-def _tol_check(name, v, scene):
-    return number(0.0, 1e-3, lo_open=True, hi_open=True)(name, v, scene)
-
-
-E1_ROTATION = [[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]]
-
-#: The scene keys of the body, the thermodynamics, the initial data, the
-#: integrator, the ensemble and the output; the model terms add theirs
-#: (:data:`KEYS`).  Defaults are the paper's body and fluid with the
-#: integrator choices recommended for new scenes.
-CORE_KEYS: tuple[Key, ...] = (
-    Key("scene", "name", "custom", "", "a string", "name of the scene (files are named after it)", string),
-    Key("scene", "description", "", "", "a string", "one line on what the scene is", string),
-    Key("body", "shape", "hemispheres", "", '"hemispheres" | "ellipsoid"',
-        "the body: the paper's top (a solid upper and a hollow lower hemisphere) or a "
-        "triaxial ellipsoid; keys that do not apply to a shape take its own defaults",
-        choice("hemispheres", "ellipsoid")),
-    Key("body", "radius", 0.05, "m", "> 0", "hemispheres: radius a (also of the Stokes sphere)",
-        number(0.0, lo_open=True)),
-    Key("body", "semi_axes", [0.06, 0.05, 0.04], "m", "[a1, a2, a3], each > 0",
-        "ellipsoid: semi-axes along the body axes (principal axes)", vector((3,), positive=True)),
-    Key("body", "density", 2700.0, "kg m-3", "> 0", "density of the material (mass of a uniform body)",
-        number(0.0, lo_open=True)),
-    Key("body", "mass", "shape", "kg", '"shape" | > 0',
-        'total mass; "shape": density × volume', word_or("shape", _mass_check)),
-    Key("body", "molar_mass", 26.981539e-3, "kg mol-1", "> 0",
-        "molar mass of the material (Dulong–Petit heat capacity 3 (m/M) R)", number(0.0, lo_open=True)),
-    Key("body", "upper_mass_fraction", 0.6, "1", "in [0, 1]",
-        "hemispheres: mass fraction of the solid upper hemisphere", number(0.0, 1.0)),
-    Key("body", "inertia", "shape", "kg m2", '"shape" | [I1, I2, I3], each > 0, I_i ≤ I_j + I_k',
-        'principal moments about the fixed point; "shape": the shape\'s own (hemispheres: the '
-        "paper's printed values; ellipsoid: uniform density, m(a2² + a3²)/5 …)",
-        word_or("shape", _inertia_check, aliases=("paper",))),
-    Key("body", "center_of_mass", "shape", "m", '"shape" | [x, y, z]',
-        'centre of mass G in the body frame, from the fixed point; "shape": hemispheres '
-        "(0, 0, 3m1a/(8m) − m2a/(2m)); ellipsoid: the centre (no gravity torque). An "
-        "ellipsoid's centre is at G, so a G ≠ 0 also drags its centre through the fluid",
-        word_or("shape", _com_check, aliases=("hemispheres",))),
-    Key("thermo", "T0", 300.0, "K", "> 0", "reference temperature θ(S_0) of the internal energy: the initial "
-        "temperature unless body.thermal_expansion > 0, which starts T lower by φφ'Ω·𝕀₀Ω "
-        "(coupled_egg: 299.4 K)", number(0.0, lo_open=True)),
-    Key("thermo", "S0", 0.0, "J K-1", "finite", "initial entropy", number()),
-    Key("thermo", "heat_capacity", "material", "J K-1", '"material" | > 0',
-        'heat capacity c_v of body and fluid; "material": Dulong–Petit 3 (m/M) R',
-        word_or("material", _cv_check)),
-    Key("initial", "omega", [0.0, 1.0, 1.0], "rad s-1", "[Ω1, Ω2, Ω3], finite",
-        "initial body angular velocity Ω(0)", vector((3,))),
-    Key("initial", "R", E1_ROTATION, "1", "a rotation matrix",
-        "initial attitude R(0) (body to space); Γ(0) = R(0)ᵀ e3", _rotation_check),
-    Key("integrator", "method", "vi", "", " | ".join(f'"{m}"' for m in METHODS),
-        "the integrator (see docs/model.md): the variational integrator in node form and its "
-        "order-4 and order-6 compositions, the explicit thermodynamic splitting and its "
-        "compositions, explicit RK2/RK4, the DOP853 reference",
-        choice(*METHODS)),
-    Key("integrator", "h", 0.1, "s", "> 0", "time step", number(0.0, lo_open=True)),
-    Key("integrator", "steps", 300, "1", "integer ≥ 1", "number of steps", integer()),
-    Key("integrator", "friction", "trapezoid", "", " | ".join(f'"{f}"' for f in FRICTION),
-        "vi: discrete friction (the paper's trapezoid, or endpoint); vi4/vi6 use trapezoid",
-        choice(*FRICTION)),
-    Key("integrator", "start", "legendre", "", " | ".join(f'"{s}"' for s in STARTS),
-        "vi: first step — legendre: node momentum μ0 = 𝕀Ω(0) (second order); node: the paper's "
-        "Ω0 := Ω(0) as first step velocity (first order); staggered: Ω0 := Ω(h/2) from the "
-        "reference.  vi4/vi6 always start from μ0 = 𝕀Ω(0)", choice(*STARTS)),
-    Key("integrator", "entropy", "symmetric", "", " | ".join(f'"{e}"' for e in ENTROPY_UPDATES),
-        "vi: entropy update — symmetric: U(S') − U(S) = the friction work of the step; explicit: "
-        "the paper's S' = S + h P/T(S).  vi4/vi6 always use symmetric", choice(*ENTROPY_UPDATES)),
-    Key("integrator", "composition", "small_error", "", " | ".join(f'"{c}"' for c in COMPOSITION_KINDS),
-        "vi4, vi6, split4, split6: how the order-2 step is composed — small_error: Suzuki's 5 "
-        "substeps (order 4) and Kahan and Li's 9 (order 6); triple_jump: Yoshida's triple jump "
-        "(3 substeps, order 4) and its triple jump (9, order 6), whose error constants and "
-        "negative substeps are larger", choice(*COMPOSITION_KINDS)),
-    Key("integrator", "newton_tol", 1e-14, "1", "in (0, 1e-3)",
-        "relative step tolerance of the Newton iteration", _tol_check),
-    Key("integrator", "newton_maxiter", 30, "1", f"integer in [1, {NEWTON_MAXITER_LIMIT}]",
-        "Newton iterations before a step counts as failed (a converging solve needs fewer than 30; "
-        "the bound keeps one kernel call short enough to stop on a signal)",
-        integer(1, NEWTON_MAXITER_LIMIT)),
-    Key("ensemble", "members", 1, "1", "integer ≥ 1",
-        "members; with more than one, initial conditions are drawn from the seed", integer()),
-    Key("ensemble", "seed", 0, "1", "integer ≥ 0", "seed of the random initial conditions",
-        integer(0)),
-    Key("ensemble", "device", "cpu", "", '"cpu" | "gpu"',
-        "where the steps run: gpu runs every method but the reference on a CUDA device "
-        "(numba-cuda, one thread per member), with the same results bit for bit; refused before "
-        "any work where no device can run it", choice("cpu", "gpu")),
-    Key("ensemble", "spin_range", [0.5, 1.5], "1", "[lo, hi], 0 ≤ lo ≤ hi",
-        "|Ω(0)| drawn uniformly in this range × |initial.omega|", _spin_range_check),
-    Key("output", "every", 1, "1", "integer ≥ 1 dividing integrator.steps",
-        "keep every k-th step", integer()),
-    Key("output", "attitude", False, "", "true | false",
-        "also integrate and store R (and the centre-of-mass path)", boolean),
-    Key("output", "compare", [], "", "list of methods",
-        "further methods run on the same scene (files <OUT>_<method>.nc)", _compare_check),
-    Key("output", "figures", False, "", "true | false", "write PNG figures next to the netCDF",
-        boolean),
-    Key("output", "member_chunk", 65536, "1", "integer ≥ 1",
-        "members simulated and written at a time (bounds memory)", integer()),
-)
-
-
-
-def _term_key(setting) -> Key:
-    """The scene key of a term's :class:`~liethermo.kernels.terms.Setting`."""
-    check = number(setting.minimum, lo_open=setting.open)
-    if setting.word:
-        check.__doc__ = f"a number {setting.rule.split('| ')[-1]}"
-        check = word_or(setting.word, check)
-    return Key(setting.section, setting.name, setting.default, setting.unit, setting.rule,
-               setting.doc, check)
-
-
-def _all_keys() -> tuple[Key, ...]:
-    """The core keys with every term's keys after the core keys of their
-    section (a section of its own goes before [thermo])."""
-    from .kernels.terms import registry
-
-    term_keys = [_term_key(st) for t in registry() for st in t.settings]
-    sections = list(dict.fromkeys(k.section for k in CORE_KEYS))
-    for k in term_keys:
-        if k.section not in sections:
-            sections.insert(sections.index("thermo"), k.section)
-    out: list[Key] = []
-    for sec in sections:
-        out += [k for k in CORE_KEYS if k.section == sec]
-        out += [k for k in term_keys if k.section == sec]
-    return tuple(out)
-
-
-#: Every scene key: :data:`CORE_KEYS` and the keys the model terms own.
-KEYS: tuple[Key, ...] = _all_keys()
-SECTIONS: tuple[str, ...] = tuple(dict.fromkeys(k.section for k in KEYS))
-KEY_INDEX: dict[str, Key] = {k.path: k for k in KEYS}
-
-
-def _defaults() -> dict:
-    out: dict[str, dict] = {s: {} for s in SECTIONS}
-    for k in KEYS:
-        out[k.section][k.name] = copy.deepcopy(k.default)
-    return out
-
-
-DEFAULTS: dict[str, dict[str, Any]] = _defaults()
-
-
-# ----------------------------------------------------------------------------- the typed scene
-
-
-class _Section:
-    """Mixin: a section reads like its TOML table."""
-
-    def __getitem__(self, key: str):
-        try:
-            return getattr(self, key)
-        except AttributeError:
-            raise KeyError(key) from None
-
-    def __contains__(self, key: str) -> bool:
-        return key in self.keys()
-
-    def keys(self):
-        return [f.name for f in dataclasses.fields(self)]
-
-    def items(self):
-        return [(k, getattr(self, k)) for k in self.keys()]
-
-    def __iter__(self):
-        return iter(self.keys())
-
-
-def _annotation(k: Key):
-    """The type of a key's values in the typed scene (lists are tuples)."""
-    if isinstance(k.default, str) and k.rule.startswith('"') and " | " in k.rule and not all(
-            part.strip().startswith('"') for part in k.rule.split("|")):
-        return "str | float | tuple"  # a word or a value
-    return {bool: bool, int: int, float: float, str: str, list: tuple}.get(type(k.default), Any)
-
-
-def _section_class(section: str):
-    fields = [(k.name, _annotation(k)) for k in KEYS if k.section == section]
-    cls = dataclasses.make_dataclass(section.capitalize() + "Section", fields, bases=(_Section,),
-                                     frozen=True)
-    cls.__module__ = __name__
-    cls.__doc__ = f"The [{section}] section: " + ", ".join(
-        f"{k.name} ({k.unit or '-'})" for k in KEYS if k.section == section)
-    return cls
-
-
-_SECTION_CLASSES = {sec: _section_class(sec) for sec in SECTIONS}
-
-
 def _freeze(v):
     return tuple(_freeze(x) for x in v) if isinstance(v, list) else v
 
@@ -406,54 +172,10 @@ def _thaw(v):
     return [_thaw(x) for x in v] if isinstance(v, tuple) else v
 
 
-class _SceneMethods(_Section):
-    """A resolved, validated scene (immutable).  Sections are attributes
-    (``scene.body.shape``) and items (``scene["body"]["shape"]``); list values
-    are tuples.  :meth:`with_overrides` makes a changed copy."""
-
-    @property
-    def name(self) -> str:
-        return self.scene.name
-
-    def to_dict(self) -> dict:
-        """The scene as nested TOML tables (lists, not tuples)."""
-        return {s: {k: _thaw(v) for k, v in getattr(self, s).items()} for s in SECTIONS}
-
-    def to_toml(self) -> str:
-        return tomli_w.dumps(self.to_dict())
-
-    def with_overrides(self, overrides: dict | list | None) -> "Scene":
-        """A validated copy with ``{"section.key": value}`` (or ``--set`` strings) applied."""
-        return load_scene(self.to_dict(), overrides)
-
-    def __deepcopy__(self, memo):
-        return self
-
-
-#: The typed scene: one frozen section per TOML table (:data:`SECTIONS`),
-#: each with a field per key.
-Scene = dataclasses.make_dataclass("Scene", [(sec, _SECTION_CLASSES[sec]) for sec in SECTIONS],
-                                   bases=(_SceneMethods,), frozen=True)
-Scene.__module__ = __name__
-Scene.__doc__ = _SceneMethods.__doc__
-
-
-def _scene_from_dict(d: dict) -> Scene:
-    return Scene(**{s: _SECTION_CLASSES[s](**{k: _freeze(v) for k, v in d[s].items()})
-                    for s in SECTIONS})
-
-
-# ----------------------------------------------------------------------------- built-in scenes
-
-
-# ----------------------------------------------------------------------------- loading
-
-
-def _merge(base: dict, new: dict, origin: str, defaults: dict | None = None, kind: str = "") -> None:
+def _merge(base: dict, new: dict, origin: str, defaults: dict, kind: str = "") -> None:
     """Merge the tables ``new`` into ``base``, refusing sections and keys that
-    ``defaults`` (the top's :data:`DEFAULTS`, or another model's) does not
-    have; ``kind`` names the model in the messages (" of a Zeitlin scene")."""
-    defaults = DEFAULTS if defaults is None else defaults
+    ``defaults`` (the model's) does not have; ``kind`` names the model in the
+    messages (" of a Zeitlin scene")."""
     for section, table in new.items():
         if section not in defaults:
             name = f"{section}.{next(iter(table))}" if isinstance(table, dict) and table else section
@@ -532,14 +254,13 @@ def _overrides_as_tables(overrides) -> list[tuple[dict, str]]:
 
 
 @dataclass(frozen=True)
-class OtherModel:
-    """The scene side of a model beside the top: the ``scene_model`` of a
-    :class:`liethermo.models.Model` (or registered here with
-    :func:`register_model`); this module never imports its package.  A scene
-    whose tables ``marks`` is that model's: ``load(tables, origin, overrides,
-    validate)`` gives its defaults ← tables ← overrides, validated into a
-    ``scene_class`` (or, with ``validate`` False, as tables), and
-    docs/scenes.md lists ``keys`` under ``title`` after ``intro``."""
+class SceneModel:
+    """The scene side of a model (its :attr:`liethermo.models.Model.scene_model`);
+    this module never imports a model's package.  A scene whose tables
+    ``marks`` is that model's (the registry decides, :func:`liethermo.models.model_of`):
+    ``load(tables, origin, overrides, validate)`` gives its defaults ← tables ←
+    overrides, validated into a ``scene_class`` (or, with ``validate`` False, as
+    tables), and docs/scenes.md lists ``keys`` under ``title`` after ``intro``."""
 
     name: str
     marks: Callable[[dict], bool]
@@ -550,139 +271,65 @@ class OtherModel:
     intro: str
 
 
-_OTHER_MODELS: list[OtherModel] = []
+#: the name the scene side of a model had before every model had one
+OtherModel = SceneModel
 
 
-def register_model(model: OtherModel) -> None:
-    """Let scenes describe ``model`` (called by its package on import)."""
-    _OTHER_MODELS[:] = [m for m in _OTHER_MODELS if m.name != model.name] + [model]
+def _scene_model(source):
+    """The scene side of the model of ``source`` (tables or a loaded scene)."""
+    from .models import model_of
+
+    return model_of(source).scene_model
 
 
-def _other_models() -> list[OtherModel]:
-    """The scene sides of the models registered with :mod:`liethermo.models`
-    (their modules, ``liethermo.models.MODEL_MODULES``, imported on first need, so
-    that ``import liethermo`` stays light), and any registered here."""
-    from .models import models
-
-    out = list(_OTHER_MODELS)
-    for m in models():
-        if not m.is_default and m.scene_model is not None and all(o.name != m.scene_model.name for o in out):
-            out.append(m.scene_model)
-    return out
-
-
-def _other_model(tables) -> OtherModel | None:
-    for m in _other_models():
-        if isinstance(tables, m.scene_class) or (isinstance(tables, dict) and m.marks(tables)):
-            return m
-    return None
-
-
-def load_scene(source: str | Path | dict | Scene | None = "paper",
+def load_scene(source: str | Path | dict | Any | None = "paper",
                overrides: list[str] | dict | None = None, *, validate_scene: bool = True):
-    """Resolve a scene: defaults ← built-in name, TOML file, dict or Scene ← overrides.
+    """Resolve a scene: the model's defaults ← built-in name, TOML file, dict or a
+    loaded scene ← overrides.
 
-    Returns a validated :class:`Scene` (or, with ``validate_scene=False``, the
+    Returns the model's validated scene (or, with ``validate_scene=False``, the
     unvalidated tables as a dict)."""
-    other = _other_model(source)
-    if other is not None:
-        tables = source if isinstance(source, dict) else source.to_dict()
-        return other.load(tables, "the scene", overrides, validate_scene)
-    scene = copy.deepcopy(DEFAULTS)
-    if isinstance(source, Scene):
-        source = source.to_dict()
+    if source is None:
+        source = {}
+    if not isinstance(source, (str, Path, dict)):  # a loaded scene
+        return _scene_model(source).load(source.to_dict(), "the scene", overrides, validate_scene)
     if isinstance(source, dict):
-        _merge(scene, source, "the scene")
-    elif source is not None:
-        src = str(source)
-        text = builtin_scene_text(src) if "/" not in src and not src.endswith(".toml") else None
-        if text is not None:
-            data = tomllib.loads(text)
-            other = _other_model(data)
-            if other is not None:
-                return other.load(data, f"built-in scene {src!r}", overrides, validate_scene)
-            _merge(scene, data, f"built-in scene {src!r}")
-        else:
-            path = Path(src)
-            if not path.is_file():
-                raise SceneError(src, f"not found, and not a built-in scene ({', '.join(builtin_scenes())})",
-                                 show_value=False, what="file")
-            try:
-                data = tomllib.loads(path.read_text())
-            except OSError as exc:
-                raise SceneError(str(path), f"cannot be read ({exc.strerror})", show_value=False, what="file") from None
-            except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-                raise SceneError(str(path), f"not valid TOML: {exc}", show_value=False, what="file") from None
-            other = _other_model(data)
-            if other is not None:
-                data.setdefault("scene", {}).setdefault("name", path.stem)
-                return other.load(data, str(path), overrides, validate_scene)
-            _merge(scene, data, str(path))
-            if scene["scene"]["name"] == "custom":
-                scene["scene"]["name"] = path.stem
-    for table, origin in _overrides_as_tables(overrides):
-        _merge(scene, table, origin)
-    if not validate_scene:
-        return scene
-    return validate(scene)
+        return _scene_model(source).load(source, "the scene", overrides, validate_scene)
+    src = str(source)
+    text = builtin_scene_text(src) if "/" not in src and not src.endswith(".toml") else None
+    if text is not None:
+        data = tomllib.loads(text)
+        return _scene_model(data).load(data, f"built-in scene {src!r}", overrides, validate_scene)
+    path = Path(src)
+    if not path.is_file():
+        raise SceneError(src, f"not found, and not a built-in scene ({', '.join(builtin_scenes())})",
+                         show_value=False, what="file")
+    try:
+        data = tomllib.loads(path.read_text())
+    except OSError as exc:
+        raise SceneError(str(path), f"cannot be read ({exc.strerror})", show_value=False, what="file") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise SceneError(str(path), f"not valid TOML: {exc}", show_value=False, what="file") from None
+    table = data.setdefault("scene", {})
+    if isinstance(table, dict) and table.get("name", "custom") == "custom":
+        table["name"] = path.stem  # a file's scene is named after it
+    return _scene_model(data).load(data, str(path), overrides, validate_scene)
 
 
 def scene_to_toml(scene) -> str:
     return scene.to_toml() if hasattr(scene, "to_toml") else tomli_w.dumps(scene)
 
 
-def validate(scene: dict) -> Scene:
-    """Check every rule; raise SceneError naming the first key that breaks one.
-    Returns the typed scene."""
-    if isinstance(scene, Scene):
-        scene = scene.to_dict()
-    for section, table in scene.items():
-        if section not in DEFAULTS or not isinstance(table, dict):
-            raise SceneError(section, "unknown section", show_value=False)
-        for key in table:
-            if key not in DEFAULTS[section]:
-                raise SceneError(f"{section}.{key}", "unknown key", show_value=False)
-    clean = copy.deepcopy(DEFAULTS)
-    for k in KEYS:
-        clean[k.section][k.name] = k.check(k.path, scene[k.section][k.name], scene)
-    _cross_rules(clean)
-    return _scene_from_dict(clean)
-
-
-def _cross_rules(s: dict) -> None:
-    steps, every = s["integrator"]["steps"], s["output"]["every"]
-    if steps % every:
-        raise SceneError("output.every", f"must divide integrator.steps = {steps}", every)
-    body = s["body"]
-    if body["shape"] == "ellipsoid" and body["center_of_mass"] != "shape":
-        G = np.asarray(body["center_of_mass"])
-        if np.count_nonzero(G) > 1 and body["inertia"] == "shape":
-            raise SceneError("body.center_of_mass", "an ellipsoid with its own inertia pivots "
-                             "about a point on one of its axes: give G along a body axis, or "
-                             "body.inertia explicitly", body["center_of_mass"])
-    from .kernels.terms import registry
-
-    for t in registry():
-        for key, rule, value in t.violations(s):
-            raise SceneError(key, rule, value)
-    on = [t for t in registry() if t.in_scene(s)]
-    for key, methods in (("integrator.method", [s["integrator"]["method"]]),
-                         ("output.compare", s["output"]["compare"])):
-        for m in methods:
-            for t in on:
-                why = t.refuses(METHODS[m].family, m)
-                if why:
-                    raise SceneError(key, f"method {m!r} cannot run the {t.name} term "
-                                     f"({t.settings[0].path}): {why}", m)
-
-
 # ----------------------------------------------------------------------------- key documentation
 
 
 def keys_table(markdown: bool = True, keys: tuple[Key, ...] | None = None) -> str:
-    """Every key (of :data:`KEYS`, or ``keys``) with its unit, default and rule:
+    """Every key of ``keys`` (default: the top's) with its unit, default and rule:
     the body of docs/scenes.md and of ``liethermo keys``."""
-    keys = KEYS if keys is None else keys
+    if keys is None:
+        from .models import get_model
+
+        keys = get_model(UNMARKED_MODEL()).keys()
     lines = []
     for section in dict.fromkeys(k.section for k in keys):
         ks = [k for k in keys if k.section == section]
@@ -718,73 +365,23 @@ def _md_cell(text: str) -> str:
 #: the command that writes docs/scenes.md
 SCENES_MARKDOWN_COMMAND = "python -m liethermo.cli keys --markdown > docs/scenes.md"
 
-SCENES_INTRO = """\
-A scene is what a run simulates — the body, the fluid, gravity, the thermodynamics,
-the initial data, the integrator, the ensemble and the output — as a TOML file of
-sections and keys:
+def UNMARKED_MODEL() -> str:  # noqa: N802  (the registry's constant, read late)
+    from .models import UNMARKED_SCENES_MODEL
 
-```toml
-[integrator]
-method = "vi4"
-h = 0.05
-```
-
-**How a scene resolves.** Every key has a default (the tables below: the paper's
-body and fluid, with the integrator choices recommended for new scenes). A built-in
-scene name or a TOML file overrides some of them, and overrides given last win:
-`--set SECTION.KEY=VALUE` on the command line (`VALUE` is a TOML value; a bare word
-is taken as a string, also inside a list: `[rk4, vi]`), or `{"section.key": value}` in Python
-(`liethermo.scene.load_scene(source, overrides)`):
-
-    defaults  ←  built-in scene or TOML file  ←  --set SECTION.KEY=VALUE
-
-```bash
-liethermo run paper --set integrator.h=0.05 --set 'initial.omega=[2,-1,0.5]'
-liethermo run examples/my_scene.toml -o out.nc --set integrator.method=rk4
-```
-
-Every rule below is checked before any work starts; a scene that breaks one is
-rejected with one line naming the key and the rule (exit status 2, no output file).
-Unknown sections and keys are errors too. `liethermo keys` prints these tables as
-plain text.
-
-**Choosing a model.** The kernels are compiled for the terms a scene needs and
-nothing else (docs/model.md, "Model terms"):
-
-* *The body* — `body.shape = "hemispheres"` is the paper's top: a ball of radius
-  `body.radius` made of a solid upper and a thin hollow lower hemisphere, spinning
-  about its centre, with the paper's printed inertia (docs/model.md, erratum E5).
-  `body.shape = "ellipsoid"` is a triaxial ellipsoid with `body.semi_axes`, uniform
-  density about its centre unless `body.mass`, `body.inertia` or `body.center_of_mass`
-  say otherwise, pivoting at −G from its centre. Either shape takes explicit principal
-  moments `body.inertia = [I1, I2, I3]`.
-{terms}
-* *No friction* — with every friction switched off nothing dissipates, and the
-  entropy is not integrated (S stays S₀, T stays T₀).
-* *The integrator* — `integrator.method`, and for `vi` the `start`, `friction` and
-  `entropy` variants: their orders and the paper's choices are in docs/model.md
-  ("The variational integrator", "Orders of convergence"). The paper scene uses the
-  paper's choices (`start = "node"`, `entropy = "explicit"`).
-"""
-
-
-def _terms_markdown() -> str:
-    """One bullet per model term (its ``scene_doc``), wrapped like the rest."""
-    import textwrap
-
-    from .kernels.terms import registry
-
-    return "\n".join(textwrap.fill(t.scene_doc, 88, initial_indent="* ", subsequent_indent="  ")
-                     for t in registry() if t.scene_doc)
+    return UNMARKED_SCENES_MODEL
 
 
 def scenes_markdown() -> str:
-    """The text of docs/scenes.md: a short introduction, the built-in scenes and
-    every key of :data:`KEYS` with its unit, default and rule."""
+    """The text of docs/scenes.md: the built-in scenes, then every model's
+    introduction and keys with their units, defaults and rules (the top's first)."""
+    from .models import models
+
+    ms = sorted(models(), key=lambda m: m.name != UNMARKED_MODEL())
+    first = ms[0].scene_model
     lines = ["# Scenes and their keys", "",
-             f"<!-- Generated from liethermo.scene.KEYS by `{SCENES_MARKDOWN_COMMAND}`; "
-             "edit the keys, a model term's scene_doc or liethermo.scene.SCENES_INTRO, not this file. -->", "",
-             SCENES_INTRO.rstrip("\n").replace("{terms}", _terms_markdown()), "",
+             f"<!-- Generated from the models' scene keys by `{SCENES_MARKDOWN_COMMAND}`; "
+             "edit the keys, a model term's scene_doc or a model's scene intro, not this file. -->", "",
+             first.intro.rstrip("\n"), "",
              "## Built-in scenes", "",
              "`liethermo run NAME` runs one; the files are in `src/liethermo/scenes/`.", "",
              "| scene | description |", "|---|---|"]
@@ -792,10 +389,8 @@ def scenes_markdown() -> str:
         lines.append(f"| `{name}` | {_md_cell(description)} |")
     lines += ["", "## Keys", "",
               "Units are SI; 1 marks a dimensionless number, — a key without a unit.", "",
-              keys_table(markdown=True).rstrip("\n")]
-    for m in _other_models():
+              keys_table(markdown=True, keys=first.keys).rstrip("\n")]
+    for m in (m.scene_model for m in ms[1:]):
         lines += ["", f"## Keys of {m.title}", "", m.intro.rstrip("\n"), "",
                   keys_table(markdown=True, keys=m.keys).replace("### [", f"### {m.name} scene: [").rstrip("\n")]
     return "\n".join(lines) + "\n"
-
-

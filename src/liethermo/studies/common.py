@@ -173,15 +173,6 @@ from ..io import (cached_point, point_is_cached, write_atomic,  # noqa: E402,F40
 
 # ----------------------------------------------------------------------------- tables and reports
 
-def status_units(not_run: bool = False) -> tuple[str, str]:
-    """(units, long_name) of a member status variable of a study; ``not_run``:
-    -1 marks a member the method did not run."""
-    from ..simulate import STATUS_MEANINGS
-
-    codes = ([(-1, "not run")] if not_run else []) + sorted(STATUS_MEANINGS.items())
-    return "1", "member status (" + ", ".join(f"{k} {v}" for k, v in codes) + ")"
-
-
 def fmt(v) -> str:
     """A table cell: integers as such, floats to 3–4 significant digits."""
     if v is None:
@@ -308,19 +299,3 @@ def stack_points(datasets: list[xr.Dataset], points: list[dict], keys: list[str]
     for d, k in zip(dims, keys):
         ds[d].attrs.update({"scene_key": k, "long_name": f"sweep over {k}"})
     return ds
-
-
-# ----------------------------------------------------------------------------- method variants
-
-@functools.lru_cache(maxsize=256)
-def method_choice(label: str):
-    """The :class:`liethermo.methods.MethodChoice` of a method label of the top
-    (``"vi"``, ``"vi:node:explicit"``, ``"vi4:triple_jump"``): its name,
-    family, effective start, friction, entropy update and composition, and the
-    scene overrides that run it; a bad label is a :class:`StudyError`."""
-    from ..methods import MethodChoice
-
-    try:
-        return MethodChoice.parse(label)
-    except ValueError as exc:
-        raise StudyError(f"methods: {exc}") from None

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 import xarray as xr
 
-from ..methods import judge_order, order_tolerance
+from ..analysis import judge_order, order_tolerance
 from .common import StudyError
 from .framework import Figure, Option, Stage, Study, Table, Verdict, first_point, run_scene
 

@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 
 from ..scene import SceneError
-from . import get_study, kinds
+from . import get_study, is_module_kind, kinds
 from .common import (BASE_KEYS, STUDY_KEYS, StudyError, expand_sweep, first_table, resolve_study,
                      study_scene, terminal_table, with_scene)
 
@@ -43,8 +43,9 @@ def validate_study(study: dict) -> None:
     if not isinstance(st, dict):
         raise StudyError("the study file needs a [study] table with kind = ...")
     kind = st.get("kind")
-    if kind not in kinds():
-        raise StudyError(f"study.kind: unknown study kind {kind!r}; known kinds: {', '.join(kinds())}")
+    if not isinstance(kind, str) or (kind not in kinds() and not is_module_kind(kind)):
+        raise StudyError(f"study.kind: unknown study kind {kind!r}; known kinds: {', '.join(kinds())}, "
+                         "or a module path of your own (mypkg.mystudy)")
     for k in st:
         if k not in STUDY_KEYS:
             raise StudyError(f"study.{k}: unknown key; known keys of [study]: {', '.join(sorted(STUDY_KEYS))}")
@@ -52,6 +53,8 @@ def validate_study(study: dict) -> None:
         mod = get_study(kind)
     except ModuleNotFoundError as exc:
         raise StudyError(f"study.kind: the {kind!r} study is not available ({exc})") from None
+    except ValueError as exc:
+        raise StudyError(f"study.kind: {exc}") from None
     decl = mod.STUDY
     from ..models import models
 

@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from ..kernels._jit import CACHE
+from ..numerics.jit import CACHE
 
 
 def hbar(N: int) -> float:

@@ -170,7 +170,8 @@ class Fluid(Model):
         from .scene import SCENE_MODEL
 
         return SCENE_MODEL
-    study_kinds = ("zeitlin_decay", "zeitlin_structure", "zeitlin_resolution")
+    study_kinds = {k: f"liethermo.zeitlin.studies.{k}" for k in ("zeitlin_decay", "zeitlin_structure",
+                                                                   "zeitlin_resolution")}
     store_less = "output.every, output.vorticity"
     # the diagnostics go through BLAS products over the chunk's members (last bits)
     chunk_sets_bits = True

@@ -14,9 +14,10 @@ import xarray as xr
 
 from .. import cf
 from ..version import __version__
-from ..methods import COMPOSITION_FACTORS, LAW_ENTROPY_MONOTONE
+from ..numerics.compositions import COMPOSITION_FACTORS
+from ..numerics.laws import LAW_ENTROPY_MONOTONE
 from . import kernels as zk
-from .. import heat as _heat
+from ..numerics import heat as _heat
 from ..faults import check_stop
 from .scene import ZeitlinScene
 

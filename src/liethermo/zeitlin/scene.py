@@ -14,8 +14,8 @@ from typing import Any
 
 import tomli_w
 
-from ..methods import COMPOSITION_KINDS
-from ..scene import Key, OtherModel, SceneError, boolean, choice, integer, number, string
+from ..numerics.compositions import COMPOSITION_KINDS
+from ..scene import Key, SceneModel, SceneError, boolean, choice, integer, number, string
 
 #: the methods a Zeitlin scene runs (names as for the top)
 METHODS = ("split", "split4", "split6", "rk4", "reference")
@@ -218,5 +218,5 @@ It has keys of its own, below; sections it shares with the top (`[fluid]`, `[the
 `split4`, `split6`, `rk4` and `reference`."""
 
 #: the scene side of the fluid's model (registered with it: liethermo.zeitlin.model)
-SCENE_MODEL = OtherModel(name="zeitlin", marks=is_zeitlin, load=load, scene_class=ZeitlinScene, keys=KEYS,
+SCENE_MODEL = SceneModel(name="zeitlin", marks=is_zeitlin, load=load, scene_class=ZeitlinScene, keys=KEYS,
                          title="a Zeitlin fluid", intro=INTRO)

@@ -1,0 +1,237 @@
+"""Label a :class:`~liethermo.top.simulate.Trajectory` as a CF-style xarray Dataset.
+
+Every variable has ``units`` and ``long_name`` (docs/netcdf.md lists them).
+Values are node values at t_k = k h for every method: ``omega`` is Ω(t_k)
+(for the variational integrators the node velocity 𝕀(S_k)⁻¹μ_k, from the node
+momentum μ_k of the discrete Legendre transform), and ``energy_error`` is
+E_k − E₀ on node values, computed without cancellation:
+
+    E_k − E₀ = (K_k − K₀) + (V_k − V₀) + c_v T₀ expm1(σ_k/c_v),
+
+with E₀ the energy of the initial data at t = 0.  The variational
+integrators also report ``omega_step``, the step velocity Ω_k ≈ Ω(t_k + h/2)
+of the step that starts at t_k (the paper's quantity), and
+``energy_error_paper``, the energy in the paper's convention (Ω_k with Γ_k
+and S_k): it mixes two instants and so carries a first-order error of its
+own — it is kept to reproduce the paper's figure, not to judge the method.
+"""
+
+from __future__ import annotations
+
+import platform
+
+import numpy as np
+import xarray as xr
+
+from .. import cf
+from ..version import __version__
+from . import physics as ph
+from .kernels.layout import STATUS_MEANINGS
+from .methods import METHODS
+from .simulate import Trajectory
+
+AXIS = ["x", "y", "z"]
+
+
+def _var(data, dims, units, long_name, **extra):
+    return xr.Variable(dims, data, attrs={"units": units, "long_name": long_name, **extra})
+
+
+def node_energies(traj: Trajectory) -> dict:
+    """Node values of (Ω, K, V, U − U₀, T) in SI units, arrays (N, T[, 3])."""
+    phys = traj.physics
+    sigma = traj.sigma
+    om = traj.omega
+    s = sigma if traj.thermo else None
+    K = ph.kinetic_energy(phys, om, s)
+    V = ph.potential_energy(phys, traj.gamma)
+    heat = traj.part("heat")  # the splittings carry U − U₀ itself
+    dU = ph.internal_energy_change(phys, sigma) if heat is None else heat[..., 0]
+    T = ph.temperature(phys, om, sigma)
+    return {"omega": om, "K": K, "V": V, "dU": dU, "T": T}
+
+
+def initial_energy(phys: ph.Physics, omega0: np.ndarray, R0: np.ndarray) -> tuple:
+    """(K₀, V₀) of the initial data (N,)."""
+    return ph.kinetic_energy(phys, omega0, None), ph.potential_energy(phys, R0[:, 2, :])
+
+
+def _momentum(traj: Trajectory, omega: np.ndarray) -> np.ndarray:
+    """μ at the nodes: the variational integrators' node momentum and the
+    splittings' state, else 𝕀(S)Ω."""
+    if traj.momentum is not None:
+        return traj.momentum
+    scale = ph.inertia_scale(traj.physics, traj.sigma if traj.thermo else None)
+    scale = scale[..., None] if isinstance(scale, np.ndarray) else scale
+    return scale * traj.physics.inertia[:, None, :] * omega
+
+
+def trajectory_dataset(traj: Trajectory, *, omega0: np.ndarray, R0: np.ndarray,
+                       member_offset: int = 0) -> xr.Dataset:
+    """The dataset of one member chunk (no global attributes; see :func:`global_attrs`).
+
+    omega0, R0: the members' initial data at t = 0 (N, 3), (N, 3, 3).
+    """
+    # a member that blew up (explicit RK2) has huge-but-finite values before its NaNs:
+    # the energies of those values overflow to inf, which is the truthful answer
+    with np.errstate(over="ignore", invalid="ignore"):
+        return _trajectory_dataset(traj, omega0, R0, member_offset)
+
+
+def _trajectory_dataset(traj, omega0, R0, member_offset):
+    phys = traj.physics
+    N = traj.states.shape[0]
+    e = node_energies(traj)
+    K0, V0 = initial_energy(phys, omega0, R0)
+    dE = (e["K"] - K0[:, None]) + (e["V"] - V0[:, None]) + e["dU"]
+    U = phys.heat_capacity[:, None] * ph.theta(phys, traj.sigma)
+    emech0 = ph.mechanical_energy_scale(phys, omega0, R0[:, 2, :])
+    dims_t = ("member", "t")
+    dims_v = ("member", "t", "axis")
+    vi = traj.family == "vi"
+    mom = _momentum(traj, e["omega"])
+    node_note = ("node velocity I(S_k)^-1 mu_k from the node momentum (discrete Legendre transform)"
+                 if vi else "node value Omega(t_k)")
+    data = {
+        "omega": _var(e["omega"], dims_v, "rad s-1", "angular velocity",
+                      comment=f"body angular velocity Omega at t_k: {node_note}"),
+        "angular_momentum": _var(mom, dims_v, "kg m2 s-1", "angular momentum",
+                                 comment="body angular momentum mu = I(S) Omega at t_k"),
+        "angular_momentum_norm": _var(np.linalg.norm(mom, axis=-1), dims_t, "kg m2 s-1", "|mu|, a Casimir",
+                                      comment="|mu| = |I(S) Omega|: a Casimir, kept by friction of "
+                                              "the double-bracket form"),
+        "vertical_angular_momentum": _var(np.sum(traj.gamma * mom, axis=-1), dims_t, "kg m2 s-1", "Gamma . mu",
+                                          comment="angular momentum about the vertical (the "
+                                                  "Kelvin-Noether quantity; d/dt = -Gamma . C Omega)"),
+        "gamma": _var(traj.gamma, dims_v, "1", "gravity direction (body)",
+                      comment="direction of gravity in the body frame, Gamma = R^T e3"),
+        "entropy": _var(phys.S0[:, None] + traj.sigma, dims_t, "J K-1", "entropy S",
+                        comment="entropy of body and fluid"),
+        "temperature": _var(e["T"], dims_t, "K", "temperature T",
+                            comment="T = -dL/dS (T0 exp((S - S0)/c_v) for a constant inertia)",
+                            units_metadata="temperature: on_scale"),
+        "kinetic_energy": _var(e["K"], dims_t, "J", "kinetic energy K",
+                               comment="K = 1/2 Omega . I(S) Omega"),
+        "potential_energy": _var(e["V"], dims_t, "J", "potential energy V",
+                                 comment="V = m g l Gamma . chi"),
+        "internal_energy": _var(U, dims_t, "J", "internal energy U",
+                                comment="U(S) = c_v T0 exp((S - S0)/c_v)"),
+        "total_energy": _var(e["K"] + e["V"] + U, dims_t, "J", "total energy E = K + V + U"),
+        "energy_error": _var(dE, dims_t, "J", "energy error E_k - E_0",
+                             comment="total energy error on node values (computed without "
+                                     "cancellation); E_0 is the energy of the initial data at t = 0"),
+        "mechanical_energy_initial": _var(emech0, ("member",), "J", "initial mechanical energy",
+                                          comment="above the resting state: K_0 + V_0 + |m g l|"),
+        "status": _var(traj.status.astype(np.int8), ("member",), "1", "member status",
+                       **status_flags(np.int8)),
+        "failed_at_step": _var(np.where(traj.status != 0, traj.fail_step, -1).astype(np.int64),
+                               ("member",), "1", "step that failed",
+                               comment="step k+1 whose computation failed (-1: none); "
+                                       "values from that step on are NaN"),
+        "steps_done": _var(traj.steps_done.astype(np.int64), ("member",), "1", "steps accepted"),
+        "max_h_omega": _var(traj.max_h_omega, ("member",), "rad", "max of |h| |Omega|",
+                            comment="max over (sub)steps of |h| |Omega|; the Cayley map turns by "
+                                    "2 atan(h|Omega|/2): phase error ~ (h|Omega|)^3/12 per step"),
+        "initial_omega": _var(omega0, ("member", "axis"), "rad s-1", "initial Omega(0)",
+                              comment="initial body angular velocity"),
+        "initial_attitude": _var(R0, ("member", "row", "col"), "1", "initial attitude R(0)"),
+        "inertia": _var(phys.inertia, ("member", "axis"), "kg m2", "moments of inertia I0",
+                        comment="principal moments of inertia about the fixed point"),
+        "heat_capacity": _var(phys.heat_capacity, ("member",), "J K-1", "heat capacity c_v"),
+    }
+    data.update(term_variables(phys))
+    if vi:
+        step = traj.omega_step
+        s = traj.sigma if traj.thermo else None
+        Kp = ph.kinetic_energy(phys, step, s)
+        dEp = (Kp - K0[:, None]) + (e["V"] - V0[:, None]) + e["dU"]
+        data["omega_step"] = _var(step, dims_v, "rad s-1",
+                                  "step velocity",
+                                  comment="step velocity Omega_k = cay^-1(R_k^T R_k+1)/h of the step "
+                                          "from t_k; approximates Omega(t_k + h/2); the paper's Omega_k")
+        data["energy_error_paper"] = _var(
+            dEp, dims_t, "J", "paper's energy error",
+            comment="total energy error in the paper's convention (step velocity Omega_k with "
+                    "Gamma_k and S_k); it mixes two instants: a first-order error of the "
+                    "diagnostic itself; energy_error is the node-value error")
+        steps = np.maximum(traj.steps_done, 1)
+        data["newton_iterations_mean"] = _var(traj.newton_iterations / steps, ("member",), "1",
+                                              "mean Newton iterations",
+                                              comment="mean Newton iterations per step, summed over the "
+                                                      "step's solves (one for vi, 3 for vi4, 9 for vi6)")
+        data["newton_iterations_max"] = _var(traj.newton_max.astype(np.int64), ("member",), "1",
+                                             "max Newton iterations",
+                                             comment="max Newton iterations in one solve")
+    R = traj.attitude
+    if R is not None:
+        data["attitude"] = _var(R, ("member", "t", "row", "col"), "1", "attitude R (body to space)")
+        data["center_of_mass"] = _var(np.einsum("mtij,mj->mti", R, phys.center_of_mass), dims_v, "m",
+                                      "centre of mass R G",
+                                      comment="centre of mass in space, relative to the fixed point")
+    coords = {
+        "member": _var(np.arange(member_offset, member_offset + N, dtype=np.int64), ("member",), "1",
+                       "ensemble member"),
+        "t": _var(cf.decimal_times(traj.step_index, traj.h), ("t",), "s", "time t",
+                  comment="time since the start of the run, t_k = k h (the decimal value of k h)"),
+        "step": _var(traj.step_index.astype(np.int64), ("t",), "1", "step index k"),
+        "axis": xr.Variable(("axis",), np.array(AXIS), attrs={"units": "1", "long_name": "body-frame axis"}),
+    }
+    return xr.Dataset(data, coords=coords)
+
+
+def status_flags(dtype) -> dict:
+    """CF ``flag_values``/``flag_meanings`` of a member status variable of ``dtype``."""
+    return {"flag_values": np.array(sorted(STATUS_MEANINGS), dtype=dtype),
+            "flag_meanings": " ".join(STATUS_MEANINGS[k] for k in sorted(STATUS_MEANINGS))}
+
+
+def term_variables(phys) -> dict:
+    """Every model term's parameters as dataset variables: those a term writes
+    always, and the others where some member has them."""
+    from .kernels.terms import registry
+
+    out = {}
+    for t in registry():
+        for prm in t.parameters:
+            if prm.shape is None or prm.variable_name == "":
+                continue
+            v = getattr(phys, prm.name)
+            if prm.always or np.any(v != 0.0):
+                dims = ("member",) + (("axis",) if prm.shape == (3,) else ())
+                extra = {"comment": prm.comment} if prm.comment else {}
+                out[prm.variable_name] = _var(v, dims, prm.unit, prm.long_name, **extra)
+    return out
+
+
+def global_attrs(scene_toml: str, *, method: str, h: float, friction: str | None,
+                 start: str, entropy: str | None, composition: str | None = None, terms=(),
+                 extra: dict | None = None, history: str | None = None) -> dict:
+    """Global attributes of a run's dataset.  ``history``: the command line or
+    API call that makes it (stored as a timestamped CF ``history`` line)."""
+    m = METHODS[method]
+    created = cf.timestamp()
+    attrs = {
+        "Conventions": cf.CONVENTIONS,
+        "title": "liethermo ensemble: rigid body in Stokes flow",
+        "method": method,
+        "method_description": m.description,
+        "method_order": m.order(start, friction or "trapezoid"),
+        "h": h,
+        "h_units": "s",
+        "friction": friction or "none",
+        "start": start,
+        "entropy_update": entropy or "none",
+        "composition": composition or "none",
+        "model_terms": " ".join(terms),
+        "scene": scene_toml,
+        "software": f"liethermo {__version__}",
+        "software_version": __version__,
+        "python": platform.python_version(),
+        "created": created,
+        "history": cf.history_entry(history or f"liethermo {__version__}", created),
+        "references": "Coueraud & Gay-Balmaz, Variational discretization of thermodynamical simple "
+                      "systems on Lie groups; liethermo docs/model.md (errata E1-E5)",
+    }
+    if extra:
+        attrs.update(extra)
+    return attrs

@@ -1,0 +1,502 @@
+"""Model terms: the physics a scene chooses, each term one module that owns all of it.
+
+A term module (``stokes``, ``double_bracket``, …; the list is
+:func:`_term_modules`) holds
+
+* its kernel namedtuple(s): floats (its coefficients, computed once per
+  member in Python) whose *class* is part of the numba type, with their
+  implementations of the protocol functions below — numba picks each
+  term's implementation at compile time; a term that has nothing to say to
+  a protocol passes the accumulators through, and an absent term is not
+  there at all;
+* ``TERM``, an instance of a :class:`Term` subclass that declares the rest:
+  its scene keys (:class:`Setting`), its per-member parameters and their
+  dataset variables (:class:`Parameter`), how a scene gives them, which
+  kernel parts it adds, the rules it sets on a scene, the methods it
+  cannot run with, and its field, power and potential energy in plain numpy.
+
+The layers above loop over :func:`registry` — the physics, the scene keys,
+the dataset, ``liethermo keys`` and docs/scenes.md, the diagnostics and the
+scipy baseline — and never name a term; solvers ask a term for a capability
+(``CAPABILITIES`` on its kernel class, e.g. ``"entropy_dependent_inertia"``:
+the entropy joins the variational integrator's Newton unknowns), not for its
+class.  docs/model.md ("Adding a term") walks through one.
+
+The kernels' model is a :class:`Model` namedtuple::
+
+    Model(inertia, thermo, forces, attitude)
+
+* ``inertia`` — exactly one inertia part: the constant 𝕀, or the part a
+  term puts in its place (the coupled top's 𝕀(S));
+* ``thermo`` — the internal energy U(S) of body and fluid, or None when
+  nothing dissipates (the entropy then stays S₀ and is not integrated);
+* ``forces`` — the force parts of the terms present, in registry order;
+* ``attitude`` — :data:`ATTITUDE` when R is integrated, else None.
+
+Protocol (lane functions; vectors are 3-tuples, ``w`` = (Ω₁, Ω₂, Ω₃), ``G``
+= Γ, ``x`` the step velocity X, ``m`` = μ; the accumulators ``a``, ``c``,
+``t``, ``f`` (3-tuples), ``J`` (a row-major 9-tuple) and ``p``, ``q``
+(floats) hold None where no term has added anything yet, see
+:func:`liethermo.top.kernels.gen.madd`; :data:`NONE3`, :data:`NONE9`):
+
+``angular_acceleration(term, inertia, iscale, w, G, a) -> a``
+    adds 𝕀₀⁻¹ f(Ω, Γ) (rad s⁻²): the term's force or torque over the
+    reference inertia 𝕀₀; ``iscale`` is None (constant inertia) or the
+    factor s with 𝕀(S) = s 𝕀₀.
+``dissipated_power(term, inertia, iscale, w, p) -> p``
+    adds −⟨f, Ω⟩ ≥ 0 (W): frictions only.
+``discrete_power(term, inertia, h, x, p) -> p``
+    adds the power −⟨D(X), X⟩ ≥ 0 of the variational integrator's discrete
+    friction at the step velocity X (for a linear law, X·CX).
+``linear_friction(term, c) -> c``
+    adds the diagonal friction tensor C (N m s) of a friction linear in Ω
+    (f = −CΩ); the variational integrator folds it into its Newton matrix.
+``torque(term, G, t) -> t``
+    adds the conservative torque τ(Γ) (N m).
+``nonlinear_friction(term, inertia, h, x, f, J) -> (f, J)``
+    adds the variational integrator's discrete friction D(X) of a nonlinear
+    friction law, and its Jacobian ∂D/∂X (see the variational integrator).
+``exact_flow(term, inertia, t, G, m, q) -> (m, q)``
+    the exact flow over a time t of the sub-system with this term alone (Γ
+    fixed): the new body momentum μ and the heat q (J) with the kinetic
+    energy the flow dissipated added (the splitting integrators; a term
+    with this flow declares the capability ``"exact_flow"``).
+
+The inertia slot, when its part declares ``"entropy_dependent_inertia"``
+(𝕀(S) = φ(S)² 𝕀₀), tells the solvers its law through these (``thermo`` the
+model's internal energy, ``theta`` = θ(S) = U′(S)); the solvers never spell
+φ out, so another law is another inertia part:
+
+``inertia_scale(inertia, thermo, theta) -> φ``
+    the factor φ(S) of the moments (1 for a constant inertia);
+``inertia_scale_rate(inertia, thermo, theta) -> φ′``
+    its derivative dφ/dS (1/(J K⁻¹));
+``scale_square_change(inertia, thermo, theta, e) -> φ(S')² − φ(S)²``
+    over a step from θ(S) to θ(S') = θ(S)(1 + e), without cancellation;
+``temperature_correction(inertia, thermo, theta, K2) -> φφ′ K2``
+    what the temperature T = −∂L/∂S lies below θ(S) at Ω·𝕀₀Ω = ``K2``
+    (½ Ω·𝕀′(S)Ω).
+"""
+
+from __future__ import annotations
+
+from collections import namedtuple
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from numba import types
+
+from ..gen import compile_source, is_none, make_fold, register_overload
+
+Model = namedtuple("Model", "inertia thermo forces attitude")
+
+
+class Attitude(namedtuple("Attitude", "on")):
+    """Marker: the attitude R is integrated (its one field is unused)."""
+
+    __slots__ = ()
+
+
+#: the ``attitude`` slot of a model that integrates R
+ATTITUDE = Attitude(1.0)
+
+_PROTOCOLS: dict[str, tuple] = {}
+#: (protocol name, term class) → implementation: what numba compiles, and what
+#: plain Python (NUMBA_DISABLE_JIT=1) calls
+_IMPLEMENTATIONS: dict[tuple[str, type], object] = {}
+
+
+def _protocol(name: str, args: str, passthrough: str):
+    """Declare a protocol function with the given argument list; terms that
+    do not implement it return ``passthrough`` (their accumulators)."""
+    ns: dict = {"_IMPLEMENTATIONS": _IMPLEMENTATIONS}
+    fn = compile_source(f"def {name}({args}):\n"
+                        f"    impl = _IMPLEMENTATIONS.get(({name!r}, type(term)))\n"
+                        f"    if impl is None:\n"
+                        f"        return {passthrough}\n"
+                        f"    return impl({args})\n", ns, name, f"protocol {name}")
+    _PROTOCOLS[name] = (fn, args)
+
+    def typer(term, *rest):
+        cls = getattr(term, "instance_class", None)
+        if is_none(term) or name not in getattr(cls, "ROLES", frozenset()):
+            return compile_source(f"def impl({args}):\n    return {passthrough}\n", {},
+                                  label=f"protocol {name} passthrough for {getattr(cls, '__name__', 'None')}")
+        return None
+
+    register_overload(fn, args, typer, f"protocol {name}")
+    return fn
+
+
+angular_acceleration = _protocol("angular_acceleration", "term, inertia, iscale, w, G, a", "a")
+dissipated_power = _protocol("dissipated_power", "term, inertia, iscale, w, p", "p")
+discrete_power = _protocol("discrete_power", "term, inertia, h, x, p", "p")
+linear_friction = _protocol("linear_friction", "term, c", "c")
+torque = _protocol("torque", "term, G, t", "t")
+exact_flow = _protocol("exact_flow", "term, inertia, t, G, m, q", "m, q")
+nonlinear_friction = _protocol("nonlinear_friction", "term, inertia, h, x, f, J", "f, J")
+#: the inertia slot's dependence on the entropy (the term argument is the inertia part)
+inertia_scale = _protocol("inertia_scale", "term, thermo, theta", "1.0")
+inertia_scale_rate = _protocol("inertia_scale_rate", "term, thermo, theta", "0.0")
+scale_square_change = _protocol("scale_square_change", "term, thermo, theta, e", "0.0")
+temperature_correction = _protocol("temperature_correction", "term, thermo, theta, K2", "0.0")
+
+
+def implements(protocol, cls):
+    """Register ``impl`` (a function with the protocol's arguments) as the
+    implementation of ``protocol`` for terms of class ``cls``."""
+    fn, args = _PROTOCOLS[protocol.__name__]
+    cls.ROLES = frozenset(getattr(cls, "ROLES", frozenset())) | {protocol.__name__}
+
+    def deco(impl):
+        _IMPLEMENTATIONS[(protocol.__name__, cls)] = impl
+
+        def typer(term, *rest):
+            if getattr(term, "instance_class", None) is cls:
+                return impl
+            return None
+
+        register_overload(fn, args, typer, f"protocol {protocol.__name__} for {cls.__name__}")
+        return impl
+
+    return deco
+
+
+#: folds of the force protocols over a tuple of terms
+sum_angular_acceleration = make_fold(angular_acceleration, 4, 1, "sum_angular_acceleration")
+sum_dissipated_power = make_fold(dissipated_power, 3, 1, "sum_dissipated_power")
+sum_discrete_power = make_fold(discrete_power, 3, 1, "sum_discrete_power")
+sum_linear_friction = make_fold(linear_friction, 0, 1, "sum_linear_friction")
+sum_torque = make_fold(torque, 1, 1, "sum_torque")
+sum_nonlinear_friction = make_fold(nonlinear_friction, 3, 2, "sum_nonlinear_friction")
+#: the terms' exact flows one after the other, in registry order and back
+flow_forward = make_fold(exact_flow, 3, 2, "flow_forward")
+flow_backward = make_fold(exact_flow, 3, 2, "flow_backward", reverse=True)
+
+#: accumulators that no term has touched yet (a term adds to None as to nothing)
+NONE3 = (None, None, None)
+NONE9 = (None,) * 9
+
+
+
+# ----------------------------------------------------------------------------- what a term declares
+
+#: exact laws of the continuous motion that a run's summary checks
+#: (:mod:`liethermo.top.findings`); each term says on which members it leaves a
+#: law valid (:meth:`Term.keeps`), so the summary never names a term:
+#:
+#: * ``LAW_SPHERICAL_DECAY`` — for a spherical top (𝕀₀ = I₀·Id) the term's
+#:   torque at Ω is −cΩ with one c for every axis, or 0 whenever μ ∥ Ω:
+#:   then μ ∥ Ω for ever and Ω(t) = Ω₀e^{−ct/I₀};
+#: * ``LAW_LAGRANGE_OMEGA3`` — for I₁ = I₂ the term adds −C₃Ω₃ or nothing to
+#:   the third component of the torque: Ω₃(t) = Ω₃(0)e^{−C₃t/I₃};
+#: * ``LAW_MOMENTUM_NORM`` — the term's torque is ⟂ μ (or it exerts none):
+#:   |μ| is conserved.
+LAW_SPHERICAL_DECAY = "spherical_decay"
+LAW_LAGRANGE_OMEGA3 = "lagrange_omega3"
+LAW_MOMENTUM_NORM = "momentum_norm"
+LAWS = (LAW_SPHERICAL_DECAY, LAW_LAGRANGE_OMEGA3, LAW_MOMENTUM_NORM)
+
+#: what a term's one scene key sets, for the layers (the studies) that vary or
+#: check a kind of physics without naming the term that has it
+#: (:func:`key_of`, :attr:`Term.role`):
+#:
+#: * ``ROLE_LINEAR_FRICTION`` — the strength of the friction linear in Ω (−CΩ);
+#: * ``ROLE_MOMENTUM_FRICTION`` — the strength of a friction that keeps |μ|;
+#: * ``ROLE_THERMAL_COUPLING`` — how the inertia grows with the temperature;
+#: * ``ROLE_POTENTIAL`` — the strength of the conservative torque.
+ROLE_LINEAR_FRICTION = "linear_friction"
+ROLE_MOMENTUM_FRICTION = "momentum_friction"
+ROLE_THERMAL_COUPLING = "thermal_coupling"
+ROLE_POTENTIAL = "potential"
+ROLES = (ROLE_LINEAR_FRICTION, ROLE_MOMENTUM_FRICTION, ROLE_THERMAL_COUPLING, ROLE_POTENTIAL)
+
+
+@dataclass(frozen=True)
+class Setting:
+    """A scene key a term owns: a number ≥ ``minimum`` (> with ``open``), or
+    the string ``word`` standing for a value the term works out itself."""
+
+    section: str
+    name: str
+    default: Any
+    unit: str
+    doc: str
+    minimum: float = 0.0
+    open: bool = False
+    word: str | None = None
+
+    @property
+    def path(self) -> str:
+        return f"{self.section}.{self.name}"
+
+    @property
+    def rule(self) -> str:
+        bound = f"{'>' if self.open else '≥'} {self.minimum:g}"
+        return f'"{self.word}" | {bound}' if self.word else bound
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """A per-member physical parameter a term adds to the physics: an array
+    of ``shape`` per member (a :class:`~liethermo.top.physics.Physics` field of
+    that name, zero by default), or, with ``shape=None``, one value for the
+    whole ensemble (``default``).  ``variable``: the name of its dataset
+    variable ("" for none); ``always``: written even when every member has
+    zero (else only when some member has it).  ``long_name``: short enough for
+    an axis label; ``comment``: its formula or detail (the variable's
+    ``comment`` attribute)."""
+
+    name: str
+    shape: tuple | None
+    unit: str
+    long_name: str
+    variable: str | None = None
+    always: bool = False
+    default: Any = None
+    comment: str = ""
+
+    @property
+    def variable_name(self) -> str:
+        return self.name if self.variable is None else self.variable
+
+
+class Term:
+    """A physical term of the model and everything it owns.
+
+    A term module defines its kernel namedtuple(s) with their protocol
+    implementations (above) and one instance of a :class:`Term` subclass
+    named ``TERM``, listed in :data:`REGISTRY`.  The layers above loop over
+    the registry and never name a term: the scene keys (``settings``), the
+    per-member parameters and dataset variables (``parameters``), the
+    parameters of a scene (:meth:`parameters_of_scene`), the kernel parts
+    (:meth:`kernel_parts`), the rules a scene must keep
+    (:meth:`violations`), which methods it cannot run with
+    (:meth:`refuses`), and its continuous field and energies in plain numpy
+    (:meth:`torque`, :meth:`dissipated_power`, :meth:`potential_energy`),
+    used by the diagnostics and the scipy baseline."""
+
+    #: registry name (in messages and in Physics.acting)
+    name: str = ""
+    settings: tuple[Setting, ...] = ()
+    parameters: tuple[Parameter, ...] = ()
+    #: one paragraph of docs/scenes.md ("Choosing a model")
+    scene_doc: str = ""
+    #: a friction (it dissipates); ``nonlinear_friction``: its discrete form
+    #: is not linear in the step velocity (the variational integrator adds it
+    #: to its Newton residual and Jacobian through ``nonlinear_friction``)
+    friction: bool = False
+    nonlinear_friction: bool = False
+    #: why the term has no exact flow (None: it has one): the splitting
+    #: methods, which compose exact flows, refuse it with this reason
+    no_exact_flow: str | None = None
+    #: the term makes the inertia depend on the entropy where it acts
+    sets_inertia: bool = False
+    #: what its first scene key sets (one of :data:`ROLES`, or None): :func:`key_of`
+    role: str | None = None
+
+    def in_scene(self, s: dict) -> bool:
+        """Whether the scene tables ``s`` switch the term on."""
+        return False
+
+    def parameters_of_scene(self, scene, body) -> dict:
+        """This term's parameters of one member, from a resolved ``scene``
+        and its ``body`` (:class:`~liethermo.top.physics.Body`)."""
+        return {}
+
+    def active(self, phys) -> np.ndarray:
+        """(N,) bool: the members on which the term acts."""
+        return np.zeros(phys.n, dtype=bool)
+
+    def dissipates(self, phys) -> bool:
+        """Whether the term turns mechanical energy into heat for some member."""
+        return False
+
+    def kernel_parts(self, phys) -> list:
+        """[(slot, class, coefficients (N, k))]: what the kernels' model gets,
+        none when no member needs the term.  ``slot`` is "inertia" (the term
+        replaces the constant inertia) or "forces"."""
+        return []
+
+    def violations(self, s: dict):
+        """Yield (key, rule, value) for every rule the scene tables ``s``
+        break because of this term."""
+        return ()
+
+    def start_problem(self, scene, phys, kin2: float, what: str) -> tuple[str, str] | None:
+        """(key, why) when some member of ``scene`` cannot start (its initial
+        state breaks a law the term needs), None when all can; ``kin2``
+        bounds Ω·𝕀₀Ω over the members, ``what`` says how (for the message)."""
+        return None
+
+    def vi_refusal(self, start: str, friction: str) -> tuple[str, str] | None:
+        """(key, why) when the variational integrator cannot run this term's
+        model, where it acts and something rubs, from the effective ``start``
+        or with the effective ``friction``; None when it can.  The one
+        statement of that rule: the scene's checks and
+        :func:`liethermo.top.simulate.simulate` both ask it."""
+        return None
+
+    def expansion(self, phys, theta) -> tuple[np.ndarray, np.ndarray] | None:
+        """(φ, φ′) with 𝕀(S) = φ²𝕀₀ at θ(S) (N, ...), in plain numpy, for a
+        term that makes the inertia depend on the entropy; None otherwise."""
+        return None
+
+    def refuses(self, family: str, method: str) -> str | None:
+        """Why ``method`` (of ``family``: "vi", "rk" or "split") cannot run a
+        model with this term (None: it can)."""
+        if family == "split" and self.no_exact_flow:
+            return f"{self.no_exact_flow}; the vi and rk methods run it"
+        return None
+
+    # ---- plain numpy, (N, ..., 3) arrays with a leading member axis
+    def torque(self, phys, omega, gamma, scale) -> np.ndarray | None:
+        """The term's torque f(Ω, Γ) (N m); ``scale``: s of 𝕀(S) = s𝕀₀ (or 1)."""
+        return None
+
+    def linear_resistance(self, phys) -> np.ndarray | None:
+        """(N, 3) diag C (N m s) of a friction −CΩ linear in Ω, in the body
+        axes; None for a term that is not one."""
+        return None
+
+    def with_linear_resistance(self, phys, C) -> dict:
+        """The fields of ``phys`` to replace so that the term's friction −CΩ
+        linear in Ω has diag C (N, 3) (its shape kept); {} for a term that has none."""
+        return {}
+
+    def discrete_friction(self, phys, h, x) -> np.ndarray | None:
+        """The variational integrator's discrete friction at the step velocity
+        X (N, ..., 3) of a step h, in plain numpy (N m): C X for a linear law,
+        D(X) (``nonlinear_friction``) otherwise; None for a term that exerts
+        no friction.  A friction that does not give it here raises
+        NotImplementedError (its discrete laws cannot be checked)."""
+        if self.friction:
+            raise NotImplementedError(f"term {self.name!r} does not give its discrete friction")
+        return None
+
+    def dissipated_power(self, phys, omega, scale) -> np.ndarray | None:
+        """−⟨f, Ω⟩ ≥ 0 (W) of a friction."""
+        return None
+
+    def potential_energy(self, phys, gamma) -> np.ndarray | None:
+        """V(Γ) (J) of a conservative torque."""
+        return None
+
+    def resting_gamma(self, phys) -> np.ndarray | None:
+        """(N, 3) the Γ at which the term's potential is least (its resting
+        attitude), None for a term without a potential."""
+        return None
+
+    def potential_span(self, phys) -> np.ndarray | float:
+        """max V − min V over all attitudes (J), per member."""
+        return 0.0
+
+    def rate_bound(self, phys, omega_max) -> np.ndarray | float:
+        """A bound (rad s⁻¹) on the rate the term adds to the motion at |Ω| ≤ ``omega_max``."""
+        return 0.0
+
+    # ---- what a run's summary says
+    def keeps(self, law: str, phys) -> np.ndarray:
+        """(N,) bool: the members on which the term leaves the exact ``law``
+        (one of :data:`LAWS`) valid; by default those on which it does not act."""
+        if law not in LAWS:
+            raise ValueError(f"unknown law {law!r}: expected one of {list(LAWS)}")
+        return ~np.asarray(self.active(phys), dtype=bool)
+
+    def summary_lines(self, phys) -> list[str]:
+        """Lines of a run's summary on what the term's parameters set (member 0's)."""
+        return []
+
+
+class ScalarTerm(Term):
+    """A term with one number per member, the value of its one scene key (a
+    ``Parameter`` of shape ()): it acts where that number is not 0, and as a
+    force adds ``kernel_class`` with ``coefficients(value, 𝕀₀)``."""
+
+    kernel_class: type | None = None
+    coefficients = None
+
+    @property
+    def _key(self) -> Setting:
+        return self.settings[0]
+
+    @property
+    def _param(self) -> str:
+        return self.parameters[0].name
+
+    def parameters_of_scene(self, scene, body) -> dict:
+        return {self._param: np.float64(scene[self._key.section][self._key.name])}
+
+    def in_scene(self, s: dict) -> bool:
+        return s[self._key.section][self._key.name] > 0
+
+    def active(self, phys) -> np.ndarray:
+        return getattr(phys, self._param) != 0.0
+
+    def dissipates(self, phys) -> bool:
+        return self.friction and bool(np.any(self.active(phys)))
+
+    def kernel_parts(self, phys) -> list:
+        if not np.any(self.active(phys)):
+            return []
+        return [("forces", self.kernel_class, type(self).coefficients(getattr(phys, self._param), phys.inertia))]
+
+
+def over_inertia(c: np.ndarray, inertia0: np.ndarray, width: int) -> np.ndarray:
+    """(N, width + 3) coefficients [c, c/I_i] of a friction c (N, width; width
+    1 for a scalar, 3 per axis) over the reference moments 𝕀₀ (N, 3)."""
+    c = np.asarray(c, dtype=np.float64).reshape(-1, width)
+    return np.hstack([c, c * (1.0 / np.asarray(inertia0, dtype=np.float64).reshape(-1, 3))])
+
+
+def bcast(a: np.ndarray, like: np.ndarray) -> np.ndarray:
+    """Per-member values a (N, ...) broadcast against arrays (N, T, ..., 3) or (N, T, ...)."""
+    extra = like.ndim - a.ndim
+    return a.reshape(a.shape[:1] + (1,) * extra + a.shape[1:])
+
+
+def _term_modules():
+    """The term modules, frictions before conservative torques: the one place
+    that names them (adding a term is adding its module here)."""
+    from . import double_bracket, gravity, inertia, quadratic_drag, stokes
+
+    return (inertia, stokes, double_bracket, quadratic_drag, gravity)
+
+
+class Registry(tuple):
+    """The terms, in the order the kernels add them."""
+
+
+def constant_inertia_part(phys) -> tuple:
+    """(class, coefficients) of the inertia slot when no term takes it: 𝕀 = 𝕀₀."""
+    from .inertia import ConstantInertia, constant_coefficients
+
+    return ConstantInertia, constant_coefficients(phys.inertia)
+
+
+_REGISTRY: list = []
+
+
+def key_of(role: str) -> str:
+    """The scene key (``section.name``) of the one term whose :attr:`Term.role` is ``role``."""
+    if role not in ROLES:
+        raise ValueError(f"unknown role {role!r}: expected one of {list(ROLES)}")
+    keys = [t.settings[0].path for t in registry() if t.role == role]
+    if len(keys) != 1:
+        raise ValueError(f"role {role!r}: {len(keys)} terms have it, expected one")
+    return keys[0]
+
+
+def registry() -> Registry:
+    """Every model term (the ``TERM`` of each module :func:`_term_modules` lists)."""
+    if not _REGISTRY:
+        _REGISTRY.append(Registry(m.TERM for m in _term_modules()))
+    return _REGISTRY[0]
+
+
+__all__ = ["Model", "ATTITUDE", "Attitude", "angular_acceleration", "dissipated_power",
+           "discrete_power", "linear_friction", "torque", "nonlinear_friction", "exact_flow",
+           "inertia_scale", "inertia_scale_rate", "scale_square_change", "temperature_correction", "implements", "types", "NONE3", "NONE9", "LAWS", "LAW_SPHERICAL_DECAY", "LAW_LAGRANGE_OMEGA3", "LAW_MOMENTUM_NORM", "ROLES", "ROLE_LINEAR_FRICTION",
+           "ROLE_MOMENTUM_FRICTION", "ROLE_THERMAL_COUPLING", "ROLE_POTENTIAL", "key_of", "Term", "ScalarTerm", "Setting", "Parameter", "Registry", "registry", "bcast", "over_inertia"]

@@ -1,0 +1,646 @@
+"""The heavy top as a model of the run layer (:mod:`liethermo.models`).
+
+What a run of the top needs beyond the common runner: its summary
+(:class:`RunSummary`) and mergeable per-chunk figures (:class:`ChunkStats`),
+its member chunk (:func:`run_chunk`: initial conditions → kernels → labelled
+dataset), its global attributes (:func:`scene_setup`), its timed probe
+(:func:`estimate_time`) and its preflight (:func:`estimate`,
+:func:`check_parameters`).  The kernels and the dataset's variables live in
+:mod:`liethermo.top.simulate` and :mod:`liethermo.top.dataset`; this module imports
+them on first use, so that loading a scene stays light.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..models import MethodInfo, Model, register
+
+
+def _status_meanings() -> dict:
+    from .kernels.layout import STATUS_MEANINGS
+
+    return STATUS_MEANINGS
+
+
+#: a member that completed (status ok) counts as diverged when its largest
+#: |E_k - E_0| exceeds this multiple of its initial mechanical energy E_mech,0
+DIVERGED_REL_ENERGY = 1.0
+
+
+@dataclass
+class RunSummary:
+    """What a run did, for the one-screen report."""
+
+    scene_name: str
+    method: str
+    members: int
+    steps: int
+    h: float
+    wall_time: float = 0.0
+    kernel_time: float = 0.0
+    compile_time: float = 0.0
+    status_counts: dict = field(default_factory=dict)
+    max_abs_energy_error: float = float("nan")
+    max_rel_energy_error: float = float("nan")
+    max_rel_energy_error_paper: float = float("nan")
+    max_gamma_defect: float = float("nan")
+    newton_mean: float = float("nan")
+    newton_max: int = 0
+    max_h_omega: float = float("nan")
+    first_fail_step: int = 0  # earliest step at which a member failed (0: none failed)
+    diverged: int = 0  # completed members whose energy error exceeds DIVERGED_REL_ENERGY
+    path: Path | None = None
+    resumed_members: int = 0  # members taken over from an interrupted run
+    solves_per_step: int = 0  # Newton solves per step of a variational integrator
+    #: what the run's physics shows (liethermo.top.findings): lines from its parameters,
+    #: and {name: [min, max]} over the completed members
+    physics_notes: list = field(default_factory=list)
+    findings: dict = field(default_factory=dict)
+
+    @property
+    def throughput(self) -> float:
+        """member-steps per second of kernel time (of the members this run computed)."""
+        n = self.members - self.resumed_members
+        return n * self.steps / self.kernel_time if self.kernel_time > 0 else float("nan")
+
+    def finish(self, st: "ChunkStats") -> "RunSummary":
+        """Fill in the figures of the merged stats of every chunk."""
+        return finish_summary(self, st)
+
+    def lines(self) -> list[str]:
+        from .findings import finding_lines
+        from .methods import get_method
+
+        m = get_method(self.method)
+        counts = dict(self.status_counts)
+        if m.family != "vi":  # no Newton solve: the status cannot occur
+            counts.pop("newton_not_converged", None)
+        n_ok = counts.get("ok", 0)
+        st = ", ".join(f"{k}: {v}" + (f" (of which {self.diverged} diverged: max |E_k - E_0| > "
+                                       f"{DIVERGED_REL_ENERGY:g} x E_mech,0)" if k == "ok" and v else "")
+                       for k, v in counts.items())
+        out = [
+            f"scene {self.scene_name!r}, method {self.method}: {self.members} member(s) x {self.steps} steps, h = {self.h:g} s",
+            f"  wall time {self.wall_time:.3g} s (simulating and writing; not the command's start-up or figures)",
+            f"  kernels  compiled or loaded in {self.compile_time:.3g} s, ran {self.kernel_time:.3g} s "
+            f"({self.throughput:.3g} member-steps/s)",
+            f"  status   {st}",
+        ]
+        if self.first_fail_step:
+            out.append(f"  first failure at step {self.first_fail_step} "
+                       f"(t = {self.first_fail_step * self.h:g} s)")
+        if n_ok:
+            paper = self.max_rel_energy_error_paper
+            out += [
+                f"  over the {n_ok} member(s) that completed:",
+                f"  max |E_k - E_0|           {self.max_abs_energy_error:.3e} J = "
+                f"{self.max_rel_energy_error:.3e} x E_mech,0 (node values)",
+            ]
+            if paper == paper:
+                out.append(f"                            {paper:.3e} x E_mech,0 in the paper's convention "
+                           "(step velocity with node values)")
+            out += [
+                f"  max ||Gamma| - 1|         {self.max_gamma_defect:.3e}",
+                f"  max h|Omega|              {self.max_h_omega:.3g} rad (the largest angle turned in one step)",
+                "  E_mech,0                  initial mechanical energy K_0 + V_0 + |m g l| (gravity's V_0 from "
+                "its lowest value)",
+            ]
+            out += finding_lines(self.findings)
+        else:
+            out.append("  no member completed: no accuracy figures")
+        out += self.physics_notes
+        if m.family == "vi":
+            n = self.solves_per_step or m.evaluations_per_step
+            per_solve = (f"mean {self.newton_mean / n:.3g} per solve ({self.newton_mean:.3g} per step "
+                         f"of {n} solves)" if n > 1 else f"mean {self.newton_mean:.3g} per solve (one per step)")
+            out.append(f"  Newton iterations         {per_solve}, max {self.newton_max} in one solve")
+        if self.resumed_members:
+            out.append(f"  resumed: members 0-{self.resumed_members - 1} came from the interrupted run "
+                       "(not in the times above)")
+        if self.path is not None:
+            out.append(f"  wrote {self.path}")
+        return out
+
+
+def _nanmax(a) -> float:
+    a = np.asarray(a, dtype=float)
+    a = a[np.isfinite(a)]
+    return float(a.max()) if a.size else float("nan")
+
+
+@dataclass
+class ChunkStats:
+    """What one member chunk contributes to a :class:`RunSummary`.
+
+    Mergeable (``merge``) and JSON-serialisable (``to_dict``/``from_dict``), so
+    a chunk computed elsewhere (a Dask task, a chunk file from an earlier run)
+    is summarised exactly like one computed in-process.
+    """
+
+    members: int = 0
+    kernel_time: float = 0.0
+    compile_time: float = 0.0
+    counts: list = field(default_factory=lambda: [0] * len(_status_meanings()))
+    e_abs: float = -np.inf
+    e_rel: float = -np.inf
+    e_rel_paper: float = -np.inf
+    gdef: float = -np.inf
+    hw: float = -np.inf
+    nit_total: int = 0
+    nsteps_total: int = 0
+    nmax: int = 0
+    first_fail: int = 0  # earliest failing step over the chunk's members (0: none)
+    diverged: int = 0  # completed members with max |E_k - E_0| > DIVERGED_REL_ENERGY x E_mech,0
+    findings: dict = field(default_factory=dict)  # liethermo.top.findings: {name: [min, max]}
+
+    def merge(self, other: "ChunkStats") -> "ChunkStats":
+        self.members += other.members
+        self.kernel_time += other.kernel_time
+        self.compile_time += other.compile_time
+        self.counts = [a + b for a, b in zip(self.counts, other.counts)]
+        self.e_abs = max(self.e_abs, other.e_abs)
+        self.e_rel = max(self.e_rel, other.e_rel)
+        self.e_rel_paper = max(self.e_rel_paper, other.e_rel_paper)
+        self.gdef = max(self.gdef, other.gdef)
+        self.hw = max(self.hw, other.hw)
+        self.nit_total += other.nit_total
+        self.nsteps_total += other.nsteps_total
+        self.nmax = max(self.nmax, other.nmax)
+        fails = [f for f in (self.first_fail, other.first_fail) if f]
+        self.first_fail = min(fails) if fails else 0
+        self.diverged += other.diverged
+        from .findings import merge_findings
+
+        merge_findings(self.findings, other.findings)
+        return self
+
+    def to_dict(self) -> dict:
+        # -inf (no completed member yet) is not JSON: store it as None
+        return {k: (None if isinstance(v, float) and not np.isfinite(v) else v)
+                for k, v in self.__dict__.items()}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "ChunkStats":
+        kw = {k: (-np.inf if v is None else v) for k, v in d.items()}
+        return cls(**kw)
+
+
+def scene_setup(scene, overrides=None, history: str | None = None) -> tuple:
+    """Resolve a scene: ``(scene, global attributes, empty RunSummary)``;
+    ``history`` is the command line or API call stored in the attributes."""
+    from .dataset import global_attrs
+    from .findings import physics_lines
+    from .resolve import resolve
+    from ..scene import load_scene, scene_to_toml
+    from .scene import Scene
+
+    if not isinstance(scene, Scene) or overrides:
+        scene = load_scene(scene, overrides)
+    run = resolve(scene)
+    c = run.choice
+    attrs = global_attrs(scene_to_toml(scene), method=c.name, h=run.h, friction=c.friction, start=c.start,
+                         entropy=c.entropy, composition=c.composition, terms=list(run.terms),
+                         history=history)
+    summ = RunSummary(scene["scene"]["name"], c.name, run.members, run.steps, run.h)
+    summ.solves_per_step = len(c.method.substeps(c.composition or "small_error")) if c.family == "vi" else 0
+    summ.physics_notes = physics_lines(run.physics)
+    return scene, attrs, summ
+
+
+#: Size of the timed probe behind :func:`estimate_time`: large enough that the
+#: vectorized kernel runs full blocks, small enough to take well under a second.
+PROBE_MEMBERS = 8192
+PROBE_STEPS = 200
+
+
+@dataclass
+class TimeEstimate:
+    """Kernel time a run will take on this machine, from a timed probe."""
+
+    method: str
+    seconds: float          # whole run, extrapolated from the probe's member-steps
+    probe_members: int
+    probe_steps: int
+    probe_seconds: float    # the faster of two probe runs (warm kernel)
+    compile_seconds: float  # compiling or loading the kernels from the cache, once
+
+    def line(self) -> str:
+        from ..runner import human_seconds
+
+        return (f"  {self.method}: about {human_seconds(self.seconds)} of kernel time on this machine "
+                f"(from a timed probe of {self.probe_members} members x {self.probe_steps} steps; "
+                f"compiling or loading kernels took {human_seconds(self.compile_seconds)})")
+
+    def warnings(self) -> list[str]:
+        return []
+
+
+def estimate_time(scene) -> TimeEstimate:
+    """Time a short probe of the scene's own first members on the kernel the
+    full run will use (compiled first, then the faster of two runs) and scale
+    it to the run's member-steps.  Members that fail stop early in the probe as
+    in the run, so the figure is the run's, not a healthy ensemble's."""
+    from .initial import initial_conditions
+    from .resolve import resolve
+
+    run = resolve(scene)
+    members, steps = run.members, run.steps
+    pm, ps = min(members, PROBE_MEMBERS), min(steps, PROBE_STEPS)
+    om0, R0 = initial_conditions(scene, 0, pm)
+    best, compile_s = np.inf, 0.0
+    for _ in range(2):
+        traj = run.simulate(om0, R0, steps=ps, every=ps)
+        best = min(best, traj.wall_time)
+        compile_s += traj.compile_time
+    return TimeEstimate(run.choice.name, best * (members * steps) / (pm * ps), pm, ps, best, compile_s)
+
+
+def run_chunk(scene: dict, lo: int, hi: int, *, progress_cb=None, kernel: str | None = None,
+              threads: int | None = None) -> tuple:
+    """Simulate members ``lo:hi`` of a resolved scene: the labelled chunk and its stats.
+
+    The one code path shared by :func:`liethermo.runner.run_scene` and the Dask tasks of
+    :mod:`liethermo.distributed`; member i's result depends only on (scene, i).
+    ``progress_cb(n)`` gets the number of member-steps just done.
+    """
+    from .findings import chunk_findings
+    from .simulate import STATUS_MEANINGS
+
+    traj, ds = _chunk(scene, lo, hi, progress_cb=progress_cb, kernel=kernel, threads=threads)
+    st = ChunkStats(members=hi - lo, kernel_time=traj.wall_time, compile_time=traj.compile_time)
+    ncounts = len(STATUS_MEANINGS)
+    st.counts = [int(c) for c in np.bincount(traj.status, minlength=ncounts)[:ncounts]]
+    ok = traj.status == 0  # accuracy figures are over members that completed
+    ee = np.abs(ds["energy_error"].values[ok])
+    st.e_abs = max(st.e_abs, _nanmax(ee))
+    em = np.abs(ds["mechanical_energy_initial"].values[ok])[:, None]
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        rel = ee / em
+        st.e_rel = max(st.e_rel, _nanmax(rel))
+        worst = np.max(np.where(np.isnan(rel), 0.0, rel), axis=1, initial=0.0)  # 0/0: no energy to lose
+        st.diverged = int(np.count_nonzero(worst > DIVERGED_REL_ENERGY))
+        if "energy_error_paper" in ds:
+            st.e_rel_paper = max(st.e_rel_paper,
+                                 _nanmax(np.abs(ds["energy_error_paper"].values[ok]) / em))
+        st.gdef = max(st.gdef, _nanmax(np.abs(np.linalg.norm(traj.gamma[ok], axis=-1) - 1.0)))
+    st.hw = max(st.hw, _nanmax(traj.max_h_omega[ok]))
+    st.nit_total = int(traj.newton_iterations.sum())
+    st.nsteps_total = int(traj.steps_done.sum())
+    st.nmax = int(traj.newton_max.max(initial=0))
+    st.first_fail = int(traj.fail_step[~ok].min()) if not ok.all() else 0
+    with np.errstate(over="ignore", invalid="ignore"):
+        st.findings = chunk_findings(ds, traj.physics)
+    return ds, st
+
+
+def _chunk(scene, lo: int, hi: int, *, progress_cb=None, kernel=None, threads=None) -> tuple:
+    """(trajectory, labelled dataset) of members ``lo:hi``."""
+    from .dataset import trajectory_dataset
+    from .initial import initial_conditions
+    from .resolve import resolve
+
+    run = resolve(scene)
+    om0, R0 = initial_conditions(scene, lo, hi)
+    traj = run.simulate(om0, R0, kernel=kernel or "auto", threads=threads,
+                        progress=(lambda n, k=hi - lo: progress_cb(n * k)) if progress_cb else None)
+    return traj, trajectory_dataset(traj, omega0=om0, R0=R0, member_offset=lo)
+
+
+def law_defects(traj) -> dict:
+    """Per member, the defects of the exact laws a run of the top can be held to:
+    |Γ| = 1 on the stored nodes and, where every step is stored, the
+    Kelvin–Noether law (discrete for the variational integrators, continuous by
+    the trapezoid rule for every method: :mod:`liethermo.top.laws`)."""
+    from .laws import continuous_kelvin_noether_residual, kelvin_noether_residual
+
+    with np.errstate(invalid="ignore"):
+        gdef = np.nanmax(np.abs(np.linalg.norm(traj.gamma, axis=-1) - 1.0), axis=1)
+    out = {"gamma_norm": (gdef, "1", "max over stored nodes of ||Gamma_k| - 1|")}
+    if traj.every == 1:
+        out["kelvin_noether_discrete"] = (
+            kelvin_noether_residual(traj), "1", "max residual of the discrete Kelvin-Noether law / max |mu| "
+            "(variational integrators; NaN where it does not apply)")
+        out["kelvin_noether_continuous"] = (
+            continuous_kelvin_noether_residual(traj), "1", "max defect of the continuous Kelvin-Noether law "
+            "by the trapezoid rule between nodes / max |mu|")
+    return out
+
+
+def finish_summary(summ: RunSummary, st: ChunkStats) -> RunSummary:
+    """Fill ``summ`` from the merged stats of all chunks (wall time and path are the caller's)."""
+    from .methods import get_method
+
+    STATUS_MEANINGS = _status_meanings()
+    summ.kernel_time = st.kernel_time
+    summ.compile_time = st.compile_time
+    summ.status_counts = {STATUS_MEANINGS[k]: int(st.counts[k]) for k in range(len(st.counts))}
+    nan = float("nan")
+    summ.max_abs_energy_error = st.e_abs if np.isfinite(st.e_abs) else nan
+    summ.max_rel_energy_error = st.e_rel if np.isfinite(st.e_rel) else nan
+    summ.max_rel_energy_error_paper = st.e_rel_paper if np.isfinite(st.e_rel_paper) else nan
+    summ.max_gamma_defect = st.gdef if np.isfinite(st.gdef) else nan
+    summ.max_h_omega = st.hw if np.isfinite(st.hw) else nan
+    summ.newton_mean = (st.nit_total / st.nsteps_total
+                        if (get_method(summ.method).family == "vi" and st.nsteps_total) else nan)
+    summ.newton_max = st.nmax
+    summ.first_fail_step = st.first_fail
+    summ.diverged = st.diverged
+    summ.findings = dict(st.findings)
+    return summ
+
+
+#: Memory of a chunk per byte of its labelled output, beyond the kernel state
+#: (Ω, Γ and R are views of the state; the energies are new arrays): 1.0
+#: matched the measured peak to within 6 % (docs/operations.md, "Disk and memory estimates").
+MEMORY_FACTOR = 1.0
+
+def top_device_bytes(members: int, width: int, nparam: int, shared: bool, n_out: int) -> int:
+    """Device memory of one member chunk of the top (bytes): state, parameters
+    (one row when the members share them), status and the outputs of one
+    kernel call (at most :data:`OUT_BYTES`, at least one output)."""
+    from .kernels.layout import NFSTAT, NISTAT, OUT_BYTES
+
+    out = min(max(1, n_out) * width * members * 8, max(OUT_BYTES, width * members * 8))
+    return 8 * (width * members + (nparam if shared else nparam * members)
+                + (NISTAT + NFSTAT) * members) + out
+
+
+def estimate(scene: dict):
+    """Output size and chunk memory of a resolved scene, from the layout of a
+    one-member, two-time dataset labelled like a run's (no kernel runs)."""
+    from .dataset import trajectory_dataset
+    from ..io import disk_chunk_members
+    from ..preflight import Estimate
+    from .resolve import resolve
+    from .simulate import Trajectory
+
+    integ, outp = scene["integrator"], scene["output"]
+    steps, every = int(integ["steps"]), int(outp["every"])
+    n_t = steps // every + 1
+    run = resolve(scene)
+    phys = run.physics
+    layout = run.model.layout(run.method.layout)
+    width = layout.size
+    one = lambda dt: np.zeros(1, dtype=dt)  # noqa: E731
+    traj = Trajectory(choice=run.choice, h=run.h, steps=every,
+                      every=every, physics=phys, layout=layout, terms=run.terms,
+                      states=np.zeros((1, 2, width)), status=one(np.int8), fail_step=one(np.int64),
+                      newton_iterations=one(np.int64), newton_max=one(np.int64), steps_done=one(np.int64),
+                      max_h_omega=one(np.float64))
+    with np.errstate(all="ignore"):
+        ds = trajectory_dataset(traj, omega0=np.zeros((1, 3)), R0=np.eye(3)[None])
+    members = int(scene["ensemble"]["members"])
+    layout = []
+    for var in ds.variables.values():
+        if "member" not in var.dims:
+            continue
+        n = var.dtype.itemsize if var.dtype.kind != "O" else 16
+        for d in var.dims[1:]:
+            n *= n_t if d == "t" else ds.sizes[d]
+        layout.append((n, disk_chunk_members(members, n) if var.ndim > 1 else 0))
+    per = sum(n for n, _ in layout)
+    memory = int(MEMORY_FACTOR * per) + n_t * width * 8
+    est = Estimate(per, memory, members, int(outp["member_chunk"]), layout)
+    if scene["ensemble"]["device"] == "gpu":
+
+        est.device_memory = top_device_bytes(est.chunk_members, width, run.model.nparam,
+                                             run.model.shared is not None, (steps // every))
+    return est
+
+
+def _parameter_keys() -> tuple[str, ...]:
+    from .kernels.terms import registry
+
+    return (("body.radius", "body.semi_axes", "body.density", "body.mass", "body.molar_mass",
+             "body.upper_mass_fraction", "body.inertia", "thermo.heat_capacity", "body.center_of_mass")
+            + tuple(st.path for t in registry() for st in t.settings) + ("thermo.T0",))
+
+
+
+
+#: Integer keys the kernels and arrays take as 64-bit integers.
+INT64_KEYS = ("integrator.steps", "integrator.newton_maxiter", "output.every", "output.member_chunk",
+              "ensemble.members")
+
+
+def check_parameters(scene: dict) -> None:
+    """The kernels get numbers they can take: integers that fit in 64 bits, and
+    finite parameters (every key may be valid on its own and the derived mass,
+    moments, friction, heat capacity or gravity torque still overflow or
+    vanish: a radius of 1e-300 m)."""
+    from ..preflight import PreflightError
+    from .resolve import resolve
+
+    if scene["ensemble"]["device"] == "gpu":
+        from ..gpu import gpu_available
+
+        ok, why = gpu_available()
+        if not ok:
+            raise PreflightError(f"scene key 'ensemble.device': \"gpu\" cannot run here: {why}")
+        if scene["integrator"]["method"] == "reference":
+            raise PreflightError("scene key 'ensemble.device': the reference method runs on the CPU only "
+                                 "(\"gpu\" runs vi, vi4, vi6, split, split4, split6, rk2 and rk4)")
+    for key in INT64_KEYS:
+        section, name = key.split(".")
+        v = scene[section][name]
+        if isinstance(v, int) and v > np.iinfo(np.int64).max:
+            raise PreflightError(f"scene key '{key}': too large for the kernels (at most "
+                                 f"{np.iinfo(np.int64).max}) (got {v})")
+
+    try:
+        with np.errstate(all="ignore"):
+            run = resolve(scene)
+            phys, p = run.physics, run.model.P
+        bad = not all(np.all(np.isfinite(v)) for v in vars(phys).values() if isinstance(v, np.ndarray))
+        bad = bad or not np.all(np.isfinite(p))
+        why = "not finite numbers"
+    except ArithmeticError as exc:
+        bad, why = True, f"not computable ({exc})"
+    if bad:
+        raise PreflightError(f"the kernel parameters derived from the scene (mass, moments of inertia, friction, "
+                             f"heat capacity, gravity torque) are {why}; check {', '.join(_parameter_keys())}")
+    _check_start(scene, phys)
+
+
+def _check_start(scene: dict, phys) -> None:
+    """Every term's condition on the start (e.g. the coupled top's temperature
+    must start positive), with Ω·𝕀₀Ω bounded over the members: the members'
+    spins reach spin_range[1] × |Ω(0)| in any direction, so the bound uses
+    the largest moment."""
+    from .kernels.terms import registry
+
+    omega = np.asarray(scene["initial"]["omega"], dtype=np.float64)
+    if int(scene["ensemble"]["members"]) == 1:
+        kin2, what = float(omega @ (phys.inertia[0] * omega)), "Ω·𝕀₀Ω"
+    else:
+        from .initial import max_spin
+
+        kin2, what = float(phys.inertia[0].max()) * max_spin(scene) ** 2, "I_max (spin_range[1] |Ω(0)|)²"
+    for t in registry():
+        problem = t.start_problem(scene, phys, kin2, what)
+        if problem is not None:
+            from ..preflight import PreflightError
+
+            key, why = problem
+            raise PreflightError(f"scene key '{key}': {why}")
+
+
+#: Runs of more member-steps than this are timed by a probe before they start
+#: (the command line says how long one will take when it exceeds a minute).
+LONG_RUN_MEMBER_STEPS = 2**26
+
+#: the top's own study kinds ({kind: module})
+STUDY_KINDS = {k: f"liethermo.top.studies.{k}" for k in ("paper", "stability", "viscosity_sweep", "coupling",
+                                                          "flat_spin", "entropy_rate")}
+
+
+class HeavyTop(Model):
+    """The heavy top in a Stokes fluid (its keys: :data:`liethermo.top.scene.KEYS`; a scene
+    without another model's table is the top's, :data:`liethermo.models.UNMARKED_SCENES_MODEL`)."""
+
+    name = "top"
+    title = "the heavy top"
+    description = ("the heavy top in Stokes flow (variational integrators, splittings and Runge-Kutta "
+                   "methods)")
+
+    @property
+    def scene_model(self):
+        from .scene import SCENE_MODEL
+
+        return SCENE_MODEL
+
+    study_kinds = STUDY_KINDS
+    store_less = "output.every, output.attitude"
+
+    def methods(self) -> dict[str, MethodInfo]:
+        from .methods import METHODS
+
+        return {n: MethodInfo(n, m.order(), tuple(m.laws), m.description) for n, m in METHODS.items()}
+
+    def study_state(self, ds) -> dict:
+        return {"omega": (ds["omega"].values, "rad s-1", "body angular velocity Omega (node values)", None),
+                "gamma": (ds["gamma"].values, "1", "direction of gravity Gamma", None),
+                "entropy": (ds["entropy"].values, "J K-1", "entropy S", None),
+                # the energy that moves between the mechanical and the internal one
+                "total_energy": (ds["energy_error"].values, "J", "total energy E (node values)",
+                                 float(np.max(np.abs(ds["mechanical_energy_initial"].values))))}
+
+    def method_overrides(self, label: str) -> dict:
+        from .methods import MethodChoice
+
+        return MethodChoice.parse(label).overrides()
+
+    def method_details(self, label: str) -> dict:
+        from .methods import MethodChoice
+
+        c = MethodChoice.parse(label)
+        vi = c.family == "vi"
+        return {"start": c.start if vi else "—", "friction": c.friction if vi else "—",
+                "entropy update": c.entropy if vi else "—"}
+
+    def method_order(self, label: str) -> int:
+        from .methods import MethodChoice
+
+        return MethodChoice.parse(label).order()
+
+    def relative_energy_error(self, ds):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return ds["energy_error"].values / np.abs(ds["mechanical_energy_initial"].values)[:, None]
+
+    energy_convention_names = ("paper",)  # the step velocity with node values (the paper's)
+
+    def energy_error_of(self, ds, convention: str = "node"):
+        """(E_k − E₀)/E_mech,0 (dimensionless) with E_mech,0 = K₀ + V₀ + |m g ℓ|, the
+        energy friction can turn into heat.  ``convention="node"``: node values
+        (every method); ``"paper"``: the variational integrators' step velocity
+        with the node values (the paper's figure)."""
+        name = {"node": "energy_error", "paper": "energy_error_paper"}.get(convention)
+        if name is None:
+            raise ValueError(f"convention must be 'node' or 'paper', got {convention!r}")
+        if name not in ds:
+            raise KeyError(f"{name}: this dataset has no energy error in the {convention} convention "
+                           "(it exists for the variational integrators only)")
+        rel = ds[name] / ds["mechanical_energy_initial"]
+        rel.attrs = {"units": "1", "long_name": f"relative total energy error ({convention} values)"}
+        return rel
+
+    def energy_conventions(self, ds) -> dict:
+        if "energy_error_paper" not in ds:
+            return {}
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            return {"paper": ds["energy_error_paper"].values / np.abs(ds["mechanical_energy_initial"].values)[:, None]}
+
+    def dissipation_overrides(self, scene, factor: float) -> dict:
+        from .kernels.terms import registry
+
+        return {s.path: float(f"{float(factor) * scene[s.section][s.name]:.15g}") for t in registry()
+                if t.friction for s in t.settings
+                if isinstance(scene[s.section][s.name], (int, float)) and not isinstance(scene[s.section][s.name], bool)}
+
+    def kernel_for(self, scene) -> str:
+        from .simulate import kernel_for
+
+        return kernel_for(scene["integrator"]["method"], int(scene["ensemble"]["members"]),
+                          int(scene["integrator"]["steps"]))
+
+    def run_with_laws(self, scene, *, kernel=None, threads=None):
+        traj, ds = _chunk(scene, 0, int(scene["ensemble"]["members"]), kernel=kernel, threads=threads)
+        return ds, ChunkStats(members=ds.sizes["member"], kernel_time=traj.wall_time,
+                              compile_time=traj.compile_time), law_defects(traj)
+
+    def ode(self, scene, lo, hi):
+        from .initial import initial_conditions
+        from .physics import physics_of_scene
+        from .laws import continuous_rhs
+
+        om, R = initial_conditions(scene, lo, hi)
+        phys = physics_of_scene(scene, hi - lo)  # the same physics for every member
+        y0 = np.concatenate([om, R[:, 2, :], np.zeros((hi - lo, 1))], axis=1)  # y = (Ω, Γ, σ)
+        return y0, [continuous_rhs(phys, m) for m in range(hi - lo)], lambda y: {"omega": y[0:3], "gamma": y[3:6]}
+
+    def initial_conditions(self, scene, lo: int, hi: int):
+        from .initial import initial_conditions
+
+        return initial_conditions(scene, lo, hi)
+
+    def setup(self, scene, history):
+        _, attrs, summ = scene_setup(scene, None, history)
+        return attrs, summ
+
+    def new_stats(self):
+        return ChunkStats()
+
+    def stats_from_dict(self, d: dict):
+        return ChunkStats.from_dict(d)
+
+    def run_chunk(self, scene, lo, hi, *, progress_cb=None, kernel=None, threads=None):
+        return run_chunk(scene, lo, hi, progress_cb=progress_cb, kernel=kernel, threads=threads)
+
+    def warm(self, scene, methods, progress):
+        from .warmup import start_warming
+
+        return start_warming(scene, methods)
+
+    def figures(self, outputs, folder, stem):
+        from .plotting import scene_figures
+
+        return scene_figures(dict(outputs), folder, stem=stem)
+
+    def check_parameters(self, scene) -> None:
+        check_parameters(scene)
+
+    def estimate(self, scene):
+        return estimate(scene)
+
+    def estimate_time(self, scene):
+        return estimate_time(scene)
+
+    def long_run(self, scene) -> bool:
+        return int(scene["ensemble"]["members"]) * int(scene["integrator"]["steps"]) > LONG_RUN_MEMBER_STEPS
+
+
+register(HeavyTop())
