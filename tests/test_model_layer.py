@@ -168,7 +168,8 @@ def test_a_model_of_the_tests_runs_through_the_api_and_the_command_line(toy, tmp
     y = ds["y"].values
     assert y.shape == (5, 11) and list(ds["member"].values) == [0, 1, 2, 3, 4]
     assert np.array_equal(y[:, 1], (1.0 + np.arange(5) / 10.0) * (1 - 0.1 * 2.0))
-    assert "toy 'toy': 5 member(s) x 10 steps" in ds.attrs["summary"]
+    assert "scene 'toy', method euler: 5 member(s) x 10 steps" in ds.attrs["summary"]
+    assert "toy: max |y| 1.4" in ds.attrs["summary"]  # the chunks' stats merged by their rule (max)
     ds = liethermo.run(tables, compare=False, output=tmp_path / "a.nc")
     assert np.array_equal(ds["y"].values, y)
     ds.close()
@@ -178,14 +179,21 @@ def test_a_model_of_the_tests_runs_through_the_api_and_the_command_line(toy, tmp
     out = tmp_path / "b.nc"
     assert main(["run", str(scene), "-o", str(out), "--no-progress"]) == 0
     printed = capsys.readouterr().out
-    assert f"toy 'decay': 5 member(s) x 10 steps" in printed and f"wrote {out}" in printed
+    assert "scene 'decay', method euler: 5 member(s) x 10 steps" in printed and f"wrote {out}" in printed
     assert np.array_equal(values(out)["y"], y)
     assert main(["run", str(scene), "-o", str(out), "--check"]) == 0
-    assert "member chunks of 2" in capsys.readouterr().out
+    printed = capsys.readouterr().out  # a model without estimates: the plan, and no time
+    assert "member chunks of 2" in printed and "the toy decay gives no estimate before a run" in printed
     assert main(["keys"]) == 0
     assert "toy.rate [s-1] = 0.5" in capsys.readouterr().out
     assert main(["run", str(scene), "--set", "toy.rate=-1", "--check"]) == 2
     assert "'toy.rate'" in capsys.readouterr().err
+    # a generic study needs study support, which the toy does not offer: one line, exit 2
+    study = tmp_path / "conv.toml"
+    study.write_text(f'[study]\nkind = "convergence"\nbase_scene = "{scene}"\n')
+    assert main(["study", str(study)]) == 2
+    err = capsys.readouterr().err
+    assert "the convergence study compares methods" in err and "the toy decay" in err and len(err.splitlines()) == 1
 
 
 def test_the_fluid_decay_study_goes_on_from_its_finished_points(tmp_path, monkeypatch):

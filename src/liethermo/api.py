@@ -33,7 +33,7 @@ from .accessor import LiethermoAccessor  # noqa: F401  (registers ds.liethermo)
 from .preflight import PreflightError  # noqa: F401  (re-exported)
 from .scene import SceneError  # noqa: F401  (re-exported)
 
-#: a loaded scene, of whichever model (the top's :class:`liethermo.top.scene.Scene`, the fluid's, …)
+#: a loaded scene, of whichever model (its model's scene class)
 Scene = Any
 from .scene import load_scene as _load_scene
 

@@ -13,18 +13,19 @@ command line (``run``, ``keys``, ``--check``), the Python API and the study
 kinds then reach the model only through :class:`Model`; none of them names a
 model.
 
-What a model provides (:class:`Model`):
+The required part (:class:`Model`) is small: the model's own scene sections
+(its :class:`liethermo.scene.SceneModel`, made with
+:func:`liethermo.scene.declare_scene`, which adds the keys every run reads),
+its methods, its initial conditions, one member chunk run into a labelled
+dataset with its mergeable :class:`Stats`, and the file's setup (global
+attributes and an empty :class:`Summary`).  Two capabilities are optional and
+declared as protocols a model opts into by implementing them:
 
-* its scene: keys with units, defaults and rules, and how a scene of it is
-  recognised and loaded (``scene_model``: a :class:`liethermo.scene.SceneModel`);
-* its methods, ``{name: MethodInfo}`` (order, laws kept, how it steps);
-* its initial conditions for members ``lo:hi``;
-* :meth:`Model.run_chunk`: members ``lo:hi`` integrated into a labelled
-  dataset (its variables and CF metadata) and the chunk's mergeable stats;
-* :meth:`Model.setup`: the file's global attributes and an empty summary,
-  whose ``lines()`` are what a run prints;
-* its figures, drawn from the written files;
-* its preflight: parameter checks, disk and memory per member, time.
+* :class:`Estimates` — disk, memory and time of a run before it starts
+  (``--check``, the preflight's disk and memory checks);
+* :class:`StudySupport` — what the generic studies compare between methods
+  (:class:`StudyDefaults` holds the usual defaults; a model adds its
+  ``study_state``).
 
 Member ``i``'s values must depend on the scene and ``i`` only, not on the
 chunk it is computed in: that is what makes a resumed or a Dask run give the
@@ -33,9 +34,10 @@ same file as an uninterrupted one.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import dataclasses
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol, runtime_checkable
 
 
 @dataclass(frozen=True)
@@ -49,25 +51,123 @@ class MethodInfo:
     description: str
 
 
+# ----------------------------------------------------------------------------- stats and summaries
+
+
+@runtime_checkable
+class Stats(Protocol):
+    """What a member chunk adds to its run's summary: merged over chunks (in any
+    order, also across Dask workers), written to the journal as JSON and read back."""
+
+    kernel_time: float  # seconds
+
+    def merge(self, other: "Stats") -> "Stats":
+        """Add ``other``'s figures to these; returns self."""
+
+    def to_dict(self) -> dict:
+        """JSON-serialisable; the model's ``stats_from_dict`` reads it back."""
+
+
+@runtime_checkable
+class Summary(Protocol):
+    """What a run did, for the report the command line prints."""
+
+    scene_name: str
+    method: str
+    members: int
+    steps: int
+    h: float  # s
+    wall_time: float  # s
+    resumed_members: int
+    path: Any  # the written file, or None
+
+    def finish(self, stats: Stats) -> "Summary":
+        """Fill in the figures of the merged stats of every chunk; returns self."""
+
+    def lines(self) -> list[str]:
+        """The report, one fact a line."""
+
+
+@dataclass
+class BaseStats:
+    """A :class:`Stats` of dataclass fields: numbers add up on :meth:`merge`
+    unless the field's metadata names another rule (``field(default=0.0,
+    metadata={"merge": max})``)."""
+
+    members: int = 0
+    kernel_time: float = 0.0
+
+    def merge(self, other: "BaseStats") -> "BaseStats":
+        for f in dataclasses.fields(self):
+            rule = f.metadata.get("merge", lambda a, b: a + b)
+            setattr(self, f.name, rule(getattr(self, f.name), getattr(other, f.name)))
+        return self
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "BaseStats":
+        return cls(**d)
+
+
+@dataclass
+class BaseSummary:
+    """A :class:`Summary` that reports the run's size, times and file; a model
+    adds its own lines by overriding :meth:`body`."""
+
+    scene_name: str
+    method: str
+    members: int
+    steps: int
+    h: float
+    wall_time: float = 0.0
+    resumed_members: int = 0
+    path: Any = None
+    stats: Any = None
+
+    def finish(self, stats) -> "BaseSummary":
+        self.stats = stats
+        return self
+
+    def body(self) -> list[str]:
+        """The model's own lines (after the first)."""
+        return []
+
+    def lines(self) -> list[str]:
+        k = getattr(self.stats, "kernel_time", float("nan"))
+        out = [f"scene {self.scene_name!r}, method {self.method}: {self.members} member(s) x {self.steps} "
+               f"steps, h = {self.h:g} s",
+               f"  wall time {self.wall_time:.3g} s (simulating and writing), kernels {k:.3g} s"]
+        out += self.body()
+        if self.resumed_members:
+            out.append(f"  resumed: members 0-{self.resumed_members - 1} came from the interrupted run")
+        if self.path is not None:
+            out.append(f"  wrote {self.path}")
+        return out
+
+
+def basic_setup(scene, history: str | None, title: str, summary=BaseSummary, **attrs) -> tuple[dict, Any]:
+    """``(global attributes, empty summary)`` of a model's file: CF conventions,
+    ``title``, the scene's TOML text, when and how it was made, and ``attrs``."""
+    from . import cf
+
+    itg = scene["integrator"]
+    created = cf.timestamp()
+    glob = {"Conventions": cf.CONVENTIONS, "title": title, "scene": scene.to_toml(), "created": created,
+            "history": cf.history_entry(history or "liethermo", created), **attrs}
+    return glob, summary(scene.name, itg["method"], int(scene["ensemble"]["members"]), int(itg["steps"]),
+                         float(itg["h"]))
+
+
+# ----------------------------------------------------------------------------- the required part
+
+
 class Model:
-    """The protocol every model implements (subclass it; each method below
-    says what the run layer expects).
-
-    A **stats** object (what :meth:`new_stats` and :meth:`run_chunk` return)
-    has ``merge(other)`` (returns self), ``to_dict()`` (JSON-serialisable),
-    a ``kernel_time`` attribute (seconds), and the model's
-    :meth:`stats_from_dict` reads it back.  A **summary** (from
-    :meth:`setup`) has the attributes ``scene_name``, ``method``, ``members``,
-    ``steps``, ``h``, ``wall_time``, ``resumed_members`` and ``path``, and the
-    methods ``finish(stats)`` (fill it from the merged stats) and ``lines()``.
-
-    The run layer reads these keys of every model's scenes: ``scene.name``,
-    ``integrator.method``, ``integrator.h``, ``integrator.steps``,
-    ``ensemble.members``, ``output.every``, ``output.compare``,
-    ``output.figures`` and ``output.member_chunk``; a scene object reads like
-    TOML tables (``scene["integrator"]["h"]``) and has ``to_toml()`` and
-    ``with_overrides({"section.key": value})``.
-    """
+    """The required part of every model (subclass it).  The run layer reads the
+    keys of :data:`liethermo.scene.RUN_KEYS` of every model's scenes; a scene
+    reads like TOML tables (``scene["integrator"]["h"]``) and has ``name``,
+    ``to_toml()`` and ``with_overrides({"section.key": value})``."""
 
     #: the model's name (files record it in their ``model`` attribute where they have one)
     name: str = ""
@@ -82,7 +182,7 @@ class Model:
     #: for the command line's help); None: ``scene_model.marks``
     scene_table: str | None = None
     #: the model's own study kinds, ``{kind: module}`` (the generic kinds of
-    #: :data:`liethermo.studies.GENERIC_KINDS` run on every model that offers what they need)
+    #: :data:`liethermo.studies.GENERIC_KINDS` run on every model with :class:`StudySupport`)
     study_kinds: dict = {}
     #: the scene keys that make a run store less (named when an output does not fit on its disk)
     store_less: str = "output.every"
@@ -94,6 +194,9 @@ class Model:
     #: products over the chunk): Dask tasks are then the scene's member chunks, and
     #: ``output.member_chunk`` is part of the results
     chunk_sets_bits: bool = False
+    #: the model's :class:`Stats` (a :class:`BaseStats` subclass, or any class with
+    #: the protocol and a ``from_dict`` class method)
+    stats_type: type = BaseStats
 
     # ---------------------------------------------------------- scenes
     def owns(self, scene) -> bool:
@@ -114,15 +217,16 @@ class Model:
         raise NotImplementedError
 
     # ---------------------------------------------------------- a run
-    def setup(self, scene, history: str | None) -> tuple[dict, Any]:
-        """``(global attributes of the output, empty summary)`` of a resolved scene."""
+    def setup(self, scene, history: str | None) -> tuple[dict, Summary]:
+        """``(global attributes of the output, empty summary)`` of a resolved scene
+        (:func:`basic_setup` makes both)."""
         raise NotImplementedError
 
-    def new_stats(self):
-        raise NotImplementedError
+    def new_stats(self) -> Stats:
+        return self.stats_type()
 
-    def stats_from_dict(self, d: dict):
-        raise NotImplementedError
+    def stats_from_dict(self, d: dict) -> Stats:
+        return self.stats_type.from_dict(d)
 
     def run_chunk(self, scene, lo: int, hi: int, *, progress_cb=None, kernel: str | None = None,
                   threads: int | None = None):
@@ -138,33 +242,70 @@ class Model:
 
     def figures(self, outputs: dict[str, Path], folder: Path, stem: str) -> list[Path]:
         """Draw the figures of written outputs ``{method: path}`` (the scene's
-        own method first) into ``folder`` as ``<stem>_*.png``."""
+        own method first) into ``folder`` as ``<stem>_*.png``, from the files alone."""
         return []
 
-    # ---------------------------------------------------------- preflight
     def check_parameters(self, scene) -> None:
         """Refuse (``PreflightError``) what valid keys still make impossible for the kernels."""
 
+    def long_run(self, scene) -> bool:
+        """Whether the command line times the run before it starts (and says so if it is long)."""
+        return False
+
+
+# ----------------------------------------------------------------------------- optional capabilities
+
+
+@runtime_checkable
+class Estimates(Protocol):
+    """A model that can say, before a run, what it will take (``--check``, and the
+    preflight's disk and memory checks; without it those are skipped, and said so)."""
+
     def estimate(self, scene):
         """Disk and memory of a run: a :class:`liethermo.preflight.Estimate`."""
-        raise NotImplementedError
 
     def estimate_time(self, scene):
         """An object with ``seconds``, ``line()`` (the run's time on this machine)
         and ``warnings()`` (lines for stderr: a run of hours, or near the memory)."""
-        raise NotImplementedError
 
-    # ---------------------------------------------------------- what studies compare
+
+@runtime_checkable
+class StudySupport(Protocol):
+    """What the generic studies (convergence, energy_drift, long_drift,
+    work_precision) compare between a model's methods.  A generic study refuses,
+    in one line, a model without it."""
+
     #: scene overrides that make a run store what :meth:`study_state` reads
-    study_outputs: dict = {}
+    study_outputs: dict
 
     def study_state(self, ds) -> dict:
         """The state a study compares between methods, from a run's dataset:
         ``{name: (array (member, t, ...), units, long name, scale)}``; an error is
         the norm over the trailing axes of a difference, and ``scale`` the size
-        it is measured against (None: the largest value of the reference).  None: the model offers
-        no comparison (studies that need one refuse its scenes)."""
-        return None
+        it is measured against (None: the largest value of the reference)."""
+
+    def method_overrides(self, label: str) -> dict: ...
+    def method_details(self, label: str) -> dict: ...
+    def method_order(self, label: str) -> int: ...
+    def relative_energy_error(self, ds): ...
+    def energy_conventions(self, ds) -> dict: ...
+    def dissipation_overrides(self, scene, factor: float) -> dict: ...
+    def kernel_for(self, scene) -> str | None: ...
+    def run_with_laws(self, scene, *, kernel: str | None = None, threads: int | None = None): ...
+
+
+class StudyDefaults:
+    """The usual answers of :class:`StudySupport` (a model mixes this in and adds
+    :meth:`study_state` and what it answers otherwise)."""
+
+    study_outputs: dict = {}
+    #: the names :meth:`energy_conventions` may return
+    energy_convention_names: tuple[str, ...] = ()
+    #: ``ode(scene, lo, hi)``: members ``lo:hi`` as a continuous system for scipy's
+    #: ``solve_ivp``, ``(y0 (members, n), [f(t, y) per member], state)`` where
+    #: ``state(y)`` gives :meth:`study_state`'s variables at one time (those it can);
+    #: None: the model has no continuous right-hand side (studies skip scipy)
+    ode = None
 
     def method_overrides(self, label: str) -> dict:
         """Scene overrides that make a scene run the method ``label`` (a name, or a
@@ -185,9 +326,6 @@ class Model:
     def relative_energy_error(self, ds):
         """(member, t) the energy error of a run relative to its natural scale (1)."""
         return None
-
-    #: the names :meth:`energy_conventions` may return
-    energy_convention_names: tuple[str, ...] = ()
 
     def energy_conventions(self, ds) -> dict:
         """Other readings of the relative energy error that a run's dataset
@@ -214,15 +352,14 @@ class Model:
         ds, st = self.run_chunk(scene, 0, int(scene["ensemble"]["members"]), kernel=kernel, threads=threads)
         return ds, st, {}
 
-    #: ``ode(scene, lo, hi)``: members ``lo:hi`` as a continuous system for scipy's
-    #: ``solve_ivp``, ``(y0 (members, n), [f(t, y) per member], state)`` where
-    #: ``state(y)`` gives :meth:`study_state`'s variables at one time (those it can);
-    #: None: the model has no continuous right-hand side (studies skip scipy)
-    ode = None
 
-    def long_run(self, scene) -> bool:
-        """Whether the command line times the run before it starts (and says so if it is long)."""
-        return False
+def study_support(model: Model, what: str) -> Model:
+    """``model`` if it offers :class:`StudySupport`, else a one-line ``ValueError``
+    saying that ``what`` (a study) needs it."""
+    if not isinstance(model, StudySupport):
+        raise ValueError(f"{what} compares methods by their states, errors and energies, which "
+                         f"{model.title or model.name} does not offer (its model has no study support)")
+    return model
 
 
 _MODELS: dict[str, Model] = {}

@@ -45,8 +45,29 @@ def run_chunk(scene, lo: int, hi: int, *, progress_cb=None, kernel: str | None =
 
 
 def estimate_time(scene):
-    """The run's kernel time on this machine (``.seconds``, ``.line()``), from the model's probe."""
-    return model_of(scene).estimate_time(scene)
+    """The run's kernel time on this machine (``.seconds``, ``.line()``, ``.warnings()``),
+    from the model's probe; a model without :class:`liethermo.models.Estimates` says it has none."""
+    from .models import Estimates
+
+    model = model_of(scene)
+    if isinstance(model, Estimates):
+        return model.estimate_time(scene)
+    return _NoTimeEstimate(model.title or model.name)
+
+
+class _NoTimeEstimate:
+    """The time estimate of a model that offers none."""
+
+    seconds = 0.0
+
+    def __init__(self, title: str):
+        self.title = title
+
+    def line(self) -> str:
+        return f"  time: {self.title} gives no estimate before a run"
+
+    def warnings(self) -> list[str]:
+        return []
 
 
 def human_seconds(s: float) -> str:

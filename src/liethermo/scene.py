@@ -275,6 +275,148 @@ class SceneModel:
 OtherModel = SceneModel
 
 
+# ----------------------------------------------------------------------------- what every model's scene has
+
+
+def compare_check(methods: tuple[str, ...]):
+    """The rule of ``output.compare``: a list of the model's ``methods``."""
+    def check(name, v, scene):
+        if not isinstance(v, list) or not all(isinstance(x, str) for x in v):
+            raise SceneError(name, "must be a list of method names", v)
+        for x in v:
+            if x not in methods:
+                raise SceneError(name, f"unknown method {x!r}; this model runs {', '.join(methods)}", v)
+        return list(v)
+
+    return check
+
+
+def run_keys(methods: tuple[str, ...]) -> tuple[Key, ...]:
+    """The keys the run layer reads of every model's scene, for a model whose methods
+    are ``methods`` (the first is the default); a model's key of the same path
+    replaces one of these (its own default or meaning)."""
+    return (
+        Key("scene", "name", "custom", "", "a string", "name of the scene (files are named after it)", string),
+        Key("scene", "description", "", "", "a string", "one line on what the scene is", string),
+        Key("integrator", "method", methods[0], "", " | ".join(f'"{m}"' for m in methods), "the integrator",
+            choice(*methods)),
+        Key("integrator", "h", 0.1, "s", "> 0", "time step", number(0.0, lo_open=True)),
+        Key("integrator", "steps", 100, "1", "integer ≥ 1", "number of steps", integer()),
+        Key("ensemble", "members", 1, "1", "integer ≥ 1", "members", integer()),
+        Key("output", "every", 1, "1", "integer ≥ 1 dividing integrator.steps", "keep every k-th step", integer()),
+        Key("output", "compare", [], "", "list of methods",
+            "further methods run on the same scene (files <OUT>_<method>.nc)", compare_check(methods)),
+        Key("output", "figures", False, "", "true | false", "write PNG figures next to the netCDF", boolean),
+        Key("output", "member_chunk", 65536, "1", "integer ≥ 1",
+            "members simulated and written at a time (bounds memory)", integer()),
+    )
+
+
+#: the paths of :func:`run_keys`: what the run layer reads of every scene
+RUN_KEY_PATHS = tuple(k.path for k in run_keys(("-",)))
+
+
+class TableScene:
+    """A validated scene of a model declared with :func:`declare_scene`: sections
+    of keys, read like TOML tables (``scene["integrator"]["h"]``), immutable."""
+
+    def __init__(self, tables: dict, load: Callable):
+        self._t = {s: dict(t) for s, t in tables.items()}
+        self._load = load
+
+    def __getitem__(self, section: str) -> dict:
+        return dict(self._t[section])
+
+    def __contains__(self, section) -> bool:
+        return section in self._t
+
+    def keys(self):
+        return self._t.keys()
+
+    def __iter__(self):
+        return iter(self._t)
+
+    def items(self):
+        return ((s, dict(t)) for s, t in self._t.items())
+
+    def __eq__(self, other) -> bool:
+        return type(other) is type(self) and other._t == self._t
+
+    __hash__ = None
+
+    @property
+    def name(self) -> str:
+        return self._t["scene"]["name"]
+
+    def to_dict(self) -> dict:
+        return copy.deepcopy(self._t)
+
+    def to_toml(self) -> str:
+        return tomli_w.dumps(self._t)
+
+    def with_overrides(self, overrides):
+        """A validated copy with ``{"section.key": value}`` (or ``--set`` strings) applied."""
+        return self._load(self._t, "the scene", overrides)
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self.name!r}, method={self._t['integrator']['method']!r})"
+
+
+def declare_scene(name: str, keys: tuple[Key, ...], *, methods: tuple[str, ...], marks: Callable[[dict], bool],
+                  title: str, intro: str = "", defaults: dict | None = None, scene_class: type = TableScene,
+                  check: Callable[[dict], None] | None = None,
+                  refuse: Callable[[dict], None] | None = None, noun: str | None = None) -> SceneModel:
+    """The scene side of a model from its own ``keys``: the keys every run reads
+    (:func:`run_keys`, with ``defaults`` ``{"section.key": value}`` of the model's
+    own) are added where the model does not declare them, after the model's keys of
+    their section.  A scene is its defaults ← tables ← overrides, every key checked
+    by its rule, ``output.every`` dividing ``integrator.steps``, then ``check(tables)``
+    (rules across keys, raising :class:`SceneError`); ``refuse(tables)`` sees every
+    table merged in first (a message for a key of another model).  ``noun`` names
+    such a scene in messages ("a Zeitlin scene"; default ``title``)."""
+    own = {k.path for k in keys}
+    out = list(keys)
+    for k in run_keys(tuple(methods)):
+        if k.path in own:
+            continue
+        if defaults and k.path in defaults:
+            k = dataclasses.replace(k, default=defaults[k.path])
+        same = [i for i, x in enumerate(out) if x.section == k.section]
+        out.insert(same[-1] + 1 if same else len(out), k)
+    keys = tuple(out)
+    sections = tuple(dict.fromkeys(k.section for k in keys))
+    base = {sec: {k.name: copy.deepcopy(k.default) for k in keys if k.section == sec} for sec in sections}
+    kind = f" of {noun or title}"
+
+    def merge(into: dict, new: dict, origin: str) -> None:
+        if refuse is not None and isinstance(new, dict):
+            refuse(new)
+        _merge(into, new, origin, base, kind)
+
+    def validate(d: dict):
+        clean = copy.deepcopy(base)
+        for sec in sections:
+            clean[sec].update(d.get(sec, {}))
+        for k in keys:
+            clean[k.section][k.name] = k.check(k.path, clean[k.section][k.name], clean)
+        steps, every = clean["integrator"]["steps"], clean["output"]["every"]
+        if steps % every:
+            raise SceneError("output.every", f"must divide integrator.steps = {steps}", every)
+        if check is not None:
+            check(clean)
+        return scene_class(clean, load)
+
+    def load(tables: dict, origin: str, overrides=None, validate_scene: bool = True):
+        d = copy.deepcopy(base)
+        merge(d, tables, origin)
+        for table, where in _overrides_as_tables(overrides):
+            merge(d, table, where)
+        return validate(d) if validate_scene else d
+
+    return SceneModel(name=name, marks=marks, load=load, scene_class=scene_class, keys=keys, title=title,
+                      intro=intro)
+
+
 def _scene_model(source):
     """The scene side of the model of ``source`` (tables or a loaded scene)."""
     from .models import model_of

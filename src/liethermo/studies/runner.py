@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 
 from ..scene import SceneError
-from . import get_study, is_module_kind, kinds
+from . import GENERIC_KINDS, get_study, is_module_kind, kinds
 from .common import (BASE_KEYS, STUDY_KEYS, StudyError, expand_sweep, first_table, resolve_study,
                      study_scene, terminal_table, with_scene)
 
@@ -86,8 +86,14 @@ def validate_study(study: dict) -> None:
                     study_scene(s, {key: v})
                 except SceneError as exc:
                     raise StudyError(f"sweep {key!r}: {exc}") from None
-        if not points:
-            study_scene(s)
+        scene = study_scene(s, {k: v[0] for k, v in sweep.items() if v}) if sweep else study_scene(s)
+        if kind in GENERIC_KINDS:  # a generic kind runs on the models that offer what it needs
+            from ..models import model_of, study_support
+
+            try:
+                study_support(model_of(scene), f"the {kind} study")
+            except ValueError as exc:
+                raise StudyError(f"study.kind: {exc}") from None
         decl.validate(s)  # its options, methods (the scene's model knows them) and cross-option rules
 
 

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..models import MethodInfo, Model, register
+from ..models import MethodInfo, Model, StudyDefaults, register
 
 
 def _status_meanings() -> dict:
@@ -498,7 +498,7 @@ STUDY_KINDS = {k: f"liethermo.top.studies.{k}" for k in ("paper", "stability", "
                                                           "flat_spin", "entropy_rate")}
 
 
-class HeavyTop(Model):
+class HeavyTop(StudyDefaults, Model):
     """The heavy top in a Stokes fluid (its keys: :data:`liethermo.top.scene.KEYS`; a scene
     without another model's table is the top's, :data:`liethermo.models.UNMARKED_SCENES_MODEL`)."""
 
@@ -514,6 +514,7 @@ class HeavyTop(Model):
         return SCENE_MODEL
 
     study_kinds = STUDY_KINDS
+    stats_type = ChunkStats
     store_less = "output.every, output.attitude"
 
     def methods(self) -> dict[str, MethodInfo]:
@@ -610,12 +611,6 @@ class HeavyTop(Model):
     def setup(self, scene, history):
         _, attrs, summ = scene_setup(scene, None, history)
         return attrs, summ
-
-    def new_stats(self):
-        return ChunkStats()
-
-    def stats_from_dict(self, d: dict):
-        return ChunkStats.from_dict(d)
 
     def run_chunk(self, scene, lo, hi, *, progress_cb=None, kernel=None, threads=None):
         return run_chunk(scene, lo, hi, progress_cb=progress_cb, kernel=kernel, threads=threads)

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..models import MethodInfo, Model, register
+from ..models import MethodInfo, Model, StudyDefaults, register
 
 #: a run of at least this N is timed before it starts (its basis alone takes seconds)
 ANNOUNCE_N = 256
@@ -156,7 +156,7 @@ def budget_members(scene) -> int:
     return min(int(scene["ensemble"]["members"]), int(scene["output"]["member_chunk"]))
 
 
-class Fluid(Model):
+class Fluid(StudyDefaults, Model):
     """The thermodynamic Zeitlin fluid on the sphere (a scene with a ``[zeitlin]`` table)."""
 
     name = "zeitlin"
@@ -170,6 +170,7 @@ class Fluid(Model):
         from .scene import SCENE_MODEL
 
         return SCENE_MODEL
+    stats_type = FluidStats
     study_kinds = {k: f"liethermo.zeitlin.studies.{k}" for k in ("zeitlin_decay", "zeitlin_structure",
                                                                    "zeitlin_resolution")}
     store_less = "output.every, output.vorticity"
@@ -227,12 +228,6 @@ class Fluid(Model):
                             int(scene["zeitlin"]["N"]), float(steps * float(itg["h"])),
                             scene["fluid"]["kinematic_viscosity"] > 0)
         return attrs, summ
-
-    def new_stats(self):
-        return FluidStats()
-
-    def stats_from_dict(self, d: dict):
-        return FluidStats.from_dict(d)
 
     def run_chunk(self, scene, lo, hi, *, progress_cb=None, kernel=None, threads=None):
         from .run import integrate, run_attrs, trajectory_dataset

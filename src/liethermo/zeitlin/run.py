@@ -14,7 +14,8 @@ import xarray as xr
 
 from .. import cf
 from ..version import __version__
-from ..numerics.compositions import COMPOSITION_FACTORS
+from ..numerics import matrix_flow as mf
+from ..numerics.matrix_flow import Predictor, factors  # noqa: F401  (the fluid's names)
 from ..numerics.laws import LAW_ENTROPY_MONOTONE
 from . import kernels as zk
 from ..numerics import heat as _heat
@@ -111,87 +112,46 @@ def initial_fields(scene: ZeitlinScene, members: np.ndarray | None = None) -> np
 # ----------------------------------------------------------------------------- steps
 
 
-def factors(method: str, composition: str) -> tuple[float, ...]:
-    if method == "split":
-        return (1.0,)
-    return COMPOSITION_FACTORS[(composition, 4 if method == "split4" else 6)]
+class SphereOps:
+    """The sphere's operations for :mod:`liethermo.numerics.matrix_flow` on numpy
+    (the numba kernels of :mod:`.kernels`)."""
 
+    xp = np
 
-class Predictor:
-    """The first guess of each substep's fixed point: the same substep's
-    solutions D of the last steps, extrapolated by a polynomial (order 4:
-    4D₁ − 6D₂ + 4D₃ − D₄).  At h = 0.01 s, N = 32 this starts the iteration
-    close enough to save about 3 of 7 iterations (6.9 → 4.1 per step); its
-    memory (order × substeps × members × N² complex) is kept under ``budget``
-    bytes by lowering the order."""
+    def __init__(self, b: zk.Basis):
+        self.b = b
 
-    COEF = {1: (1.0,), 2: (2.0, -1.0), 3: (3.0, -3.0, 1.0), 4: (4.0, -6.0, 4.0, -1.0)}
+    def viscous_flow(self, W, t, nu):
+        return zk.viscous_flow(W, t, nu, self.b)
 
-    def __init__(self, substeps: int, M: int, N: int, order: int = 4, budget: int = 2**29,
-                 budget_members: int | None = None):
-        # the order is set by ``budget_members`` (default M): a run in member chunks
-        # gives every chunk the order of the largest, so a member's bits do not
-        # depend on the chunk it is computed in
-        per = substeps * (M if budget_members is None else budget_members) * N * N * 16
-        self.order = min(order, budget // per) if per else order
-        self.shape = (M, N, N)
-        self.hist: list[list[np.ndarray]] = [[] for _ in range(substeps)]
+    def isomp(self, W, h, tol, max_iter, guess):
+        return zk.isomp(W, h, self.b, tol, max_iter, guess)
 
-    def guess(self, i: int, active: np.ndarray):
-        H = self.hist[i]
-        p = min(self.order, len(H))
-        if p == 0:
-            return None
-        c = self.COEF[p]
-        g = c[0] * H[-1][active]
-        for j in range(1, p):
-            g += c[j] * H[-1 - j][active]
-        return g
+    def rhs(self, W, nu):
+        return zk.rhs(W, nu, self.b)
 
-    def remember(self, i: int, active: np.ndarray, D: np.ndarray) -> None:
-        if self.order == 0:
-            return
-        H = self.hist[i]
-        arr = H.pop(0) if len(H) == self.order else np.zeros(self.shape, dtype=np.complex128)
-        arr[active] = D
-        H.append(arr)
+    @staticmethod
+    def asarray(a):
+        return np.array(a, copy=True)
+
+    @staticmethod
+    def to_host(a):
+        return np.asarray(a)
+
+    @staticmethod
+    def synchronize():
+        pass
 
 
 def split_step(W, q, h, nu, b, fac, tol, max_iter, guess=None, predictor: Predictor | None = None,
                active: np.ndarray | None = None):
-    """One step of the split family on a batch: returns W', q', iterations,
-    failed, and the last substep's fixed point D per unit substep.  Each
-    substep's fixed point starts from ``predictor``'s extrapolation (members
-    ``active`` of its history) where it has one, else from the previous
-    substep's D scaled to this substep (``guess``: the last step's, per unit)."""
-    its = np.zeros(W.shape[0], dtype=np.int64)
-    failed = np.zeros(W.shape[0], dtype=bool)
-    pending = fac[0] * h / 2.0  # adjacent viscous half flows merge into one exact flow
-    D = guess  # nearly linear in the substep: scaled from the last one
-    for i, f in enumerate(fac):
-        W, dq = zk.viscous_flow(W, pending, nu, b)
-        q = q + dq
-        g = predictor.guess(i, active) if predictor is not None else None
-        if g is None and D is not None:
-            g = D * f
-        W, it, fl, Df = zk.isomp(W, f * h, b, tol, max_iter, g)
-        if predictor is not None:
-            predictor.remember(i, active, Df)
-        D = Df / f
-        its += it
-        failed |= fl
-        pending = f * h / 2.0 + (fac[i + 1] * h / 2.0 if i + 1 < len(fac) else 0.0)
-    W, dq = zk.viscous_flow(W, pending, nu, b)
-    return W, q + dq, its, failed, D
+    """One step of the split family on a batch of the sphere's members
+    (:func:`liethermo.numerics.matrix_flow.split_step`)."""
+    return mf.split_step(SphereOps(b), W, q, h, nu, fac, tol, max_iter, guess, predictor, active)
 
 
 def rk4_step(W, q, h, nu, b):
-    k1, r1 = zk.rhs(W, nu, b)
-    k2, r2 = zk.rhs(W + 0.5 * h * k1, nu, b)
-    k3, r3 = zk.rhs(W + 0.5 * h * k2, nu, b)
-    k4, r4 = zk.rhs(W + h * k3, nu, b)
-    return (W + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4),
-            q + (h / 6.0) * (r1 + 2.0 * r2 + 2.0 * r3 + r4))
+    return mf.rk4_step(SphereOps(b), W, q, h, nu)
 
 
 # ----------------------------------------------------------------------------- a run
@@ -284,42 +244,25 @@ def integrate(scene: ZeitlinScene, W0: np.ndarray, *, method: str | None = None,
                 for j in range(1, n_out):
                     rec.record(j, np.array([k]), Wk[:, j], qk[:, j])
         return Trajectory(times, rec, its, status, failed_step, _time.perf_counter() - t0)
+    return run_steps(SphereOps(b), scene, W0, rec, method=method, progress=progress,
+                     budget_members=budget_members, t0=t0)
+
+
+def run_steps(ops, scene, W0, rec, *, method, progress, budget_members, t0) -> Trajectory:
+    """The scene's steps of every member of W0 on ``ops`` (the numba kernels, or
+    an array namespace: :func:`.xpstep.integrate_xp`), recorded into ``rec``."""
     from tqdm.auto import tqdm
 
-    fac = factors(method, itg["composition"]) if method != "rk4" else ()
-    W, q = W0.copy(), np.zeros(M)
-    active = np.arange(M)
-    acc_its = np.zeros(M)
-    guess = np.zeros_like(W)
-    predictor = Predictor(len(fac), M, b.N, budget_members=budget_members) if method != "rk4" else None
+    itg, every = scene["integrator"], int(scene["output"]["every"])
+    steps = int(itg["steps"])
     bar = tqdm(total=steps, desc=f"{scene.name} {method}", unit="step", leave=False,
                disable=None if progress is None else not progress)
-    for k in range(1, steps + 1):
-        check_stop()
-        if active.size == 0:
-            break
-        Wa, qa = W[active], q[active]
-        if method == "rk4":
-            Wa, qa = rk4_step(Wa, qa, h, nu, b)
-            bad = np.zeros(active.size, dtype=bool)
-        else:
-            Wa, qa, it, bad, Da = split_step(Wa, qa, h, nu, b, fac, itg["tol"], itg["max_iter"],
-                                             None if k == 1 else guess[active], predictor, active)
-            guess[active] = Da
-            acc_its[active] += it
-        finite = np.isfinite(Wa).all(axis=(1, 2)) & np.isfinite(qa)
-        status[active[bad]] = 1
-        status[active[~finite & ~bad]] = 2
-        failed_step[active[bad | ~finite]] = k
-        W[active], q[active] = Wa, qa
-        active = active[~(bad | ~finite)]
-        if k % every == 0:
-            j = k // every
-            rec.record(j, active, W[active], q[active])
-            its[active, j] = acc_its[active] / every
-            acc_its[:] = 0.0
-        bar.update(1)
+    its, status, failed_step = mf.drive(
+        ops, W0, rec.record, method=method, composition=itg["composition"], h=float(itg["h"]), steps=steps,
+        every=every, nu=float(scene["fluid"]["kinematic_viscosity"]), tol=itg["tol"], max_iter=itg["max_iter"],
+        budget_members=budget_members, bar=bar, check_stop=check_stop)
     bar.close()
+    times = np.arange(steps // every + 1) * every * float(itg["h"])
     return Trajectory(times, rec, its, status, failed_step, _time.perf_counter() - t0)
 
 

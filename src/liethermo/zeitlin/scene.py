@@ -9,13 +9,9 @@ result is a :class:`ZeitlinScene`, which reads like the top's Scene
 
 from __future__ import annotations
 
-import copy
-from typing import Any
-
-import tomli_w
-
 from ..numerics.compositions import COMPOSITION_KINDS
-from ..scene import Key, SceneModel, SceneError, boolean, choice, integer, number, string
+from ..scene import (Key, SceneError, TableScene, boolean, choice, compare_check, declare_scene, integer, number,
+                     string)
 
 #: the methods a Zeitlin scene runs (names as for the top)
 METHODS = ("split", "split4", "split6", "rk4", "reference")
@@ -37,15 +33,6 @@ def _m_check(name, v, scene):
     if isinstance(lmax, int) and v > lmax:
         raise SceneError(name, f"must be at most initial.lmax = {lmax} (|m| ≤ l)", v)
     return v
-
-
-def _compare_check(name, v, scene):
-    if not isinstance(v, list) or not all(isinstance(x, str) for x in v):
-        raise SceneError(name, "must be a list of method names", v)
-    for x in v:
-        if x not in METHODS:
-            raise SceneError(name, f"unknown method {x!r}; a Zeitlin scene runs {', '.join(METHODS)}", v)
-    return list(v)
 
 
 KEYS: tuple[Key, ...] = (
@@ -102,54 +89,18 @@ KEYS: tuple[Key, ...] = (
         "liethermo.zeitlin.vorticity_coefficients(ds) gives its ω_lm)",
         boolean),
     Key("output", "compare", [], "", "list of methods",
-        "further methods run on the same scene (files <OUT>_<method>.nc)", _compare_check),
+        "further methods run on the same scene (files <OUT>_<method>.nc)", compare_check(METHODS)),
     Key("output", "figures", False, "", "true | false", "write PNG figures next to the netCDF", boolean),
     Key("output", "member_chunk", 64, "1", "integer ≥ 1",
         "members simulated and written at a time (bounds memory; a resumed run continues from the "
         "last complete chunk)", integer()),
 )
-SECTIONS = tuple(dict.fromkeys(k.section for k in KEYS))
-DEFAULTS: dict[str, dict[str, Any]] = {s: {k.name: k.default for k in KEYS if k.section == s} for s in SECTIONS}
 
 
-class ZeitlinScene:
+class ZeitlinScene(TableScene):
     """A validated Zeitlin scene: sections of keys, read like TOML tables."""
 
     model = "zeitlin"
-
-    def __init__(self, tables: dict):
-        self._t = {s: dict(tables[s]) for s in SECTIONS}
-
-    def __getitem__(self, section: str) -> dict:
-        return dict(self._t[section])
-
-    def __contains__(self, section) -> bool:
-        return section in self._t
-
-    def keys(self):
-        return self._t.keys()
-
-    def __iter__(self):
-        return iter(self._t)
-
-    def items(self):
-        return ((s, dict(t)) for s, t in self._t.items())
-
-    def __eq__(self, other) -> bool:
-        return isinstance(other, ZeitlinScene) and other._t == self._t
-
-    @property
-    def name(self) -> str:
-        return self._t["scene"]["name"]
-
-    def to_dict(self) -> dict:
-        return copy.deepcopy(self._t)
-
-    def to_toml(self) -> str:
-        return tomli_w.dumps(self._t)
-
-    def with_overrides(self, overrides) -> "ZeitlinScene":
-        return load(self._t, "the scene", overrides)
 
     def __repr__(self) -> str:
         return f"ZeitlinScene({self.name!r}, N={self._t['zeitlin']['N']}, method={self._t['integrator']['method']!r})"
@@ -162,52 +113,12 @@ def is_zeitlin(source) -> bool:
     return isinstance(source, dict) and "zeitlin" in source
 
 
-def merge(base: dict, new: dict, origin: str) -> None:
-    """Merge scene tables into ``base``, refusing sections and keys a Zeitlin scene does not have."""
-    from ..scene import _merge
-
-    fluid = new.get("fluid") if isinstance(new, dict) else None
+def _refuse(new: dict) -> None:
+    fluid = new.get("fluid")
     if isinstance(fluid, dict) and "viscosity" in fluid:
         raise SceneError("fluid.viscosity", "a Zeitlin fluid's viscosity is fluid.kinematic_viscosity "
                          "(ν in s-1); fluid.viscosity is the top's dynamic viscosity (kg m-1 s-1)",
                          show_value=False)
-    _merge(base, new, origin, DEFAULTS, " of a Zeitlin scene")
-
-
-def load(tables: dict, origin: str, overrides=None, validate_scene: bool = True):
-    """Defaults ← ``tables`` ← overrides, validated (or, with ``validate_scene``
-    False, the merged tables)."""
-    from ..scene import _overrides_as_tables
-
-    d = copy.deepcopy(DEFAULTS)
-    merge(d, tables, origin)
-    for table, o in _overrides_as_tables(overrides):
-        merge(d, table, o)
-    return validate(d) if validate_scene else d
-
-
-def validate(d: dict) -> ZeitlinScene:
-    clean = copy.deepcopy(DEFAULTS)
-    for s in SECTIONS:
-        clean[s].update(d.get(s, {}))
-    for k in KEYS:
-        clean[k.section][k.name] = k.check(k.path, clean[k.section][k.name], clean)
-    steps, every = clean["integrator"]["steps"], clean["output"]["every"]
-    if steps % every:
-        raise SceneError("output.every", f"must divide integrator.steps = {steps}", every)
-    return ZeitlinScene(clean)
-
-
-def keys_table() -> str:
-    lines = []
-    for s in SECTIONS:
-        lines.append(f"[{s}]")
-        for k in KEYS:
-            if k.section == s:
-                unit = f" [{k.unit}]" if k.unit and k.unit != "1" else ""
-                lines.append(f"  {k.path}{unit} = {k.default!r}   ({k.rule}) {k.doc}")
-        lines.append("")
-    return "\n".join(lines)
 
 
 INTRO = """\
@@ -218,5 +129,6 @@ It has keys of its own, below; sections it shares with the top (`[fluid]`, `[the
 `split4`, `split6`, `rk4` and `reference`."""
 
 #: the scene side of the fluid's model (registered with it: liethermo.zeitlin.model)
-SCENE_MODEL = SceneModel(name="zeitlin", marks=is_zeitlin, load=load, scene_class=ZeitlinScene, keys=KEYS,
-                         title="a Zeitlin fluid", intro=INTRO)
+SCENE_MODEL = declare_scene("zeitlin", KEYS, methods=METHODS, marks=is_zeitlin, title="a Zeitlin fluid",
+                            intro=INTRO, scene_class=ZeitlinScene, refuse=_refuse, noun="a Zeitlin scene")
+load = SCENE_MODEL.load

@@ -31,6 +31,7 @@ import time as _time
 
 import numpy as np
 
+from ..numerics import matrix_flow as mf
 from . import kernels as zk
 
 #: padded eigenvector blocks (two N³ float64 arrays) are used up to this many bytes
@@ -431,72 +432,47 @@ def rhs(W, nu: float, xb: XpBasis):
     return dW, qdot
 
 
+class XpOps:
+    """The sphere's operations on an array namespace, for
+    :mod:`liethermo.numerics.matrix_flow`."""
+
+    def __init__(self, xb: XpBasis):
+        self.xb = xb
+        self.xp = xb.xp
+
+    def viscous_flow(self, W, t, nu):
+        return viscous_flow(W, t, nu, self.xb)
+
+    def isomp(self, W, h, tol, max_iter, guess):
+        return isomp(W, h, self.xb, tol, max_iter, guess)
+
+    def rhs(self, W, nu):
+        return rhs(W, nu, self.xb)
+
+    def asarray(self, a):
+        return self.xp.asarray(np.ascontiguousarray(a, dtype=np.complex128))
+
+    @staticmethod
+    def to_host(a):
+        return to_host(a)
+
+    def synchronize(self):
+        synchronize(self.xp)
+
+
 def rk4_step(W, q, h: float, nu: float, xb: XpBasis):
-    k1, r1 = rhs(W, nu, xb)
-    k2, r2 = rhs(W + 0.5 * h * k1, nu, xb)
-    k3, r3 = rhs(W + 0.5 * h * k2, nu, xb)
-    k4, r4 = rhs(W + h * k3, nu, xb)
-    return (W + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4),
-            q + (h / 6.0) * (r1 + 2.0 * r2 + 2.0 * r3 + r4))
+    return mf.rk4_step(XpOps(xb), W, q, h, nu)
 
 
-class Predictor:
-    """:class:`.run.Predictor` on ``xp`` (the same orders, memory budget and coefficients)."""
-
-    def __init__(self, xp, substeps: int, M: int, N: int, order: int = 4, budget: int = 2**29,
-                 budget_members: int | None = None):
-        from .run import Predictor as _P
-
-        self.xp = xp
-        self.COEF = _P.COEF
-        per = substeps * (M if budget_members is None else budget_members) * N * N * 16
-        self.order = min(order, budget // per) if per else order
-        self.shape = (M, N, N)
-        self.hist: list[list] = [[] for _ in range(substeps)]
-
-    def guess(self, i: int, active):
-        H = self.hist[i]
-        p = min(self.order, len(H))
-        if p == 0:
-            return None
-        c = self.COEF[p]
-        g = c[0] * H[-1][active]
-        for j in range(1, p):
-            g += c[j] * H[-1 - j][active]
-        return g
-
-    def remember(self, i: int, active, D) -> None:
-        if self.order == 0:
-            return
-        H = self.hist[i]
-        arr = H.pop(0) if len(H) == self.order else self.xp.zeros(self.shape, dtype=self.xp.complex128)
-        arr[active] = D
-        H.append(arr)
+def Predictor(xp, substeps: int, M: int, N: int, order: int = 4, budget: int = 2**29,  # noqa: N802
+              budget_members: int | None = None):
+    """:class:`liethermo.numerics.matrix_flow.Predictor` on ``xp``."""
+    return mf.Predictor(substeps, M, N, order, budget, budget_members, xp=xp)
 
 
-def split_step(W, q, h, nu, xb: XpBasis, fac, tol, max_iter, guess=None, predictor: Predictor | None = None,
-               active=None):
-    """One step of the split family, as :func:`.run.split_step`."""
-    xp = xb.xp
-    its = xp.zeros(W.shape[0], dtype=xp.int64)
-    failed = xp.zeros(W.shape[0], dtype=bool)
-    pending = fac[0] * h / 2.0
-    D = guess
-    for i, f in enumerate(fac):
-        W, dq = viscous_flow(W, pending, nu, xb)
-        q = q + dq
-        g = predictor.guess(i, active) if predictor is not None else None
-        if g is None and D is not None:
-            g = D * f
-        W, it, fl, Df = isomp(W, f * h, xb, tol, max_iter, g)
-        if predictor is not None:
-            predictor.remember(i, active, Df)
-        D = Df / f
-        its += it
-        failed |= fl
-        pending = f * h / 2.0 + (fac[i + 1] * h / 2.0 if i + 1 < len(fac) else 0.0)
-    W, dq = viscous_flow(W, pending, nu, xb)
-    return W, q + dq, its, failed, D
+def split_step(W, q, h, nu, xb: XpBasis, fac, tol, max_iter, guess=None, predictor=None, active=None):
+    """One step of the split family (:func:`liethermo.numerics.matrix_flow.split_step`) on ``xb``'s namespace."""
+    return mf.split_step(XpOps(xb), W, q, h, nu, fac, tol, max_iter, guess, predictor, active)
 
 
 #: the methods these steps run; the reference (DOP853, scipy) runs on the CPU only
@@ -517,68 +493,19 @@ def integrate_xp(xp, scene, W0: np.ndarray, *, method: str | None = None, progre
     """:func:`.run.integrate` with the steps on ``xp``: the same
     :class:`.run.Trajectory` (diagnostics recorded on the host from the
     kept steps' W, the same status, failed_step and iterations)."""
-    from tqdm.auto import tqdm
+    from .run import Recorder, run_steps
 
-    from ..faults import check_stop
-    from .run import Recorder, Trajectory, factors
-
-    z, itg, out = scene["zeitlin"], scene["integrator"], scene["output"]
+    itg, out = scene["integrator"], scene["output"]
     method = method or itg["method"]
     check_method(method)
-    b = zk.basis(z["N"])
-    xb = xp_basis(xp, z["N"])
-    nu = float(scene["fluid"]["kinematic_viscosity"])
-    h, steps, every = float(itg["h"]), int(itg["steps"]), int(out["every"])
+    b = zk.basis(scene["zeitlin"]["N"])
     M = W0.shape[0]
-    n_out = steps // every + 1
-    times = np.arange(n_out) * every * h
-    rec = Recorder(M, n_out, b, bool(out["vorticity"] if keep_vorticity is None else keep_vorticity))
-    its = np.zeros((M, n_out))
-    status = np.zeros(M, dtype=np.int8)
-    failed_step = np.full(M, -1, dtype=np.int64)
+    rec = Recorder(M, int(itg["steps"]) // int(out["every"]) + 1, b,
+                   bool(out["vorticity"] if keep_vorticity is None else keep_vorticity))
     rec.record(0, np.arange(M), W0, np.zeros(M))
     t0 = _time.perf_counter()
-    fac = factors(method, itg["composition"]) if method != "rk4" else ()
-    W = xp.asarray(np.ascontiguousarray(W0, dtype=np.complex128))
-    q = xp.zeros(M)
-    active = np.arange(M)
-    acc_its = np.zeros(M)
-    guess = xp.zeros_like(W)
-    predictor = (Predictor(xp, len(fac), M, b.N, budget_members=budget_members)
-                 if method != "rk4" else None)
-    bar = tqdm(total=steps, desc=f"{scene.name} {method}", unit="step", leave=False,
-               disable=None if progress is None else not progress)
-    for k in range(1, steps + 1):
-        check_stop()
-        if active.size == 0:
-            break
-        act = xp.asarray(active)
-        Wa, qa = W[act], q[act]
-        if method == "rk4":
-            Wa, qa = rk4_step(Wa, qa, h, nu, xb)
-            bad = np.zeros(active.size, dtype=bool)
-        else:
-            Wa, qa, it, bad, Da = split_step(Wa, qa, h, nu, xb, fac, itg["tol"], itg["max_iter"],
-                                             None if k == 1 else guess[act], predictor, act)
-            guess[act] = Da
-            acc_its[active] += to_host(it)
-            bad = to_host(bad)
-        finite = to_host(xp.isfinite(Wa).all(axis=(1, 2)) & xp.isfinite(qa))
-        status[active[bad]] = 1
-        status[active[~finite & ~bad]] = 2
-        failed_step[active[bad | ~finite]] = k
-        W[act], q[act] = Wa, qa
-        active = active[~(bad | ~finite)]
-        if k % every == 0:
-            j = k // every
-            act = xp.asarray(active)
-            rec.record(j, active, to_host(W[act]), to_host(q[act]))
-            its[active, j] = acc_its[active] / every
-            acc_its[:] = 0.0
-        bar.update(1)
-    bar.close()
-    synchronize(xp)
-    return Trajectory(times, rec, its, status, failed_step, _time.perf_counter() - t0)
+    return run_steps(XpOps(xp_basis(xp, scene["zeitlin"]["N"])), scene, W0, rec, method=method,
+                     progress=progress, budget_members=budget_members, t0=t0)
 
 
 # ----------------------------------------------------------------------------- memory
