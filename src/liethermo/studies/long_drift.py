@@ -181,7 +181,8 @@ def _least(values: dict, what: str, floor: float = ROUND_OFF) -> str:
     best = min(med, key=med.get)
     at_floor = [m for m in values if med[m] <= floor]
     if len(at_floor) > 1:
-        return f"{what} {', '.join(at_floor)} tie at round-off (median ≤ {floor:g})"
+        above = ", ".join(f"{m} {med[m]:.1e}" for m in values if m not in at_floor)
+        return f"{what} {', '.join(at_floor)} tie at round-off (median ≤ {floor:g})" + (f", above it {above}" if above else "")
     least, cmp = least_over_members(values, floor=floor)
     if not least:
         return f"{what} {best} ({med[best]:.2e})"
