@@ -71,6 +71,8 @@ def drift_test(t: np.ndarray, y: np.ndarray, lag: int | None = None) -> dict[str
     return {"slope": slope, "amplitude": amp, "range": rng, "half_width": half, "measurable": measurable}
 
 
+#: relative values (energy errors, law defects, entropy errors) at or below this are round-off: two of them are equal
+ROUND_OFF = 1e-13
 #: fewer members than this give no paired interval worth stating: the report says so instead of ranking
 MIN_MEMBERS = 10
 #: the seed of every paired bootstrap (a rerun, or a resumed study, states the same verdicts)

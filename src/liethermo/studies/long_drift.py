@@ -16,7 +16,7 @@ from .. import timing
 from .common import StudyError
 from .framework import Figure, Option, Stage, Study, Table, Verdict, first_point
 from ..models import Model
-from ..analysis import BOOTSTRAP_RESAMPLES, MIN_MEMBERS, TREND_OVER_RANGE, drift_test, least_over_members
+from ..analysis import BOOTSTRAP_RESAMPLES, MIN_MEMBERS, ROUND_OFF, TREND_OVER_RANGE, drift_test, least_over_members
 
 CALIBRATION_ITERATIONS = 6  # rounds of the calibration, at most
 QUANTILES = (0.05, 0.5, 0.95)
@@ -166,11 +166,6 @@ def verdicts(ds, ctx) -> list[Verdict]:
     return [Verdict(f"dissipation × {f:g}: the long runs cost the same per simulated second",
                     f"max / min {max(c.values()) / min(c.values()):.2f}", "no pair > 15 % apart",
                     not timing.equal_cost_check(c)) for f, c in _costs(first_point(ds, ctx)).items()]
-
-
-#: the round-off floor of the compared values (relative energy errors, relative law defects): below it two
-#: methods are equal
-ROUND_OFF = 1e-13
 
 
 def _least(values: dict, what: str, floor: float = ROUND_OFF) -> str:
