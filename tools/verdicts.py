@@ -38,6 +38,7 @@ def verdict_rows(report: Path) -> dict[str, tuple[str, str]]:
 
 def ranking(measured: str) -> list[set[str]] | None:
     """The groups of a ranking, cheapest first (``None``: not a ranking)."""
+    measured = re.split(r"; (?:not bracketed|loaded machine)", measured)[0]  # what follows is not the ranking
     if " < " not in measured and "tie within noise" not in measured:
         return None
     groups = []
