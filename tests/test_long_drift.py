@@ -70,6 +70,39 @@ def test_vi_drifts_less_than_rk2_at_equal_cost_without_dissipation(ld):
     assert float(rate.sel(scheme="vi")) < float(rate.sel(scheme="rk2"))
 
 
+def test_a_drift_is_reported_only_where_it_stands_out_of_the_oscillation(ld):
+    """Without dissipation the variational and splitting methods' energy errors oscillate with no trend over T:
+    the report says "no measurable drift" and ranks none of them by drift; RK2's error grows steadily: a drift on
+    every member, its slope inside its interval's reach of the median.  8 members rank nothing."""
+    _, report, ds, _ = ld
+    text = report.read_text()
+    x = ds.sel(dissipation=0.0)
+    for m in ("vi", "vi4", "vi6", "split4", "split6"):
+        assert int(x["drifting_members"].sel(scheme=m)) <= 4, m
+    assert int(x["drifting_members"].sel(scheme="rk2")) == 8
+    r = x.sel(scheme="rk2")
+    assert np.all(np.abs(r["drift_rate"]) > r["drift_half_width"]) and np.all(r["drift_rate"] * 200.0 > 2 * r["oscillation_range"])
+    line = next(s for s in text.split("At dissipation × ") if s.startswith("0: "))
+    assert "no measurable drift over T = 200 s for vi, vi4, vi6, split4, split6" in line and "rk2 drifts on 8 of 8" in line
+    assert "drifts least" not in text and "too few for paired intervals" in line
+    assert "max |relative energy error| rk4" in line  # the least median max error, named without a ranking
+
+
+def test_the_findings_are_the_same_on_a_rerun(ld):
+    """The paired bootstraps are seeded: the findings of the same numbers do not change."""
+    from liethermo.studies.long_drift import findings
+
+    _, _, ds, _ = ld
+    ctx = STUDY.context(load_study(STUDIES / "long_drift.toml"), reduced=True)
+    big = ds.copy()  # 16 members: enough for paired intervals, so the bootstrap runs
+    m = [v for v in ds.data_vars if "member" in ds[v].dims]
+    import xarray as xr
+    big = xr.merge([xr.concat([ds[m], ds[m].assign_coords(member=ds["member"] + 8)], "member", data_vars="all"),
+                    ds[[v for v in ds.data_vars if v not in m]]])
+    a, b = findings(big, ctx), findings(big, ctx)
+    assert a == b and "paired 95 % intervals over members" in a[0] and "95 % " in a[0]
+
+
 def test_secant_step_reaches_equal_cost_on_an_injected_cost_model():
     """A VI-like cost per simulated second (Newton iterations fall as h shrinks) that a
     fixed-point step would overshoot: the secant of the closest bracket gets within 3 %."""

@@ -332,6 +332,23 @@ def test_energy_drift_one_definition_of_a_blow_up(energy_drift):
     assert "| no member of vi blows up | h = 0.1: 0, h = 0.05: 0 | 0 blown-up members at every h | holds |" in text
 
 
+def test_energy_drift_ranks_by_paired_intervals(energy_drift):
+    """The least median max error is named with every method the members cannot tell from it (seeded paired
+    bootstrap), and the findings are the same on a rerun."""
+    from liethermo.analysis import least_over_members
+    from liethermo.studies.energy_drift import STUDY, findings
+
+    _, report, ds = energy_drift
+    ctx = STUDY.context(load_study(STUDIES / "energy_drift.toml"), reduced=True)
+    got = findings(ds, ctx)
+    assert got == findings(ds, ctx) and len(got) == ds.sizes["integrator_h"]
+    for h, line in zip(ds["integrator_h"].values, got):
+        v = {m: ds["max_relative_energy_error"].sel(integrator_h=h, scheme=m).values for m in ctx.methods}
+        least, cmp = least_over_members(v, floor=1e-13)
+        assert least and (f"(tied: {' = '.join(least)})" in line if len(least) > 1 else "(tied" not in line)
+        assert all(cmp[m].verdict == "tie" for m in least[1:]) and line in report.read_text()
+
+
 # ----------------------------------------------------------------------------- paper
 
 def test_paper_study_figures_and_errata(paper):

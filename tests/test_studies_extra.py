@@ -77,17 +77,26 @@ def test_work_precision_outputs(wp):
 
 
 def test_work_precision_closing_tables_agree(wp):
-    """One computation: the cheapest per ε is the cheapest time to ε, and a tie is named only within the spreads."""
-    _, out = wp
-    ttr, cheap = pd.read_csv(out / "time_to_error.csv"), pd.read_csv(out / "cheapest.csv")
+    """One computation: the cheapest per ε is the cheapest bracketed time to ε, each method named with it ties with
+    it (not through a chain), every time is labelled by what it is, and a verdict holds only where no method with
+    only a bound could be cheaper."""
+    report, out = wp
+    ttr, cheap = pd.read_csv(out / "time_to_error.csv").set_index("method"), pd.read_csv(out / "cheapest.csv")
+    text = report.read_text()
     for _, row in cheap.iterrows():
-        col = f"time/member to {row['error ≤']:.0e} (s)"
-        t = ttr.set_index("method")[col].dropna()
-        group = row["cheapest"].split(" = ")
+        eps = f"{row['error ≤']:.0e}"
+        how = ttr[f"({eps})"].str.split(" \\(").str[0]
+        assert set(how) <= {"bracketed", "upper bound", "lower bound", "below the round-off floor", "not reached"}
+        t = ttr[f"time/member to {eps} (s)"][how == "bracketed"].dropna()
+        group, spread = row["cheapest"].split(" = "), ttr[f"spread ({eps})"]
         assert group[0] == t.idxmin() and row["time/member (s)"] == t.min()
-        spread = ttr.set_index("method")[f"spread ({row['error ≤']:.0e})"]
-        for a, b in zip(group, group[1:]):
-            assert t[b] / t[a] - 1 <= max(spread[a], spread[b], 0.02) + 1e-12
+        for b in group[1:]:
+            assert t[b] / t[group[0]] - 1 <= max(spread[group[0]], spread[b], 0.02) + 1e-12
+        bounds = [m for m in ttr.index if how[m] == "upper bound"]
+        claim = next(ln for ln in text.splitlines() if ln.startswith("| ") and f"error {eps}" in ln)
+        assert claim.endswith("| — |") or not bounds, claim
+        assert all(m in row["possibly cheaper, not bracketed"] for m in bounds)
+    assert "**bracketed**" in text and "— : not decided" in text
 
 
 def test_work_precision_slopes(wp):
@@ -130,14 +139,57 @@ def test_time_to_error_interpolation():
     from liethermo.studies.work_precision import time_to_error
 
     errs, times = [1e-2, 1e-4, 1e-6], [1.0, 10.0, 100.0]
-    t, how, used = time_to_error(errs, times, 1e-3)
-    assert how == "interpolated" and used == (0, 1) and t == pytest.approx(math.sqrt(10.0), rel=1e-12)
-    assert time_to_error(errs, times, 1e-1) == (1.0, "coarsest", (0,))
-    t, how, used = time_to_error(errs, times, 1e-9)
-    assert math.isnan(t) and how == "not reached" and used == ()
+    t, how, used, est = time_to_error(errs, times, 1e-3)
+    assert how == "bracketed" and used == (0, 1) and t == pytest.approx(math.sqrt(10.0), rel=1e-12) and math.isnan(est)
+    # the coarsest level already below: its cost is an upper bound, the line through the two coarsest an estimate
+    t, how, used, est = time_to_error(errs, times, 1e-1)
+    assert (t, how, used) == (1.0, "upper bound", (0,)) and est == pytest.approx(10 ** -0.5, rel=1e-12)
+    # still falling at the finest level: a lower bound, and the line carried on
+    t, how, used, est = time_to_error(errs, times, 1e-9)
+    assert (t, how, used) == (100.0, "lower bound", (2,)) and est == pytest.approx(10 ** 3.5, rel=1e-12)
+    # stopped gaining: below the round-off floor, no time
+    t, how, used, est = time_to_error([1e-2, 1e-14, 0.8e-14], times, 1e-15)
+    assert math.isnan(t) and how == "below the round-off floor" and used == ()
+    assert time_to_error([np.inf, np.nan], [1.0, 2.0], 1e-3)[1] == "not reached"
     # a failed (inf or NaN) coarse level does not stop the interpolation
-    assert time_to_error([np.inf, 1e-4], [1.0, 2.0], 1e-3) == (2.0, "interpolated", (1,))
-    assert time_to_error([np.nan, 1e-4], [1.0, 2.0], 1e-3) == (2.0, "interpolated", (1,))
+    assert time_to_error([np.inf, 1e-4], [1.0, 2.0], 1e-3)[:3] == (2.0, "bracketed", (1,))
+    assert time_to_error([np.nan, 1e-4], [1.0, 2.0], 1e-3)[:3] == (2.0, "bracketed", (1,))
+
+
+def test_a_verdict_rests_on_bracketed_times_only(monkeypatch):
+    """rk4's 0.556 µs is bracketed at 1e-3, split6's 1.38 µs only an upper bound (its h^6 line: ~0.46 µs): no
+    verdict.  At 1e-9 split6 alone brackets, rk4's finest level is still above at a lower cost: no verdict.  A
+    method whose lower bound is dearer than the leader does not hold it up; a loaded machine does."""
+    import xarray as xr
+
+    from liethermo.studies import work_precision as wp
+    from liethermo.timing import Cost
+
+    class Ctx:
+        opt, methods = {"epsilons": [1e-3, 1e-9]}, ["rk4", "split6"]
+
+    h = np.array([0.1, 0.05])
+    err = {"rk4": [2e-3, 1.25e-4], "split6": [6.7e-5, 1e-12]}
+    cost = {"rk4": [0.3e-6, 0.6e-6], "split6": [1.38e-6, 2.76e-6]}
+    spread = {"rk4": [0.02, 0.02], "split6": [0.03, 0.03]}
+
+    def ds(err, cost, spread):
+        return xr.Dataset({k: (("scheme", "h"), [v[m] for m in Ctx.methods]) for k, v in
+                           (("error", err), ("cost", cost), ("cost_spread", spread))} | {
+            "cost_repeats": (("scheme", "h"), np.full((2, 2), 5)), "failed": (("scheme", "h"), np.zeros((2, 2)))},
+            coords={"scheme": Ctx.methods, "h": h})
+
+    v = wp.verdicts(ds(err, cost, spread), Ctx)
+    assert [x.holds for x in v] == [None, None]
+    assert "split6 (≤ 1.38 µs, its h^p line:" in v[0].measured and "rk4" in v[1].measured
+    # split6 bracketed at 1e-3 too, above rk4: rk4's verdict holds
+    err2 = {"rk4": err["rk4"], "split6": [2e-3, 1e-12]}
+    v = wp.verdicts(ds(err2, cost, spread), Ctx)
+    assert v[0].claim == "rk4 is the cheapest to error 1e-03" and v[0].holds is True
+    # the same numbers timed on a loaded machine: rk4's spread 300 % ties split6 and names the load; not decided
+    v = wp.verdicts(ds(err2, cost, {"rk4": [3.0, 3.0], "split6": [0.03, 0.03]}), Ctx)
+    assert v[0].holds is None and "loaded machine" in v[0].measured
+    assert wp.timing.loaded({"a": Cost.of([1.0, 3.0, 3.0])}) == ["a"]
 
 
 def test_work_precision_rejects_bad_options():

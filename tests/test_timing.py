@@ -104,13 +104,24 @@ def test_a_gap_equal_to_the_spread_ties_and_a_larger_one_ranks():
     assert describe({"b": b, "a": a}) == "a (1 s, spread 12 %) < b (1.25 s, spread 0.0 %)"
 
 
-def test_the_larger_spread_of_two_neighbours_decides_and_ties_chain():
+def test_the_larger_spread_of_two_decides_and_ties_do_not_chain():
     costs = {"p": cost(1.0, 1.0), "q": cost(1.5, 2.25), "r": cost(2.0, 2.0), "s": cost(4.0, 4.5)}
-    # p–q: gap 50 % ≤ q's 50 %; q–r: 33 % ≤ 50 %; r–s: 100 % > 12.5 %
-    assert rank(costs) == [["p", "q", "r"], ["s"]]
-    assert compare(costs["p"], costs["r"]) == "a cheaper"  # not neighbours in a chain: ranked alone
-    assert describe(costs) == ("p (1 s, spread 0.0 %), q (1.5 s, spread 50 %) and r (2 s, spread 0.0 %)"
-                               " tie within noise < s (4 s, spread 12 %)")
+    # p–q: gap 50 % ≤ q's 50 %; q–r: 33 % ≤ 50 %; but p–r: 100 % > both spreads (0): r is not absorbed
+    assert rank(costs) == [["p", "q"], ["r"], ["s"]]
+    assert compare(costs["p"], costs["r"]) == "a cheaper"
+    assert describe(costs) == ("p (1 s, spread 0.0 %) and q (1.5 s, spread 50 %) tie within noise"
+                               " < r (2 s, spread 0.0 %; ties q) < s (4 s, spread 12 %)")
+
+
+def test_a_noisy_method_does_not_tie_two_tight_ones_4_8x_apart():
+    """rk4 554 ns (9 %), split4 828 ns (306 %), split 2.64 µs (1.9 %): split4 ties both, rk4 and split do not tie;
+    a spread over 100 % names a loaded machine."""
+    from liethermo.timing import loaded
+
+    c = {"rk4": cost(554e-9, 554e-9 * 1.09), "split4": cost(828e-9, 828e-9 * 4.06), "split": cost(2.64e-6, 2.64e-6 * 1.019)}
+    assert rank(c) == [["rk4", "split4"], ["split"]] and compare(c["rk4"], c["split"]) == "a cheaper"
+    assert "split (2.64 µs, spread 1.9 %; ties split4)" in describe(c)
+    assert loaded(c) == ["split4"] and loaded({"rk4": c["rk4"]}) == []
 
 
 def test_gaps_within_the_noise_floor_tie_even_with_no_spread():

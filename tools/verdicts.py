@@ -8,7 +8,8 @@ the verdict tables of the two runs side by side and, per row, ``same`` or
 ``"split6 is the cheapest to error 1e-09"``, measured ``"a (…) < b (…) and c
 (…) tie within noise < …"``) is matched by that error; two rankings agree when no pair of
 candidates is ordered one way in one run and the other way in the other (a
-tie within noise in either run contradicts nothing).  Exit status 1 when a
+tie within noise in either run, within a group or named across groups as
+``"; ties q"``, contradicts nothing).  Exit status 1 when a
 verdict differs.
 """
 
@@ -38,6 +39,7 @@ def verdict_rows(report: Path) -> dict[str, tuple[str, str]]:
 
 def ranking(measured: str) -> list[set[str]] | None:
     """The groups of a ranking, cheapest first (``None``: not a ranking)."""
+    measured = re.split(r"; (?:not bracketed|loaded machine)", measured)[0]  # what follows is not the ranking
     if " < " not in measured and "tie within noise" not in measured:
         return None
     groups = []
@@ -47,12 +49,19 @@ def ranking(measured: str) -> list[set[str]] | None:
     return groups
 
 
-def rankings_agree(a: list[set[str]], b: list[set[str]]) -> bool:
-    """No pair strictly ordered one way in ``a`` and the other way in ``b``."""
+def cross_ties(measured: str) -> set[frozenset[str]]:
+    """Pairs that tie across groups: ``"r (2 s, spread 0.0 %; ties q, p)"`` gives {r, q} and {r, p}."""
+    found = re.findall(r"(?:^|, | and | < )([\w:.-][\w:. -]*?) \([^()]*?; ties ([^()]+)\)", measured)
+    return {frozenset((n, t.strip())) for n, ts in found for t in ts.split(",")}
+
+
+def rankings_agree(a: list[set[str]], b: list[set[str]], ties: set = frozenset()) -> bool:
+    """No pair strictly ordered one way in ``a`` and the other way in ``b`` (a pair in ``ties`` is a tie)."""
     pos = lambda groups: {n: i for i, g in enumerate(groups) for n in g}  # noqa: E731
     pa, pb = pos(a), pos(b)
     common = [n for n in pa if n in pb]
-    return not any((pa[x] - pa[y]) * (pb[x] - pb[y]) < 0 for x in common for y in common)
+    return not any((pa[x] - pa[y]) * (pb[x] - pb[y]) < 0 and frozenset((x, y)) not in ties
+                   for x in common for y in common)
 
 
 def _key(claim: str, measured: str) -> str:
@@ -76,7 +85,7 @@ def compare(a: Path, b: Path) -> int:
             cb, mb, vb = rb.get(key, (key, "—", "missing"))
             ga, gb = ranking(ma), ranking(mb)
             if ga is not None and gb is not None:  # a ranking: no pair ordered both ways
-                same = rankings_agree(ga, gb)
+                same = rankings_agree(ga, gb, cross_ties(ma) | cross_ties(mb))
             else:
                 same = va == vb and ca == cb
             bad += not same

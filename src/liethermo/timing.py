@@ -4,7 +4,8 @@
 * :func:`measure` times candidates in interleaved, rotated rounds and returns a
   :class:`Cost` per candidate: the minimum over repeats with the spread beside it.
 * :func:`rank` and :func:`compare` state an order only where the gap exceeds the
-  measured spread (and :data:`NOISE_FLOOR`), else a tie within noise; :func:`describe` words it for reports.
+  measured spread (and :data:`NOISE_FLOOR`), else a tie within noise (between two candidates: ties do not
+  chain); :func:`describe` words it for reports; :func:`loaded` names costs timed on a loaded machine.
 * :func:`equalize_steps` sets time steps so that runs cost the same per simulated second;
   :func:`equal_cost_check` flags runs meant to cost the same that do not.
 
@@ -147,18 +148,17 @@ def _ties(a: Cost, b: Cost, floor: float) -> bool:
 def rank(costs: Mapping[str, Cost], floor: float = NOISE_FLOOR) -> list[list[str]]:
     """Groups of candidates, cheapest group first, sorted by ``best`` within a group.
 
-    Two neighbours in the order of ``best`` tie within noise when their gap
-    ``best_b / best_a − 1`` does not exceed the larger of their two spreads (nor
-    ``floor``); ties chain, so a group is a run of neighbours each tied to the next,
-    and no order is claimed inside it.  Between groups the order holds beyond the
-    measured spread."""
-    order = sorted(costs, key=lambda name: costs[name].best)
-    groups: list[list[str]] = []
-    for name in order:
-        if groups and _ties(costs[groups[-1][-1]], costs[name], floor):
-            groups[-1].append(name)
-        else:
-            groups.append([name])
+    A tie is a relation between two candidates, not a chain: the cheapest candidate left leads a group, and the
+    group holds it and every candidate left that ties with **it** (gap ``best_b / best_a − 1`` not above the
+    larger of the two spreads, nor ``floor``).  A candidate that ties only with a member of the group, not with
+    its leader, starts a later group (:func:`describe` names the ties across groups), so two candidates whose gap
+    exceeds both their spreads never share a group."""
+    left, groups = sorted(costs, key=lambda name: costs[name].best), []
+    while left:
+        lead = left[0]
+        group = [name for name in left if name == lead or _ties(costs[lead], costs[name], floor)]
+        groups.append(group)
+        left = [name for name in left if name not in group]
     return groups
 
 
@@ -167,6 +167,16 @@ def compare(a: Cost, b: Cost, floor: float = NOISE_FLOOR) -> str:
     if _ties(a, b, floor):
         return "tie within noise"
     return "a cheaper" if a.best < b.best else "b cheaper"
+
+
+#: a spread above this (median more than twice the minimum) says the machine was loaded while it timed: a
+#: ranking on such costs is not stated; the timings are to be repeated on a quieter machine
+LOADED_SPREAD = 1.0
+
+
+def loaded(costs: Mapping[str, Cost], limit: float = LOADED_SPREAD) -> list[str]:
+    """The candidates whose spread exceeds ``limit`` (timed on a loaded machine), largest spread first."""
+    return sorted((n for n, c in costs.items() if c.spread > limit), key=lambda n: -costs[n].spread)
 
 
 def format_seconds(t: float) -> str:
@@ -185,10 +195,17 @@ def format_cost(name: str, cost: Cost) -> str:
 
 def describe(costs: Mapping[str, Cost], floor: float = NOISE_FLOOR) -> str:
     """The ranking as a sentence fragment, e.g. ``"split6 (1.2 ms, spread 4.0 %) < vi4
-    (1.5 ms, spread 3.1 %) and split4 (1.52 ms, spread 5.2 %) tie within noise < rk4 (…)"``."""
-    parts = []
+    (1.5 ms, spread 3.1 %) and split4 (1.52 ms, spread 5.2 %) tie within noise < rk4 (…)"``.  A candidate of a
+    later group that ties with one of an earlier group (not with its leader) says so: ``"< r (2 s, spread 0.0 %;
+    ties q)"``."""
+    parts, before = [], []
     for group in rank(costs, floor):
-        words = [format_cost(name, costs[name]) for name in group]
+        words = []
+        for name in group:
+            w = format_cost(name, costs[name])
+            also = [b for b in before if _ties(costs[b], costs[name], floor)]
+            words.append(w[:-1] + f"; ties {', '.join(also)})" if also else w)
+        before += group
         if len(words) == 1:
             parts.append(words[0])
         else:
@@ -248,5 +265,5 @@ def equalize_steps(cost_of: Callable[[dict], Mapping], steps: Mapping, targets: 
     return {k: best.get(k, (h[k], c[k], c[k])) for k in h}, rnd
 
 
-__all__ = ["NOISE_FLOOR", "Cost", "pinned_threads", "measure", "rank", "compare", "describe", "format_cost",
+__all__ = ["NOISE_FLOOR", "LOADED_SPREAD", "Cost", "loaded", "pinned_threads", "measure", "rank", "compare", "describe", "format_cost",
            "format_seconds", "equal_cost_check", "equalize_steps", "secant_step"]

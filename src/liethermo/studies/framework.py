@@ -651,7 +651,9 @@ def _report(study: Study, ctx: Context, ds: xr.Dataset, nc: Path) -> Path:
         rows = [{"claim": v.claim, "measured": v.measured, "rule": v.rule,
                  "verdict": "holds" if v.holds else "—" if v.holds is None else "FAILS"} for v in verdicts]
         sections.append(markdown_table(pd.DataFrame(rows), "Verdicts",
-                                       "Each verdict follows from the tables above by its rule."))
+                                       "Each verdict follows from the tables above by its rule: holds, FAILS, "
+                                       "or — : not decided (the data cannot decide it: the measured column says why, "
+                                       "e.g. a tie, a value the ladder does not bracket, or a loaded machine)."))
     found = list(study.findings(ds, ctx)) if study.findings else []
     if found:
         sections.append("**Findings.** " + " ".join(found))

@@ -16,7 +16,7 @@ from .. import timing
 from .common import StudyError
 from .framework import Figure, Option, Stage, Study, Table, Verdict, first_point
 from ..models import Model
-from ..analysis import drift_fit
+from ..analysis import BOOTSTRAP_RESAMPLES, MIN_MEMBERS, ROUND_OFF, TREND_OVER_RANGE, drift_test, least_over_members
 
 CALIBRATION_ITERATIONS = 6  # rounds of the calibration, at most
 QUANTILES = (0.05, 0.5, 0.95)
@@ -90,13 +90,15 @@ def long_run(ctx, coords, calibration) -> xr.Dataset:
         _, win = _scene(ctx, coords, m, h, min(int(opt["kn_steps"]), steps), 1)
         laws = {**model.run_with_laws(win, **kw)[2], **laws}  # the long run's where it gives the law
     rel, t, status = model.relative_energy_error(ds), ds["t"].values, ds["status"].values
-    slope, spread = drift_fit(t, rel)
+    d = drift_test(t, rel)
     with np.errstate(invalid="ignore"):
         arel = np.abs(rel)
         band = np.quantile(np.where(np.isfinite(arel), arel, np.inf), QUANTILES, axis=0, method="inverted_cdf")
     pad = (0, 2 * int(opt["outputs"]) - t.size)  # every run's nodes on one "sample" axis
     return xr.Dataset({
-        "drift_rate": ("member", slope), "oscillation_amplitude": ("member", spread),
+        "drift_rate": ("member", d["slope"]), "drift_half_width": ("member", d["half_width"]),
+        "oscillation_amplitude": ("member", d["amplitude"]), "oscillation_range": ("member", d["range"]),
+        "drift_measurable": ("member", d["measurable"].astype(np.int8)),
         "max_relative_energy_error": ("member", np.where(status == 0, np.nanmax(arel, axis=1), np.inf)),
         "status": ("member", status.astype(np.int8)),
         "relative_energy_error_quantiles": (("quantile", "sample"), np.pad(band, ((0, 0), pad), constant_values=np.nan)),
@@ -109,6 +111,11 @@ QUANTITIES = {
     "dissipation": ("1", "factor on the base scene's dissipative coefficients"), "sample": ("1", "stored node"),
     "drift_rate": ("s-1", "least-squares slope of the relative energy error against t"),
     "oscillation_amplitude": ("1", "RMS of the relative energy error about its least-squares line"),
+    "oscillation_range": ("1", "peak-to-peak of the relative energy error about its least-squares line"),
+    "drift_half_width": ("s-1", "half the 95 % Newey-West interval of the drift rate"),
+    "drift_measurable": ("1", f"1: the interval excludes 0 and |drift rate| x record > {TREND_OVER_RANGE:g} x range"),
+    "drifting_members": ("1", "members whose drift is measurable (completed)"),
+    "median_drift_half_width": ("s-1", "median half-width of the drift rate's 95 % interval (completed)"),
     "max_relative_energy_error": ("1", "max over t of |relative energy error| (failed members: inf)"),
     "relative_energy_error_quantiles": ("1", "quantiles over members of |relative energy error| at band_t"),
     "band_t": ("s", "time of the stored node (NaN: past the run's last node)"), "steps": ("1", "steps of the run"),
@@ -123,14 +130,17 @@ QUANTITIES = {
     "median_max_relative_energy_error": ("1", "median max |relative energy error| (failed: inf)")}
 #: the table's columns, by their netCDF names
 COLUMNS = ("step", "steps", "calibrated_cost", "calibration_spread", "cost_per_simulated_s", "cost_spread",
-           "median_drift_rate", "median_abs_drift_rate", "median_oscillation_amplitude", "median_max_relative_energy_error", "failed_members")
+           "median_drift_rate", "median_drift_half_width", "drifting_members", "median_abs_drift_rate",
+           "median_oscillation_amplitude", "median_max_relative_energy_error", "failed_members")
 
 
 def derive(ds, ctx) -> xr.Dataset:
     ok, dr = ds["status"] == 0, ds["drift_rate"]
     return ds.assign(median_drift_rate=dr.where(ok).median("member"), median_abs_drift_rate=abs(dr).where(ok).median(
         "member"), median_oscillation_amplitude=ds["oscillation_amplitude"].where(ok).median("member"),
-        median_max_relative_energy_error=ds["max_relative_energy_error"].median("member"), failed_members=(~ok).sum("member"))
+        median_max_relative_energy_error=ds["max_relative_energy_error"].median("member"), failed_members=(~ok).sum("member"),
+        median_drift_half_width=ds["drift_half_width"].where(ok).median("member"),
+        drifting_members=(ds["drift_measurable"].where(ok, 0) > 0).sum("member"))
 
 
 def _costs(d) -> dict:  # {dissipation: {method: CPU time per simulated second of its long run}}
@@ -158,14 +168,64 @@ def verdicts(ds, ctx) -> list[Verdict]:
                     not timing.equal_cost_check(c)) for f, c in _costs(first_point(ds, ctx)).items()]
 
 
+def _least(values: dict, what: str, floor: float = ROUND_OFF) -> str:
+    """A clause on which of ``values`` ({method: per-member values}) is least, by seeded paired intervals."""
+    if len(values) < 2:
+        return ""
+    med = {m: float(np.median(np.where(np.isfinite(v), np.abs(v), np.inf))) for m, v in values.items()}
+    best = min(med, key=med.get)
+    at_floor = [m for m in values if med[m] <= floor]
+    if len(at_floor) > 1:
+        above = ", ".join(f"{m} {med[m]:.1e}" for m in values if m not in at_floor)
+        return f"{what} {', '.join(at_floor)} tie at round-off (median ≤ {floor:g})" + (f", above it {above}" if above else "")
+    least, cmp = least_over_members(values, floor=floor)
+    if not least:
+        return f"{what} {best} ({med[best]:.2e})"
+    if len(least) == len(values):
+        return f"{what} no method below another (every paired interval contains 1)"
+    nxt = min((m for m in cmp if m not in least), key=med.get)
+    return (f"{what} {' = '.join(least)} ({med[best]:.2e}{'; the others tie with it' if len(least) > 1 else ''}; "
+            f"next {cmp[nxt].text(nxt, best)})")
+
+
 def findings(ds, ctx) -> list[str]:
-    d, base, out = first_point(ds, ctx), ctx.methods[0], []
+    """Per dissipation: which methods drift measurably over T, which do not (and are not ranked), then the least
+    |drift rate| among those that drift, the least max energy error and the least defect of each law, each
+    ranked by seeded paired intervals over members (or said to be unranked where members are too few)."""
+    d, out, T = first_point(ds, ctx), [], float(ctx.opt["t_end"])
+    laws, members = [v for v in d.data_vars if v.startswith("defect_")], d.sizes["member"]
     for f in d["dissipation"].values:
-        r = d["median_abs_drift_rate"].sel(dissipation=f).to_series().dropna().sort_values()
-        if base in r:
-            tail = f"less than {b}." if (b := ", ".join(m for m in r.index if r[m] > r[base])) else "more than every other method."
-            out.append(f"At dissipation × {f:g}, {r.index[0]} drifts least ({r.iloc[0]:.2e} s⁻¹); the baseline {base} "
-                       f"({r[base]:.2e} s⁻¹) drifts {tail}")
+        x = d.sel(dissipation=f)
+        ok = {m: x["status"].sel(scheme=m).values == 0 for m in ctx.methods}
+        n = {m: int(ok[m].sum()) for m in ctx.methods}
+        k = {m: int(((x["drift_measurable"].sel(scheme=m).values > 0) & ok[m]).sum()) for m in ctx.methods}
+        drifts = [m for m in ctx.methods if n[m] and 2 * k[m] > n[m]]
+        still = [m for m in ctx.methods if n[m] and m not in drifts]
+        words, least = [], []
+        if still:
+            words.append(f"no measurable drift over T = {T:g} s for {', '.join(still)} (on most members |drift| × T "
+                         f"is not {TREND_OVER_RANGE:g}× the oscillation's range, or the drift's 95 % interval "
+                         "contains 0): not ranked by drift")
+        for m in drifts:
+            y = x.sel(scheme=m)
+            words.append(f"{m} drifts on {k[m]} of {n[m]} members (median "
+                         f"{float(y['median_drift_rate']):.2e} s⁻¹, interval ± {float(y['median_drift_half_width']):.1e})")
+        if len(drifts) > 1:
+            least.append(_least({m: np.where(ok[m], x["drift_rate"].sel(scheme=m).values, np.inf) for m in drifts},
+                                "|drift rate|", floor=0.0))
+        least.append(_least({m: x["max_relative_energy_error"].sel(scheme=m).values for m in ctx.methods},
+                            "max |relative energy error|"))
+        for v in laws:
+            vals = {m: x[v].sel(scheme=m).values for m in ctx.methods if np.isfinite(x[v].sel(scheme=m).values).any()}
+            least.append(_least(vals, f"{v[len('defect_'):]} defect"))
+        least = [w for w in least if w]
+        head = (f"Least medians ({members} members, too few for paired intervals (≥ {MIN_MEMBERS}), so not ranked): "
+                if members < MIN_MEMBERS else "Least, by paired 95 % intervals over members: ")
+        out.append(f"At dissipation × {f:g}: " + "; ".join(words) + (f". {head}" + "; ".join(least) if least
+                                                                    else "") + ".")
+    failed = [m for m in ctx.methods if int(d["failed_members"].sel(scheme=m).sum())]
+    if failed:
+        out.append(f"Failed members (counted as the worst in every comparison): {', '.join(failed)}.")
     return out
 
 
@@ -181,7 +241,15 @@ def draw(d, ctx, fig):
                 t, y = d["band_t"].sel(dissipation=f, scheme=m).values, q.sel(dissipation=f, scheme=m).values
                 ax.plot(t[t > 0], np.clip(y[t > 0], 1e-17, None), color=ctx.color(m), lw=1.2, label=m)
             else:
-                ax.plot(range(len(fs)), np.clip(d[f].sel(scheme=m), 1e-20, None), "o-", color=ctx.color(m), mfc="none")
+                y = np.clip(d[f].sel(scheme=m).values, 1e-20, None)
+                ax.plot(range(len(fs)), y, "-", color=ctx.color(m), lw=0.8, alpha=0.5)
+                if f == "median_abs_drift_rate":  # filled: the method drifts measurably; open: no measurable drift
+                    ok = d["status"].sel(scheme=m) == 0
+                    drifts = (2 * d["drifting_members"].sel(scheme=m) > ok.sum("member")).values
+                    ax.plot(np.flatnonzero(drifts), y[drifts], "o", color=ctx.color(m))
+                    ax.plot(np.flatnonzero(~drifts), y[~drifts], "o", color=ctx.color(m), mfc="none")
+                else:
+                    ax.plot(range(len(fs)), y, "o", color=ctx.color(m), mfc="none")
                 ax.set_xticks(range(len(fs)), [f"{x:g}" for x in fs])
         ax.set(title=title, yscale="log", xlabel="dissipation (× scene's)" if isinstance(f, str) else "t (s)",
                ylabel=f"{title} ({d[f].attrs['units']})" if isinstance(f, str) else "median |relative energy error| (1)")
@@ -210,16 +278,25 @@ STUDY = Study(
     quantities=QUANTITIES, derive=derive, tables=tables, verdicts=verdicts, findings=findings,
     figures=(Figure("long_drift", kind="custom", draw=draw, size=(15.5, 8.4), claim=(
         "each method's median energy error over time at equal cost (bounded or drifting); per dissipation the drift "
-        "rate and the long runs' CPU time per simulated second (the equal-cost table flags pairs > 15 % apart)")),),
+        "rate (filled: the method drifts measurably; open: no measurable drift over T, the slope is the oscillation's) "
+        "and the long runs' CPU time per simulated second (the equal-cost table flags pairs > 15 % apart)")),),
     report=("Scene `{scene}` ({model}), {members} members, t_end = {opt[t_end]} s, dissipation × {factors} of the "
             "scene's ({coefficients}). **Equal cost, measured:** `{base}` at h = {opt[h_base]} s; each other h is "
             "calibrated per dissipation in CPU time on the long runs' kernel ({opt[threads]} thread(s), {horizon:g} s "
             "simulated, interleaved, ≥ {opt[calibration_repeats]} repeats, minimum) to within {rtol:g} %; after the long "
             "runs each is timed again the same way, and the equal-cost check uses those times. Drift rate: "
-            "least-squares slope of the relative energy error; oscillation: RMS about it. Laws needing every step: "
-            "{opt[kn_steps]} steps."),
+            "least-squares slope of the relative energy error, with its 95 % Newey–West interval (Bartlett weights over "
+            "a tenth of the record's nodes: the oscillation's residuals are correlated over many nodes); "
+            "oscillation: RMS and peak-to-peak range about that line. A member **drifts** when the interval excludes "
+            "0 and |drift rate| × t_end exceeds {trend:g}× the range (an oscillation with a whole period in the record "
+            "never does), a method when most of its members do; otherwise the findings say \"no measurable drift "
+            "over T\" and do not rank it. Rankings over members (smallest |drift|, max energy error, law defects) "
+            "compare medians by a paired bootstrap over members (95 %, seeded, {resamples} resamples): a method ties "
+            "with the least when its interval of the ratio contains 1, values below {floor:g} are equal (round-off), "
+            "and fewer than {min_members} members rank nothing. Laws needing every step: {opt[kn_steps]} steps."),
     facts=lambda ds, ctx: {
-        "members": ds.sizes["member"], "base": ctx.methods[0], "rtol": 100 * ctx.opt["calibration_rtol"],
+        "members": ds.sizes["member"], "base": ctx.methods[0], "trend": TREND_OVER_RANGE, "floor": ROUND_OFF,
+        "resamples": BOOTSTRAP_RESAMPLES, "min_members": MIN_MEMBERS, "rtol": 100 * ctx.opt["calibration_rtol"],
         "factors": ", ".join(f"{f:g}" for f in ctx.opt["dissipation"]), "horizon": ctx.opt["calibration_horizon"]
         * ctx.opt["t_end"], "coefficients": ", ".join(f"{k} = {v:g}" for k, v in ctx.model.dissipation_overrides(
             ctx.scene(ctx.points[0] if ctx.points else None), 1.0).items()) or "none"},

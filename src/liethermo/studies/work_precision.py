@@ -15,6 +15,7 @@ from .common import StudyError
 from .framework import PALETTE, Figure, Option, Stage, Study, Table, Verdict, run_scene
 
 SCIPY = ("RK23", "RK45", "DOP853")  # solve_ivp methods
+REMEASURE = 3  # measurements of one h at most, while a spread says the machine is loaded
 SCIPY_NOTE = ("scipy's solve_ivp ({s}; atol = {o[scipy_atol_factor]:g}·rtol) integrates {o[scipy_members]} member(s) one "
               "at a time, serially, through a Python wrapper.")
 
@@ -76,8 +77,11 @@ def costs(ctx, coords) -> xr.Dataset:
     """Every method at this h timed interleaved, each run of the members repeated to cover timing_member_steps."""
     h, N = float(coords["h"]), ctx.opt["members"]
     n = N * -(-ctx.opt["timing_member_steps"] // (N * round(ctx.opt["t_end"] / h)))  # members of a timed run
-    c = timing.measure({m: (lambda m=m: _run(ctx, coords["point"], m, h, n)[1].kernel_time) for m in ctx.methods},
-                       repeats=ctx.opt["repeats"], min_time=ctx.opt["min_timing"], threads=ctx.opt["threads"])
+    for _ in range(REMEASURE):  # a spread over 100 % says the machine was loaded: time again, up to REMEASURE times
+        c = timing.measure({m: (lambda m=m: _run(ctx, coords["point"], m, h, n)[1].kernel_time) for m in ctx.methods},
+                           repeats=ctx.opt["repeats"], min_time=ctx.opt["min_timing"], threads=ctx.opt["threads"])
+        if not timing.loaded(c):
+            break
     return _cost_ds({m: c[m].per(n) for m in ctx.methods}, "scheme", timed_members=((), n))
 
 
@@ -107,18 +111,49 @@ def scipy_runs(ctx, coords, reference) -> xr.Dataset:
                     failed=("solver", np.isinf(err).sum(axis=1)))
 
 
+#: a ladder whose finest level lowers the error by less than this factor has reached its round-off floor
+FLOOR_GAIN = 2.0
+#: what a time to ε is, by where ε falls on the ladder
+HOW = {"bracketed": "bracketed (log–log between two levels)",
+       "upper bound": "upper bound (≤: the coarsest level is already below ε)",
+       "lower bound": "lower bound (≥: the finest level is still above ε)",
+       "below the round-off floor": "below the round-off floor (the finest levels stopped gaining)",
+       "not reached": "not reached (no finite error)"}
+
+
+def _line(e, t, i: int, j: int, eps: float) -> float:
+    """The cost at ε on the log–log line through levels i and j (NaN where it is not a falling line)."""
+    if not (np.isfinite(e[i]) and np.isfinite(e[j]) and e[i] > 0 and e[j] > 0 and e[i] != e[j] and t[i] > 0 and t[j] > 0):
+        return float("nan")
+    return float(t[i] * (t[j] / t[i]) ** (math.log(eps / e[i]) / math.log(e[j] / e[i])))
+
+
 def time_to_error(errors, times, eps: float):
-    """(time, how, levels used): the cost to reach ``eps``, log–log interpolated between levels (coarse → fine);
-    how: "interpolated", "coarsest" (the coarsest level is already that accurate: an upper bound) or "not reached"."""
+    """(time, how, levels used, estimate): the cost to reach ``eps`` on a ladder of levels (coarse → fine).
+
+    how: "bracketed" (two neighbouring levels lie on either side of ε: log–log interpolation between them, or a
+    level exactly at ε), "upper bound" (the coarsest level is already below ε: the time is its cost, and the true
+    one is at most that), "lower bound" (the finest level is still above ε and the ladder was still gaining: the
+    true time is at least the finest level's cost), "below the round-off floor" (still above ε, but the finest
+    level lowered the error by less than :data:`FLOOR_GAIN`: no time) or "not reached" (no finite error).  The
+    estimate of a bound is the log–log line of the two levels at that end of the ladder carried to ε (the
+    method's h^p line); NaN for the others."""
     e, t = np.nan_to_num(np.asarray(errors, float), nan=np.inf, posinf=np.inf), np.asarray(times, float)
-    if e.size and e[0] <= eps:
-        return float(t[0]), "coarsest", (0,)
+    nan = float("nan")
+    ok = np.flatnonzero(np.isfinite(e) & (e > 0))
     for i in np.flatnonzero((e[:-1] >= eps) & (e[1:] <= eps))[:1].tolist():
         if not (np.isfinite(e[i]) and e[i + 1] > 0 and e[i] != e[i + 1]):
-            return float(t[i + 1]), "interpolated", (i + 1,)
-        s = math.log(eps / e[i]) / math.log(e[i + 1] / e[i])
-        return float(t[i] * (t[i + 1] / t[i]) ** s), "interpolated", (i, i + 1)
-    return float("nan"), "not reached", ()
+            return float(t[i + 1]), "bracketed", (i + 1,), nan
+        return _line(e, t, i, i + 1, eps), "bracketed", (i, i + 1), nan
+    if e.size and e[0] <= eps:
+        return float(t[0]), "upper bound", (0,), (min(_line(e, t, 0, 1, eps), float(t[0])) if e.size > 1 else nan)
+    if not ok.size:
+        return nan, "not reached", (), nan
+    last = int(ok[-1])
+    if ok.size > 1 and e[last] * FLOOR_GAIN > e[int(ok[-2])]:
+        return nan, "below the round-off floor", (), nan
+    est = max(_line(e, t, int(ok[-2]), last, eps), float(t[last])) if ok.size > 1 else nan
+    return float(t[last]), "lower bound", (last,), est
 
 
 def _curves(ds) -> dict:
@@ -130,20 +165,40 @@ def _curves(ds) -> dict:
     return out
 
 
+def _bound_text(name: str, r: dict, eps: float) -> str:
+    """``"split6 (≤ 1.38 µs, its h^p line: 0.46 µs)"``."""
+    sign = "≤" if r["how"] == "upper bound" else "≥"
+    est = f", its h^p line: {timing.format_seconds(r['estimate'])}" if np.isfinite(r["estimate"]) else ""
+    return f"{name} ({sign} {timing.format_seconds(r['time'])}{est})"
+
+
 def reach(ds, ctx) -> tuple[list[dict], list[dict]]:
-    """(the time to each ε per candidate, the cheapest per ε): one computation for both closing tables."""
+    """(the time to each ε per candidate, the cheapest per ε): one computation for both closing tables.
+
+    The cheapest is ranked on bracketed times only (:func:`timing.rank`: pairwise ties within the spreads).  It is
+    decided only when no candidate with a bound could be cheaper (an upper bound, or a lower bound below the
+    leader's time plus its spread) and no time it rests on was measured on a loaded machine
+    (:data:`timing.LOADED_SPREAD`)."""
     curves, rows = _curves(ds), []
     ttr = {n: {"method": n} for n in curves}
     for eps in ctx.opt["epsilons"]:
-        c = {}
+        c, got = {}, {}
         for name, (lev, e, t, sp, *_) in curves.items():
-            tt, how, used = time_to_error(e, t, eps)
+            tt, how, used, est = time_to_error(e, t, eps)
             s = max((sp[i] for i in used), default=np.nan)  # the spread of the levels it rests on
-            ttr[name].update({f"time/member to {eps:.0e} (s)": tt, f"spread ({eps:.0e})": s, f"({eps:.0e})": how})
-            c.update({name: timing.Cost(tt, tt * (1 + s), s, 0, ())} if used else {})
+            got[name] = {"time": tt, "how": how, "estimate": est, "spread": s}
+            ttr[name].update({f"time/member to {eps:.0e} (s)": tt, f"spread ({eps:.0e})": s, f"({eps:.0e})": HOW[how],
+                              f"h^p line to {eps:.0e} (s)": est})
+            c.update({name: timing.Cost(tt, tt * (1 + s), s, 0, ())} if how == "bracketed" else {})
         g = timing.rank(c)[0] if c else []
+        lead = c[g[0]] if g else None
+        could = [n for n, r in got.items() if r["how"] == "upper bound" or (
+            r["how"] == "lower bound" and (lead is None or r["time"] <= lead.best * (1 + max(lead.spread, timing.NOISE_FLOOR))))]
+        busy = timing.loaded({n: c[n] for n in g})
         rows.append({"error ≤": eps, "cheapest": " = ".join(g) or "not reached", "reached by": len(c), "time/member (s)":
-                     c[g[0]].best if g else np.nan, "ranking (beyond the spread)": timing.describe(c) if c else "—"})
+                     lead.best if g else np.nan, "ranking (beyond the spread)": timing.describe(c) if c else "—",
+                     "possibly cheaper, not bracketed": "; ".join(_bound_text(n, got[n], eps) for n in could) or "none",
+                     "loaded": ", ".join(f"{n} (spread {c[n].spread:.0%})" for n in busy) or "no"})
     return list(ttr.values()), rows
 
 
@@ -163,32 +218,71 @@ def tables(ds, ctx) -> list[Table]:
 
 
 def verdicts(ds, ctx) -> list[Verdict]:
+    """Per ε: the cheapest on bracketed times; not decided (—) where a method with only a bound could be cheaper,
+    where the machine was loaded, or where no method brackets ε."""
     out = []
     for r in reach(ds, ctx)[1]:
         e, g = f"{r['error ≤']:.0e}", r["cheapest"].split(" = ")
-        claim = (f"to error {e}: {', '.join(g)} tie within noise" if len(g) > 1 else f"{g[0]} is the only method "
-                 f"to reach error {e}" if r["reached by"] == 1 else f"{g[0]} is the cheapest to error {e}")
-        out.append(Verdict(claim, r["ranking (beyond the spread)"], "its gap to the next > both spreads (≥ 2 %)",
-                           True if r["reached by"] and len(g) == 1 else None))
+        claim = (f"no method's time to error {e} is bracketed" if not r["reached by"] else
+                 f"to error {e}: {', '.join(g)} tie within noise" if len(g) > 1 else f"{g[0]} is the cheapest to "
+                 f"error {e}" + (" (the only bracketed time)" if r["reached by"] == 1 else ""))
+        why = ([f"not bracketed, possibly cheaper: {r['possibly cheaper, not bracketed']}"] * (r["possibly cheaper, "
+               "not bracketed"] != "none") + [f"loaded machine, re-measure: {r['loaded']}"] * (r["loaded"] != "no"))
+        decided = bool(r["reached by"]) and len(g) == 1 and not why
+        out.append(Verdict(claim, "; ".join([r["ranking (beyond the spread)"], *why]),
+                           "bracketed times only; its gap to the next > both spreads (≥ 2 %); no method with only a "
+                           "bound possibly cheaper; no spread > 100 %", True if decided else None))
     return out
 
 
 def findings(ds, ctx) -> list[str]:
-    won = [(r, [n for n in r["cheapest"].split(" = ") if n.startswith(("rk", "scipy"))]) for r in reach(ds, ctx)[1]]
-    return [f"To {r['error ≤']:.0e}: {r['cheapest']}; " + (f"the baseline {', '.join(w)} wins or ties." if w else
-                                                           "no baseline (RK, scipy) wins.") for r, w in won]
+    out = []
+    for r in reach(ds, ctx)[1]:
+        w = [n for n in r["cheapest"].split(" = ") if n.startswith(("rk", "scipy"))]
+        s = (f"To {r['error ≤']:.0e}: {r['cheapest']} (bracketed); " + (f"the baseline {', '.join(w)} wins or ties"
+             if w else "no baseline (RK, scipy) wins among the bracketed"))
+        if r["possibly cheaper, not bracketed"] != "none":
+            s += f", but not decided: the ladder does not bracket {r['possibly cheaper, not bracketed']}"
+        if r["loaded"] != "no":
+            s += f"; the machine was loaded ({r['loaded']}): not ranked, re-measure"
+        out.append(s + ".")
+    return out
+
+
+#: the figure's marker of a time to ε, by what it is
+MARK = {"bracketed": ("o", "full"), "upper bound": ("v", "none"), "lower bound": ("^", "none")}
 
 
 def _draw(ds, ctx, fig) -> None:
-    ax = fig.subplots()
-    for j, (name, (lev, e, t, sp, *_)) in enumerate(_curves(ds).items()):
-        ok = np.isfinite(e) & (e > 0) & np.isfinite(t)
+    """Error against cost per member (bars: to the median repeat), and each time to ε of the closing tables:
+    a filled circle where the ladder brackets ε, an open ▼ at an upper bound and ▲ at a lower bound, each bound
+    with a dotted line to its h^p-line estimate (×)."""
+    from matplotlib.lines import Line2D
+
+    ax, curves, ttr = fig.subplots(), _curves(ds), reach(ds, ctx)[0]
+    for j, (name, (lev, e, t, sp, *_)) in enumerate(curves.items()):
+        ok, col = np.isfinite(e) & (e > 0) & np.isfinite(t), PALETTE[j % len(PALETTE)]
         ax.errorbar(e[ok], t[ok], yerr=[0 * t[ok], t[ok] * sp[ok]], fmt="o-" if name in ctx.methods else "s--",
-                    color=PALETTE[j % len(PALETTE)], mfc="none", capsize=2, label=name)
+                    color=col, mfc="none", capsize=2, label=name, alpha=0.8)
+        for eps in ctx.opt["epsilons"]:
+            r = ttr[j]
+            tt, how, est = r[f"time/member to {eps:.0e} (s)"], r[f"({eps:.0e})"].split(" (")[0], r[f"h^p line to {eps:.0e} (s)"]
+            if how in MARK and np.isfinite(tt):
+                ax.plot([eps], [tt], MARK[how][0], fillstyle=MARK[how][1], color=col, ms=9, mew=1.6)
+                if np.isfinite(est):
+                    ax.plot([eps, eps], [tt, est], ":", color=col, lw=1.2)
+                    ax.plot([eps], [est], "x", color=col, ms=7)
+    for eps in ctx.opt["epsilons"]:
+        ax.axvline(eps, color="0.6", lw=0.8, ls="--")
     ax.set(xscale="log", yscale="log", xlabel="error at t_end (1)", ylabel="cost per member (s)")
     ax.invert_xaxis()
     ax.grid(True, which="both", alpha=0.3)
-    fig.legend(fontsize=8, loc="outside right upper")
+    keys = [Line2D([], [], marker="o", color="0.3", ls="", label="time to ε: bracketed"),
+            Line2D([], [], marker="v", fillstyle="none", color="0.3", ls="", label="upper bound (≤)"),
+            Line2D([], [], marker="^", fillstyle="none", color="0.3", ls="", label="lower bound (≥)"),
+            Line2D([], [], marker="x", color="0.3", ls=":", label="h^p-line estimate")]
+    handles, labels = ax.get_legend_handles_labels()
+    fig.legend(handles + keys, labels + [k.get_label() for k in keys], fontsize=8, loc="outside right upper")
 
 
 _Q = {"error": ("1", "max over members of the error at t_end"), "failed": ("1", "members that failed"), "cost_repeats":
@@ -215,12 +309,21 @@ STUDY = Study(
             Stage("errors", errors, over=("point", "scheme", "h"), needs=("reference",)),
             Stage("costs", costs, over=("point", "h"), serial=True),
             Stage("scipy", scipy_runs, over=("point", "rtol"), needs=("reference",), serial=True, prefix="scipy_")),
-    figures=(Figure("work_precision", kind="custom", draw=_draw, size=(8.5, 5),
-                    claim="the lowest curve at an error level is the tables' cheapest; bars reach the median repeat"),),
+    figures=(Figure("work_precision", kind="custom", draw=_draw, size=(9.5, 5.5), claim=(
+        "the lowest curve at an error level (dashed lines) is the tables' cheapest; bars reach the median repeat; "
+        "filled circles are bracketed times to ε, open triangles bounds (▼ at most, ▲ at least) with their h^p-line "
+        "estimates (×)")),),
     report=("Scene `{scene}` ({model}), {opt[members]} members, t_end = {opt[t_end]} s. Error: per member the largest "
             "|x(t_end) − x_ref(t_end)| / |x(0)| over {state}; the reference: {ref}. Costs: all methods at an h timed "
             "interleaved on {opt[threads]} pinned thread(s), runs of ≥ {opt[timing_member_steps]} member-steps, ≥ "
-            "{opt[repeats]} rounds and {opt[min_timing]} s; the minimum over repeats, spread = median / min − 1. {scipy}"),
+            "{opt[repeats]} rounds and {opt[min_timing]} s; the minimum over repeats, spread = median / min − 1 (a spread "
+            "over 100 % means a loaded machine: that h is timed again, up to 3 times, and a ranking that rests on "
+            "it is not stated). A time to ε is **bracketed** when two neighbouring levels lie on either side of ε; "
+            "where the coarsest level is already below ε it is an **upper bound**, where the finest is still above "
+            "it a **lower bound** (each with its h^p-line estimate, not used by any verdict), and where the finest "
+            "levels stopped gaining (less than 2× per level) ε is **below the round-off floor**. A verdict rests on "
+            "bracketed times only and is left undecided (—) where a method with only a bound could be cheaper. "
+            "{scipy}"),
     facts=lambda ds, ctx: {"state": ", ".join(ds["state"].values), "ref": ctx.model.methods()["reference"].description,
                            "scipy": SCIPY_NOTE.format(s=", ".join(ctx.axes["solver"]), o=ctx.opt) if ctx.axes["solver"]
                            else "scipy's solve_ivp is skipped (no continuous right-hand side, or scipy_members = 0)."},
