@@ -25,6 +25,8 @@ def read_bytes(key: str, path: str) -> bytes:
         raise SceneError(key, "is a folder, not a file", path) from None
     except OSError as exc:
         raise SceneError(key, f"cannot be read ({exc.strerror or exc})", path) from None
+    except ValueError:  # e.g. a NUL byte in the path
+        raise SceneError(key, "is not a valid path", path) from None
 
 
 def sha256_of_bytes(data: bytes) -> str:

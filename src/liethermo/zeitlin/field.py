@@ -93,11 +93,11 @@ def check_triangle(key: str, what: str, C, N: int) -> np.ndarray:
     if C.ndim not in (2, 3) or C.shape[-1] != C.shape[-2] or C.shape[-1] < 1:
         raise SceneError(key, f"{what}: the coefficients must be a triangle C[l, m] of shape (L+1, L+1) "
                          f"or (members, L+1, L+1), not {C.shape}", show_value=False)
-    C = np.asarray(C, dtype=np.complex128).reshape((-1,) + C.shape[-2:])
     if not np.isfinite(C).all():
-        bad = np.argwhere(~np.isfinite(C))[0]
-        raise SceneError(key, f"{what}: the coefficients must be finite (C{list(bad)} is {C[tuple(bad)]})",
-                         show_value=False)
+        bad = tuple(int(i) for i in np.argwhere(~np.isfinite(C))[0])
+        where = (f"member {bad[0]}'s " if C.ndim == 3 else "") + f"C[{bad[-2]}, {bad[-1]}]"
+        raise SceneError(key, f"{what}: the coefficients must be finite ({where} is {C[bad]})", show_value=False)
+    C = np.asarray(C, dtype=np.complex128).reshape((-1,) + C.shape[-2:])
     L = C.shape[-1] - 1
     upper = np.triu(np.ones((L + 1, L + 1), dtype=bool), 1)  # m > l: no such harmonic
     if np.any(C[:, upper] != 0):
