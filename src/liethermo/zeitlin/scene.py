@@ -69,7 +69,7 @@ KEYS: tuple[Key, ...] = (
     Key("initial", "file", "", "", "a path (.nc, .npz, .npy), or empty",
         "kind = \"file\": the vorticity's spherical-harmonic coefficients C[l, m] = ω_lm in s-1 (m ≥ 0; "
         "shape (L+1, L+1): one field for every member, or (members, L+1, L+1)); a relative path is "
-        "relative to the working folder; formats: docs/api.md, \"Your own initial field\"",
+        "relative to the working folder; formats: docs/api.md, \"Your own initial data\"",
         string),
     Key("initial", "sha256", "", "", "64 hex digits, or empty",
         "the sha256 of initial.file, filled in when the scene is loaded and stored with the run: a "
