@@ -6,7 +6,7 @@ The Python interface (docs/api.md)::
     ds = liethermo.run("paper", {"integrator.h": 0.05}, compare=False)  # the VI: an xarray Dataset
     ds.liethermo.relative_energy_error().plot.line(x="t")
 
-``run``, ``study``, ``load_scene``, ``open_dataset``, the ``ds.liethermo``
+``run``, ``study``, ``load_scene``, ``open_dataset``, ``open_runs``, the ``ds.liethermo``
 accessor and the errors they raise on bad input (``SceneError``,
 ``PreflightError``) come from :mod:`liethermo.api`, loaded on first use.  Importing
 the package compiles nothing and loads neither xarray nor numba (about 0.1 s);
@@ -19,12 +19,12 @@ import sys
 
 from .version import __version__
 
-__all__ = ["run", "study", "load_scene", "open_dataset", "StudyResult", "SceneError", "PreflightError",
-           "__version__"]
+__all__ = ["run", "study", "load_scene", "open_dataset", "open_runs", "StudyResult", "SceneError",
+           "PreflightError", "__version__"]
 
 #: the public names, loaded from liethermo.api on first use: ``import liethermo`` and the
 #: command line's help then start without xarray and numba
-_API = {"run", "study", "load_scene", "open_dataset", "StudyResult", "SceneError", "PreflightError"}
+_API = {"run", "study", "load_scene", "open_dataset", "open_runs", "StudyResult", "SceneError", "PreflightError"}
 
 
 def __getattr__(name: str):

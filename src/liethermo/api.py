@@ -13,6 +13,7 @@
     ds.liethermo.relative_energy_error()                # (E_k − E₀)/E_mech,0 on node values
     ds.liethermo.ok                                     # members that completed
     ds.liethermo.quantiles("energy_error")              # 5 / 50 / 95 % over the members
+    both = liethermo.open_runs(["paper64.nc", "paper64_rk2.nc"])   # one dataset, dims (method, member, t, …)
 
 The command line (``liethermo run``, ``liethermo study``) calls these same
 functions.  Inputs are validated before any work, as on the command line:
@@ -48,7 +49,7 @@ def load_scene(scene: str | Path | dict | Scene = "paper", overrides: dict | lis
 def run(scene: str | Path | dict | Scene = "paper", overrides: dict | list | None = None, *,
         output: str | Path | None = None, compare: bool | None = None, figures: bool | None = None,
         progress: bool = False, force: bool = False, resume: Any = False, preflight: bool = True,
-        history: str | None = None) -> xr.Dataset | dict[str, xr.Dataset]:
+        history: str | None = None, combine: bool = False) -> xr.Dataset | dict[str, xr.Dataset]:
     """Run a scene with its own method and return its dataset.
 
     Runs in memory and writes nothing unless ``output`` (a ``.nc`` path) is
@@ -68,6 +69,12 @@ def run(scene: str | Path | dict | Scene = "paper", overrides: dict | list | Non
     ``<stem>_<method>.nc``); ``False`` runs the scene's method only.  Left
     out, a scene that compares with other methods raises
     :class:`SceneError` saying so, rather than dropping them unnoticed.
+
+    ``combine``: with ``compare=True``, return one Dataset with a ``method``
+    dimension instead of the dict (:func:`open_runs`: variables that only
+    some methods have are filled with NaN); with ``output``, it is opened
+    lazily from the files (dask arrays), without, it joins the in-memory
+    datasets.
 
     ``figures``: draw the scene's figures beside ``output`` (named
     ``<stem>_*.png`` as on the command line); left out, as the scene's
@@ -90,6 +97,9 @@ def run(scene: str | Path | dict | Scene = "paper", overrides: dict | list | Non
         except PreflightError as exc:
             raise PreflightError(_in_python_words(exc)) from None
     method, others = _methods_to_run(sc, compare, figures, output)
+    if combine and not compare:
+        raise SceneError("output.compare", "combine=True joins the compared methods into one dataset: pass "
+                         "compare=True too", show_value=False)
     draw = bool(sc["output"]["figures"] if figures is None else figures) and output is not None
     if history is None:
         history = cf.api_call("liethermo.run", scene if isinstance(scene, (str, Path, dict)) else sc.name,
@@ -112,6 +122,16 @@ def run(scene: str | Path | dict | Scene = "paper", overrides: dict | list | Non
         line = "  figures: none drawn (an in-memory run; pass output= to draw them beside the file)"
     for ds in results.values():
         ds.attrs["summary"] += "\n" + line
+    if combine:
+        from .combine import combine_runs
+
+        if output is None:
+            return combine_runs(results)
+        for ds in results.values():
+            ds.close()
+        combined = open_runs({m: paths[m] for m in methods})
+        combined.attrs["summary"] = "\n".join(results[m].attrs["summary"] for m in methods)
+        return combined
     return results if compare else results[method]
 
 
@@ -255,3 +275,23 @@ def open_dataset(path: str | Path, **kwargs) -> xr.Dataset:
     dimensions.  Keywords go to ``xarray.open_dataset`` (e.g. ``chunks={}``
     for a lazy, chunked read of a large ensemble)."""
     return cf.open_dataset(path, **kwargs)
+
+
+def open_runs(paths, *, methods=None, lazy: bool = True) -> xr.Dataset:
+    """The runs of one scene by several methods (their ``.nc`` files: a list,
+    or ``{method: path}``) as one Dataset with a ``method`` dimension.
+
+    Every data variable gains ``method`` as its first dimension; a variable
+    that only some methods have (e.g. the VI's ``omega_step``) is filled with
+    NaN for the others (float64 then, even if it counts iterations); the
+    methods' orders and steps h become coordinates along ``method``
+    (``method_order``, ``h`` in s, and ``source``, the file).  Global
+    attributes that differ between the files are dropped.
+
+    Opened lazily, as ``xarray.open_mfdataset`` does: the variables are dask
+    arrays read chunk by chunk when computed, so 10⁶ members do not load into
+    memory.  Without dask installed (or with ``lazy=False``) the files are
+    loaded into memory, with a warning when dask is missing."""
+    from .combine import open_runs as _open_runs
+
+    return _open_runs(paths, methods=methods, lazy=lazy)

@@ -134,6 +134,14 @@ def scene_difference(old_toml: str, new_toml: str, ignore=NOT_IN_RESULTS) -> str
     return None
 
 
+def _short_hashes(diff: str) -> str:
+    """``initial.sha256 ('<64 hex>' there, '<64 hex>' here)`` → ``<12 hex>…<12 hex> there, …``."""
+    import re
+
+    return re.sub(r"['\"]([0-9a-f]{12})[0-9a-f]{40}([0-9a-f]{12})['\"]", r"\1…\2",
+                  diff[len("initial.sha256 ("):-1])
+
+
 def file_scene(path: Path) -> str | None:
     """The resolved scene stored in a liethermo output (None: not one)."""
     import netCDF4
@@ -384,6 +392,10 @@ def prepare_run(scene: dict, output=None, *, force: bool = False, resume: bool =
                     raise PreflightError.remedy(f"cannot resume {o.path}: its partial run was made by "
                                                 f"liethermo {j.version}, this is {__version__}", "fresh", sep="; ")
                 diff = scene_difference(j.scene_toml, scene_to_toml(o.scene), ignore)
+                if diff is not None and diff.startswith("initial.sha256 "):
+                    raise PreflightError.remedy(f"cannot resume {o.path}: initial.file "
+                                                f"{o.scene['initial']['file']} has changed since the interrupted "
+                                                f"run (sha256 {_short_hashes(diff)})", "fresh", sep="; ")
                 if diff is not None:
                     raise PreflightError.remedy(f"cannot resume {o.path}: the scene differs from the "
                                                 f"interrupted run's in {diff}", "fresh", sep="; ")

@@ -471,10 +471,15 @@ def _check_start(scene: dict, phys) -> None:
     must start positive), with Ω·𝕀₀Ω bounded over the members: the members'
     spins reach spin_range[1] × |Ω(0)| in any direction, so the bound uses
     the largest moment."""
+    from .initial import file_members
     from .kernels.terms import registry
 
     omega = np.asarray(scene["initial"]["omega"], dtype=np.float64)
-    if int(scene["ensemble"]["members"]) == 1:
+    given = file_members(scene)
+    if given is not None:
+        kin2 = float(np.max(np.einsum("mi,i,mi->m", given[0], phys.inertia[0], given[0])))
+        what = "max over the members of initial.file of Ω·𝕀₀Ω"
+    elif int(scene["ensemble"]["members"]) == 1:
         kin2, what = float(omega @ (phys.inertia[0] * omega)), "Ω·𝕀₀Ω"
     else:
         from .initial import max_spin

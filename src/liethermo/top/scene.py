@@ -116,6 +116,15 @@ CORE_KEYS: tuple[Key, ...] = (
         "initial body angular velocity Ω(0)", vector((3,))),
     Key("initial", "R", E1_ROTATION, "1", "a rotation matrix",
         "initial attitude R(0) (body to space); Γ(0) = R(0)ᵀ e3", _rotation_check),
+    Key("initial", "file", "", "", "a path (.nc, .npz, .npy), or empty",
+        "Ω(0) in rad s-1 and, if it has them, the attitudes R(0) of every member, from a file "
+        "(initial_omega (members, 3), initial_attitude (members, 3, 3)); ensemble.members must "
+        "equal its members, initial.omega is not used, initial.R only where the file has no "
+        "attitudes; a relative path is relative to the working folder (docs/api.md, \"Your own "
+        "initial data\")", string),
+    Key("initial", "sha256", "", "", "64 hex digits, or empty",
+        "the sha256 of initial.file, filled in when the scene is loaded and stored with the run: a "
+        "resume, or a scene that gives it, is refused if the file has changed since", string),
     Key("integrator", "method", "vi", "", " | ".join(f'"{m}"' for m in METHODS),
         "the integrator (see docs/model.md): the variational integrator in node form and its "
         "order-4 and order-6 compositions, the explicit thermodynamic splitting and its "
@@ -318,6 +327,9 @@ def _cross_rules(s: dict) -> None:
     steps, every = s["integrator"]["steps"], s["output"]["every"]
     if steps % every:
         raise SceneError("output.every", f"must divide integrator.steps = {steps}", every)
+    from .initial import check_file
+
+    check_file(s)
     body = s["body"]
     if body["shape"] == "ellipsoid" and body["center_of_mass"] != "shape":
         G = np.asarray(body["center_of_mass"])

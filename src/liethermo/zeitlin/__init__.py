@@ -8,6 +8,9 @@
 
 ``vorticity_coefficients(ds)`` gives a run's stored vorticity as its
 spherical-harmonic coefficients ω_lm (s⁻¹); ``vorticity_on_grid(W)`` its map.
+``project(f, N)`` projects a vorticity f(lon, lat) (s⁻¹) onto the basis and
+``write_initial(path, field, N)`` writes a file for ``initial.kind = "file"``
+(:mod:`.field`).
 
 The model, the scheme and what each method keeps:
 docs/model.md, "A second Lie group: the thermodynamic Zeitlin fluid".
@@ -20,6 +23,10 @@ def __getattr__(name):
         from .run import vorticity_coefficients
 
         return vorticity_coefficients
+    if name in ("project", "write_initial"):
+        from . import field
+
+        return getattr(field, name)
     if name == "vorticity_on_grid":
         from .plotting import vorticity_on_grid
 

@@ -280,9 +280,21 @@ class Fluid(StudyDefaults, Model):
         from ..scene import load_scene
         from .run import initial_fields, integrate
 
-        scene = load_scene(tomllib.loads(ds.attrs["scene"]))
-        traj = integrate(scene, initial_fields(scene, np.arange(1)), progress=False,
-                         budget_members=budget_members(scene))
+        tables = tomllib.loads(ds.attrs["scene"])
+        if tables["initial"].get("kind") == "file" and "initial_vorticity_real" in ds:
+            # the field the run started from, as stored: the same even if its file has changed or gone
+            from . import kernels as zk
+            from .field import triangle_to_modes
+
+            C = ds["initial_vorticity_real"].values[:1] + 1j * ds["initial_vorticity_imag"].values[:1]
+            tables["initial"].update(kind="random", file="", sha256="")
+            scene = load_scene(tables)
+            b = zk.basis(int(scene["zeitlin"]["N"]))
+            W0 = zk.from_modes(triangle_to_modes(C, b.N), b)
+        else:
+            scene = load_scene(tables)
+            W0 = initial_fields(scene, np.arange(1))
+        traj = integrate(scene, W0, progress=False, budget_members=budget_members(scene))
         return traj.out.W_first
 
     # ---------------------------------------------------------- preflight
@@ -318,6 +330,8 @@ class Fluid(StudyDefaults, Model):
         per_var = [8 * T] * 8 + [8 * T * 3] * 3 + [8 * T * (N - 1)]  # (member, t[, k | axis | l]) values
         if scene["output"]["vorticity"]:
             per_var += [8 * T * N * N] * 2
+        if scene["initial"]["kind"] == "file":  # the initial coefficients, stored per member
+            per_var += [8 * N * N] * 2
         layout = [(n, disk_chunk_members(M, n)) for n in per_var] + [(1, 0), (8, 0), (8, 0)]
         file_per = sum(n for n, _ in layout)
         W = 16 * N * N

@@ -20,6 +20,7 @@ from ..numerics.laws import LAW_ENTROPY_MONOTONE
 from . import kernels as zk
 from ..numerics import heat as _heat
 from ..faults import check_stop
+from .field import read_field, triangle_to_modes
 from .scene import ZeitlinScene
 
 #: per-member status (dataset variable ``status``)
@@ -83,6 +84,8 @@ def initial_fields(scene: ZeitlinScene, members: np.ndarray | None = None) -> np
     z, ini, ens = scene["zeitlin"], scene["initial"], scene["ensemble"]
     b = zk.basis(z["N"])
     members = np.arange(ens["members"]) if members is None else np.asarray(members)
+    if ini["kind"] == "file":
+        return zk.from_modes(triangle_to_modes(file_fields(scene, members), b.N), b)
     lmax, energy = ini["lmax"], ini["energy"]
     ls = np.arange(1, b.N, dtype=float)
     out = np.empty((len(members), b.N, b.N), dtype=np.complex128)
@@ -107,6 +110,16 @@ def initial_fields(scene: ZeitlinScene, members: np.ndarray | None = None) -> np
                 C = C + mode * np.sqrt(share / zk.energy_of_modes(mode[None], b)[0])
         out[j] = zk.from_modes(C[None], b)[0]
     return out
+
+
+def file_fields(scene: ZeitlinScene, members: np.ndarray) -> np.ndarray:
+    """The coefficient triangles C[l, m] (members, N, N), s⁻¹, of the given
+    members of a scene with ``initial.kind = "file"`` (the file must still
+    have the scene's sha256)."""
+    ini = scene["initial"]
+    C, _ = read_field("initial.file", ini["file"], scene["zeitlin"]["N"], ini["sha256"])
+    members = np.asarray(members)
+    return C[members] if C.shape[0] > 1 else np.repeat(C, members.size, axis=0)
 
 
 # ----------------------------------------------------------------------------- steps
@@ -348,6 +361,15 @@ def trajectory_dataset(scene: ZeitlinScene, traj: Trajectory, method: str, histo
                "liethermo.zeitlin.vorticity_coefficients(ds) gives ω_lm in s-1")
         data["vorticity_real"] = _var(r.W.real, dims_w, "s-1", "vorticity W, real part", comment=how)
         data["vorticity_imag"] = _var(r.W.imag, dims_w, "s-1", "vorticity W, imag. part", comment=how)
+    if scene["initial"]["kind"] == "file":
+        C = file_fields(scene, np.arange(member_offset, member_offset + M))
+        dims_c = ("member", "degree", "order")
+        how = (f"C[l, m] = ω_lm of ω(t = 0) = Σ ω_lm Y_lm, m ≥ 0 (zero for m > l), read from initial.file "
+               f"(sha256 {scene['initial']['sha256']})")
+        data["initial_vorticity_real"] = _var(C.real, dims_c, "s-1", "initial vorticity coefficient, real part",
+                                              comment=how)
+        data["initial_vorticity_imag"] = _var(C.imag, dims_c, "s-1", "initial vorticity coefficient, imag. part",
+                                              comment=how)
     steps = np.arange(traj.times.size) * int(scene["output"]["every"])  # t_j = j every h
     coords = {
         "member": _var(np.arange(member_offset, member_offset + M), ("member",), "1", "ensemble member"),
@@ -358,6 +380,9 @@ def trajectory_dataset(scene: ZeitlinScene, traj: Trajectory, method: str, histo
         "l": _var(np.arange(1, b.N), ("l",), "1", "degree l",
                   comment="degree l of the spherical harmonics"),
     }
+    if scene["initial"]["kind"] == "file":
+        coords["degree"] = _var(np.arange(b.N), ("degree",), "1", "degree l of the initial coefficients")
+        coords["order"] = _var(np.arange(b.N), ("order",), "1", "order m of the initial coefficients")
     if attrs is None:
         attrs = run_attrs(scene, method, history)
         attrs["kernel_seconds"] = traj.kernel_seconds

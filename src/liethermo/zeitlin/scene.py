@@ -15,7 +15,7 @@ from ..scene import (Key, SceneError, TableScene, boolean, choice, compare_check
 
 #: the methods a Zeitlin scene runs (names as for the top)
 METHODS = ("split", "split4", "split6", "rk4", "reference")
-INITIAL_KINDS = ("random", "rossby_haurwitz")
+INITIAL_KINDS = ("random", "rossby_haurwitz", "file")
 MAX_N = 1024
 
 
@@ -49,8 +49,18 @@ KEYS: tuple[Key, ...] = (
     Key("initial", "kind", "random", "", " | ".join(f'"{k}"' for k in INITIAL_KINDS),
         "random: a random field of degrees 1 … lmax with the spectrum E_l ∝ l^(−slope), drawn per "
         "member from ensemble.seed; rossby_haurwitz: the mode (l = lmax, m) with solid-body "
-        "rotation (l = 1), plus a random field carrying the fraction initial.noise of the energy",
+        "rotation (l = 1), plus a random field carrying the fraction initial.noise of the energy; file: "
+        "the coefficients ω_lm of initial.file, as they are (initial.lmax, m, energy, slope and noise do "
+        "not apply)",
         choice(*INITIAL_KINDS)),
+    Key("initial", "file", "", "", "a path (.nc, .npz, .npy), or empty",
+        "kind = \"file\": the vorticity's spherical-harmonic coefficients C[l, m] = ω_lm in s-1 (m ≥ 0; "
+        "shape (L+1, L+1): one field for every member, or (members, L+1, L+1)); a relative path is "
+        "relative to the working folder; formats: docs/api.md, \"Your own initial data\"",
+        string),
+    Key("initial", "sha256", "", "", "64 hex digits, or empty",
+        "the sha256 of initial.file, filled in when the scene is loaded and stored with the run: a "
+        "resume, or a scene that gives it, is refused if the file has changed since", string),
     Key("initial", "lmax", 6, "1", "integer in [1, zeitlin.N − 1]", "highest degree of the initial field",
         _lmax_check),
     Key("initial", "m", 4, "1", "integer in [0, initial.lmax]", "rossby_haurwitz: the wave's order m", _m_check),
@@ -113,6 +123,27 @@ def is_zeitlin(source) -> bool:
     return isinstance(source, dict) and "zeitlin" in source
 
 
+def _initial_file_rules(clean: dict) -> None:
+    """initial.file is read (and checked) with kind "file" only; its sha256 is filled in."""
+    ini = clean["initial"]
+    if ini["kind"] != "file":
+        for key in ("file", "sha256"):
+            if ini[key]:
+                raise SceneError(f"initial.{key}", 'is read only with initial.kind = "file"', ini[key])
+        return
+    if not ini["file"]:
+        raise SceneError("initial.file", 'initial.kind = "file" needs the path of a coefficient file',
+                         ini["file"])
+    from .field import read_field
+
+    C, digest = read_field("initial.file", ini["file"], clean["zeitlin"]["N"], ini["sha256"])
+    members = clean["ensemble"]["members"]
+    if C.shape[0] > 1 and C.shape[0] != members:
+        raise SceneError("ensemble.members", f"must equal the {C.shape[0]} fields of initial.file "
+                         f"{ini['file']} (or give one field for every member)", members)
+    ini["sha256"] = digest
+
+
 def _refuse(new: dict) -> None:
     fluid = new.get("fluid")
     if isinstance(fluid, dict) and "viscosity" in fluid:
@@ -130,5 +161,6 @@ It has keys of its own, below; sections it shares with the top (`[fluid]`, `[the
 
 #: the scene side of the fluid's model (registered with it: liethermo.zeitlin.model)
 SCENE_MODEL = declare_scene("zeitlin", KEYS, methods=METHODS, marks=is_zeitlin, title="a Zeitlin fluid",
-                            intro=INTRO, scene_class=ZeitlinScene, refuse=_refuse, noun="a Zeitlin scene")
+                            intro=INTRO, scene_class=ZeitlinScene, refuse=_refuse, check=_initial_file_rules,
+                            noun="a Zeitlin scene")
 load = SCENE_MODEL.load
