@@ -66,8 +66,8 @@ def read_file(path: str, sha256: str = "", key: str = "initial.file") -> tuple[n
     With ``sha256`` given, the file must still have it."""
     import io
 
-    from .inputfile import foreign, read_checked, units_ok
-    from .scene import SceneError
+    from ..inputfile import foreign, read_checked, units_ok
+    from ..scene import SceneError
 
     data, digest = read_checked(key, path, sha256)
     if digest in _FILE_CACHE:
@@ -128,7 +128,7 @@ def read_file(path: str, sha256: str = "", key: str = "initial.file") -> tuple[n
 
 
 def _numbers(key, path, what, a, shape) -> np.ndarray:
-    from .scene import SceneError
+    from ..scene import SceneError
 
     a = np.asarray(a)
     if a.dtype.kind not in "iuf":
@@ -157,7 +157,7 @@ def file_members(scene: dict) -> tuple[np.ndarray, np.ndarray] | None:
 def check_file(scene: dict) -> None:
     """The scene rules of ``initial.file`` (a cross rule: it needs ensemble.members);
     fills in ``initial.sha256``."""
-    from .scene import SceneError
+    from ..scene import SceneError
 
     ini = scene["initial"]
     if not ini["file"]:
