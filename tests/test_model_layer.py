@@ -230,3 +230,38 @@ def test_the_fluid_structure_study_reruns_nothing_it_finished(tmp_path, monkeypa
     monkeypatch.setattr(zeitlin_structure, "run_scene", no_steps)  # the cached timings set RK4's step again
     run_study(study, tmp_path / "s", reduced=True, progress=False)
     assert (tmp_path / "s" / "drift.csv").read_text() == table
+
+
+def test_figures_come_from_the_file_alone(tmp_path):
+    """No cache sits between a run and its figures: member 0's vorticity for the
+    maps is read from the file, or integrated again from the scene it stores, with
+    the same values as in the run's chunk (a member's products are its own)."""
+    from liethermo.zeitlin import model as zm
+
+    over = FLUID + ["output.vorticity=false"]
+    run_scene("zeitlin_decay", tmp_path / "plain.nc", overrides=over, progress=False)
+    run_scene("zeitlin_decay", tmp_path / "kept.nc", overrides=FLUID + ["output.vorticity=true"], progress=False)
+    assert not any(isinstance(v, dict) and v for k, v in vars(zm).items() if k.isupper() and k.startswith("_"))
+    with liethermo.open_dataset(tmp_path / "plain.nc") as plain, liethermo.open_dataset(tmp_path / "kept.nc") as kept:
+        assert "vorticity_real" not in plain
+        again = zm.Fluid().member0(plain)
+        stored = zm.Fluid().member0(kept)
+    assert np.array_equal(again, stored)  # the same values (a zero may differ in its sign)
+
+
+def test_a_stored_scene_without_a_model_table_is_the_tops(tmp_path):
+    """The registry's one rule: every scene written before scenes named their
+    model (no model's table) reads, and resumes, as the top's."""
+    import tomllib
+
+    from liethermo.models import UNMARKED_SCENES_MODEL, model_of, models
+
+    out = tmp_path / "top.nc"
+    run_scene("paper", out, overrides=["ensemble.members=3", "integrator.steps=20", "output.compare=[]"],
+              progress=False)
+    with liethermo.open_dataset(out) as ds:
+        tables = tomllib.loads(ds.attrs["scene"])
+    assert not any(m.scene_table and m.scene_table in tables for m in models())
+    assert UNMARKED_SCENES_MODEL == "top" and model_of(tables).name == "top"
+    assert model_of({}).name == "top" and model_of({"zeitlin": {}}).name == "zeitlin"
+    assert type(liethermo.load_scene(tables)).__module__ == "liethermo.top.scene"

@@ -22,11 +22,6 @@ from ..models import MethodInfo, Model, StudyDefaults, register
 #: a run of at least this N is timed before it starts (its basis alone takes seconds)
 ANNOUNCE_N = 256
 
-#: member 0's W at every output of the last chunk run here that held it, by
-#: scene (TOML): the vorticity maps of the figures, without a second run
-_MEMBER0: dict[str, np.ndarray] = {}
-
-
 def _max(a) -> float:
     a = np.asarray(a, dtype=float)
     a = a[np.isfinite(a)]
@@ -241,9 +236,6 @@ class Fluid(StudyDefaults, Model):
                                 budget_members=budget_members(scene))
         else:
             traj = integrate(scene, W0, method=method, progress=False, budget_members=budget_members(scene))
-        if lo == 0:
-            _MEMBER0.clear()
-            _MEMBER0[scene.to_toml()] = traj.out.W_first
         ds = trajectory_dataset(scene, traj, method, member_offset=lo, attrs=run_attrs(scene, method))
         if progress_cb is not None:
             progress_cb((hi - lo) * int(scene["integrator"]["steps"]))
@@ -268,13 +260,11 @@ class Fluid(StudyDefaults, Model):
         return plotting.draw(datasets, W if W is not None and np.isfinite(W).all() else None, folder, stem)
 
     def member0(self, ds) -> np.ndarray | None:
-        """W of member 0 at every output time of a run's dataset: stored, kept
-        from the run in this process, or integrated again (one member)."""
+        """W of member 0 at every output time of a run's dataset: stored, or
+        integrated again (one member) from the scene the file stores, so that the
+        figures come from the file alone."""
         if "vorticity_real" in ds:
             return ds["vorticity_real"].values[0] + 1j * ds["vorticity_imag"].values[0]
-        W = _MEMBER0.get(ds.attrs["scene"])
-        if W is not None:
-            return W
         import tomllib
 
         from ..scene import load_scene
