@@ -34,6 +34,13 @@ def load_study(path: str | Path) -> dict:
     except tomllib.TOMLDecodeError as exc:
         raise StudyError(f"{path} is not valid TOML: {exc}") from None
     study["_source"] = str(path)
+    kind = study.get("study", {}).get("kind") if isinstance(study.get("study"), dict) else None
+    if isinstance(kind, str) and is_module_kind(kind):  # a study of the user's own, beside its file
+        import sys
+
+        folder = str(path.resolve().parent)
+        if folder not in sys.path:
+            sys.path.insert(0, folder)
     return study
 
 
