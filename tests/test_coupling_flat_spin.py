@@ -120,7 +120,7 @@ def test_flat_spin_keeps_mu_ends_on_the_major_axis_and_meets_the_reference_membe
         k = np.polyfit(np.log(lams), np.log(med.sel(scheme=m).values), 1)[0]
         assert abs(k + 1) < 0.05, (m, k)
     text = report.read_text()
-    assert "FAILS" not in text and "No cost is reported" in text and not (out / "closing.csv").exists()
+    assert "| FAILS |" not in text and "No cost is reported" in text and not (out / "closing.csv").exists()
 
 
 @pytest.mark.parametrize("edit, needle", [

@@ -298,7 +298,7 @@ def test_decay_study_turns_energy_into_heat(tmp_path):
     assert np.array_equal(df["max |H + q − H(0)| / H(0)"].values,
                           np.abs(ds["energy_error"].values).max(axis=(1, 2)))
     assert np.allclose(q - lost, ds["energy_error"].values * H[..., :1], rtol=0, atol=1e-14)
-    assert "FAILS" not in report.read_text()
+    assert "| FAILS |" not in report.read_text()
     for f in ("decay.png", "spectrum.png"):
         assert (report.parent / f).stat().st_size > 10_000
 
@@ -357,7 +357,7 @@ def test_resolution_study_shows_one_flow_converging_in_n(tmp_path):
     d = (abs(e.sel(zeitlin_N=8) - e.sel(zeitlin_N=16)).sum("l") / ds["energy"].sel(zeitlin_N=32).isel(t=0)).max()
     assert float(d) == pytest.approx(nxt[0], rel=1e-12)
     assert 0 < float(ds["time_error"]) < 1e-3 * nxt.min()
-    assert "FAILS" not in report.read_text()
+    assert "| FAILS |" not in report.read_text()
     assert (report.parent / "resolution.png").stat().st_size > 10_000
 
 
