@@ -31,6 +31,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from liethermo.top.methods import MethodChoice
 from liethermo.top.initial import initial_conditions
 from liethermo.top.methods import METHODS
 from liethermo.top.dataset import node_energies
@@ -58,7 +59,7 @@ def measure(method: str, kappa: float, h: float, members: int, steps: int, seed:
     w0 = w0 * np.sqrt(2.0)
     rate = float(np.max(phys.stokes_resistance / phys.inertia))  # maxᵢ Cᵢ/Iᵢ of the scene, s⁻¹
     phys = replace(phys, stokes_resistance=phys.stokes_resistance * (kappa / (h * rate)))
-    tr = simulate(phys, w0, R0, h, steps, method, composition=composition)
+    tr = simulate(phys, w0, R0, h, steps, MethodChoice.of(method, composition=composition))
     ok = tr.status == STATUS_OK  # a variational integrator's Newton solve may fail near its singular κ
     s = tr.sigma[ok]  # (members, steps + 1), J K⁻¹
     ds = np.diff(s, axis=1)

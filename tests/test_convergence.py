@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from conftest import OMEGA0, R0, fit_order, paper_physics
+from liethermo.top.methods import MethodChoice
 from liethermo.top.dataset import initial_energy, node_energies
 from liethermo.top.methods import METHODS
 from liethermo.top.simulate import STATUS_OK, simulate
@@ -163,7 +164,7 @@ def test_step_velocity_is_a_midstep_velocity(paper_reference):
     Ω(h/2): the whole trajectory lags by about h/2, a first-order error.)"""
     phys, om0, R, h_ref, ref = paper_reference
     h = 0.00625
-    tr = simulate(phys, om0, R, h, 80, "vi", start="staggered")
+    tr = simulate(phys, om0, R, h, 80, MethodChoice.of("vi", start="staggered"))
     stride = int(round(h / h_ref))
     half = stride // 2
     X = tr.omega_step[0][:80]  # Ω_k over the first 0.5 s, before phase errors add up

@@ -23,6 +23,7 @@ import numpy as np
 import pytest
 
 from conftest import OMEGA0, R0, paper_physics
+from liethermo.top.methods import MethodChoice
 from liethermo.cli import main
 from liethermo.top.kernels.vi import FRICTION_WEIGHTS
 from liethermo.top.methods import COMPOSITION_FACTORS
@@ -264,8 +265,7 @@ def test_errata_e3_printed_law_is_the_endpoint_law(model_md):
 
     res = {}
     for friction in ("trapezoid", "endpoint"):
-        tr = simulate(phys, OMEGA0[None], R0[None], h, 300, "vi", start="node", entropy="explicit",
-                      friction=friction)
+        tr = simulate(phys, OMEGA0[None], R0[None], h, 300, MethodChoice.of("vi", start="node", entropy="explicit", friction=friction))
         assert tr.status[0] == STATUS_OK
         X, G = tr.omega_step[0], tr.gamma[0]
         Ik = h * np.einsum("ki,ki->k", G, np.array([legendre(x) for x in X]))
@@ -287,13 +287,13 @@ def test_errata_e4_paper_start_node_velocity(model_md):
 
     phys = paper_physics()
     assert _quotes(model_md, "$\\mathbb{I}^{-1}\\mu_0 = (-1.249, 1.031, 1.016)$")
-    tr = simulate(phys, OMEGA0[None], R0[None], 0.1, 1, "vi", start="node")
+    tr = simulate(phys, OMEGA0[None], R0[None], 0.1, 1, MethodChoice.of("vi", start="node"))
     np.testing.assert_allclose(tr.omega[0, 0], [-1.249, 1.031, 1.016], atol=5e-4)
     tau = np.cross(R0[2], phys.gravity_torque[0])
     assert 0.05 * np.linalg.norm(tau) / phys.inertia[0, 0] == pytest.approx(1.30, abs=5e-3)
     e = energy_errors(tr, OMEGA0[None], R0[None])
     assert e["node"][0, 0] / e["scale"][0] == pytest.approx(0.031, abs=5e-4)
-    tr = simulate(phys, OMEGA0[None], R0[None], 0.1, 1, "vi", start="legendre")
+    tr = simulate(phys, OMEGA0[None], R0[None], 0.1, 1, MethodChoice.of("vi", start="legendre"))
     np.testing.assert_array_equal(tr.omega[0, 0], OMEGA0)
 
 
@@ -318,7 +318,7 @@ def test_kelvin_noether_law_in_its_documented_general_form(case):
         phys = replace(base, internal_friction=np.array([0.7]))
         friction = case.rsplit("_", 1)[1]
     h = 0.1
-    tr = simulate(phys, 3.0 * OMEGA0[None], R0[None], h, 500, "vi", friction=friction)
+    tr = simulate(phys, 3.0 * OMEGA0[None], R0[None], h, 500, MethodChoice.of("vi", friction=friction))
     assert tr.status[0] == STATUS_OK
     X, G, mu = tr.omega_step[0], tr.gamma[0], tr.momentum[0]
     I, C, lam = phys.inertia[0], phys.stokes_resistance[0], phys.internal_friction[0]

@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 
 from conftest import OMEGA0, R0, paper_physics
+from liethermo.top.methods import MethodChoice
 from liethermo.top.dataset import initial_energy, node_energies
 from liethermo.top.kernels.terms.stokes import jeffery_resistance, oberbeck_resistance, pivot_drag
 from liethermo.top.physics import build_model, physics_of_scene
@@ -357,9 +358,7 @@ def test_every_builtin_scene_loads_and_runs_briefly():
             assert (ds["status"] == 0).all(), name
             continue
         om0, R = _scene_ic(scene)
-        tr = simulate(physics_of_scene(scene), om0, R, scene.integrator.h, 4, scene.integrator.method,
-                      start=scene.integrator.start, entropy=scene.integrator.entropy,
-                      friction=scene.integrator.friction, attitude=scene.output.attitude)
+        tr = simulate(physics_of_scene(scene), om0, R, scene.integrator.h, 4, MethodChoice.of(scene.integrator.method, start=scene.integrator.start, entropy=scene.integrator.entropy, friction=scene.integrator.friction), attitude=scene.output.attitude)
         assert np.all(tr.status == STATUS_OK), name
 
 

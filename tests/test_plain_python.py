@@ -21,13 +21,14 @@ import numpy as np
 sys.path.insert(0, sys.argv[2])
 from dataclasses import replace
 from conftest import paper_physics, OMEGA0, R0
+from liethermo.top.methods import MethodChoice
 from liethermo.top.simulate import simulate
 out = {}
 phys = paper_physics(2)
 om = np.array([OMEGA0, [0.5, -1.0, 2.0]])
 R = np.array([R0, R0])
 for kernel in ("fast", "simple"):
-    out[f"vi_{kernel}"] = simulate(phys, om, R, 0.1, 12, "vi", start="node", entropy="explicit",
+    out[f"vi_{kernel}"] = simulate(phys, om, R, 0.1, 12, MethodChoice.of("vi", start="node", entropy="explicit"),
                                    attitude=True, kernel=kernel).states
     out[f"vi4_{kernel}"] = simulate(phys, om, R, 0.1, 4, "vi4", kernel=kernel).states
     out[f"rk2_{kernel}"] = simulate(phys, om, R, 0.1, 12, "rk2", kernel=kernel).states

@@ -70,9 +70,10 @@ def test_one_method_choice_from_a_scene_a_label_or_keywords():
         assert run.simulate(om0, R0).choice == run.choice
     with pytest.raises(StudyError, match="unknown variant 'fast'"):
         method_choice("vi:fast")
-    with pytest.raises(ValueError, match="fixes them"):
-        simulate(resolve(load_scene("paper")).physics, np.ones((1, 3)), np.eye(3)[None], 0.1, 1,
-                 MethodChoice.parse("vi"), start="node")
+    for kw in ("friction", "start", "entropy", "composition"):  # the variants come in a MethodChoice only
+        with pytest.raises(TypeError, match=kw):
+            simulate(resolve(load_scene("paper")).physics, np.ones((1, 3)), np.eye(3)[None], 0.1, 1, "vi",
+                     **{kw: "node"})
     with pytest.raises(ValueError, match="unknown integrator.start 'nodes'"):
         MethodChoice.of("vi", start="nodes")
     egg = resolve(load_scene("coupled_egg"))  # the coupled top's rule, the one its scene keys obey
@@ -80,7 +81,7 @@ def test_one_method_choice_from_a_scene_a_label_or_keywords():
     for kw, needle in ((dict(start="node"), "starts from its node momentum"),
                        (dict(friction="endpoint"), "trapezoid friction only")):
         with pytest.raises(ValueError, match=needle):
-            simulate(egg.physics, om0, R0, 0.01, 1, "vi", **kw)
+            simulate(egg.physics, om0, R0, 0.01, 1, MethodChoice.of("vi", **kw))
         key = "integrator." + next(iter(kw))
         with pytest.raises(liethermo.SceneError, match=needle):
             load_scene("coupled_egg", {key: next(iter(kw.values()))})

@@ -9,6 +9,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from liethermo.top.methods import MethodChoice
 from liethermo.top.initial import initial_conditions
 from liethermo.top.physics import physics_of_scene
 from liethermo.scene import SceneError, load_scene
@@ -186,8 +187,8 @@ def test_compositions_of_one_length_compile_apart():
     phys, w0, R0 = _members(200)
     runs = {}
     for comp in ("small_error", "triple_jump", "small_error"):
-        fast = simulate(phys, w0, R0, 0.05, 20, "split6", composition=comp, kernel="fast")
-        simple = simulate(phys, w0, R0, 0.05, 20, "split6", composition=comp, kernel="simple")
+        fast = simulate(phys, w0, R0, 0.05, 20, MethodChoice.of("split6", composition=comp), kernel="fast")
+        simple = simulate(phys, w0, R0, 0.05, 20, MethodChoice.of("split6", composition=comp), kernel="simple")
         np.testing.assert_array_equal(fast.states, simple.states)
         runs.setdefault(comp, fast.states)
         np.testing.assert_array_equal(fast.states, runs[comp])

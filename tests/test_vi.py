@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from conftest import H_PAPER, OMEGA0, R0, make_physics, paper_numbers, paper_physics, random_body
+from liethermo.top.methods import MethodChoice
 from liethermo.top.kernels import layout as L
 from liethermo.top.kernels import vi
 from liethermo.top.kernels._jit import jit
@@ -41,8 +42,7 @@ def test_paper_scene_reproduces_the_papers_step_velocities(paper):
     ref = np.load(Path_(REFERENCE))
     phys, om0, R = paper
     for friction in ("trapezoid", "endpoint"):
-        tr = simulate(phys, om0, R, H_PAPER, 300, "vi", start="node", entropy="explicit",
-                      friction=friction, attitude=True)
+        tr = simulate(phys, om0, R, H_PAPER, 300, MethodChoice.of("vi", start="node", entropy="explicit", friction=friction), attitude=True)
         assert tr.status[0] == STATUS_OK
         np.testing.assert_allclose(tr.omega_step[0], ref[f"{friction}_omega_step"], rtol=0, atol=1e-12)
         np.testing.assert_allclose(tr.gamma[0], ref[f"{friction}_gamma"], rtol=0, atol=1e-12)
@@ -69,7 +69,7 @@ def test_vi_steps_solve_the_node_form_equations(friction, entropy):
     phys, om0, R = random_body(11, diagonal=True)
     h = 0.05
     wl, wr = vi.FRICTION_WEIGHTS[friction]
-    tr = simulate(phys, om0, R, h, 200, "vi", friction=friction, entropy=entropy, attitude=True)
+    tr = simulate(phys, om0, R, h, 200, MethodChoice.of("vi", friction=friction, entropy=entropy), attitude=True)
     assert tr.status[0] == STATUS_OK
     I, C, g = phys.inertia[0], phys.stokes_resistance[0], phys.gravity_torque[0]
     cv, T0 = phys.heat_capacity[0], phys.T0[0]
@@ -193,7 +193,7 @@ def test_entropy_never_decreases(entropy, paper):
     """Both updates add the non-negative work of the discrete friction: σ is
     non-decreasing over 10⁴ paper steps, strictly while the top spins."""
     phys, om0, R = paper
-    s = simulate(phys, om0, R, H_PAPER, 10_000, "vi", entropy=entropy).sigma[0]
+    s = simulate(phys, om0, R, H_PAPER, 10_000, MethodChoice.of("vi", entropy=entropy)).sigma[0]
     ds = np.diff(s)
     assert ds.min() >= 0.0 and np.all(ds[:100] > 0.0) and s[-1] > 0.0
 
@@ -226,7 +226,7 @@ def test_discrete_kelvin_noether_law_in_node_form(friction, body):
     else:
         phys, om0, R = random_body(7, diagonal=(body == "diagonal"))
     h = H_PAPER
-    tr = simulate(phys, om0, R, h, 2000, "vi", friction=friction)
+    tr = simulate(phys, om0, R, h, 2000, MethodChoice.of("vi", friction=friction))
     assert tr.status[0] == STATUS_OK
     X, G, mu = tr.omega_step[0], tr.gamma[0], tr.momentum[0]
     C = phys.stokes_resistance[0]
@@ -519,7 +519,7 @@ def test_newton_failure_is_reported_and_not_accepted(paper):
     ok = simulate(phys, om, R, H_PAPER, 10, "vi")
     assert ok.status[0] == STATUS_OK and np.all(np.isfinite(ok.states))
     # a failure after a few steps (paper start: no solve before step 1)
-    tr = simulate(phys, om, R, H_PAPER, 10, "vi", start="node", newton_maxiter=3)
+    tr = simulate(phys, om, R, H_PAPER, 10, MethodChoice.of("vi", start="node"), newton_maxiter=3)
     assert tr.status[0] == STATUS_NEWTON and tr.fail_step[0] == tr.steps_done[0] + 1
     k = tr.steps_done[0]
     assert np.all(np.isfinite(tr.states[0, : k + 1])) and np.all(np.isnan(tr.states[0, k + 1:]))

@@ -262,10 +262,6 @@ def simulate(
     steps: int,
     method: str | MethodChoice = "vi",
     *,
-    friction: str | None = None,
-    start: str | None = None,
-    entropy: str | None = None,
-    composition: str | None = None,
     attitude: bool = False,
     every: int = 1,
     newton_tol: float = DEFAULT_NEWTON_TOL,
@@ -284,17 +280,12 @@ def simulate(
     ``physics`` (N members), initial body angular velocities ``omega0``
     (N, 3, rad s⁻¹) and attitudes ``R0`` (N, 3, 3; Γ₀ = R₀ᵀe₃), S = S₀;
     ``steps`` steps of size h (s), keeping every ``every``-th.  ``method``:
-    a :class:`~liethermo.top.methods.MethodChoice` (a run's, a study's), or a
-    method's name with the variants it is asked for (the choice is then
-    :meth:`MethodChoice.of` them): for the variational integrators
-    ``friction`` ("trapezoid" | "endpoint"), ``start`` ("legendre": μ₀ =
-    𝕀Ω(0); "node": the paper's Ω₀ := Ω(0) as first step velocity;
-    "staggered": Ω₀ := Ω(h/2) from the reference) and ``entropy``
-    ("symmetric" | "explicit") — vi4 and vi6 always use the legendre start,
-    trapezoid friction and the symmetric update; for the composed methods
-    (vi4, vi6, split4, split6) ``composition`` ("small_error": Suzuki's order
-    4, Kahan and Li's order 6; "triple_jump": Yoshida's).  Left out, the
-    package defaults (legendre, trapezoid, symmetric, small_error).
+    a :class:`~liethermo.top.methods.MethodChoice` (a run's, a study's, or
+    :meth:`MethodChoice.of` a name and its variants: the variational
+    integrators' ``friction``, ``start`` and ``entropy``, the compositions'
+    ``composition``), or a method's name, which runs with the package's
+    defaults (legendre start, trapezoid friction, symmetric update,
+    small_error compositions).
     ``progress(n)`` is called with the number of steps just advanced.
     ``chunk_steps``: steps per kernel call; by default the first call covers
     CHUNK_MEMBER_STEPS member-steps and later calls grow towards CALL_SECONDS
@@ -326,15 +317,10 @@ def simulate(
     :data:`liethermo.top.kernels.cuda.CALL_MEMBER_STEPS`.
     """
     if isinstance(method, MethodChoice):
-        given = [k for k, v in (("friction", friction), ("start", start), ("entropy", entropy),
-                                ("composition", composition)) if v is not None]
-        if given:
-            raise ValueError(f"{', '.join(given)}: the method choice {method.label!r} fixes them")
         choice = method
     else:
         kernel_for(str(method), 0, 0, kernel)  # rejects an unknown kernel before any work
-        choice = MethodChoice.of(method, start=start or "legendre", friction=friction or "trapezoid",
-                                 entropy=entropy or "symmetric", composition=composition or "small_error")
+        choice = MethodChoice.of(method)
     m: Method = choice.method
     kernel_for(m.name, 0, 0, kernel)
     if device not in ("cpu", "gpu"):
