@@ -106,6 +106,7 @@ def random_ensemble(N: int, seed: int = 0):
 
 
 def run(kernel, method, phys, om0, R0, h, steps, every, attitude, threads):
+    from liethermo.top.methods import MethodChoice
     from liethermo.top.simulate import simulate
 
     kw = {"start": "node", "entropy": "explicit"} if method == "vi" else {}
@@ -115,8 +116,8 @@ def run(kernel, method, phys, om0, R0, h, steps, every, attitude, threads):
     from liethermo.top.physics import mechanical_energy_scale
 
     heat = float(np.max(mechanical_energy_scale(phys, om0, R0[:, 2, :]), initial=0.0)) if phys.n else None
-    return simulate(phys, om0, R0, h, steps, method, every=every, attitude=attitude,
-                    threads=threads, kernel=kernel, heat_bound=heat, **kw)
+    return simulate(phys, om0, R0, h, steps, MethodChoice.of(method, **kw), every=every, attitude=attitude,
+                    threads=threads, kernel=kernel, heat_bound=heat)
 
 
 def scene_report(scenes, methods, members: int, steps: int, rounds: int) -> list[dict]:

@@ -93,7 +93,10 @@ def _simulate(method, phys, om0, R0, h, steps, device, kernel="auto"):
 
     kw = {"start": "node", "entropy": "explicit"} if method == "vi" else {}
     heat = float(mechanical_energy_scale(phys, om0, R0[:, 2, :]).max())
-    return simulate(phys, om0, R0, h, steps, method, every=steps, heat_bound=heat, device="gpu", **kw)
+    from liethermo.top.methods import MethodChoice
+
+    return simulate(phys, om0, R0, h, steps, MethodChoice.of(method, **kw), every=steps, heat_bound=heat,
+                    device="gpu")
 
 
 def _rel(a, b):

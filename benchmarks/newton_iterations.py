@@ -33,6 +33,7 @@ import numpy as np
 from liethermo.top.initial import initial_conditions
 from liethermo.top.physics import physics_of_scene
 from liethermo.scene import load_scene
+from liethermo.top.methods import MethodChoice
 from liethermo.top.simulate import simulate
 
 
@@ -46,7 +47,7 @@ def per_step(phys, w0, R0, method, windows, **kw):
         for t in (a, b):
             n = int(round(t / h))
             if n not in totals:
-                totals[n] = 0.0 if n == 0 else simulate(phys, w0, R0, h, n, method, every=n, **kw).newton_iterations.mean()
+                totals[n] = 0.0 if n == 0 else simulate(phys, w0, R0, h, n, MethodChoice.of(method, **kw), every=n).newton_iterations.mean()
     return [(totals[int(round(b / h))] - totals[int(round(a / h))]) / int(round((b - a) / h)) for a, b in windows]
 
 
