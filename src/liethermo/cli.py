@@ -229,11 +229,11 @@ def cmd_keys(args) -> int:
     if args.markdown:
         sys.stdout.write(scenes_markdown())
         return 0
-    from .models import models
+    from .models import UNMARKED_SCENES_MODEL, models
 
-    parts = []
-    for m in models():
-        head = "" if m.scene_model is None else f"\n# {m.scene_model.title}\n\n"
+    parts = []  # the keys of a scene without a model's table first, then each model's under its title
+    for m in sorted(models(), key=lambda m: m.name != UNMARKED_SCENES_MODEL):
+        head = "" if m.name == UNMARKED_SCENES_MODEL else f"\n# {m.scene_model.title}\n\n"
         parts.append(head + keys_table(markdown=False, keys=m.keys()))
     sys.stdout.write("".join(parts))
     return 0
