@@ -423,12 +423,13 @@ assert main(args + ["-o", sys.argv[2] + "/warm.nc", "--set", "ensemble.members=1
 from liethermo import load_scene
 from liethermo.top.initial import initial_conditions
 from liethermo.top.physics import physics_of_scene
+from liethermo.top.methods import MethodChoice
 from liethermo.top.simulate import simulate
 sc = load_scene("paper", [a for a in args if "=" in a])
 om0, R0 = initial_conditions(sc, 0, 1)
 i = sc.integrator
-simulate(physics_of_scene(sc, 1), om0, R0, i.h, sc.output.every, i.method, friction=i.friction, start=i.start,
-         entropy=i.entropy, attitude=sc.output.attitude, every=sc.output.every, kernel="fast", compile_only=True)
+simulate(physics_of_scene(sc, 1), om0, R0, i.h, sc.output.every, MethodChoice.from_scene(sc),
+         attitude=sc.output.attitude, every=sc.output.every, kernel="fast", compile_only=True)
 base = status("VmRSS")
 with open("/proc/self/clear_refs", "w") as f:  # the peak starts again from here
     f.write("5")
