@@ -15,7 +15,7 @@ import xarray as xr
 from .. import timing
 from .common import StudyError
 from .framework import Figure, Option, Stage, Study, Table, Verdict, first_point
-from ..models import Model
+from ..models import StudyDefaults
 from ..analysis import BOOTSTRAP_RESAMPLES, MIN_MEMBERS, ROUND_OFF, TREND_OVER_RANGE, drift_test, least_over_members
 
 CALIBRATION_ITERATIONS = 6  # rounds of the calibration, at most
@@ -23,7 +23,7 @@ QUANTILES = (0.05, 0.5, 0.95)
 
 
 def _check(ctx) -> None:
-    if ctx.model.relative_energy_error.__func__ is Model.relative_energy_error:
+    if ctx.model.relative_energy_error.__func__ is StudyDefaults.relative_energy_error:
         raise StudyError(f"study.base_scene: runs of {ctx.model.name} record no energy error: no long_drift study")
     if "reference" in ctx.methods:
         raise StudyError("methods: 'reference' is the ground truth, not a compared method")
