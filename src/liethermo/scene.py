@@ -53,8 +53,19 @@ class SceneError(ValueError):
 # ----------------------------------------------------------------------------- value checks
 
 
+def _is_bool(v) -> bool:
+    """A Python or a numpy boolean."""
+    return isinstance(v, (bool, np.bool_))
+
+
+def _is_integer(v) -> bool:
+    """A Python or a numpy integer (not a boolean, not a float that happens to be whole)."""
+    return isinstance(v, (int, np.integer)) and not _is_bool(v)
+
+
 def _is_number(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool)
+    """A Python or a numpy integer or float (not a boolean, not complex)."""
+    return isinstance(v, (int, float, np.integer, np.floating)) and not _is_bool(v)
 
 
 def number(lo=None, hi=None, *, lo_open=False, hi_open=False):
@@ -82,7 +93,7 @@ NEWTON_MAXITER_LIMIT = 200
 
 def integer(minimum=1, maximum=None):
     def check(name, v, scene):
-        if isinstance(v, bool) or not isinstance(v, int):
+        if not _is_integer(v):
             raise SceneError(name, "must be an integer", v)
         if v < minimum:
             raise SceneError(name, f"must be ≥ {minimum}", v)
@@ -94,8 +105,10 @@ def integer(minimum=1, maximum=None):
 
 
 def _has_bool(v) -> bool:
-    if isinstance(v, bool):
+    if _is_bool(v):
         return True
+    if isinstance(v, np.ndarray):
+        return v.dtype == np.bool_
     if isinstance(v, (list, tuple)):
         return any(_has_bool(x) for x in v)
     return False
@@ -124,7 +137,7 @@ def choice(*options):
     def check(name, v, scene):
         if not isinstance(v, str) or v not in options:
             raise SceneError(name, f"must be one of {', '.join(map(repr, options))}", v)
-        return v
+        return str(v)
 
     return check
 
@@ -143,15 +156,15 @@ def word_or(word: str, other, aliases=()):
 
 
 def boolean(name, v, scene):
-    if not isinstance(v, bool):
+    if not _is_bool(v):
         raise SceneError(name, "must be true or false", v)
-    return v
+    return bool(v)
 
 
 def string(name, v, scene):
     if not isinstance(v, str):
         raise SceneError(name, "must be a string", v)
-    return v
+    return str(v)
 
 
 @dataclass(frozen=True)
