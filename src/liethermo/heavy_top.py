@@ -43,6 +43,8 @@ class RunSummary:
     wall_time: float = 0.0
     kernel_time: float = 0.0
     compile_time: float = 0.0
+    #: what ``wall_time`` measures, as the summary says it
+    wall_what: str = "simulating and writing; not compiling, the command's start-up or figures"
     status_counts: dict = field(default_factory=dict)
     max_abs_energy_error: float = float("nan")
     max_rel_energy_error: float = float("nan")
@@ -85,7 +87,7 @@ class RunSummary:
                        for k, v in counts.items())
         out = [
             f"scene {self.scene_name!r}, method {self.method}: {self.members} member(s) x {self.steps} steps, h = {self.h:g} s",
-            f"  wall time {self.wall_time:.3g} s (simulating and writing; not the command's start-up or figures)",
+            f"  wall time {self.wall_time:.3g} s ({self.wall_what})",
             f"  kernels  compiled or loaded in {self.compile_time:.3g} s, ran {self.kernel_time:.3g} s "
             f"({self.throughput:.3g} member-steps/s)",
             f"  status   {st}",
