@@ -153,3 +153,38 @@ def test_the_readme_names_the_reduced_studys_folder():
     study = {"study": {"kind": "convergence", "name": "convergence"}}
     reduced = default_outdir(study, True).as_posix().replace("convergence", "<study>")
     assert f"`--reduced` runs the small version the tests check (into `{reduced}/`)" in readme
+
+
+def test_drift_findings_call_no_variational_method_the_baseline():
+    """The README's baselines are the Runge–Kutta methods; the energy-drift and
+    long-drift findings compare with the study's first method, and say so."""
+    from types import SimpleNamespace
+
+    import numpy as np
+    import xarray as xr
+
+    from liethermo.studies import energy_drift, long_drift
+
+    methods = ["vi", "vi4", "rk2", "rk4"]
+    ctx = SimpleNamespace(methods=methods, sweep_keys=["integrator.h"])
+    ds = xr.Dataset({"median_max_relative_energy_error": (("scheme", energy_drift.H), [[1e-3], [1e-4], [np.inf], [1e-2]])},
+                    coords={"scheme": methods, energy_drift.H: [0.1]})
+    lines = energy_drift.findings(ds, ctx)
+    ctx = SimpleNamespace(methods=methods, sweep_keys=[])
+    ds = xr.Dataset({"median_abs_drift_rate": (("scheme", "dissipation"), [[1e-9], [1e-10], [1e-6], [1e-11]])},
+                    coords={"scheme": methods, "dissipation": [1.0]})
+    lines += long_drift.findings(ds, ctx)
+    assert len(lines) == 2
+    for line in lines:
+        assert "baseline" not in line and "vi, the first of the study's methods," in line, line
+
+
+def test_the_readme_says_which_fluid_scene_is_viscous():
+    from pathlib import Path
+
+    from liethermo import load_scene
+
+    readme = " ".join((Path(__file__).resolve().parents[1] / "README.md").read_text(encoding="utf-8").split())
+    for name in ("zeitlin_decay", "zeitlin_ideal"):
+        viscous = load_scene(name)["fluid"]["kinematic_viscosity"] > 0
+        assert f"`liethermo run {name}` ({'viscous' if viscous else 'inviscid'}" in readme, name

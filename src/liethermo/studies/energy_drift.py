@@ -116,8 +116,8 @@ def findings(ds, ctx) -> list[str]:
     for h in d[H].values:
         e = d["median_max_relative_energy_error"].sel({H: h}).to_series().sort_values()
         beats = ", ".join(m for m in e.index if e[m] > e[base] or not np.isfinite(e[m])) or "no other method"
-        out.append(f"At h = {h:g} s {e.index[0]} has the least median max error ({e.iloc[0]:.3g}); the baseline {base} "
-                   f"({e[base]:.3g}) beats {beats}.")
+        out.append(f"At h = {h:g} s {e.index[0]} has the least median max error ({e.iloc[0]:.3g}); {base}, the first "
+                   f"of the study's methods, ({e[base]:.3g}) beats {beats}.")
     return out
 
 

@@ -164,8 +164,8 @@ def findings(ds, ctx) -> list[str]:
         r = d["median_abs_drift_rate"].sel(dissipation=f).to_series().dropna().sort_values()
         if base in r:
             tail = f"less than {b}." if (b := ", ".join(m for m in r.index if r[m] > r[base])) else "more than every other method."
-            out.append(f"At dissipation × {f:g}, {r.index[0]} drifts least ({r.iloc[0]:.2e} s⁻¹); the baseline {base} "
-                       f"({r[base]:.2e} s⁻¹) drifts {tail}")
+            out.append(f"At dissipation × {f:g}, {r.index[0]} drifts least ({r.iloc[0]:.2e} s⁻¹); {base}, the first of "
+                       f"the study's methods, ({r[base]:.2e} s⁻¹) drifts {tail}")
     return out
 
 
