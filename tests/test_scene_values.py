@@ -67,3 +67,20 @@ def test_api_md_lists_every_built_in_scene():
     para = api[api.index("The built-in scenes are"):].split("\n\n")[0]
     for name in builtin_scenes():
         assert f"`{name}`" in para, name
+
+
+def test_the_initial_degree_follows_a_smaller_n_unless_a_scene_sets_it():
+    sc = liethermo.load_scene("zeitlin_ideal", {"zeitlin.N": 6})  # only N changed
+    assert (sc["initial"]["lmax"], sc["initial"]["m"]) == (5, 4)
+    assert (liethermo.load_scene("zeitlin_ideal")["initial"]["lmax"], liethermo.load_scene("zeitlin_ideal")["initial"]["m"]) == (6, 4)
+    sc = liethermo.load_scene({"zeitlin": {"N": 4}, "initial": {"kind": "rossby_haurwitz"}})
+    assert (sc["initial"]["lmax"], sc["initial"]["m"]) == (3, 3)
+    assert liethermo.load_scene({"zeitlin": {"N": 64}})["initial"]["lmax"] == 6  # a larger N: the default
+    # a scene (or an override) that sets the degree keeps it, and the refusal says what to do
+    with pytest.raises(SceneError, match=r"'initial.lmax': must be at most zeitlin.N − 1 = 5 .*set initial.lmax ≤ 5 "
+                                         r"too \(it follows zeitlin.N only where neither the scene nor an override"):
+        liethermo.load_scene("zeitlin_decay", {"zeitlin.N": 6})
+    with pytest.raises(SceneError, match=r"'initial.m': must be at most initial.lmax = 2 .*set initial.m ≤ 2 too"):
+        liethermo.load_scene("zeitlin_ideal", {"initial.lmax": 2, "initial.m": 4})
+    assert liethermo.load_scene("zeitlin_ideal", {"initial.lmax": 2})["initial"]["m"] == 2
+    assert liethermo.load_scene("zeitlin_decay", {"zeitlin.N": 6, "initial.lmax": 5})["initial"]["lmax"] == 5

@@ -152,7 +152,7 @@ def test_the_readme_names_the_reduced_studys_folder():
     readme = " ".join((Path(__file__).resolve().parents[1] / "README.md").read_text(encoding="utf-8").split())
     study = {"study": {"kind": "convergence", "name": "convergence"}}
     reduced = default_outdir(study, True).as_posix().replace("convergence", "<study>")
-    assert f"`--reduced` runs the small version the tests check (into `{reduced}/`)" in readme
+    assert f"`{reduced}/` with `--reduced`" in readme
 
 
 def test_drift_findings_call_no_variational_method_the_baseline():

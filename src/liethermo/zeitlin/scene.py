@@ -12,6 +12,7 @@ from __future__ import annotations
 import copy
 from typing import Any
 
+import numpy as np
 import tomli_w
 
 from ..methods import COMPOSITION_KINDS
@@ -27,7 +28,9 @@ def _lmax_check(name, v, scene):
     v = integer(1)(name, v, scene)
     N = scene["zeitlin"]["N"]
     if isinstance(N, int) and v > N - 1:
-        raise SceneError(name, f"must be at most zeitlin.N − 1 = {N - 1} (the degrees of su(N) are l = 1 … N−1)", v)
+        raise SceneError(name, f"must be at most zeitlin.N − 1 = {N - 1} (the degrees of su(N) are l = 1 … N−1): "
+                         f"with zeitlin.N = {N} set initial.lmax ≤ {N - 1} too (it follows zeitlin.N only where "
+                         "neither the scene nor an override sets it)", v)
     return v
 
 
@@ -35,8 +38,29 @@ def _m_check(name, v, scene):
     v = integer(0)(name, v, scene)
     lmax = scene["initial"]["lmax"]
     if isinstance(lmax, int) and v > lmax:
-        raise SceneError(name, f"must be at most initial.lmax = {lmax} (|m| ≤ l)", v)
+        raise SceneError(name, f"must be at most initial.lmax = {lmax} (|m| ≤ l): with initial.lmax = {lmax} "
+                         f"set initial.m ≤ {lmax} too (it follows initial.lmax only where neither the scene nor "
+                         "an override sets it)", v)
     return v
+
+
+def _is_int(v) -> bool:
+    return isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_))
+
+
+def _follow_n(d: dict, given: set) -> None:
+    """The defaults that follow zeitlin.N: initial.lmax, where no scene or
+    override sets it, is at most N − 1, and initial.m at most that lmax."""
+    N, lmax = d["zeitlin"]["N"], d["initial"]["lmax"]
+    if ("initial", "lmax") not in given and _is_int(N) and N >= 2 and _is_int(lmax):
+        d["initial"]["lmax"] = lmax = min(int(lmax), int(N) - 1)
+    m = d["initial"]["m"]
+    if ("initial", "m") not in given and _is_int(lmax) and lmax >= 0 and _is_int(m):
+        d["initial"]["m"] = min(int(m), int(lmax))
+
+
+def _given(tables) -> set:
+    return {(s, k) for s, t in tables.items() if isinstance(t, dict) for k in t} if isinstance(tables, dict) else set()
 
 
 def _compare_check(name, v, scene):
@@ -64,9 +88,10 @@ KEYS: tuple[Key, ...] = (
         "member from ensemble.seed; rossby_haurwitz: the mode (l = lmax, m) with solid-body "
         "rotation (l = 1), plus a random field carrying the fraction initial.noise of the energy",
         choice(*INITIAL_KINDS)),
-    Key("initial", "lmax", 6, "1", "integer in [1, zeitlin.N − 1]", "highest degree of the initial field",
-        _lmax_check),
-    Key("initial", "m", 4, "1", "integer in [0, initial.lmax]", "rossby_haurwitz: the wave's order m", _m_check),
+    Key("initial", "lmax", 6, "1", "integer in [1, zeitlin.N − 1]",
+        "highest degree of the initial field; left unset, 6 or zeitlin.N − 1 where that is smaller", _lmax_check),
+    Key("initial", "m", 4, "1", "integer in [0, initial.lmax]",
+        "rossby_haurwitz: the wave's order m; left unset, 4 or initial.lmax where that is smaller", _m_check),
     Key("initial", "energy", 1.0, "J", "> 0",
         "initial kinetic energy H(0) = ½∫|u|² dA of every member (a layer of unit surface density on a "
         "sphere of radius 1 m); the same field at every zeitlin.N", number(0.0, lo_open=True)),
@@ -181,8 +206,11 @@ def load(tables: dict, origin: str, overrides=None, validate_scene: bool = True)
 
     d = copy.deepcopy(DEFAULTS)
     merge(d, tables, origin)
+    given = _given(tables)
     for table, o in _overrides_as_tables(overrides):
         merge(d, table, o)
+        given |= _given(table)
+    _follow_n(d, given)
     return validate(d) if validate_scene else d
 
 
