@@ -84,3 +84,13 @@ def test_the_initial_degree_follows_a_smaller_n_unless_a_scene_sets_it():
         liethermo.load_scene("zeitlin_ideal", {"initial.lmax": 2, "initial.m": 4})
     assert liethermo.load_scene("zeitlin_ideal", {"initial.lmax": 2})["initial"]["m"] == 2
     assert liethermo.load_scene("zeitlin_decay", {"zeitlin.N": 6, "initial.lmax": 5})["initial"]["lmax"] == 5
+
+
+def test_every_rossby_haurwitz_member_starts_with_the_energy_the_scene_gives():
+    """initial.energy is H(0) of every member, the noise included, at every N."""
+    for N, energy in ((16, 1.0), (32, 2.5)):
+        ds = liethermo.run("zeitlin_ideal", {"zeitlin.N": N, "ensemble.members": 16, "integrator.steps": 2,
+                                             "output.every": 1, "initial.energy": energy, "initial.noise": 0.05,
+                                             "output.compare": [], "output.figures": False}, compare=False)
+        H0 = ds["energy"].isel(t=0).values
+        assert np.abs(H0 / energy - 1).max() < 1e-13, H0

@@ -90,7 +90,9 @@ def initial_fields(scene: ZeitlinScene, members: np.ndarray | None = None) -> np
         if ini["kind"] == "random":
             prof = np.where(ls <= lmax, ls ** (-ini["slope"]), 0.0)
             C = _shape_spectrum(C, b, energy * prof / prof.sum())
-        else:  # rossby_haurwitz: solid-body rotation and the (lmax, m) wave, equal energy, plus noise
+        else:  # rossby_haurwitz: solid-body rotation and the (lmax, m) wave, equal energy, plus noise,
+            # the sum scaled to initial.energy (the noise shares modes with the wave and the rotation,
+            # so the energies of the parts do not add up to that of the sum)
             noise = ini["noise"]
             prof = np.where(ls <= lmax, 1.0, 0.0)
             C = _shape_spectrum(C, b, noise * energy * prof / prof.sum()) if noise > 0 else 0 * C
@@ -103,6 +105,8 @@ def initial_fields(scene: ZeitlinScene, members: np.ndarray | None = None) -> np
             for mode in modes:
                 share = (1.0 - noise) * energy / len(modes)
                 C = C + mode * np.sqrt(share / zk.energy_of_modes(mode[None], b)[0])
+            if noise > 0:
+                C = C * np.sqrt(energy / zk.energy_of_modes(C[None], b)[0])
         out[j] = zk.from_modes(C[None], b)[0]
     return out
 

@@ -86,18 +86,22 @@ KEYS: tuple[Key, ...] = (
     Key("initial", "kind", "random", "", " | ".join(f'"{k}"' for k in INITIAL_KINDS),
         "random: a random field of degrees 1 … lmax with the spectrum E_l ∝ l^(−slope), drawn per "
         "member from ensemble.seed; rossby_haurwitz: the mode (l = lmax, m) with solid-body "
-        "rotation (l = 1), plus a random field carrying the fraction initial.noise of the energy",
+        "rotation (l = 1), plus a random field of about the fraction initial.noise of the energy, "
+        "the sum scaled to initial.energy",
         choice(*INITIAL_KINDS)),
     Key("initial", "lmax", 6, "1", "integer in [1, zeitlin.N − 1]",
         "highest degree of the initial field; left unset, 6 or zeitlin.N − 1 where that is smaller", _lmax_check),
     Key("initial", "m", 4, "1", "integer in [0, initial.lmax]",
         "rossby_haurwitz: the wave's order m; left unset, 4 or initial.lmax where that is smaller", _m_check),
     Key("initial", "energy", 1.0, "J", "> 0",
-        "initial kinetic energy H(0) = ½∫|u|² dA of every member (a layer of unit surface density on a "
-        "sphere of radius 1 m); the same field at every zeitlin.N", number(0.0, lo_open=True)),
+        "initial kinetic energy H(0) = ½∫|u|² dA of every member, its noise included (a layer of unit "
+        "surface density on a sphere of radius 1 m); the same field at every zeitlin.N",
+        number(0.0, lo_open=True)),
     Key("initial", "slope", 0.0, "1", "finite", "random: energy spectrum E_l ∝ l^(−slope) for l ≤ lmax",
         number()),
-    Key("initial", "noise", 1e-3, "1", "in [0, 1)", "rossby_haurwitz: fraction of the energy in the random field",
+    Key("initial", "noise", 1e-3, "1", "in [0, 1)",
+        "rossby_haurwitz: fraction of the energy given to the random field before the sum is scaled to "
+        "initial.energy (it shares modes with the wave, so its share of H(0) is this to within about √noise)",
         number(0.0, 1.0, hi_open=True)),
     Key("integrator", "method", "split", "", " | ".join(f'"{m}"' for m in METHODS),
         "split: Strang splitting of the exact viscous-and-heat flow around the isospectral midpoint; "
