@@ -105,8 +105,8 @@ class RunSummary:
                 f"{self.max_rel_energy_error:.3e} x E_mech,0 (node values)",
             ]
             t0 = self.max_rel_energy_error_t0
-            if t0 == t0 and t0 > T0_ERROR_SHOWN:
-                first = {"node": "Omega(0)", "staggered": "Omega(h/2)"}.get(self.start, "its start's")
+            first = {"node": "Omega(0)", "staggered": "Omega(h/2)"}.get(self.start)
+            if first is not None and t0 == t0 and t0 > T0_ERROR_SHOWN:
                 out += [f"                            {t0:.3e} x E_mech,0 of it already at t = 0 (start "
                         f"{self.start!r}: {first} is the first",
                         "                            step velocity, so the node momentum is not I Omega(0); "
