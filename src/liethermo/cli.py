@@ -40,7 +40,7 @@ def cmd_run(args) -> int:
                                  "give one of them")
         plan = prepare_run(scene, args.output, force=args.force, resume=args.resume,
                            dask=bool(args.dask), combine=not args.no_combine, clean=not args.check,
-                           warn_conflicts=args.check)
+                           warn_conflicts=args.check, list_problems=args.check)
     except (SceneError, PreflightError) as exc:
         return _error(exc)
     try:
@@ -60,7 +60,10 @@ def cmd_run(args) -> int:
                         print(one_line(w), file=sys.stderr)
             plan.release()
             plan.remove_created()
-            return 0
+            # every estimate is out; then every problem that would refuse the run
+            for problem in plan.problems:
+                _error(problem)
+            return EXIT_INVALID if plan.problems else 0
         return _run_outputs(args, scene, plan)
     finally:
         plan.release()
@@ -148,6 +151,16 @@ def _figures(plan, stem: str) -> list[Path]:
     return _draw_figures({o.method: o.path for o in plan.outputs}, stem, plan.outputs[0].scene)
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with its errors in one line (an unknown flag, a missing
+    argument), like every other refusal: no usage block, exit status 2."""
+
+    def error(self, message):
+        from .faults import one_line
+
+        self.exit(EXIT_INVALID, one_line(f"{self.prog}: error: {message} (see {self.prog} --help)") + "\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
     from .models import model_of, models
     from .scene_files import builtin_scene_tables
@@ -157,7 +170,7 @@ def build_parser() -> argparse.ArgumentParser:
     owner = {n: model_of(t) for n, t in tables.items()}
     builtins = "; ".join(f"{m.title}: {', '.join(sorted(n for n in tables if owner[n] is m))}"
                          for m in ms if any(owner[n] is m for n in tables))
-    ap = argparse.ArgumentParser(
+    ap = _Parser(
         prog="liethermo",
         description="Structure-preserving simulation of thermodynamic systems on Lie groups, over "
         f"ensembles of initial conditions: {' and '.join(m.description for m in ms)}.",
@@ -203,8 +216,11 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Run a study file from studies/ and write its folder: netCDF, "
                        "markdown report with tables (and CSV copies), PNG figures. An interrupted "
                        "study resumes: finished sweep points are not recomputed.")
-    s.add_argument("study", metavar="STUDY.toml", help="study definition, e.g. studies/convergence.toml")
-    s.add_argument("-o", "--outdir", metavar="DIR", help="output folder (default data/runs/<study name>)")
+    s.add_argument("study", metavar="STUDY.toml",
+                   help="study file, e.g. studies/convergence.toml, or a study's name (convergence: "
+                   "studies/convergence.toml here, else the one shipped with liethermo)")
+    s.add_argument("-o", "--outdir", metavar="DIR",
+                   help="output folder (default data/runs/<study name>, data/runs/<study name>-reduced with --reduced)")
     s.add_argument("--reduced", action="store_true", help="reduced-size mode (what the test suite runs)")
     s.add_argument("--scene", metavar="SCENE", default=None,
                    help="run the study on another base scene (a built-in scene or a scene file; the study "

@@ -495,6 +495,8 @@ def _run_scene_dask(scene, attrs, summ, out, key, parts, t_wall, chunks_out, add
             shutil.rmtree(parts, ignore_errors=True)
     summ.combine_time = time.perf_counter() - t_comb
     summ.wall_time = time.perf_counter() - t_wall
+    if hasattr(summ, "wall_what"):  # the workers compile inside their tasks
+        summ.wall_what = "the Dask run: its tasks, with the workers' compiling, and the combining"
     summ.finish(total)
     summ.path = out if combine else parts / INDEX_NAME
     summ.tasks = len(chunks)

@@ -267,6 +267,10 @@ class RunPlan:
     device_free: int | None = None  # bytes free on the GPU of a run there
     resume_sources: dict = field(default_factory=dict)  # {path: ResumeSource}
     created: list = field(default_factory=list)  # folders made for the outputs
+    #: the memory of the outputs' most demanding run (bytes)
+    memory_need: int = 0
+    #: what would refuse the run (disk, memory, GPU memory), when a check lists them
+    problems: list = field(default_factory=list)
 
     def remove_created(self) -> None:
         """Remove the folders made for the outputs, if still empty (a check-only run)."""
@@ -284,7 +288,7 @@ class RunPlan:
     def check_line(self) -> str:
         e = self.estimate
         n = len([o for o in self.outputs if not o.skip])
-        mem = human_bytes(e.memory)
+        mem = human_bytes(self.memory_need or e.memory)
         free = f", {human_bytes(self.disk_free)} free" if self.disk_free is not None else ""
         avail = f", {human_bytes(self.memory_available)} available" if self.memory_available is not None else ""
         gpu = ""
@@ -330,13 +334,15 @@ def _check_folder(path: Path, created: list[Path]) -> None:
 
 def prepare_run(scene: dict, output=None, *, force: bool = False, resume: bool = False,
                 dask: bool = False, combine: bool = True, check_memory: bool = True, clean: bool = True,
-                warn_conflicts: bool = False) -> RunPlan:
+                warn_conflicts: bool = False, list_problems: bool = False) -> RunPlan:
     """Every check before a run; returns the plan (holding the output locks:
     call ``plan.release()`` when done).  Raises :class:`PreflightError`.
     ``clean=False``: leave what earlier runs left (a check only).
     ``warn_conflicts``: an existing output that the run would refuse to
     replace is a warning in ``plan.notes`` instead of an error (a check
-    that still estimates the run)."""
+    that still estimates the run).  ``list_problems``: what the disk, the
+    memory or the GPU memory would refuse goes into ``plan.problems``, all of
+    it, instead of raising at the first (a check that prints every estimate)."""
     from .io import journal_path, partial_path, parts_dir, resume_sources
     from .scene import scene_to_toml
 
@@ -400,7 +406,8 @@ def prepare_run(scene: dict, output=None, *, force: bool = False, resume: bool =
                     raise PreflightError.remedy(f"cannot resume {o.path}: the scene differs from the "
                                                 f"interrupted run's in {diff}", "fresh", sep="; ")
                 chosen[o.path] = src[0]
-        _check_sizes(plan, scene, dask=dask, combine=combine, check_memory=check_memory and not dask)
+        _check_sizes(plan, scene, dask=dask, combine=combine, check_memory=check_memory and not dask,
+                     problems=plan.problems if list_problems else None)
     except BaseException:
         plan.release()
         plan.remove_created()
@@ -433,13 +440,23 @@ def prepare_run(scene: dict, output=None, *, force: bool = False, resume: bool =
     return plan
 
 
-def _check_sizes(plan: RunPlan, scene: dict, *, dask: bool, combine: bool, check_memory: bool) -> None:
+def _check_sizes(plan: RunPlan, scene: dict, *, dask: bool, combine: bool, check_memory: bool,
+                 problems: list | None = None) -> None:
+    """Disk, GPU memory and memory for the outputs still to run; each shortage
+    raises, or with ``problems`` is appended to it (and the checks go on)."""
+
+    def refuse(message: str) -> None:
+        if problems is None:
+            raise PreflightError(message)
+        problems.append(message)
+
     todo = [o for o in plan.outputs if not o.skip]
     if not todo:
         plan.estimate = estimate(scene)
         return
     ests = {o.method: estimate(o.scene) for o in todo}
     plan.estimate = ests[todo[0].method]
+    plan.memory_need = max(e.memory for e in ests.values())
     # disk: every output, on its own filesystem (parts and the combined file both, with Dask)
     need: dict[int, list] = {}
     for o in todo:
@@ -456,7 +473,7 @@ def _check_sizes(plan: RunPlan, scene: dict, *, dask: bool, combine: bool, check
         if b > free:
             e = ests[os_[0].method]
             names = " and ".join(str(o.path) for o in os_)
-            raise PreflightError(
+            refuse(
                 f"{names} would need about {human_bytes(b)} ({e.members} members x "
                 f"{human_bytes(e.file_per_member)}{' x 2 for the Dask parts' if dask and combine else ''}) "
                 f"but the disk of {root} has {human_bytes(free)} free; run fewer members (ensemble.members) "
@@ -469,7 +486,7 @@ def _check_sizes(plan: RunPlan, scene: dict, *, dask: bool, combine: bool, check
         plan.device_free = None if dm is None else dm[0]
         if dm is not None and gpu.device_memory > dm[0]:
             fit = max(1, int(gpu.chunk_members * dm[0] / gpu.device_memory) // 2)
-            raise PreflightError(
+            refuse(
                 f"a member chunk of {gpu.chunk_members} members would need about "
                 f"{human_bytes(gpu.device_memory)} of GPU memory but {human_bytes(dm[0])} are free; "
                 f"lower output.member_chunk (to about {fit})")
@@ -483,7 +500,7 @@ def _check_sizes(plan: RunPlan, scene: dict, *, dask: bool, combine: bool, check
         fit = max(0, (avail - fixed) // max(1, worst.memory_per_member))
         hint = (f"lower output.member_chunk to at most {fit}" if fit >= 1
                 else "store fewer output times (output.every) or integrate fewer steps")
-        raise PreflightError(
+        refuse(
             f"a run would need about {human_bytes(worst.memory)} of memory (a member chunk of "
             f"{worst.chunk_members} members x {human_bytes(worst.memory_per_member)}, plus "
             f"{human_bytes(fixed)} for the program and its file buffers) but {human_bytes(avail)} "

@@ -52,8 +52,19 @@ class SceneError(ValueError):
 # ----------------------------------------------------------------------------- value checks
 
 
+def _is_bool(v) -> bool:
+    """A Python or a numpy boolean."""
+    return isinstance(v, (bool, np.bool_))
+
+
+def _is_integer(v) -> bool:
+    """A Python or a numpy integer (not a boolean, not a float that happens to be whole)."""
+    return isinstance(v, (int, np.integer)) and not _is_bool(v)
+
+
 def _is_number(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool)
+    """A Python or a numpy integer or float (not a boolean, not complex)."""
+    return isinstance(v, (int, float, np.integer, np.floating)) and not _is_bool(v)
 
 
 def number(lo=None, hi=None, *, lo_open=False, hi_open=False):
@@ -75,7 +86,7 @@ def number(lo=None, hi=None, *, lo_open=False, hi_open=False):
 
 def integer(minimum=1, maximum=None):
     def check(name, v, scene):
-        if isinstance(v, bool) or not isinstance(v, int):
+        if not _is_integer(v):
             raise SceneError(name, "must be an integer", v)
         if v < minimum:
             raise SceneError(name, f"must be ≥ {minimum}", v)
@@ -87,8 +98,10 @@ def integer(minimum=1, maximum=None):
 
 
 def _has_bool(v) -> bool:
-    if isinstance(v, bool):
+    if _is_bool(v):
         return True
+    if isinstance(v, np.ndarray):
+        return v.dtype == np.bool_
     if isinstance(v, (list, tuple)):
         return any(_has_bool(x) for x in v)
     return False
@@ -117,7 +130,7 @@ def choice(*options):
     def check(name, v, scene):
         if not isinstance(v, str) or v not in options:
             raise SceneError(name, f"must be one of {', '.join(map(repr, options))}", v)
-        return v
+        return str(v)
 
     return check
 
@@ -136,15 +149,15 @@ def word_or(word: str, other, aliases=()):
 
 
 def boolean(name, v, scene):
-    if not isinstance(v, bool):
+    if not _is_bool(v):
         raise SceneError(name, "must be true or false", v)
-    return v
+    return bool(v)
 
 
 def string(name, v, scene):
     if not isinstance(v, str):
         raise SceneError(name, "must be a string", v)
-    return v
+    return str(v)
 
 
 @dataclass(frozen=True)
@@ -362,10 +375,16 @@ class TableScene:
         return f"{type(self).__name__}({self.name!r}, method={self._t['integrator']['method']!r})"
 
 
+def _given(tables) -> set:
+    """The (section, key) pairs that scene tables set."""
+    return {(sec, k) for sec, t in tables.items() if isinstance(t, dict) for k in t} if isinstance(tables, dict) else set()
+
+
 def declare_scene(name: str, keys: tuple[Key, ...], *, methods: tuple[str, ...], marks: Callable[[dict], bool],
                   title: str, intro: str = "", defaults: dict | None = None, scene_class: type = TableScene,
                   check: Callable[[dict], None] | None = None,
-                  refuse: Callable[[dict], None] | None = None, noun: str | None = None) -> SceneModel:
+                  refuse: Callable[[dict], None] | None = None, noun: str | None = None,
+                  adjust: Callable[[dict, set], None] | None = None) -> SceneModel:
     """The scene side of a model from its own ``keys``: the keys every run reads
     (:func:`run_keys`, with ``defaults`` ``{"section.key": value}`` of the model's
     own) are added where the model does not declare them, after the model's keys of
@@ -373,7 +392,9 @@ def declare_scene(name: str, keys: tuple[Key, ...], *, methods: tuple[str, ...],
     by its rule, ``output.every`` dividing ``integrator.steps``, then ``check(tables)``
     (rules across keys, raising :class:`SceneError`); ``refuse(tables)`` sees every
     table merged in first (a message for a key of another model).  ``noun`` names
-    such a scene in messages ("a Zeitlin scene"; default ``title``)."""
+    such a scene in messages ("a Zeitlin scene"; default ``title``).  ``adjust(tables,
+    given)`` sets defaults that follow other keys, before the checks; ``given`` holds
+    the (section, key) pairs the scene's tables and the overrides set."""
     own = {k.path for k in keys}
     out = list(keys)
     for k in run_keys(tuple(methods)):
@@ -409,8 +430,12 @@ def declare_scene(name: str, keys: tuple[Key, ...], *, methods: tuple[str, ...],
     def load(tables: dict, origin: str, overrides=None, validate_scene: bool = True):
         d = copy.deepcopy(base)
         merge(d, tables, origin)
+        given = _given(tables)
         for table, where in _overrides_as_tables(overrides):
             merge(d, table, where)
+            given |= _given(table)
+        if adjust is not None:
+            adjust(d, given)
         return validate(d) if validate_scene else d
 
     return SceneModel(name=name, marks=marks, load=load, scene_class=scene_class, keys=keys, title=title,

@@ -102,7 +102,9 @@ def _base_scene(study: dict):
     if isinstance(base, str) and not builtin:
         p = Path(base)
         src = study.get("_source")
-        if not p.is_absolute() and src is not None and not p.is_file():
+        # a scene file named in the study file may be relative to it; a name
+        # that is neither there nor here is reported as it was written
+        if not p.is_absolute() and src is not None and not p.is_file() and (Path(src).parent / p).is_file():
             p = Path(src).parent / p
         base = str(p)
     return base

@@ -115,7 +115,7 @@ def verdicts(ds, ctx) -> list[Verdict]:
 def findings(ds, ctx) -> list[str]:
     """Per h: the methods with the least median max error, by a seeded paired bootstrap over members (a method
     ties with the least when the 95 % interval of the ratio of medians contains 1; values ≤ ROUND_OFF are equal;
-    a blown-up member counts as the worst), and where the baseline stands against each other method."""
+    a blown-up member counts as the worst), and where the first of the study's methods stands against each other method."""
     d, base, out = first_point(ds, ctx, keep=(H,)), ctx.methods[0], []
     n = d.sizes["member"]
     for h in d[H].values:
@@ -132,8 +132,8 @@ def findings(ds, ctx) -> list[str]:
         tie = f" (tied: {' = '.join(least)})" if len(least) > 1 else ""
         nxt = [m for m in e.sort_values().index if m not in least][:1]
         out.append(f"At h = {h:g} s the least median max error is {least[0]}'s ({e[least[0]]:.3g}){tie}"
-                   + (f"; next {cmp[nxt[0]].text(nxt[0], least[0])}" if nxt else "") + f"; the baseline {base} "
-                   f"({e[base]:.3g}) is " + "; ".join(f"{w} {', '.join(ms)}" for w, ms in says.items() if ms) + ".")
+                   + (f"; next {cmp[nxt[0]].text(nxt[0], least[0])}" if nxt else "") + f"; {base}, the first of "
+                   f"the study's methods, ({e[base]:.3g}) is " + "; ".join(f"{w} {', '.join(ms)}" for w, ms in says.items() if ms) + ".")
     return out
 
 

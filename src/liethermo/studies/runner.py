@@ -24,11 +24,38 @@ else:  # pragma: no cover
 EXIT_INVALID = 2
 
 
+#: the study files that come with the source (``studies/`` beside ``src/``)
+SHIPPED_STUDIES = Path(__file__).resolve().parents[3] / "studies"
+
+
+def shipped_studies() -> dict[str, Path]:
+    """The shipped study files by name (``convergence`` → studies/convergence.toml)."""
+    if not SHIPPED_STUDIES.is_dir():
+        return {}
+    return {p.stem: p for p in sorted(SHIPPED_STUDIES.glob("*.toml"))}
+
+
+def study_path(path: str | Path) -> Path:
+    """A study file, or a study's name (``convergence``, ``convergence.toml``):
+    the file ``studies/NAME.toml`` of the working folder, else the shipped one."""
+    given = Path(path)
+    if given.is_file() or len(given.parts) != 1:
+        return given
+    name = given.stem if given.suffix == ".toml" else given.name
+    local = Path("studies") / f"{name}.toml"
+    if local.is_file():
+        return local
+    return shipped_studies().get(name, given)
+
+
 def load_study(path: str | Path) -> dict:
-    """Parse a study file; ``_source`` records its path (for relative scene files)."""
-    path = Path(path)
+    """Parse a study file, given by its path or its name (:func:`study_path`);
+    ``_source`` records its path (for relative scene files)."""
+    given = path
+    path = study_path(path)
     if not path.is_file():
-        raise StudyError(f"no such study file: {path}")
+        names = ", ".join(shipped_studies())
+        raise StudyError(f"no such study file: {given}" + (f" (nor a study's name: {names})" if names else ""))
     try:
         study = tomllib.loads(path.read_text())
     except tomllib.TOMLDecodeError as exc:

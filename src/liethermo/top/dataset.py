@@ -66,6 +66,19 @@ def _momentum(traj: Trajectory, omega: np.ndarray) -> np.ndarray:
     return scale * traj.physics.inertia[:, None, :] * omega
 
 
+def _start_note(traj) -> str:
+    """What a variational integrator's start does to the values at t = 0 (for
+    the comments of ``omega`` and ``energy_error``): with the ``node`` and
+    ``staggered`` starts the node momentum at t = 0 is not I Omega(0)."""
+    first = {"node": "Omega(0) (the paper's start)", "staggered": "Omega(h/2)"}.get(traj.start)
+    if first is None:
+        return ""
+    return (f"; start {traj.start!r} takes {first} as the first step velocity, so the node momentum at "
+            "t = 0 is the step's Newton equation read backwards from it, not I Omega(0): at t = 0 "
+            "omega is not Omega(0) and energy_error is not 0 (the paper scene at h = 0.1 s: 3.1 % of "
+            "E_mech,0); docs/model.md, Starts")
+
+
 def trajectory_dataset(traj: Trajectory, *, omega0: np.ndarray, R0: np.ndarray,
                        member_offset: int = 0) -> xr.Dataset:
     """The dataset of one member chunk (no global attributes; see :func:`global_attrs`).
@@ -92,9 +105,10 @@ def _trajectory_dataset(traj, omega0, R0, member_offset):
     mom = _momentum(traj, e["omega"])
     node_note = ("node velocity I(S_k)^-1 mu_k from the node momentum (discrete Legendre transform)"
                  if vi else "node value Omega(t_k)")
+    start_note = _start_note(traj) if vi else ""
     data = {
         "omega": _var(e["omega"], dims_v, "rad s-1", "angular velocity",
-                      comment=f"body angular velocity Omega at t_k: {node_note}"),
+                      comment=f"body angular velocity Omega at t_k: {node_note}{start_note}"),
         "angular_momentum": _var(mom, dims_v, "kg m2 s-1", "angular momentum",
                                  comment="body angular momentum mu = I(S) Omega at t_k"),
         "angular_momentum_norm": _var(np.linalg.norm(mom, axis=-1), dims_t, "kg m2 s-1", "|mu|, a Casimir",
@@ -119,7 +133,8 @@ def _trajectory_dataset(traj, omega0, R0, member_offset):
         "total_energy": _var(e["K"] + e["V"] + U, dims_t, "J", "total energy E = K + V + U"),
         "energy_error": _var(dE, dims_t, "J", "energy error E_k - E_0",
                              comment="total energy error on node values (computed without "
-                                     "cancellation); E_0 is the energy of the initial data at t = 0"),
+                                     "cancellation); E_0 is the energy of the initial data "
+                                     "(Omega(0), Gamma_0, S_0) at t = 0" + start_note),
         "mechanical_energy_initial": _var(emech0, ("member",), "J", "initial mechanical energy",
                                           comment="above the resting state: K_0 + V_0 + |m g l|"),
         "status": _var(traj.status.astype(np.int8), ("member",), "1", "member status",
@@ -149,11 +164,14 @@ def _trajectory_dataset(traj, omega0, R0, member_offset):
                                   "step velocity",
                                   comment="step velocity Omega_k = cay^-1(R_k^T R_k+1)/h of the step "
                                           "from t_k; approximates Omega(t_k + h/2); the paper's Omega_k")
+        composed = ("; for a composition (vi4, vi6) Omega_k is a substep's velocity, so this is not the "
+                    "paper's quantity: the summary and the figures leave it out" if METHODS[traj.method].composed
+                    else "")
         data["energy_error_paper"] = _var(
             dEp, dims_t, "J", "paper's energy error",
             comment="total energy error in the paper's convention (step velocity Omega_k with "
                     "Gamma_k and S_k); it mixes two instants: a first-order error of the "
-                    "diagnostic itself; energy_error is the node-value error")
+                    "diagnostic itself; energy_error is the node-value error" + composed)
         steps = np.maximum(traj.steps_done, 1)
         data["newton_iterations_mean"] = _var(traj.newton_iterations / steps, ("member",), "1",
                                               "mean Newton iterations",

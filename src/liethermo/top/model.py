@@ -43,10 +43,14 @@ class RunSummary:
     wall_time: float = 0.0
     kernel_time: float = 0.0
     compile_time: float = 0.0
+    #: what ``wall_time`` measures, as the summary says it
+    wall_what: str = "simulating and writing; not compiling, the command's start-up or figures"
     status_counts: dict = field(default_factory=dict)
     max_abs_energy_error: float = float("nan")
     max_rel_energy_error: float = float("nan")
     max_rel_energy_error_paper: float = float("nan")
+    max_rel_energy_error_t0: float = float("nan")  # of the node values at t = 0 (a VI's start)
+    start: str = ""  # the variational integrators' start
     max_gamma_defect: float = float("nan")
     newton_mean: float = float("nan")
     newton_max: int = 0
@@ -85,7 +89,7 @@ class RunSummary:
                        for k, v in counts.items())
         out = [
             f"scene {self.scene_name!r}, method {self.method}: {self.members} member(s) x {self.steps} steps, h = {self.h:g} s",
-            f"  wall time {self.wall_time:.3g} s (simulating and writing; not the command's start-up or figures)",
+            f"  wall time {self.wall_time:.3g} s ({self.wall_what})",
             f"  kernels  compiled or loaded in {self.compile_time:.3g} s, ran {self.kernel_time:.3g} s "
             f"({self.throughput:.3g} member-steps/s)",
             f"  status   {st}",
@@ -100,7 +104,14 @@ class RunSummary:
                 f"  max |E_k - E_0|           {self.max_abs_energy_error:.3e} J = "
                 f"{self.max_rel_energy_error:.3e} x E_mech,0 (node values)",
             ]
-            if paper == paper:
+            t0 = self.max_rel_energy_error_t0
+            first = {"node": "Omega(0)", "staggered": "Omega(h/2)"}.get(self.start)
+            if first is not None and t0 == t0 and t0 > T0_ERROR_SHOWN:
+                out += [f"                            {t0:.3e} x E_mech,0 of it already at t = 0 (start "
+                        f"{self.start!r}: {first} is the first",
+                        "                            step velocity, so the node momentum is not I Omega(0); "
+                        "docs/model.md, Starts)"]
+            if paper == paper and not m.composed:
                 out.append(f"                            {paper:.3e} x E_mech,0 in the paper's convention "
                            "(step velocity with node values)")
             out += [
@@ -132,6 +143,10 @@ def _nanmax(a) -> float:
     return float(a.max()) if a.size else float("nan")
 
 
+#: an energy error at t = 0 above this (relative to E_mech,0) is not round-off: the summary explains it
+T0_ERROR_SHOWN = 1e-12
+
+
 @dataclass
 class ChunkStats:
     """What one member chunk contributes to a :class:`RunSummary`.
@@ -148,6 +163,7 @@ class ChunkStats:
     e_abs: float = -np.inf
     e_rel: float = -np.inf
     e_rel_paper: float = -np.inf
+    e_rel_t0: float = -np.inf
     gdef: float = -np.inf
     hw: float = -np.inf
     nit_total: int = 0
@@ -165,6 +181,7 @@ class ChunkStats:
         self.e_abs = max(self.e_abs, other.e_abs)
         self.e_rel = max(self.e_rel, other.e_rel)
         self.e_rel_paper = max(self.e_rel_paper, other.e_rel_paper)
+        self.e_rel_t0 = max(self.e_rel_t0, other.e_rel_t0)
         self.gdef = max(self.gdef, other.gdef)
         self.hw = max(self.hw, other.hw)
         self.nit_total += other.nit_total
@@ -206,6 +223,7 @@ def scene_setup(scene, overrides=None, history: str | None = None) -> tuple:
                          entropy=c.entropy, composition=c.composition, terms=list(run.terms),
                          history=history)
     summ = RunSummary(scene["scene"]["name"], c.name, run.members, run.steps, run.h)
+    summ.start = c.start if c.family == "vi" else ""
     summ.solves_per_step = len(c.method.substeps(c.composition or "small_error")) if c.family == "vi" else 0
     summ.physics_notes = physics_lines(run.physics)
     return scene, attrs, summ
@@ -281,6 +299,7 @@ def run_chunk(scene: dict, lo: int, hi: int, *, progress_cb=None, kernel: str | 
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         rel = ee / em
         st.e_rel = max(st.e_rel, _nanmax(rel))
+        st.e_rel_t0 = max(st.e_rel_t0, _nanmax(rel[:, :1]))
         worst = np.max(np.where(np.isnan(rel), 0.0, rel), axis=1, initial=0.0)  # 0/0: no energy to lose
         st.diverged = int(np.count_nonzero(worst > DIVERGED_REL_ENERGY))
         if "energy_error_paper" in ds:
@@ -342,6 +361,7 @@ def finish_summary(summ: RunSummary, st: ChunkStats) -> RunSummary:
     summ.max_abs_energy_error = st.e_abs if np.isfinite(st.e_abs) else nan
     summ.max_rel_energy_error = st.e_rel if np.isfinite(st.e_rel) else nan
     summ.max_rel_energy_error_paper = st.e_rel_paper if np.isfinite(st.e_rel_paper) else nan
+    summ.max_rel_energy_error_t0 = st.e_rel_t0 if np.isfinite(st.e_rel_t0) else nan
     summ.max_gamma_defect = st.gdef if np.isfinite(st.gdef) else nan
     summ.max_h_omega = st.hw if np.isfinite(st.hw) else nan
     summ.newton_mean = (st.nit_total / st.nsteps_total

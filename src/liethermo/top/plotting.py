@@ -104,6 +104,25 @@ class Ensemble:
     emech: np.ndarray | None = None
 
 
+def _paper_convention(ds) -> bool:
+    """Whether to draw a run's energy in the paper's convention: a variational
+    integrator's own step velocity, not a composition's (vi4, vi6), whose
+    ``omega_step`` is a substep's velocity."""
+    from .methods import METHODS
+
+    m = METHODS.get(ds.attrs.get("method"))
+    return "energy_error_paper" in ds and not (m is not None and m.composed)
+
+
+def _start_words(ds) -> str:
+    """Why a variational integrator's energy error is not 0 at t = 0 (its start), or ""."""
+    first = {"node": "Omega(0)", "staggered": "Omega(h/2)"}.get(ds.attrs.get("start"))
+    if first is None or "energy_error_paper" not in ds:
+        return ""
+    return (f"start \"{ds.attrs['start']}\" takes {first} as the first step velocity, "
+            "so the node momentum at t = 0 is not I Omega(0) (docs/model.md, Starts)")
+
+
 def _ensemble(full) -> Ensemble:
     """The bands of a run's ensemble (more than one member), over the members
     that completed among the first :data:`MAX_BAND_MEMBERS`; each variable is
@@ -130,7 +149,7 @@ def _ensemble(full) -> Ensemble:
     ens.E0 = get("total_energy")[:, 0] - ee[:, 0]
     ens.emech = get("mechanical_energy_initial")
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        paper = get("energy_error_paper") if "energy_error_paper" in full else None
+        paper = get("energy_error_paper") if _paper_convention(full) else None
         ens.bands["relative_top"] = member_band((ee if paper is None else paper) / ens.E0[:, None], of=n, why=why)
         ens.bands["abs_node"] = member_band(np.abs(ee) / ens.emech[:, None], of=n, why=why)
         if paper is not None:
@@ -244,11 +263,18 @@ def scene_figures(outputs: dict, folder, stem: str = "run", member: int = 0) -> 
     # velocity with the node values, over E_0) on top, the errors over E_mech,0 below;
     # each legend entry names its quantity and its normalisation
     fig, axes = plt.subplots(2, 1, figsize=(7, 6.5), sharex=True)
-    E0s, emechs, clipped = [], [], False
+    E0s, emechs, clipped, at_start = [], [], False, []
     for m, ds in data.items():
         t = t_of(ds).values
         ens = ensembles.get(m)
-        paper = "energy_error_paper" in ds
+        paper = _paper_convention(ds)
+        why = _start_words(ds)
+        if why:  # the start's own error, drawn at t = 0, said where it is seen
+            with np.errstate(divide="ignore", invalid="ignore"):
+                e0 = (float(np.nanmedian(ens.bands["abs_node"].median[:1])) if ens is not None and ens.bands
+                      else abs(float(ds["energy_error"].values[0])) / float(ds["mechanical_energy_initial"].values))
+            if np.isfinite(e0) and e0 > 1e-12:
+                at_start.append(f"{LABEL.get(m, m)}: {e0:.2g} at t = 0{' (median)' if ens is not None else ''}: {why}")
         conv = "paper's convention" if paper else "node values"
         name = LABEL.get(m, m)
         if ens is not None and ens.bands:
@@ -300,10 +326,12 @@ def scene_figures(outputs: dict, folder, stem: str = "run", member: int = 0) -> 
     axes[1].set_ylabel("|E_k - E_0| / E_mech,0")
     axes[1].set_xlabel("time t (s)")
     axes[1].set_title(f"over E_mech,0 = K_0 + V_0 + |m g l| = {_energy(emechs)}"
-                      + (f"; a blow-up is drawn at {CLIP:g}" if clipped else ""), fontsize=9)
+                      + (f"; a blow-up is drawn at {CLIP:g}" if clipped else "")
+                      + "".join("\n" + "\n".join(textwrap.wrap(w, 100)) for w in at_start), fontsize=8 if at_start else 9)
     legend_beside(axes[1], fontsize=7)
     fig.suptitle(f"total energy error — {title}", fontsize=10)
-    files.append(_save(fig, folder / f"{stem}_total_energy.png", top=0.75, gap=0.5))
+    lines = sum(len(textwrap.wrap(w, 100)) for w in at_start)
+    files.append(_save(fig, folder / f"{stem}_total_energy.png", top=0.75, gap=0.5 + 0.16 * lines))
 
     # 4. entropy
     fig, ax = plt.subplots(figsize=(7, 3.8))

@@ -13,7 +13,10 @@
   step at N = min(N, PROBE_N) and scaled by (N/N_probe)³ and the members.
 * **Memory** of the steps: about ``STATE_COPIES`` working copies of W for the
   whole ensemble (16 bytes per complex entry), the splitting's predictor of
-  the next fixed point (at most 512 MiB), and what is kept for the output.
+  the next fixed point (at most 512 MiB), and what is kept for the output
+  (:func:`run_bytes`).  What ``--check`` prints is the run layer's count of the
+  same run (a member chunk, the writer and the program besides), the one its
+  memory check uses.
 
 The run layer's disk and memory checks use :meth:`liethermo.zeitlin.model.Fluid.estimate`;
 this module gives the time (``--check``, and before a long run) and the basis's cost.
@@ -70,6 +73,15 @@ def run_bytes(scene, method: str | None = None) -> int:
         need += W * T
     need += 8 * M * T * (N + 12)  # the diagnostics
     return need
+
+
+def _run_memory(scene, method: str) -> int:
+    """A method's whole memory as the run layer's checks count it (the
+    basis, a member chunk, the writer, the program): the figure ``--check``'s
+    first line gives, so that both lines say the same."""
+    from ..preflight import estimate, method_scene
+
+    return estimate(method_scene(scene, method)).memory
 
 
 def _available_bytes() -> int | None:
@@ -165,7 +177,7 @@ def estimate(scene, methods: list[str] | None = None) -> Estimate:
         if m == "reference":  # scipy's DOP853 per member: not probed (a study's reference, not a run's)
             continue
         s, Np, Mp = probe_step_seconds(scene, m)
-        est.methods[m] = (s * (N / Np) ** 3 * (M / Mp) * steps, run_bytes(scene, m), Np)
+        est.methods[m] = (s * (N / Np) ** 3 * (M / Mp) * steps, _run_memory(scene, m) - est.basis_bytes, Np)
     return est
 
 

@@ -44,11 +44,15 @@ class FluidStats:
     its_sum: float = 0.0                # Σ of the mean fixed-point iterations per step, per output
     its_n: int = 0
     its_max: float = -np.inf
+    #: members per status flag, by its meaning (ok, fixed_point_not_converged, non_finite)
+    status: dict = field(default_factory=dict)
 
     def merge(self, o: "FluidStats") -> "FluidStats":
         self.members += o.members
         self.kernel_time += o.kernel_time
         self.failed += o.failed
+        for k, n in o.status.items():
+            self.status[k] = self.status.get(k, 0) + n
         for k in ("energy_error", "casimir2", "momentum_change", "momentum", "its_max"):
             setattr(self, k, max(getattr(self, k), getattr(o, k)))
         self.heat_sum += o.heat_sum
@@ -67,8 +71,11 @@ class FluidStats:
     @classmethod
     def of(cls, ds, kernel_time: float) -> "FluidStats":
         """The figures of a chunk's dataset (failed members are NaN there)."""
+        from .run import STATUS_MEANINGS
+
         st = cls(members=ds.sizes["member"], kernel_time=kernel_time)
         st.failed = int((ds["status"].values != 0).sum())
+        st.status = {name: int((ds["status"].values == flag).sum()) for flag, name in STATUS_MEANINGS.items()}
         with np.errstate(invalid="ignore", divide="ignore"):
             st.energy_error = _max(np.abs(ds["energy_error"].values))
             st.casimir2 = _max(np.abs(ds["casimir_drift"].sel(k=2).values))
@@ -113,8 +120,11 @@ class FluidSummary:
         heat = st.heat_sum / st.heat_n if st.heat_n else nan
         words = ("tr W² (∫ω² dA) changed by {:.2e} (viscosity dissipates it)" if self.viscous
                  else "tr W² drift ≤ {:.2e} (∫ω² dA)")
-        out = [f"{self.method}: {self.members} member(s), N = {self.N}, h = {self.h:g} s, t = {self.t_end:g} s, "
-               f"kernels {st.kernel_time:.2f} s",
+        from .run import status_line, stepping_line
+
+        out = [f"{self.method}: {self.members} member(s), N = {self.N}, h = {self.h:g} s, t = {self.t_end:g} s",
+               stepping_line(st.kernel_time),
+               status_line(st.status, self.method),
                f"  |H + q − H(0)|/H(0) ≤ {fin(st.energy_error):.2e}; {words.format(fin(st.casimir2))}; "
                f"angular momentum drift ≤ {dL:.2e} (relative); heat {100 * heat:.1f} % of H(0)"]
         if st.its_n and st.its_max > 0:
@@ -123,7 +133,7 @@ class FluidSummary:
             out.append(f"  {st.failed} member(s) failed: see status and failed_step")
         if self.resumed_members:
             out.append(f"  resumed: members 0-{self.resumed_members - 1} came from the interrupted run "
-                       "(not in the kernel time above)")
+                       "(not in the stepping time above)")
         if self.path is not None:
             out.append(f"  wrote {self.path}")
         return out

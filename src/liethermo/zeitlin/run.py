@@ -95,7 +95,9 @@ def initial_fields(scene: ZeitlinScene, members: np.ndarray | None = None) -> np
         if ini["kind"] == "random":
             prof = np.where(ls <= lmax, ls ** (-ini["slope"]), 0.0)
             C = _shape_spectrum(C, b, energy * prof / prof.sum())
-        else:  # rossby_haurwitz: solid-body rotation and the (lmax, m) wave, equal energy, plus noise
+        else:  # rossby_haurwitz: solid-body rotation and the (lmax, m) wave, equal energy, plus noise,
+            # the sum scaled to initial.energy (the noise shares modes with the wave and the rotation,
+            # so the energies of the parts do not add up to that of the sum)
             noise = ini["noise"]
             prof = np.where(ls <= lmax, 1.0, 0.0)
             C = _shape_spectrum(C, b, noise * energy * prof / prof.sum()) if noise > 0 else 0 * C
@@ -108,6 +110,8 @@ def initial_fields(scene: ZeitlinScene, members: np.ndarray | None = None) -> np
             for mode in modes:
                 share = (1.0 - noise) * energy / len(modes)
                 C = C + mode * np.sqrt(share / zk.energy_of_modes(mode[None], b)[0])
+            if noise > 0:
+                C = C * np.sqrt(energy / zk.energy_of_modes(C[None], b)[0])
         out[j] = zk.from_modes(C[None], b)[0]
     return out
 
@@ -437,6 +441,19 @@ def vorticity_coefficients(ds: xr.Dataset) -> xr.DataArray:
                         attrs={"units": "s-1", "long_name": "vorticity coefficient ω_lm"})
 
 
+def stepping_line(seconds: float) -> str:
+    """The summary's line on what the time stepping took (what ``kernel_seconds`` measures)."""
+    return (f"  stepping {seconds:.3g} s (the members' steps and diagnostics, compiling or loading the step "
+            "kernels on first use included; not the basis, the writing or figures)")
+
+
+def status_line(counts: dict, method: str) -> str:
+    """The members per status flag (a flag the method cannot raise left out)."""
+    shown = {k: v for k, v in counts.items()
+             if not (k == "fixed_point_not_converged" and method in ("rk4", "reference"))}
+    return "  status   " + ", ".join(f"{k}: {v}" for k, v in shown.items())
+
+
 def summary(ds: xr.Dataset) -> str:
     import warnings
 
@@ -459,8 +476,12 @@ def _summary(ds: xr.Dataset) -> str:
     viscous = tomllib.loads(ds.attrs["scene"])["fluid"]["kinematic_viscosity"] > 0
     casimir_words = ("tr W² (∫ω² dA) changed by {:.2e} (viscosity dissipates it)" if viscous
                      else "tr W² drift ≤ {:.2e} (∫ω² dA)")
+    flags = ds["status"].values
+    counts = {name: int((flags == flag).sum()) for flag, name in STATUS_MEANINGS.items()}
     lines = [f"{ds.attrs['method']}: {M} member(s), N = {ds.attrs['N']}, h = {ds.attrs['h']:g} s, "
-             f"t = {float(ds['t'][-1]):g} s, kernels {ds.attrs['kernel_seconds']:.2f} s",
+             f"t = {float(ds['t'][-1]):g} s",
+             stepping_line(ds.attrs["kernel_seconds"]),
+             status_line(counts, ds.attrs["method"]),
              f"  |H + q − H(0)|/H(0) ≤ {err:.2e}; {casimir_words.format(cas)}; angular momentum drift ≤ "
              f"{dL:.2e} (relative); heat {100 * heat:.1f} % of H(0)"]
     if its.size and np.nanmax(its) > 0:

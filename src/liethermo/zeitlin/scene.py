@@ -9,6 +9,8 @@ result is a :class:`ZeitlinScene`, which reads like the top's Scene
 
 from __future__ import annotations
 
+import numpy as np
+
 from ..numerics.compositions import COMPOSITION_KINDS
 from ..scene import (Key, SceneError, TableScene, boolean, choice, compare_check, declare_scene, integer, number,
                      string)
@@ -23,7 +25,9 @@ def _lmax_check(name, v, scene):
     v = integer(1)(name, v, scene)
     N = scene["zeitlin"]["N"]
     if isinstance(N, int) and v > N - 1:
-        raise SceneError(name, f"must be at most zeitlin.N − 1 = {N - 1} (the degrees of su(N) are l = 1 … N−1)", v)
+        raise SceneError(name, f"must be at most zeitlin.N − 1 = {N - 1} (the degrees of su(N) are l = 1 … N−1): "
+                         f"with zeitlin.N = {N} set initial.lmax ≤ {N - 1} too (it follows zeitlin.N only where "
+                         "neither the scene nor an override sets it)", v)
     return v
 
 
@@ -31,7 +35,9 @@ def _m_check(name, v, scene):
     v = integer(0)(name, v, scene)
     lmax = scene["initial"]["lmax"]
     if isinstance(lmax, int) and v > lmax:
-        raise SceneError(name, f"must be at most initial.lmax = {lmax} (|m| ≤ l)", v)
+        raise SceneError(name, f"must be at most initial.lmax = {lmax} (|m| ≤ l): with initial.lmax = {lmax} "
+                         f"set initial.m ≤ {lmax} too (it follows initial.lmax only where neither the scene nor "
+                         "an override sets it)", v)
     return v
 
 
@@ -49,7 +55,8 @@ KEYS: tuple[Key, ...] = (
     Key("initial", "kind", "random", "", " | ".join(f'"{k}"' for k in INITIAL_KINDS),
         "random: a random field of degrees 1 … lmax with the spectrum E_l ∝ l^(−slope), drawn per "
         "member from ensemble.seed; rossby_haurwitz: the mode (l = lmax, m) with solid-body "
-        "rotation (l = 1), plus a random field carrying the fraction initial.noise of the energy; file: "
+        "rotation (l = 1), plus a random field of about the fraction initial.noise of the energy, the sum "
+        "scaled to initial.energy; file: "
         "the coefficients ω_lm of initial.file, as they are (initial.lmax, m, energy, slope and noise do "
         "not apply)",
         choice(*INITIAL_KINDS)),
@@ -61,15 +68,19 @@ KEYS: tuple[Key, ...] = (
     Key("initial", "sha256", "", "", "64 hex digits, or empty",
         "the sha256 of initial.file, filled in when the scene is loaded and stored with the run: a "
         "resume, or a scene that gives it, is refused if the file has changed since", string),
-    Key("initial", "lmax", 6, "1", "integer in [1, zeitlin.N − 1]", "highest degree of the initial field",
-        _lmax_check),
-    Key("initial", "m", 4, "1", "integer in [0, initial.lmax]", "rossby_haurwitz: the wave's order m", _m_check),
+    Key("initial", "lmax", 6, "1", "integer in [1, zeitlin.N − 1]",
+        "highest degree of the initial field; left unset, 6 or zeitlin.N − 1 where that is smaller", _lmax_check),
+    Key("initial", "m", 4, "1", "integer in [0, initial.lmax]",
+        "rossby_haurwitz: the wave's order m; left unset, 4 or initial.lmax where that is smaller", _m_check),
     Key("initial", "energy", 1.0, "J", "> 0",
-        "initial kinetic energy H(0) = ½∫|u|² dA of every member (a layer of unit surface density on a "
-        "sphere of radius 1 m); the same field at every zeitlin.N", number(0.0, lo_open=True)),
+        "initial kinetic energy H(0) = ½∫|u|² dA of every member, its noise included (a layer of unit "
+        "surface density on a sphere of radius 1 m); the same field at every zeitlin.N",
+        number(0.0, lo_open=True)),
     Key("initial", "slope", 0.0, "1", "finite", "random: energy spectrum E_l ∝ l^(−slope) for l ≤ lmax",
         number()),
-    Key("initial", "noise", 1e-3, "1", "in [0, 1)", "rossby_haurwitz: fraction of the energy in the random field",
+    Key("initial", "noise", 1e-3, "1", "in [0, 1)",
+        "rossby_haurwitz: fraction of the energy given to the random field before the sum is scaled to "
+        "initial.energy (it shares modes with the wave, so its share of H(0) is this to within about √noise)",
         number(0.0, 1.0, hi_open=True)),
     Key("integrator", "method", "split", "", " | ".join(f'"{m}"' for m in METHODS),
         "split: Strang splitting of the exact viscous-and-heat flow around the isospectral midpoint; "
@@ -144,6 +155,21 @@ def _initial_file_rules(clean: dict) -> None:
     ini["sha256"] = digest
 
 
+def _is_int(v) -> bool:
+    return isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_))
+
+
+def _follow_n(d: dict, given: set) -> None:
+    """The defaults that follow zeitlin.N: initial.lmax, where no scene or
+    override sets it, is at most N − 1, and initial.m at most that lmax."""
+    N, lmax = d["zeitlin"]["N"], d["initial"]["lmax"]
+    if ("initial", "lmax") not in given and _is_int(N) and N >= 2 and _is_int(lmax):
+        d["initial"]["lmax"] = lmax = min(int(lmax), int(N) - 1)
+    m = d["initial"]["m"]
+    if ("initial", "m") not in given and _is_int(lmax) and lmax >= 0 and _is_int(m):
+        d["initial"]["m"] = min(int(m), int(lmax))
+
+
 def _refuse(new: dict) -> None:
     fluid = new.get("fluid")
     if isinstance(fluid, dict) and "viscosity" in fluid:
@@ -161,6 +187,6 @@ It has keys of its own, below; sections it shares with the top (`[fluid]`, `[the
 
 #: the scene side of the fluid's model (registered with it: liethermo.zeitlin.model)
 SCENE_MODEL = declare_scene("zeitlin", KEYS, methods=METHODS, marks=is_zeitlin, title="a Zeitlin fluid",
-                            intro=INTRO, scene_class=ZeitlinScene, refuse=_refuse, check=_initial_file_rules,
+                            intro=INTRO, scene_class=ZeitlinScene, refuse=_refuse, check=_initial_file_rules, adjust=_follow_n,
                             noun="a Zeitlin scene")
 load = SCENE_MODEL.load

@@ -40,6 +40,11 @@ BATCHED_BLOCKS_BYTES = 2**31
 BACKENDS = ("cpu", "cpu-xp", "gpu")
 
 
+#: the CuPy wheel of the ``gpu`` extra: the same CUDA major version as numba-cuda's ``cu13``,
+#: with its ``ctk`` extra (the CUDA libraries from pip)
+CUPY_WHEEL = "cupy-cuda13x[ctk]"
+
+
 def namespace(backend: str):
     """The array module of a backend: numpy for ``cpu-xp``, CuPy for ``gpu``
     (refused in one line where CuPy or a CUDA device is missing)."""
@@ -49,7 +54,8 @@ def namespace(backend: str):
         try:
             import cupy
         except ImportError as e:
-            raise RuntimeError(f"backend 'gpu' needs CuPy, which does not import here ({e})") from None
+            raise RuntimeError(f"backend 'gpu' needs CuPy, which does not import here ({e}); install it "
+                               f"with pip install 'liethermo[gpu]' (CuPy for CUDA 13: {CUPY_WHEEL})") from None
         try:
             n = cupy.cuda.runtime.getDeviceCount()
         except Exception as e:  # no driver, no runtime

@@ -1,0 +1,206 @@
+"""What a run's summary and ``--check`` print: each figure says what it
+measures, and it measures that."""
+
+from __future__ import annotations
+
+import time
+
+import liethermo
+from liethermo.top import simulate
+
+
+def test_the_summarys_wall_time_leaves_out_compiling(monkeypatch):
+    """A first run compiles its kernels inside the first chunk; the summary's
+    wall time is the simulating and writing, the compiling is reported apart
+    (here a compiling made to take 2 s longer)."""
+    liethermo.run("spherical_top", {"integrator.steps": 10}, compare=False)  # whatever else a first run loads
+    real = simulate._ensure_compiled
+
+    def slow_compile(fn, args):
+        time.sleep(1.0)
+        return real(fn, args) + 1.0
+
+    monkeypatch.setattr(simulate, "_ensure_compiled", slow_compile)
+    ds = liethermo.run("spherical_top", {"integrator.steps": 10}, compare=False)
+    summary = ds.attrs["summary"]
+    wall = float(summary.split("wall time ")[1].split(" s")[0])
+    compiled = float(summary.split("compiled or loaded in ")[1].split(" s")[0])
+    assert compiled >= 2.0  # the kernel and the VI's start
+    assert wall < 1.5, summary
+    assert "not compiling" in summary
+
+
+def test_the_gpu_extra_installs_cupy_for_numba_cudas_cuda_and_the_refusal_says_so(monkeypatch):
+    """The fluid on a GPU needs CuPy: the ``gpu`` extra brings the wheel of
+    numba-cuda's CUDA major version, and a refusal names that route."""
+    import re
+    import sys
+    from pathlib import Path
+
+    import pytest
+
+    if sys.version_info >= (3, 11):
+        import tomllib
+    else:  # pragma: no cover
+        import tomli as tomllib
+    from liethermo.zeitlin import xpstep
+
+    root = Path(__file__).resolve().parents[1]
+    gpu = tomllib.loads((root / "pyproject.toml").read_text())["project"]["optional-dependencies"]["gpu"]
+    cuda = {m.group(1) for d in gpu if (m := re.match(r"numba-cuda\[cu(\d+)\]", d))}
+    cupy = [d for d in gpu if d.startswith("cupy-cuda")]
+    assert len(cuda) == 1 and len(cupy) == 1
+    assert cupy[0].startswith(f"cupy-cuda{cuda.pop()}x[ctk]")
+    assert cupy[0].split(">=")[0] == xpstep.CUPY_WHEEL
+    monkeypatch.setitem(sys.modules, "cupy", None)  # as where CuPy is not installed
+    with pytest.raises(RuntimeError) as err:
+        xpstep.namespace("gpu")
+    assert "pip install 'liethermo[gpu]'" in str(err.value) and xpstep.CUPY_WHEEL in str(err.value)
+    assert xpstep.CUPY_WHEEL in (root / "docs" / "api.md").read_text(encoding="utf-8")
+
+
+def test_check_prints_every_estimate_then_lists_every_problem(tmp_path, capsys, monkeypatch):
+    """Too little disk and too little memory: --check still prints the
+    estimates, then one line per problem, and exits 2; it writes nothing."""
+    import collections
+
+    from liethermo import preflight
+    from liethermo.cli import main
+
+    usage = collections.namedtuple("usage", "total used free")
+    monkeypatch.setattr(preflight.shutil, "disk_usage", lambda p: usage(10**6, 10**6 - 1000, 1000))
+    monkeypatch.setattr(preflight, "available_memory", lambda: 10**6)
+    rc = main(["run", "paper", "-o", str(tmp_path / "p.nc"), "--check", "--set", "ensemble.members=2000",
+               "--set", "integrator.steps=20", "--set", "output.compare=[]"])
+    cap = capsys.readouterr()
+    assert rc == 2
+    assert cap.out.startswith("scene 'paper' is valid: 1 output file(s), about ")
+    assert "vi: about" in cap.out and "of kernel time on this machine" in cap.out
+    errors = [line for line in cap.err.splitlines() if line.startswith("liethermo: error: ")]
+    assert len(errors) == 2, cap.err
+    assert "would need about" in errors[0] and "free" in errors[0]
+    assert errors[1].startswith("liethermo: error: a run would need about ") and "of memory" in errors[1]
+    assert list(tmp_path.iterdir()) == []
+    # the run itself is refused at the first problem, before any work
+    assert main(["run", "paper", "-o", str(tmp_path / "p.nc"), "--set", "ensemble.members=2000",
+                 "--set", "integrator.steps=20", "--set", "output.compare=[]"]) == 2
+    assert capsys.readouterr().err.count("liethermo: error: ") == 1 and list(tmp_path.iterdir()) == []
+
+
+def test_check_gives_one_memory_figure_in_its_header_and_its_method_line(tmp_path, capsys):
+    """A fluid's --check: the header's "at most about" memory is the figure
+    of the method's own line (one way of counting, not two)."""
+    import re
+
+    from liethermo.cli import main
+
+    assert main(["run", "zeitlin_decay", "-o", str(tmp_path / "z.nc"), "--check", "--set", "zeitlin.N=48",
+                 "--set", "output.compare=[]", "--set", "integrator.steps=20", "--set", "output.every=10"]) == 0
+    out = capsys.readouterr().out
+    header = re.search(r"at most about (\S+ \w+) of memory \(member chunks", out).group(1)
+    in_all = re.search(r"in all: about .* at most about (\S+ \w+) of memory", out).group(1)
+    assert header == in_all, out
+
+
+def test_an_unknown_flag_or_a_missing_argument_is_one_line(capsys):
+    import pytest
+
+    from liethermo.cli import main
+
+    for argv, says in ((["run", "paper", "--frob"], "unrecognized arguments: --frob"),
+                       (["run"], "the following arguments are required: SCENE"),
+                       (["study", "convergence", "--nope"], "unrecognized arguments: --nope")):
+        with pytest.raises(SystemExit) as exc:
+            main(argv)
+        assert exc.value.code == 2
+        err = capsys.readouterr().err
+        assert len(err.splitlines()) == 1 and says in err and "usage" not in err, err
+
+
+def test_a_study_name_resolves_to_the_shipped_study_file(tmp_path, monkeypatch):
+    from pathlib import Path
+
+    import pytest
+
+    from liethermo.studies.common import StudyError
+    from liethermo.studies.runner import load_study
+
+    shipped = Path(__file__).resolve().parents[1] / "studies" / "convergence.toml"
+    monkeypatch.chdir(tmp_path)  # no studies/ here
+    for name in ("convergence", "convergence.toml"):
+        assert Path(load_study(name)["_source"]).resolve() == shipped
+    (tmp_path / "studies").mkdir()  # one of the user's own, of the same name, comes first
+    (tmp_path / "studies" / "convergence.toml").write_text(shipped.read_text())
+    assert Path(load_study("convergence")["_source"]).resolve() == tmp_path / "studies" / "convergence.toml"
+    with pytest.raises(StudyError, match=r"no such study file: convergnce \(nor a study's name: .*convergence"):
+        load_study("convergnce")
+
+
+def test_a_misspelt_base_scene_is_reported_as_typed(capsys):
+    from liethermo.cli import main
+
+    assert main(["study", "studies/long_drift.toml", "--scene", "zeitlin_dcay"]) == 2
+    err = capsys.readouterr().err
+    assert "scene file 'zeitlin_dcay': not found, and not a built-in scene" in err and "studies/" not in err
+
+
+def test_the_readme_names_the_reduced_studys_folder():
+    from pathlib import Path
+
+    from liethermo.studies.runner import default_outdir
+
+    readme = " ".join((Path(__file__).resolve().parents[1] / "README.md").read_text(encoding="utf-8").split())
+    study = {"study": {"kind": "convergence", "name": "convergence"}}
+    reduced = default_outdir(study, True).as_posix().replace("convergence", "<study>")
+    assert f"`{reduced}/` with `--reduced`" in readme
+
+
+def test_drift_findings_call_no_variational_method_the_baseline():
+    """The README's baselines are the Runge–Kutta methods; the energy-drift and
+    long-drift findings compare with the study's first method, and say so."""
+    from types import SimpleNamespace
+
+    import numpy as np
+    import xarray as xr
+
+    from liethermo.studies import energy_drift, long_drift
+
+    methods = ["vi", "vi4", "rk2", "rk4"]
+    ctx = SimpleNamespace(methods=methods, sweep_keys=["integrator.h"])
+    ds = xr.Dataset({"median_max_relative_energy_error": (("scheme", energy_drift.H), [[1e-3], [1e-4], [np.inf], [1e-2]])},
+                    coords={"scheme": methods, energy_drift.H: [0.1]})
+    lines = energy_drift.findings(ds, ctx)
+    ctx = SimpleNamespace(methods=methods, sweep_keys=[])
+    ds = xr.Dataset({"median_abs_drift_rate": (("scheme", "dissipation"), [[1e-9], [1e-10], [1e-6], [1e-11]])},
+                    coords={"scheme": methods, "dissipation": [1.0]})
+    lines += long_drift.findings(ds, ctx)
+    assert len(lines) == 2
+    for line in lines:
+        assert "baseline" not in line and "vi, the first of the study's methods," in line, line
+
+
+def test_the_readme_says_which_fluid_scene_is_viscous():
+    from pathlib import Path
+
+    from liethermo import load_scene
+
+    readme = " ".join((Path(__file__).resolve().parents[1] / "README.md").read_text(encoding="utf-8").split())
+    for name in ("zeitlin_decay", "zeitlin_ideal"):
+        viscous = load_scene(name)["fluid"]["kinematic_viscosity"] > 0
+        assert f"`liethermo run {name}` ({'viscous' if viscous else 'inviscid'}" in readme, name
+
+
+def test_a_fluid_runs_summary_counts_its_members_by_status_and_names_its_time(tmp_path):
+    from liethermo.zeitlin import run as zr
+
+    small = {"zeitlin.N": 12, "ensemble.members": 3, "integrator.steps": 4, "output.every": 2,
+             "output.compare": [], "output.figures": False, "output.member_chunk": 2}
+    for ds in (liethermo.run("zeitlin_decay", small, output=tmp_path / "z.nc"),  # the runner's summary, two chunks
+               zr.simulate(liethermo.load_scene("zeitlin_decay", small))):     # the array-level one
+        lines = ds.attrs["summary"].splitlines()
+        assert "  status   ok: 3, fixed_point_not_converged: 0, non_finite: 0" in lines, lines
+        assert any(line.startswith("  stepping ") and "compiling" in line and "not the basis" in line
+                   for line in lines), lines
+        assert "kernels" not in lines[0]
+    rk4 = zr.simulate(liethermo.load_scene("zeitlin_decay", {**small, "integrator.method": "rk4"}))
+    assert "  status   ok: 3, non_finite: 0" in rk4.attrs["summary"].splitlines()
