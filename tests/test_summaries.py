@@ -165,18 +165,28 @@ def test_drift_findings_call_no_variational_method_the_baseline():
 
     from liethermo.studies import energy_drift, long_drift
 
-    methods = ["vi", "vi4", "rk2", "rk4"]
+    methods, n = ["vi", "vi4", "rk2", "rk4"], 12
+    rng = np.random.default_rng(0)
+    scale = np.array([1e-3, 1e-4, 1e-1, 1e-2])[:, None]
+    err = scale * (1.0 + 0.1 * rng.random((4, n)))  # vi4 < vi < rk4 < rk2 on every member
     ctx = SimpleNamespace(methods=methods, sweep_keys=["integrator.h"])
-    ds = xr.Dataset({"median_max_relative_energy_error": (("scheme", energy_drift.H), [[1e-3], [1e-4], [np.inf], [1e-2]])},
-                    coords={"scheme": methods, energy_drift.H: [0.1]})
+    ds = xr.Dataset({"max_relative_energy_error": (("scheme", energy_drift.H, "member"), err[:, None, :]),
+                     "median_max_relative_energy_error": (("scheme", energy_drift.H), np.median(err, axis=1)[:, None])},
+                    coords={"scheme": methods, energy_drift.H: [0.1], "member": np.arange(n)})
     lines = energy_drift.findings(ds, ctx)
-    ctx = SimpleNamespace(methods=methods, sweep_keys=[])
-    ds = xr.Dataset({"median_abs_drift_rate": (("scheme", "dissipation"), [[1e-9], [1e-10], [1e-6], [1e-11]])},
-                    coords={"scheme": methods, "dissipation": [1.0]})
+    assert len(lines) == 1 and "vi, the first of the study's methods," in lines[0], lines
+    ctx = SimpleNamespace(methods=methods, sweep_keys=[], opt={"t_end": 100.0})
+    dims = ("scheme", "dissipation", "member")
+    ds = xr.Dataset({"status": (dims, np.zeros((4, 1, n), np.int8)),
+                     "drift_measurable": (dims, np.zeros((4, 1, n), np.int8)),
+                     "drift_rate": (dims, err[:, None, :] * 1e-3),
+                     "max_relative_energy_error": (dims, err[:, None, :]),
+                     "failed_members": (("scheme", "dissipation"), np.zeros((4, 1), int))},
+                    coords={"scheme": methods, "dissipation": [1.0], "member": np.arange(n)})
     lines += long_drift.findings(ds, ctx)
     assert len(lines) == 2
     for line in lines:
-        assert "baseline" not in line and "vi, the first of the study's methods," in line, line
+        assert "baseline" not in line, line
 
 
 def test_the_readme_says_which_fluid_scene_is_viscous():
