@@ -383,7 +383,7 @@ def test_energy_diagnostics_table(model_md):
     for row, (method, kw) in rows.items():
         assert _quotes(model_md, row), row
         documented = [c.strip() for c in row.strip("|").split("|")[1:]]
-        tr = simulate(phys, om, R, 0.05, 600, method, **kw)
+        tr = simulate(phys, om, R, 0.05, 600, MethodChoice.of(method, **kw))
         assert np.all(tr.status == STATUS_OK)
         e = energy_errors(tr, om, R)
         node = np.median(np.nanmax(np.abs(e["node"]), axis=1) / e["scale"])

@@ -25,6 +25,7 @@ import numpy as np
 import pytest
 
 from conftest import paper_physics, random_body, random_ensemble, stack
+from liethermo.top.methods import MethodChoice
 from liethermo.top.kernels import fast as F
 from liethermo.top.kernels import layout as L
 from liethermo.top.kernels import parallel, rk, simple, vi
@@ -34,6 +35,10 @@ from liethermo.top.physics import build_model
 from liethermo.top.simulate import simulate
 
 ROOT = Path(__file__).resolve().parents[1]
+
+
+#: the method variants a MethodChoice carries
+_VARIANTS = ("friction", "start", "entropy", "composition")
 
 
 def _bench():
@@ -74,7 +79,8 @@ def mixed(n_paper=2 * F.BLOCK + 10, n_random=40, seed=0, variant="paper"):
 
 
 def run(kernel, method, phys, om, R, h, steps, every, **kw):
-    return simulate(phys, om, R, h, steps, method, every=every, kernel=kernel, **kw)
+    choice = MethodChoice.of(method, **{k: kw.pop(k) for k in _VARIANTS if k in kw})
+    return simulate(phys, om, R, h, steps, choice, every=every, kernel=kernel, **kw)
 
 
 FIELDS = ("states", "status", "fail_step", "newton_iterations", "newton_max", "steps_done",

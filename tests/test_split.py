@@ -16,6 +16,10 @@ from liethermo.scene import SceneError, load_scene
 from liethermo.top.simulate import STATUS_OK, simulate
 
 
+#: the method variants a MethodChoice carries
+_VARIANTS = ("friction", "start", "entropy", "composition")
+
+
 def _members(n=8, **overrides):
     sc = load_scene("paper", {"ensemble.members": n, **overrides})
     phys = physics_of_scene(sc, n)
@@ -35,7 +39,8 @@ def random_members():
 
 def _error_at_10s(phys, w0, R0, ref, method, h, **kw):
     steps = int(round(10.0 / h))
-    tr = simulate(phys, w0, R0, h, steps, method, every=steps, **kw)
+    choice = MethodChoice.of(method, **{k: kw.pop(k) for k in _VARIANTS if k in kw})
+    tr = simulate(phys, w0, R0, h, steps, choice, every=steps, **kw)
     assert np.all(tr.status == STATUS_OK)
     return max(np.abs(tr.omega[:, -1] - ref.omega[:, -1]).max(), np.abs(tr.gamma[:, -1] - ref.gamma[:, -1]).max())
 
