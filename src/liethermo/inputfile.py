@@ -47,6 +47,23 @@ def units_ok(u, allowed) -> bool:
     return str(u).strip() in allowed
 
 
+def npz_arrays(key: str, path: str, data: bytes, name: str, optional=(), units=(), what: str = "") -> list:
+    """The array ``name`` of a ``.npz`` file's bytes, then each of ``optional``
+    (None where absent); a ``units`` entry of the file must be one of ``units``
+    (``what`` says what in which unit, for the refusal)."""
+    import io
+
+    import numpy as np
+
+    with np.load(io.BytesIO(data), allow_pickle=False) as z:
+        if name not in z.files:
+            raise SceneError(key, f"{path}: a .npz file must hold the array '{name}' "
+                             f"(it holds {', '.join(z.files) or 'nothing'})", show_value=False)
+        if units and "units" in z.files and not units_ok(z["units"], units):
+            raise SceneError(key, f"{path}: units {str(z['units'])!r}: {what}", show_value=False)
+        return [z[name]] + [z[o] if o in z.files else None for o in optional]
+
+
 def foreign(key: str, path: str, exc: BaseException) -> SceneError:
     """The refusal of a file that cannot be parsed as its suffix says."""
     first = str(exc).splitlines()[0] if str(exc) else "no details"

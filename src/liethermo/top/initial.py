@@ -66,7 +66,7 @@ def read_file(path: str, sha256: str = "", key: str = "initial.file") -> tuple[n
     With ``sha256`` given, the file must still have it."""
     import io
 
-    from ..inputfile import foreign, read_checked, units_ok
+    from ..inputfile import foreign, npz_arrays, read_checked, units_ok
     from ..scene import SceneError
 
     data, digest = read_checked(key, path, sha256)
@@ -78,15 +78,8 @@ def read_file(path: str, sha256: str = "", key: str = "initial.file") -> tuple[n
         if suffix == ".npy":
             om = np.load(io.BytesIO(data), allow_pickle=False)
         elif suffix == ".npz":
-            with np.load(io.BytesIO(data), allow_pickle=False) as z:
-                if "initial_omega" not in z.files:
-                    raise SceneError(key, f"{path}: a .npz file must hold the array 'initial_omega' "
-                                     f"(it holds {', '.join(z.files) or 'nothing'})", show_value=False)
-                if "units" in z.files and not units_ok(z["units"], OMEGA_UNITS):
-                    raise SceneError(key, f"{path}: units {str(z['units'])!r}: Ω₀ must be in rad s-1",
-                                     show_value=False)
-                om = z["initial_omega"]
-                R = z["initial_attitude"] if "initial_attitude" in z.files else None
+            om, R = npz_arrays(key, path, data, "initial_omega", ("initial_attitude",), OMEGA_UNITS,
+                               "Ω₀ must be in rad s-1")
         else:
             import netCDF4
 

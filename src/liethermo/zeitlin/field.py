@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..inputfile import SUFFIXES, foreign, read_checked
+from ..inputfile import SUFFIXES, foreign, npz_arrays, read_checked
 from ..scene import SceneError
 
 #: units a file may give its coefficients in (all mean s⁻¹)
@@ -47,14 +47,7 @@ def _parse(key: str, path: str, data: bytes) -> np.ndarray:
         if suffix == ".npy":
             C = np.load(io.BytesIO(data), allow_pickle=False)
         elif suffix == ".npz":
-            with np.load(io.BytesIO(data), allow_pickle=False) as z:
-                if "initial_vorticity" not in z.files:
-                    raise SceneError(key, f"{path}: a .npz file must hold the array 'initial_vorticity' "
-                                     f"(it holds {', '.join(z.files) or 'nothing'})", show_value=False)
-                if "units" in z.files and not _units_ok(z["units"]):
-                    raise SceneError(key, f"{path}: units {str(z['units'])!r}: the coefficients must be in s-1",
-                                     show_value=False)
-                C = z["initial_vorticity"]
+            C, = npz_arrays(key, path, data, "initial_vorticity", (), UNITS, "the coefficients must be in s-1")
         else:
             import netCDF4
 
