@@ -501,3 +501,20 @@ def test_a_long_run_says_how_long_before_it_starts(tmp_path, monkeypatch, capsys
     err = capsys.readouterr().err
     assert f"liethermo: {out}:   vi: about" not in err and f"liethermo: {out}: vi: about" in err, err
     assert "of kernel time on this machine" in err
+
+
+def test_python_m_liethermo_and_the_study_help_lists_kinds_and_files():
+    """``python -m liethermo`` is the command line; ``liethermo study --help`` names
+    the shipped study files and every study kind (and how to add one's own)."""
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-m", "liethermo", "study", "--help"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    text = " ".join(r.stdout.split())
+    from liethermo.studies import kinds, shipped_studies
+
+    assert shipped_studies() and all(name in text for name in shipped_studies())
+    assert all(kind in text for kind in kinds()) and "mypackage.mystudy" in text
+    r = subprocess.run([sys.executable, "-m", "liethermo", "keys"], capture_output=True, text=True)
+    assert r.returncode == 0 and "integrator.h [s]" in r.stdout

@@ -212,10 +212,15 @@ def build_parser() -> argparse.ArgumentParser:
                    "instead of one combined file")
     r.set_defaults(func=cmd_run)
 
+    from .studies import kinds, shipped_studies
+
     s = sub.add_parser("study", help="run a study (sweeps, convergence tables, statistics, figures)",
                        description="Run a study file from studies/ and write its folder: netCDF, "
                        "markdown report with tables (and CSV copies), PNG figures. An interrupted "
-                       "study resumes: finished sweep points are not recomputed.")
+                       "study resumes: finished sweep points are not recomputed.",
+                       epilog=f"study files shipped: {', '.join(shipped_studies()) or 'none here'}. "
+                       f"Study kinds: {', '.join(kinds())}, or a module of your own "
+                       "(kind = \"mypackage.mystudy\", docs/extending.md).")
     s.add_argument("study", metavar="STUDY.toml",
                    help="study file, e.g. studies/convergence.toml, or a study's name (convergence: "
                    "studies/convergence.toml here, else the one shipped with liethermo)")

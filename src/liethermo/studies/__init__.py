@@ -13,7 +13,18 @@ that model.  Each kind's module declares one
 from __future__ import annotations
 
 import importlib
+from pathlib import Path
 from types import ModuleType
+
+#: the study files that come with the source (``studies/`` beside ``src/``)
+SHIPPED_STUDIES = Path(__file__).resolve().parents[3] / "studies"
+
+
+def shipped_studies() -> dict[str, Path]:
+    """The shipped study files by name (``convergence`` → studies/convergence.toml)."""
+    if not SHIPPED_STUDIES.is_dir():
+        return {}
+    return {p.stem: p for p in sorted(SHIPPED_STUDIES.glob("*.toml"))}
 
 #: the study kinds that run on every model offering what they need (a reference
 #: solution, an error norm, an energy), declared here once: {kind: module}

@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 
 from ..scene import SceneError
-from . import GENERIC_KINDS, get_study, is_module_kind, kinds
+from . import GENERIC_KINDS, SHIPPED_STUDIES, get_study, is_module_kind, kinds, shipped_studies  # noqa: F401
 from .common import (BASE_KEYS, STUDY_KEYS, StudyError, expand_sweep, first_table, resolve_study,
                      study_scene, terminal_table, with_scene)
 
@@ -22,17 +22,6 @@ else:  # pragma: no cover
     import tomli as tomllib
 
 EXIT_INVALID = 2
-
-
-#: the study files that come with the source (``studies/`` beside ``src/``)
-SHIPPED_STUDIES = Path(__file__).resolve().parents[3] / "studies"
-
-
-def shipped_studies() -> dict[str, Path]:
-    """The shipped study files by name (``convergence`` → studies/convergence.toml)."""
-    if not SHIPPED_STUDIES.is_dir():
-        return {}
-    return {p.stem: p for p in sorted(SHIPPED_STUDIES.glob("*.toml"))}
 
 
 def study_path(path: str | Path) -> Path:
