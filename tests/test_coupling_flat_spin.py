@@ -121,6 +121,8 @@ def test_flat_spin_keeps_mu_ends_on_the_major_axis_and_meets_the_reference_membe
         assert abs(k + 1) < 0.05, (m, k)
     text = report.read_text()
     assert "| FAILS |" not in text and "No cost is reported" in text and not (out / "closing.csv").exists()
+    import re  # an order verdict states its tolerance
+    assert re.search(r"≥ \d − 0\.\d+ \(the declared order less the fitting tolerance\)", text)
 
 
 @pytest.mark.parametrize("edit, needle", [

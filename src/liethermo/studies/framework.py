@@ -558,7 +558,9 @@ def _draw_lines(f: Figure, ds: xr.Dataset, ctx: Context):
             ax.set_title(str(ds[var].attrs.get("long_name", var)))
         ax.grid(True, which="both", alpha=0.3)
     if len(handles) > 1:  # one legend for every panel, outside the axes: it covers no data
-        fig.legend(handles.values(), handles.keys(), fontsize=8, title=f.hue, loc="outside right upper")
+        unit = ds[f.hue].attrs.get("units", "") if f.hue in ds.coords else ""
+        title = f"{f.hue} ({unit})" if unit and unit != "1" else f.hue  # a legend of values says their unit
+        fig.legend(handles.values(), handles.keys(), fontsize=8, title=title, loc="outside right upper")
     return fig
 
 

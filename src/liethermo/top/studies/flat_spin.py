@@ -9,7 +9,7 @@ import xarray as xr
 
 from ..dataset import node_energies
 from ..kernels.terms import LAW_MOMENTUM_NORM, ROLE_MOMENTUM_FRICTION, key_of
-from ..methods import judge_order
+from ..methods import judge_order, order_tolerance
 from ..physics import kinetic_energy, physics_of_scene
 from ...studies.common import StudyError, dim_name
 from ...studies.framework import Figure, Option, Stage, Study, Table, Verdict
@@ -122,7 +122,8 @@ def verdicts(ds, ctx) -> list[Verdict]:
         out.append(Verdict(f"{m} keeps the Casimir |μ|", f"max casimir_drift {c:.1e}", "≤ 1e-11 (round-off)",
                            c <= 1e-11) if method_choice(m).family == "vi" else Verdict(
             f"{m}'s Casimir drift falls at its order {q}", f"{p:.2f} (finest pair of casimir_h)",
-            "not below the declared order", None if not np.isfinite(p) else judge_order(p, q) != "below declared"))
+            f"≥ {q} − {order_tolerance(q):g} (the declared order less the fitting tolerance)",
+            None if not np.isfinite(p) else judge_order(p, q) != "below declared"))
         e = float(np.abs(ds["settling_time_minus_reference"].sel(scheme=m).values[..., same]).max()) if ref else 0
         out += [Verdict(f"{m} meets the reference member by member", f"max |settling_time_minus_reference| {e:.2g} s",
                         f"≤ 1 % of the reference's least median ({t:.3g} s)", e <= 0.01 * t)] if ref else []

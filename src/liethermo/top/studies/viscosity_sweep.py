@@ -142,7 +142,9 @@ STUDY = Study(
     figures=(Figure("settling_time", x=DIM, y=("settling_time_quartiles",), hue="quantile", logy=True,
                     select=lambda ds, ctx: ds, claim="settled members' quartiles: ∝ 1/μ below μ_crit, longer above"),
              Figure("entropy_by_time", x=DIM, y=("entropy_by_time_mean",), hue="entropy_time",
-                    select=lambda ds, ctx: ds, claim="by a fixed early time more entropy at larger μ; the same total")),
+                    select=lambda ds, ctx: ds, claim="the mean entropy produced by each entropy_time against μ: by the last it is the same at "
+                          "every μ (the initial mechanical energy over T₀), while at an early time it depends on "
+                          "how fast each μ has settled, not monotonically")),
     report=("Scene `{scene}`, method `{opt[method]}`, h = {opt[h]} s, the same members at every μ. Settled: E_mech "
             "above rest stays below {opt[threshold]} × its start; *censored*: not settled by t_end = "
             "{opt[t_end_factor]} × max(I_max/c, c/mgℓ) in [max({opt[t_end_min]}, entropy times), {opt[t_end_max]}] s."))
