@@ -470,18 +470,23 @@ def test_markdown_math_is_intact(page):
 
 def test_model_md_citations_are_in_its_references(model_md):
     """Every citation [Author Year] (or [A Year; B Year]) in docs/model.md names an
-    entry of its References section, each entry gives authors, a title and the
+    entry of its References section, every entry is cited, no work is cited in
+    passing ("Jeffery's (1922)"), each entry gives authors, a title and the
     year of its key, and each key has a link definition (so a citation links to
     the list); a DOI, where given, has the form 10.NNNN/…."""
     body, refs = model_md.split("\n## References\n")
     entries = dict(re.findall(r"^\* \*\*\[([^\]]+)\]\*\* (.+?)(?=^\* |^\[|\Z)", refs, re.M | re.S))
     assert len(entries) >= 15, sorted(entries)
     cited = set()
-    for group in re.findall(r"\[([A-Z][^\]\[]*?\b(?:19|20)\d\d)\]", body):
+    for group in re.findall(r"\[([A-Z][^\]\[]*?\b(?:1[6-9]|20)\d\d)\]", body):
         for key in group.split("; "):
             assert key in entries, f"cited but not in References: [{key}]"
             cited.add(key)
     assert {"Couéraud & Gay-Balmaz 2020", "Suzuki 1990", "Kahan & Li 1997", "Yoshida 1990"} <= cited
+    assert set(entries) <= cited, f"listed but never cited: {sorted(set(entries) - cited)}"
+    # a work is cited by its key, not in passing as "Name's (1922)" or "Name (1876)"
+    informal = re.findall(r"\b[A-Z][a-z]+(?:'s)? \((?:1[6-9]|20)\d\d\)", body)
+    assert not informal, informal
     for key, text in entries.items():
         year = key.rsplit(" ", 1)[1]
         assert f"({year})" in text or f"{year})" in text, (key, text)
