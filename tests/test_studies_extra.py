@@ -76,6 +76,25 @@ def test_work_precision_outputs(wp):
     assert list(ttr["method"]) == list(ds["scheme"].values) + ["scipy RK45", "scipy DOP853"]
 
 
+def test_work_precision_costs_are_pinned_by_copying_its_points(wp, tmp_path):
+    """The timed tasks are cached like every other: a new folder given the old one's
+    points/ reads them back and writes the same numbers (docs/studies.md, "What a
+    rerun reproduces"), where measuring again would not."""
+    import shutil
+
+    import xarray as xr
+
+    report, out = wp
+    shutil.copytree(out / "points", tmp_path / "points")
+    _run("work_precision", tmp_path)
+    name = next(out.glob("*.nc")).name
+    with xr.open_dataset(out / name) as a, xr.open_dataset(tmp_path / name) as b:
+        assert set(a.data_vars) == set(b.data_vars)
+        for v in a.data_vars:
+            assert np.array_equal(a[v].values, b[v].values, equal_nan=True), v
+        assert any("time" in v or "cost" in v for v in a.data_vars)
+
+
 def test_work_precision_closing_tables_agree(wp):
     """One computation: the cheapest per ε is the cheapest bracketed time to ε, each method named with it ties with
     it (not through a chain), every time is labelled by what it is, and a verdict holds only where no method with
