@@ -224,3 +224,24 @@ def fit_order(hs, errors, floor: float = 1e-11, min_levels: int = 3, last: int |
         keep = keep[-last:]
     assert keep.size >= min_levels, f"only {keep.size} levels above {floor}: {errors}"
     return float(np.polyfit(np.log(hs[keep]), np.log(errors[keep]), 1)[0])
+
+
+def interrupt_at_chunk(monkeypatch, k: int):
+    """Make the k-th member chunk of the next in-process runs raise a stop signal
+    (SIGTERM, as a signal handler would); returns the chunks' first members so far."""
+    import signal
+
+    import liethermo.runner as lr
+    from liethermo.faults import Interrupted
+
+    real = lr.run_chunk
+    calls = []
+
+    def chunk(scene, lo, hi, **kw):
+        calls.append(lo)
+        if len(calls) == k:
+            raise Interrupted(signal.SIGTERM)
+        return real(scene, lo, hi, **kw)
+
+    monkeypatch.setattr(lr, "run_chunk", chunk)
+    return calls

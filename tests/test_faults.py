@@ -16,6 +16,7 @@ from pathlib import Path
 import netCDF4
 import pytest
 
+from conftest import interrupt_at_chunk
 from liethermo.cli import main
 from liethermo.faults import Interrupted, OutputLock
 from liethermo.runner import run_scene
@@ -92,28 +93,11 @@ def test_sigint_and_sighup_stop_cleanly(tmp_path, sig):
         assert len(nc.dimensions["member"]) == 4096
 
 
-def _interrupt_at_chunk(monkeypatch, k: int):
-    """Make the k-th member chunk of the next in-process runs raise a stop signal."""
-    import liethermo.runner as lr
-
-    real = lr.run_chunk
-    calls = []
-
-    def chunk(scene, lo, hi, **kw):
-        calls.append(lo)
-        if len(calls) == k:
-            raise Interrupted(signal.SIGTERM)
-        return real(scene, lo, hi, **kw)
-
-    monkeypatch.setattr(lr, "run_chunk", chunk)
-    return calls
-
-
 def test_resume_in_process_equals_an_uninterrupted_run(tmp_path, monkeypatch):
     sc = load_scene("paper", ["ensemble.members=50", "output.member_chunk=8", "integrator.steps=40",
                               "output.compare=[]"])
     run_scene(sc, tmp_path / "ref.nc", progress=False)
-    calls = _interrupt_at_chunk(monkeypatch, 4)
+    calls = interrupt_at_chunk(monkeypatch, 4)
     with pytest.raises(Interrupted) as exc:
         run_scene(sc, tmp_path / "x.nc", progress=False)
     assert exc.value.kept == [f"stopped at member chunk 4/7 of {tmp_path / 'x.nc'}: members 0-23 kept in "
@@ -135,7 +119,7 @@ def test_resume_recomputes_a_chunk_whose_checksum_fails(tmp_path, monkeypatch):
     sc = load_scene("paper", ["ensemble.members=40", "output.member_chunk=8", "integrator.steps=40",
                               "output.compare=[]"])
     run_scene(sc, tmp_path / "ref.nc", progress=False)
-    _interrupt_at_chunk(monkeypatch, 5)
+    interrupt_at_chunk(monkeypatch, 5)
     with pytest.raises(Interrupted):
         run_scene(sc, tmp_path / "x.nc", progress=False)
     monkeypatch.undo()
@@ -144,7 +128,7 @@ def test_resume_recomputes_a_chunk_whose_checksum_fails(tmp_path, monkeypatch):
     assert [c["lo"] for c in j["chunks"]] == [0, 8, 16, 24]
     j["chunks"][2]["crc"]["omega"] ^= 1
     jf.write_text(json.dumps(j))
-    calls = _interrupt_at_chunk(monkeypatch, 99)
+    calls = interrupt_at_chunk(monkeypatch, 99)
     _, summ = run_scene(sc, tmp_path / "x.nc", progress=False, resume=True)
     assert summ.resumed_members == 16
     assert calls == [16, 24, 32]  # chunks 3 to 5; the layout comes from the partial file
@@ -155,7 +139,7 @@ def test_resume_with_a_changed_scene_is_refused(tmp_path, monkeypatch, capsys):
     args = ["run", "paper", "-o", str(tmp_path / "x.nc"), "--no-progress", "--set", "ensemble.members=30",
             "--set", "output.member_chunk=8", "--set", "integrator.steps=20", "--set", "output.compare=[]",
             "--set", "output.figures=false"]
-    _interrupt_at_chunk(monkeypatch, 3)
+    interrupt_at_chunk(monkeypatch, 3)
     assert main(args) == 143
     err = one_line(capsys.readouterr().err)
     assert "members 0-15 kept in" in err

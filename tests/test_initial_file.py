@@ -6,7 +6,6 @@ changed file refuses a resume, and bad files are refused in one line."""
 
 from __future__ import annotations
 
-import signal
 import tomllib
 
 import numpy as np
@@ -15,10 +14,9 @@ from scipy.special import sph_harm_y
 
 import liethermo
 from cfcheck import assert_cf_clean
+from conftest import interrupt_at_chunk
 from liethermo.cli import main
-from liethermo.faults import Interrupted
 from liethermo.top.initial import quat_to_matrix
-from liethermo.runner import run_scene
 from liethermo.scene import SceneError, load_scene
 from liethermo.zeitlin import kernels as zk
 from liethermo.zeitlin.field import modes_to_triangle, project, write_initial
@@ -102,22 +100,6 @@ def _fluid_args(tmp_path, coef):
                    "output.member_chunk": 2, "initial.kind": "file", "initial.file": str(coef)}.items()), [])]
 
 
-def _interrupt_at_chunk(monkeypatch, k: int):
-    import liethermo.runner as lr
-
-    real = lr.run_chunk
-    calls = []
-
-    def chunk(scene, lo, hi, **kw):
-        calls.append(lo)
-        if len(calls) == k:
-            raise Interrupted(signal.SIGTERM)
-        return real(scene, lo, hi, **kw)
-
-    monkeypatch.setattr(lr, "run_chunk", chunk)
-    return calls
-
-
 def test_resume_is_refused_when_the_coefficient_file_changed(tmp_path, monkeypatch, capsys):
     """An interrupted run from a file resumes only with the file it started
     from: after the file changes, --resume is refused in one line and nothing
@@ -132,7 +114,7 @@ def test_resume_is_refused_when_the_coefficient_file_changed(tmp_path, monkeypat
     ref.mkdir()
     assert main(_fluid_args(ref, coef)) == 0
     capsys.readouterr()
-    _interrupt_at_chunk(monkeypatch, 2)
+    interrupt_at_chunk(monkeypatch, 2)
     assert main(args) == 143
     assert "members 0-1 kept in" in _one_line(capsys.readouterr().err)
     monkeypatch.undo()
@@ -301,7 +283,7 @@ def test_a_top_resume_is_refused_when_the_file_changed(tmp_path, monkeypatch, ca
     args = ["run", "paper", "-o", str(tmp_path / "x.nc"), "--no-progress", "--set", "ensemble.members=6",
             "--set", "output.member_chunk=2", "--set", "integrator.steps=20", "--set", "output.compare=[]",
             "--set", "output.figures=false", "--set", f"initial.file={path}"]
-    _interrupt_at_chunk(monkeypatch, 2)
+    interrupt_at_chunk(monkeypatch, 2)
     assert main(args) == 143
     capsys.readouterr()
     monkeypatch.undo()

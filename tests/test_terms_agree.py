@@ -26,10 +26,11 @@ def _numpy_rates(phys, m, w, G, sigma):
     tau = p.torque(w[None], G[None], sig)[0]
     P = float(p.dissipated_power(w[None], sig)[0])
     sdot = P / float(temperature(p, w[None], sig)[0]) if P else 0.0
-    s = float(np.broadcast_to(inertia_scale(p, sig), (1,))[0])
-    d = 1e-6 * max(1.0, abs(sigma))
-    ds = (float(np.broadcast_to(inertia_scale(p, sig + d), (1,))[0])
-          - float(np.broadcast_to(inertia_scale(p, sig - d), (1,))[0])) / (2 * d)
+    def scale(x):  # s(σ): a number for a constant inertia, an array otherwise
+        return float(np.broadcast_to(inertia_scale(p, x), (1,))[0])
+
+    s, d = scale(sig), 1e-6 * max(1.0, abs(sigma))
+    ds = (scale(sig + d) - scale(sig - d)) / (2 * d)
     mu = s * I0 * w
     wdot = (np.cross(mu, w) + tau - ds * sdot * I0 * w) / (s * I0)
     return wdot, sdot

@@ -494,9 +494,9 @@ def keys_table(markdown: bool = True, keys: tuple[Key, ...] | None = None) -> st
     """Every key of ``keys`` (default: the top's) with its unit, default and rule:
     the body of docs/scenes.md and of ``liethermo keys``."""
     if keys is None:
-        from .models import get_model
+        from .models import UNMARKED_SCENES_MODEL, get_model
 
-        keys = get_model(UNMARKED_MODEL()).keys()
+        keys = get_model(UNMARKED_SCENES_MODEL).keys()
     lines = []
     for section in dict.fromkeys(k.section for k in keys):
         ks = [k for k in keys if k.section == section]
@@ -532,18 +532,12 @@ def _md_cell(text: str) -> str:
 #: the command that writes docs/scenes.md
 SCENES_MARKDOWN_COMMAND = "python -m liethermo.cli keys --markdown > docs/scenes.md"
 
-def UNMARKED_MODEL() -> str:  # noqa: N802  (the registry's constant, read late)
-    from .models import UNMARKED_SCENES_MODEL
-
-    return UNMARKED_SCENES_MODEL
-
-
 def scenes_markdown() -> str:
     """The text of docs/scenes.md: the built-in scenes, then every model's
     introduction and keys with their units, defaults and rules (the top's first)."""
-    from .models import models
+    from .models import UNMARKED_SCENES_MODEL, models
 
-    ms = sorted(models(), key=lambda m: m.name != UNMARKED_MODEL())
+    ms = sorted(models(), key=lambda m: m.name != UNMARKED_SCENES_MODEL)
     first = ms[0].scene_model
     lines = ["# Scenes and their keys", "",
              f"<!-- Generated from the models' scene keys by `{SCENES_MARKDOWN_COMMAND}`; "

@@ -12,7 +12,6 @@ See docs/studies.md for the study file.
 from __future__ import annotations
 
 import copy
-import functools
 import hashlib
 import itertools
 import json

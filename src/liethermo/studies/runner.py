@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 
 from ..scene import SceneError
-from . import GENERIC_KINDS, SHIPPED_STUDIES, get_study, is_module_kind, kinds, shipped_studies  # noqa: F401
+from . import GENERIC_KINDS, get_study, is_module_kind, kinds, shipped_studies
 from .common import (BASE_KEYS, STUDY_KEYS, StudyError, expand_sweep, first_table, resolve_study,
                      study_scene, terminal_table, with_scene)
 
@@ -101,7 +101,7 @@ def validate_study(study: dict) -> None:
         sweep = s.get("sweep", {})
         if not isinstance(sweep, dict):
             raise StudyError("sweep: must be a table of \"section.key\" = [values]")
-        points = expand_sweep(sweep)
+        expand_sweep(sweep)  # refuses a key that maps to no list of values
         # every value of every sweep key must give a valid scene
         for key, values in sweep.items():
             for v in values:
