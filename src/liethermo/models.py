@@ -139,12 +139,20 @@ class BaseSummary:
         out = [f"scene {self.scene_name!r}, method {self.method}: {self.members} member(s) x {self.steps} "
                f"steps, h = {self.h:g} s",
                f"  wall time {self.wall_time:.3g} s (simulating and writing), kernels {k:.3g} s"]
-        out += self.body()
-        if self.resumed_members:
-            out.append(f"  resumed: members 0-{self.resumed_members - 1} came from the interrupted run")
-        if self.path is not None:
-            out.append(f"  wrote {self.path}")
-        return out
+        return out + self.body() + closing_lines(self)
+
+
+def closing_lines(summary, timed: str = "") -> list[str]:
+    """The lines every run's summary ends with: which members a resumed run
+    took from the interrupted one (``timed``: the times they are not in), and
+    the file written (``summary.resumed_members``, ``summary.path``)."""
+    out = []
+    if summary.resumed_members:
+        out.append(f"  resumed: members 0-{summary.resumed_members - 1} came from the interrupted run"
+                   + (f" (not in {timed})" if timed else ""))
+    if summary.path is not None:
+        out.append(f"  wrote {summary.path}")
+    return out
 
 
 def basic_setup(scene, history: str | None, title: str, summary=BaseSummary, **attrs) -> tuple[dict, Any]:

@@ -101,7 +101,7 @@ def _trajectory_dataset(traj, omega0, R0, member_offset):
     emech0 = ph.mechanical_energy_scale(phys, omega0, R0[:, 2, :])
     dims_t = ("member", "t")
     dims_v = ("member", "t", "axis")
-    vi = traj.family == "vi"
+    vi = traj.choice.method.node_form
     mom = _momentum(traj, e["omega"])
     node_note = ("node velocity I(S_k)^-1 mu_k from the node momentum (discrete Legendre transform)"
                  if vi else "node value Omega(t_k)")

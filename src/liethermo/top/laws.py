@@ -34,7 +34,7 @@ def energy_errors(traj: Trajectory, omega0: np.ndarray, R0: np.ndarray) -> dict:
         dV = e["V"] - V0[:, None]
         node = (e["K"] - K0[:, None]) + dV + e["dU"]
         paper = None
-        if traj.family == "vi":
+        if traj.choice.method.node_form:
             s = traj.sigma if traj.thermo else None
             paper = (kinetic_energy(phys, traj.omega_step, s) - K0[:, None]) + dV + e["dU"]
     return {"node": node, "paper": paper, "scale": mechanical_energy_scale(phys, omega0, R0[:, 2, :])}
@@ -56,7 +56,7 @@ def kelvin_noether_residual(traj: Trajectory) -> np.ndarray:
     acting friction does not give its discrete form (its law is not checked)."""
     phys = traj.physics
     frictionless = not phys.dissipative
-    if traj.family != "vi" or traj.every != 1 or (traj.method != "vi" and not frictionless):
+    if not traj.choice.method.node_form or traj.every != 1 or (traj.method != "vi" and not frictionless):
         return np.full(traj.states.shape[0], np.nan)
     from .kernels.vi import FRICTION_WEIGHTS
 
@@ -85,7 +85,7 @@ def continuous_kelvin_noether_residual(traj: Trajectory) -> np.ndarray:
     om = traj.omega
     G = traj.gamma
     sigma = traj.sigma if traj.thermo else None
-    if traj.family != "vi":
+    if not traj.choice.method.node_form:
         s = inertia_scale(phys, sigma)
         s = s[..., None] if isinstance(s, np.ndarray) else s
         mu = s * (phys.inertia[:, None, :] * om)

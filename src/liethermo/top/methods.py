@@ -15,6 +15,7 @@ declarations instead of hard-coding them.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
@@ -30,8 +31,13 @@ ENTROPY_UPDATES = ("explicit", "symmetric")
 
 @dataclass(frozen=True)
 class Method:
+    """What every method declares; its family's class (:class:`RungeKuttaMethod`,
+    :class:`SplittingMethod`, :class:`VariationalMethod`) says how it runs:
+    its state layout, its kernel data (:meth:`stepper`), its initial state
+    (:meth:`initial_state`) and which scene variants it takes."""
+
     name: str
-    family: str  # "vi", "rk" or "split"
+    family: str  # "vi", "rk" or "split": a label for tables and files
     description: str
     order_base: int  # on node values, with its best start and trapezoid friction
     implicit: bool
@@ -47,65 +53,172 @@ class Method:
     #: vi, split: the order of the composition of the order-2 step (None: the step itself)
     composed: int | None = None
 
-    @property
-    def layout(self) -> str:
-        """The state layout its kernels keep: "vi" (node values and the step
-        velocity), "split" (μ, Γ, the heat q, R) or "rk" (the explicit
-        methods' node values (Ω, Γ, σ, R))."""
-        return self.family if self.family in ("vi", "split") else "rk"
+    #: the state layout its kernels keep: "rk" (the explicit methods' node
+    #: values (Ω, Γ, σ, R)), "split" (μ, Γ, the heat q, R) or "vi" (node values
+    #: and the step velocity)
+    layout: ClassVar[str] = "rk"
+    #: each step solves the momentum equation by Newton's method (Newton
+    #: statistics, the status newton_not_converged, a start and friction and
+    #: entropy variants)
+    solves_newton: ClassVar[bool] = False
+    #: the state holds the step velocity X_k and the node momentum μ_k (node
+    #: form), from which the node velocity is derived
+    node_form: ClassVar[bool] = False
+    #: the step is built of the exact flows of every term (a term without one refuses it)
+    needs_exact_flows: ClassVar[bool] = False
 
     def substeps(self, composition: str = "small_error") -> tuple[float, ...]:
         """vi, split: the factors f_i of the substeps h_i = f_i h of one step
-        (``composition``: a kind of :data:`COMPOSITION_FACTORS`)."""
-        if self.family not in ("vi", "split"):
-            return ()
+        (``composition``: a kind of :data:`COMPOSITION_FACTORS`); () for the others."""
+        return ()
+
+    def _composed_substeps(self, composition: str) -> tuple[float, ...]:
         if self.composed is None:
             return (1.0,)
         if composition not in COMPOSITION_KINDS:
             raise ValueError(f"unknown composition {composition!r}: expected one of {list(COMPOSITION_KINDS)}")
         return COMPOSITION_FACTORS[(composition, self.composed)]
 
-    def kernel_tableau(self, composition: str = "small_error"):
-        """rk, split: the marker the kernels are compiled for (a Butcher tableau,
-        or the factors of a splitting)."""
-        if self.family == "split":
-            from .kernels.split import splitting
-
-            return splitting(self.substeps(composition), self.order_base)
-        from .kernels import rk
-
-        return rk.tableau(self.tableau)
-
     def order(self, start: str = "legendre", friction: str = "trapezoid") -> int:
-        """Observed order on node values (Ω(t_k), Γ_k, S_k, E_k).
-
-        The plain VI is first order when started with the paper's
-        Ω₀ := Ω(0) ("node": the initial node momentum is then off by O(h)) or
-        with endpoint friction (evaluated half a step off the centre of the
-        momentum equation); second order with the "legendre" or "staggered"
-        start."""
-        if self.name == "vi" and (friction == "endpoint" or start == "node"):
-            return 1
+        """Observed order on node values (Ω(t_k), Γ_k, S_k, E_k)."""
         return self.order_base
 
     def effective_start(self, start: str) -> str:
-        if self.family != "vi":
-            return "node"
-        return self.fixed_start or start
+        return "node"
 
     def effective_entropy(self, entropy: str) -> str | None:
-        if self.family != "vi":
-            return None
-        return self.fixed_entropy or entropy
+        return None
 
     def effective_friction(self, friction: str) -> str | None:
-        if self.family != "vi":
-            return None
-        return "trapezoid" if self.fixed_start else friction
+        return None
 
     def effective_composition(self, composition: str) -> str | None:
         """The composition a composed method runs (None for the others)."""
         return composition if self.composed else None
+
+    def refusal(self, model) -> str | None:
+        """Why this method cannot run the kernel model ``model`` (None: it can)."""
+        return None
+
+    def stepper(self, choice: "MethodChoice", nsub: int = 1):
+        """The kernel data that selects and parametrises this method's step
+        (:mod:`liethermo.top.kernels.steppers`)."""
+        raise NotImplementedError
+
+    def initial_state(self, layout, physics, omega0: np.ndarray, R0: np.ndarray, h: float,
+                      choice: "MethodChoice") -> np.ndarray:
+        """The (N, layout.size) state rows at t = 0 from Ω(0) and R(0)."""
+        from .simulate import _explicit_initial
+
+        return _explicit_initial(layout, physics, omega0, R0)
+
+
+@dataclass(frozen=True)
+class RungeKuttaMethod(Method):
+    """An explicit Runge–Kutta method: its Butcher tableau."""
+
+    def kernel_tableau(self, composition: str = "small_error"):
+        """The marker the kernels are compiled for: the Butcher tableau."""
+        from .kernels import rk
+
+        return rk.tableau(self.tableau)
+
+    def stepper(self, choice: "MethodChoice", nsub: int = 1):
+        from .kernels.steppers import Explicit
+
+        return Explicit(self.kernel_tableau(), int(nsub))
+
+
+@dataclass(frozen=True)
+class SplittingMethod(Method):
+    """The explicit thermodynamic splitting or a composition of it."""
+
+    layout: ClassVar[str] = "split"
+    needs_exact_flows: ClassVar[bool] = True
+
+    def substeps(self, composition: str = "small_error") -> tuple[float, ...]:
+        return self._composed_substeps(composition)
+
+    def kernel_tableau(self, composition: str = "small_error"):
+        """The marker the kernels are compiled for: the factors of the splitting."""
+        from .kernels.split import splitting
+
+        return splitting(self.substeps(composition), self.order_base)
+
+    def refusal(self, model) -> str | None:
+        from .kernels.split import can_split
+
+        part = can_split(model)
+        if part is None:
+            return None
+        return (f"method {self.name!r} needs the exact flow of every term; {part} has none "
+                f"(the vi and rk methods run it)")
+
+    def stepper(self, choice: "MethodChoice", nsub: int = 1):
+        from .kernels.steppers import Split
+
+        tab = self.kernel_tableau(choice.composition or "small_error")
+        return Split(tab, int(nsub), type(tab).factors)
+
+
+@dataclass(frozen=True)
+class VariationalMethod(Method):
+    """The variational integrator in node form or a composition of it: one
+    Newton solve per substep."""
+
+    layout: ClassVar[str] = "vi"
+    solves_newton: ClassVar[bool] = True
+    node_form: ClassVar[bool] = True
+
+    def substeps(self, composition: str = "small_error") -> tuple[float, ...]:
+        return self._composed_substeps(composition)
+
+    def order(self, start: str = "legendre", friction: str = "trapezoid") -> int:
+        """The plain VI is first order when started with the paper's
+        Ω₀ := Ω(0) ("node": the initial node momentum is then off by O(h)) or
+        with endpoint friction (evaluated half a step off the centre of the
+        momentum equation); second order with the "legendre" or "staggered"
+        start."""
+        if self.composed is None and (friction == "endpoint" or start == "node"):
+            return 1
+        return self.order_base
+
+    def effective_start(self, start: str) -> str:
+        return self.fixed_start or start
+
+    def effective_entropy(self, entropy: str) -> str | None:
+        return self.fixed_entropy or entropy
+
+    def effective_friction(self, friction: str) -> str | None:
+        return "trapezoid" if self.fixed_start else friction
+
+    def stepper(self, choice: "MethodChoice", nsub: int = 1, newton_tol: float = 1e-12,
+                newton_maxiter: int = 50):
+        from .kernels import vi as _vi
+        from .kernels.steppers import Variational
+        from .kernels.terms.thermo import EXPLICIT, SYMMETRIC
+
+        factors = tuple(float(f) for f in self.substeps(choice.composition or "small_error"))
+        wl, wr = _vi.FRICTION_WEIGHTS[choice.friction]
+        mode = EXPLICIT if choice.entropy == "explicit" else SYMMETRIC
+        return Variational(factors, float(wl), float(wr), mode, float(newton_tol), int(newton_maxiter))
+
+    def initial_state(self, layout, physics, omega0: np.ndarray, R0: np.ndarray, h: float,
+                      choice: "MethodChoice") -> np.ndarray:
+        """The step velocity to start from (Ω(0), or the staggered start's),
+        Γ, 𝕀(S₀)Ω(0) as the momentum and R: the start kernel then solves the
+        first step velocity or the node momentum from these."""
+        from .simulate import staggered_omega
+
+        N = omega0.shape[0]
+        Y = np.zeros((N, layout.size))
+        x0 = staggered_omega(physics, omega0, R0, h) if (choice.start == "staggered" and N) else omega0
+        Y[:, layout.slice("omega_step")] = x0
+        Y[:, layout.slice("gamma")] = R0[:, 2, :]
+        Y[:, layout.slice("momentum")] = physics.inertia * omega0  # 𝕀(S₀)Ω(0)
+        if layout.has("attitude"):
+            Y[:, layout.slice("attitude")] = R0.reshape(N, 9)
+        return Y
 
 
 def _rk_method(name: str, tableau: str, description: str) -> Method:
@@ -113,7 +226,7 @@ def _rk_method(name: str, tableau: str, description: str) -> Method:
     from .kernels.tableaus import TABLEAUS
 
     cls = TABLEAUS[tableau]
-    return Method(name, "rk", description, cls.order, False, cls.stages, (), tableau=tableau)
+    return RungeKuttaMethod(name, "rk", description, cls.order, False, cls.stages, (), tableau=tableau)
 
 
 #: vi: a step of positive size adds hP/T or c_v log1p(hP/(c_v T)) ≥ 0 to σ, P ≥ 0 being
@@ -141,7 +254,7 @@ def _vi_method(name: str, description: str, order: int, laws, composed: bool = F
     substep; compositions always start from μ₀ = 𝕀Ω(0) and use the symmetric
     entropy update (they need the symmetric map)."""
     n = len(COMPOSITION_FACTORS[("small_error", order)]) if composed else 1
-    return Method(name, "vi", description, order, True, n, laws,
+    return VariationalMethod(name, "vi", description, order, True, n, laws,
                   fixed_start="legendre" if composed else None,
                   fixed_entropy="symmetric" if composed else None,
                   composed=order if composed else None)
@@ -151,7 +264,7 @@ def _split_method(name: str, description: str, order: int) -> Method:
     """The explicit thermodynamic splitting (Strang step of the exact flows of
     friction and gravity and Cayley free rotations) or a composition of it."""
     n = len(COMPOSITION_FACTORS[("small_error", order)]) if order > 2 else 1
-    return Method(name, "split", description, order, False, n, _SPLIT_LAWS if order > 2 else _STRANG_LAWS,
+    return SplittingMethod(name, "split", description, order, False, n, _SPLIT_LAWS if order > 2 else _STRANG_LAWS,
                   composed=order if order > 2 else None)
 
 
@@ -295,7 +408,7 @@ class MethodChoice:
                                  f"composition: {', '.join(COMPOSITION_KINDS)})")
             if what == "composition" and not m.composed:
                 raise ValueError(f"{label!r}: {name} is not composed and takes no composition")
-            if what != "composition" and m.family != "vi":
+            if what != "composition" and not m.solves_newton:
                 raise ValueError(f"{label!r}: {name} is explicit and takes no variant")
             if what in seen:
                 raise ValueError(f"{label!r}: more than one {what} variant")
@@ -307,7 +420,7 @@ class MethodChoice:
         """Values for every variant key, the effective one where it applies
         and the scene default elsewhere: what a scene must say to run this
         choice (:meth:`overrides`), or ``simulate``'s keywords."""
-        return {"start": self.start if self.family == "vi" else "legendre",
+        return {"start": self.start if self.method.solves_newton else "legendre",
                 "friction": self.friction or "trapezoid", "entropy": self.entropy or "symmetric",
                 "composition": self.composition or "small_error"}
 

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..models import MethodInfo, Model, StudyDefaults, register
+from ..models import MethodInfo, Model, StudyDefaults, closing_lines, register
 
 
 def _status_meanings() -> dict:
@@ -81,7 +81,7 @@ class RunSummary:
 
         m = get_method(self.method)
         counts = dict(self.status_counts)
-        if m.family != "vi":  # no Newton solve: the status cannot occur
+        if not m.solves_newton:  # no Newton solve: the status cannot occur
             counts.pop("newton_not_converged", None)
         n_ok = counts.get("ok", 0)
         st = ", ".join(f"{k}: {v}" + (f" (of which {self.diverged} diverged: max |E_k - E_0| > "
@@ -124,17 +124,12 @@ class RunSummary:
         else:
             out.append("  no member completed: no accuracy figures")
         out += self.physics_notes
-        if m.family == "vi":
+        if m.solves_newton:
             n = self.solves_per_step or m.evaluations_per_step
             per_solve = (f"mean {self.newton_mean / n:.3g} per solve ({self.newton_mean:.3g} per step "
                          f"of {n} solves)" if n > 1 else f"mean {self.newton_mean:.3g} per solve (one per step)")
             out.append(f"  Newton iterations         {per_solve}, max {self.newton_max} in one solve")
-        if self.resumed_members:
-            out.append(f"  resumed: members 0-{self.resumed_members - 1} came from the interrupted run "
-                       "(not in the times above)")
-        if self.path is not None:
-            out.append(f"  wrote {self.path}")
-        return out
+        return out + closing_lines(self, "the times above")
 
 
 def _nanmax(a) -> float:
@@ -223,8 +218,8 @@ def scene_setup(scene, overrides=None, history: str | None = None) -> tuple:
                          entropy=c.entropy, composition=c.composition, terms=list(run.terms),
                          history=history)
     summ = RunSummary(scene["scene"]["name"], c.name, run.members, run.steps, run.h)
-    summ.start = c.start if c.family == "vi" else ""
-    summ.solves_per_step = len(c.method.substeps(c.composition or "small_error")) if c.family == "vi" else 0
+    summ.start = c.start if c.method.solves_newton else ""
+    summ.solves_per_step = len(c.method.substeps(c.composition or "small_error")) if c.method.solves_newton else 0
     summ.physics_notes = physics_lines(run.physics)
     return scene, attrs, summ
 
@@ -365,7 +360,7 @@ def finish_summary(summ: RunSummary, st: ChunkStats) -> RunSummary:
     summ.max_gamma_defect = st.gdef if np.isfinite(st.gdef) else nan
     summ.max_h_omega = st.hw if np.isfinite(st.hw) else nan
     summ.newton_mean = (st.nit_total / st.nsteps_total
-                        if (get_method(summ.method).family == "vi" and st.nsteps_total) else nan)
+                        if (get_method(summ.method).solves_newton and st.nsteps_total) else nan)
     summ.newton_max = st.nmax
     summ.first_fail_step = st.first_fail
     summ.diverged = st.diverged
@@ -564,7 +559,7 @@ class HeavyTop(StudyDefaults, Model):
         from .methods import MethodChoice
 
         c = MethodChoice.parse(label)
-        vi = c.family == "vi"
+        vi = c.method.solves_newton
         return {"start": c.start if vi else "—", "friction": c.friction if vi else "—",
                 "entropy update": c.entropy if vi else "—"}
 

@@ -347,7 +347,7 @@ def _cross_rules(s: dict) -> None:
                          ("output.compare", s["output"]["compare"])):
         for m in methods:
             for t in on:
-                why = t.refuses(METHODS[m].family, m)
+                why = t.refuses(METHODS[m])
                 if why:
                     raise SceneError(key, f"method {m!r} cannot run the {t.name} term "
                                      f"({t.settings[0].path}): {why}", m)

@@ -20,7 +20,6 @@ from .kernels import fast as _fast
 from .kernels import layout as _lay
 from .kernels import parallel as _par
 from .kernels import simple as _simple
-from .kernels.steppers import Explicit, Split, Variational
 from .kernels.layout import STATUS_MEANINGS, STATUS_NEWTON, STATUS_NONFINITE, STATUS_OK  # noqa: F401
 from .kernels.layout import StateLayout
 from .methods import Method, MethodChoice
@@ -342,17 +341,12 @@ def simulate(
         raise ValueError(f"omega0 must be ({N}, 3) and R0 ({N}, 3, 3) for {N} members, got "
                          f"{omega0.shape} and {R0.shape}")
     km: KernelModel = build_model(physics, attitude, heat=heat_bound)
-    if m.family == "split":
-        from .kernels.split import can_split
-
-        part = can_split(km.model)
-        if part is not None:
-            raise ValueError(f"method {m.name!r} needs the exact flow of every term; {part} has none "
-                             f"(the vi and rk methods run it)")
+    problem = m.refusal(km.model)
+    if problem is not None:
+        raise ValueError(problem)
     layout = km.layout(m.layout)
-    eff_start, eff_entropy, eff_friction = choice.start, choice.entropy, choice.friction
-    composition = choice.composition or "small_error"
-    if m.family == "vi" and layout.has("sigma_next"):  # the entropy joins the Newton unknowns
+    eff_start, eff_friction = choice.start, choice.friction
+    if m.solves_newton and layout.has("sigma_next"):  # the entropy joins the Newton unknowns
         from .kernels.terms import registry
 
         for t in registry():
@@ -369,32 +363,19 @@ def simulate(
     if threads is None and N < SMALL_ENSEMBLE:
         threads = 1  # a few members: waking threads costs more than it gains
 
-    if m.layout in ("rk", "split"):
-        tab = m.kernel_tableau(composition)
-        Y = _explicit_initial(layout, physics, omega0, R0)
+    Y = m.initial_state(layout, physics, omega0, R0, h, choice)
+    start_args = None
+    if m.solves_newton:
+        stepper = m.stepper(choice, newton_tol=newton_tol, newton_maxiter=newton_maxiter)
+        # the start kernel: the first step velocity or the node momentum (see vi_start_members)
+        start_args = (km.model, km.shared, Y, km.P, 0, N, float(stepper.factors[0] * h), stepper.wl,
+                      stepper.wr, eff_start == "legendre", float(newton_tol), int(newton_maxiter), IS)
+    else:
         nsub = 1
         if m.name == "reference":
             nsub = int(ref_substeps) if ref_substeps else 0
             IS[:, _lay.IS_NSUB] = reference_substeps(h, physics, omega0)
-        stepper = (Split(tab, int(nsub), type(tab).factors) if m.layout == "split"
-                   else Explicit(tab, int(nsub)))
-    else:
-        from .kernels import vi as _vi
-        from .kernels.terms.thermo import EXPLICIT, SYMMETRIC
-
-        factors = tuple(float(f) for f in m.substeps(composition))
-        wl, wr = _vi.FRICTION_WEIGHTS[eff_friction]
-        mode = EXPLICIT if eff_entropy == "explicit" else SYMMETRIC
-        Y = np.zeros((N, layout.size))
-        x0 = staggered_omega(physics, omega0, R0, h) if (eff_start == "staggered" and N) else omega0
-        Y[:, layout.slice("omega_step")] = x0
-        Y[:, layout.slice("gamma")] = R0[:, 2, :]
-        Y[:, layout.slice("momentum")] = physics.inertia * omega0  # 𝕀(S₀)Ω(0)
-        if layout.has("attitude"):
-            Y[:, layout.slice("attitude")] = R0.reshape(N, 9)
-        start_args = (km.model, km.shared, Y, km.P, 0, N, float(factors[0] * h), wl, wr,
-                      eff_start == "legendre", float(newton_tol), int(newton_maxiter), IS)
-        stepper = Variational(factors, float(wl), float(wr), mode, float(newton_tol), int(newton_maxiter))
+        stepper = m.stepper(choice, nsub)
 
     states = np.full((N, n_out + 1, layout.size), np.nan)
     adapt = chunk_steps is None
@@ -407,7 +388,7 @@ def simulate(
                     layout=layout,
                     terms=tuple(km.terms()))
         return _simulate_gpu(m, km, stepper, Y, IS, FS, states,
-                             start_args if m.family == "vi" else None, float(h), int(every), n_out,
+                             start_args, float(h), int(every), n_out,
                              out_per_chunk, progress, threads, compile_only, traj)
     if adapt:
         chunk_steps = max(every, min(steps, CHUNK_MEMBER_STEPS // max(N, 1)))
@@ -427,7 +408,7 @@ def simulate(
     if n_out and N and compile_only != "start":
         a, b = args_for(states[:, 1:1 + min(out_per_chunk, n_out)], min(out_per_chunk, n_out))
         compile_time += _ensure_compiled(fn, a + (0, min(1, n_items)) + b)
-    if m.family == "vi" and N:
+    if start_args is not None and N:
         compile_time += _ensure_compiled(_simple.vi_start_members, start_args)
         if not compile_only:
             _par.run_ranges(_simple.vi_start_members, N, start_args[:4], start_args[6:], threads)
@@ -475,7 +456,7 @@ def _simulate_gpu(m: Method, km: KernelModel, stepper, Y, IS, FS, states, start_
 
     N = Y.shape[0]
     compile_time = 0.0
-    if m.family == "vi" and N:
+    if start_args is not None and N:
         compile_time += _ensure_compiled(_simple.vi_start_members, start_args)
         if not compile_only:
             _par.run_ranges(_simple.vi_start_members, N, start_args[:4], start_args[6:], threads)

@@ -59,7 +59,7 @@ def start_warming(scene, methods: list[str]):
     if not CACHE or (os.cpu_count() or 1) < 2 or not methods:
         return None
     jobs = []
-    if get_method(methods[0]).family == "vi":
+    if get_method(methods[0]).solves_newton:
         jobs.append((methods[0], "start"))
     jobs += [(m, "all") for m in methods[1:]]
     if not jobs:

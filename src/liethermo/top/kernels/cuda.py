@@ -3,7 +3,7 @@
 The device kernel is the member loop of :func:`.simple.advance_members`,
 compiled for the GPU: a thread loads its member's state, takes ``every`` ×
 ``n_out`` steps with the step the stepper's type selects (:mod:`.steppers`,
-the same ``member_step``, ``member_sizes`` and term overloads the CPU kernels
+the same ``advance_member`` and term generics as the CPU kernels
 call; numba-cuda compiles ``@njit`` functions, ``@overload``\\ s and
 ``@intrinsic``\\ s of the generic target for the device), keeps the state in
 registers across steps and writes only the kept outputs.  Nothing here names
@@ -68,51 +68,11 @@ from numba.core.errors import NumbaPerformanceWarning  # noqa: E402
 
 from ._jit import lane
 from .gen import unflatten
-from .layout import (FS_MAX_H_OMEGA, IS_FAIL_STEP, IS_STATUS, IS_STEPS, STATUS_OK, load_rk_state,
-                     load_split_state, load_vi_state, store_rk_state, store_split_state,
-                     store_vi_state)
-from .simple import max_h_omega, member_sizes, member_step_impls
-from .steppers import by_stepper
+from .layout import IS_STATUS, STATUS_OK
+from .simple import advance_member
 
 #: threads per block of the device kernel
 THREADS_PER_BLOCK = 128
-
-
-def strided_load(stepper, md, buf, base, stride):
-    """The state of a member from ``buf[base + c·stride]`` (its method family's layout)."""
-    return load_rk_state(md, buf, base, stride)
-
-
-def _vi_strided_load(stepper, md, buf, base, stride):
-    return load_vi_state(md, buf, base, stride)
-
-
-def _split_strided_load(stepper, md, buf, base, stride):
-    return load_split_state(md, buf, base, stride)
-
-
-strided_load = by_stepper(strided_load, _vi_strided_load, split=_split_strided_load)
-
-
-def strided_store(stepper, md, buf, base, stride, y):
-    """Store a member's state y into ``buf[base + c·stride]``."""
-    store_rk_state(md, buf, base, stride, y)
-
-
-def _vi_strided_store(stepper, md, buf, base, stride, y):
-    store_vi_state(md, buf, base, stride, y)
-
-
-def _split_strided_store(stepper, md, buf, base, stride, y):
-    store_split_state(md, buf, base, stride, y)
-
-
-strided_store = by_stepper(strided_store, _vi_strided_store, split=_split_strided_store)
-
-#: the step of :func:`.simple.advance_members` (the same implementations),
-#: compiled as a device function: numba-cuda does not lower an overload that
-#: numba's IR inlining pasted into its caller
-member_step = by_stepper(*member_step_impls)
 
 
 @lane
@@ -126,27 +86,7 @@ def run_member(stepper, template, Y, P, pmember, pstride, m, N, n, h, every, n_o
     jdone = 0
     if ISTAT[m, IS_STATUS] == STATUS_OK:
         md = unflatten(template, P, m * pmember, pstride)
-        y = strided_load(stepper, md, Y, m, N)
-        sizes = member_sizes(stepper, h, ISTAT, m)
-        w2 = -1.0
-        failed = False
-        for j in range(n_out):
-            for _ in range(every):
-                k = ISTAT[m, IS_STEPS]
-                yn, w2, status = member_step(stepper, md, y, h, sizes, w2, ISTAT, m)
-                if status != STATUS_OK:
-                    ISTAT[m, IS_STATUS] = status
-                    ISTAT[m, IS_FAIL_STEP] = k + 1
-                    failed = True
-                    break
-                y = yn
-                ISTAT[m, IS_STEPS] = k + 1
-            if failed:
-                break
-            strided_store(stepper, md, OUT, j * n * N + m, N, y)
-            jdone = j + 1
-        strided_store(stepper, md, Y, m, N, y)
-        FSTAT[m, FS_MAX_H_OMEGA] = max_h_omega(FSTAT[m, FS_MAX_H_OMEGA], h, w2)
+        jdone = advance_member(stepper, md, Y, m, N, OUT, h, every, n_out, ISTAT, FSTAT, m, n, N)
     for j in range(jdone, n_out):
         for c in range(n):
             OUT[j * n * N + c * N + m] = math.nan
@@ -334,5 +274,4 @@ def _launch_calls(kern, tpb, args, cap, n, N, n_out, every, dOUT, host, states, 
 
 
 __all__ = ["CALL_MEMBER_STEPS", "OUT_BYTES", "THREADS_PER_BLOCK", "advance_on_device",
-           "exact_arithmetic", "kernel_for", "make_kernel", "outputs_per_call", "run_member",
-           "strided_load", "strided_store"]
+           "exact_arithmetic", "kernel_for", "make_kernel", "outputs_per_call", "run_member"]

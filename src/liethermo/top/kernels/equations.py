@@ -23,36 +23,39 @@ these functions, so they all integrate the same model.
 
 from __future__ import annotations
 
-from numba.extending import overload
-
-from ._jit import LANE_OPTIONS, fma, lane
-from .gen import has_capability, madd, or_zero
+from ._jit import fma, lane
+from .dispatch import generic, has_capability, is_present
+from .gen import madd, or_zero
 from .so3 import attitude_rate_lane, cross_lane
 from .terms import (NONE3, inertia_scale, inertia_scale_rate, sum_angular_acceleration, sum_dissipated_power,
                     temperature_correction)
 from .terms.thermo import entropy_rate, temperature
 
 
-def _omega_rate_constant(model, w0, w1, w2, G0, G1, G2, s, exact):
+#: the inertia's capability that brings the entropy into the motion
+_COUPLED = "entropy_dependent_inertia"
+
+
+def coupled_inertia(model) -> bool:
+    """Key: whether a model's (or its numba type's) inertia part makes the
+    inertia depend on the entropy (the coupled top)."""
+    fields = getattr(model, "fields", None)
+    inertia = model.types[fields.index("inertia")] if fields is not None else model.inertia
+    return has_capability(inertia, _COUPLED)
+
+
+@generic(coupled_inertia)
+def omega_rate(model, w0, w1, w2, G0, G1, G2, s, exact):
+    """Ω̇ (rad s⁻²) at (Ω, Γ, σ)."""
     I = model.inertia
     a0, a1, a2 = sum_angular_acceleration(model.forces, I, None, (w0, w1, w2), (G0, G1, G2), NONE3)
     return madd(I.A1 * w1, w2, a0), madd(I.A2 * w2, w0, a1), madd(I.A3 * w0, w1, a2)
 
 
-def _omega_rate_coupled(model, w0, w1, w2, G0, G1, G2, s, exact):
+@omega_rate.register(True)
+def omega_rate_coupled(model, w0, w1, w2, G0, G1, G2, s, exact):
     wd, _ = _thermal_rates(model, w0, w1, w2, G0, G1, G2, s)
     return wd
-
-
-def omega_rate(model, w0, w1, w2, G0, G1, G2, s, exact):
-    """Ω̇ (rad s⁻²) at (Ω, Γ, σ)."""
-    impl = (_omega_rate_coupled if has_capability(model.inertia, _COUPLED)
-            else _omega_rate_constant)
-    return impl(model, w0, w1, w2, G0, G1, G2, s, exact)
-
-
-#: the inertia's capability that brings the entropy into the motion
-_COUPLED = "entropy_dependent_inertia"
 
 
 @lane
@@ -79,50 +82,29 @@ def _thermal_rates(model, w0, w1, w2, G0, G1, G2, s):
     return wd, sd
 
 
-def _rates_constant(model, w0, w1, w2, G0, G1, G2, s, exact):
+@generic(coupled_inertia)
+def entropy_and_omega_rates(model, w0, w1, w2, G0, G1, G2, s, exact):
+    """((Ω̇), σ̇ or None, small)."""
     P = sum_dissipated_power(model.forces, model.inertia, None, (w0, w1, w2), None)
     sd, small = entropy_rate(model.thermo, P, s, exact)
     return omega_rate(model, w0, w1, w2, G0, G1, G2, s, exact), sd, small
 
 
-def _rates_coupled(model, w0, w1, w2, G0, G1, G2, s, exact):
+@entropy_and_omega_rates.register(True)
+def entropy_and_omega_rates_coupled(model, w0, w1, w2, G0, G1, G2, s, exact):
     wd, sd = _thermal_rates(model, w0, w1, w2, G0, G1, G2, s)
     return wd, sd, True
 
 
-def entropy_and_omega_rates(model, w0, w1, w2, G0, G1, G2, s, exact):
-    """((Ω̇), σ̇ or None, small)."""
-    impl = _rates_coupled if has_capability(model.inertia, _COUPLED) else _rates_constant
-    return impl(model, w0, w1, w2, G0, G1, G2, s, exact)
-
-
-def _dispatch_on_inertia(fn, constant, coupled):
-    """Overload ``fn`` (whose first argument is the model) by its inertia's capability."""
-
-    @overload(fn, jit_options=LANE_OPTIONS)
-    def _typer(model, w0, w1, w2, G0, G1, G2, s, exact):
-        inertia = model.types[model.fields.index("inertia")]
-        return coupled if has_capability(inertia, _COUPLED) else constant
-
-    return fn
-
-
-_dispatch_on_inertia(omega_rate, _omega_rate_constant, _omega_rate_coupled)
-_dispatch_on_inertia(entropy_and_omega_rates, _rates_constant, _rates_coupled)
-
-
+@generic(is_present)
 def attitude_rate(R, w0, w1, w2):
     """Ṙ = RΩ̂ (9-tuple), or None without the attitude."""
-    return None if R is None else attitude_rate_lane(R, w0, w1, w2)
+    return None
 
 
-@overload(attitude_rate, jit_options=LANE_OPTIONS)
-def _attitude_rate(R, w0, w1, w2):
-    from .gen import is_none
-
-    if is_none(R):
-        return lambda R, w0, w1, w2: None
-    return lambda R, w0, w1, w2: attitude_rate_lane(R, w0, w1, w2)
+@attitude_rate.register(True)
+def attitude_rate_present(R, w0, w1, w2):
+    return attitude_rate_lane(R, w0, w1, w2)
 
 
 @lane

@@ -55,7 +55,8 @@ from __future__ import annotations
 import numpy as np
 
 from ._jit import align_frame, jit, lane, ld, select, st
-from .gen import (finite, none_dispatch, or_zero, overload_by_capability, tree_finite,
+from .dispatch import capability, generic, is_present
+from .gen import (finite, or_zero, tree_finite,
                   tree_sum_finite, unflatten)
 from .layout import (FS_MAX_H_OMEGA, IS_FAIL_STEP, IS_NEWTON_MAX, IS_NEWTON_TOTAL, IS_STATUS,
                      IS_STEPS, NEWTON_MAXITER, NEWTON_OK, NEWTON_SINGULAR, STATUS_NEWTON,
@@ -65,7 +66,7 @@ from .rk import explicit_step
 from .split import split_begin, split_end, split_speed2, split_stage
 from .terms.inertia import FREE_FLOW_STAGES
 from .so3 import norm2_lane
-from .steppers import by_stepper
+from .steppers import Split, Variational, stepper_kind
 from .vi import (add_opt, newton_data, newton_iterate, newton_step, newton_stop, sub_select,
                  select_opt, vi_advance, vi_coefficients, vi_entropy, zero_like)
 
@@ -124,7 +125,7 @@ FLAG_NONFINITE = 2.0  # STATUS_NONFINITE
 FLAG_EXACT = 3.0  # an inline polynomial was out of range: redo with the exact operations
 
 #: Newton outcome (row CODE) of a lane whose vectorized iteration used an inline
-#: polynomial out of its range: _newton_redo finishes its solve with the exact
+#: polynomial out of its range: newton_redo finishes its solve with the exact
 #: operations (never seen outside a substep)
 NEWTON_REDO = 3.0
 
@@ -154,30 +155,47 @@ def lane_vi(vv, md, h, wl, wr):
     return vv
 
 
+@generic(is_present)
 def shared_vi(shared, h, wl, wr):
     """The VI coefficients of a block that shares its parameters; None otherwise."""
-    return vi_coefficients(shared, h, wl, wr)
-
-
-shared_vi = none_dispatch(shared_vi, lambda shared, h, wl, wr: None)
-
-
-def _coupled_marker(inertia):
     return None
 
 
-#: None for a constant inertia, 1.0 for the coupled top (its Newton solve has Δ)
-coupled_marker = overload_by_capability(_coupled_marker, "entropy_dependent_inertia", lambda inertia: 1.0)
+@shared_vi.register(True)
+def shared_vi_present(shared, h, wl, wr):
+    return vi_coefficients(shared, h, wl, wr)
 
 
-def _store1(x, S, off):
+@generic(capability("entropy_dependent_inertia"))
+def coupled_marker(inertia):
+    """None for a constant inertia, 1.0 for the coupled top (its Newton solve has Δ)."""
+    return None
+
+
+@coupled_marker.register(True)
+def coupled_marker_coupled(inertia):
+    return 1.0
+
+
+@generic(is_present)
+def store1(x, S, off):
+    """S[off] = x; nothing when x is None."""
+    return None
+
+
+@store1.register(True)
+def store1_present(x, S, off):
     st(S, off, x)
 
 
-store1 = none_dispatch(_store1, lambda x, S, off: None)
+@generic(is_present)
+def store9(x, S, off):
+    """The 9-tuple x into rows off, off + ROW, …; nothing when x is None."""
+    return None
 
 
-def _store9(x, S, off):
+@store9.register(True)
+def store9_present(x, S, off):
     st(S, off, x[0])
     st(S, off + ROW, x[1])
     st(S, off + 2 * ROW, x[2])
@@ -189,22 +207,27 @@ def _store9(x, S, off):
     st(S, off + 8 * ROW, x[8])
 
 
-store9 = none_dispatch(_store9, lambda x, S, off: None)
+@generic(is_present)
+def load1_if(marker, S, off):
+    """S[off] when ``marker`` is not None; None otherwise."""
+    return None
 
 
-def _load1(marker, S, off):
+@load1_if.register(True)
+def load1_present(marker, S, off):
     return ld(S, off)
 
 
-load1_if = none_dispatch(_load1, lambda marker, S, off: None)
+@generic(is_present)
+def load9_if(marker, S, off):
+    """Rows off, off + ROW, … as a 9-tuple when ``marker`` is not None; None otherwise."""
+    return None
 
 
-def _load9(marker, S, off):
+@load9_if.register(True)
+def load9_present(marker, S, off):
     return (ld(S, off), ld(S, off + ROW), ld(S, off + 2 * ROW), ld(S, off + 3 * ROW), ld(S, off + 4 * ROW),
             ld(S, off + 5 * ROW), ld(S, off + 6 * ROW), ld(S, off + 7 * ROW), ld(S, off + 8 * ROW))
-
-
-load9_if = none_dispatch(_load9, lambda marker, S, off: None)
 
 
 @lane
@@ -561,7 +584,16 @@ def _newton_compact(model, shared, S, S2, idx, nb, nparam, vvn, hn, wl, wr, tol,
             st(S, r * ROW + idx[j], ld(S2, r * ROW + j))
 
 
-def _newton_redo(marker, model, shared, S, nb, vvn, hn, wl, wr, tol, maxiter):
+@generic(is_present)
+def newton_redo(marker, model, shared, S, nb, vvn, hn, wl, wr, tol, maxiter):
+    """Finish the Newton solve of the coupled top's NEWTON_REDO lanes (the only
+    model whose Newton step has an inline polynomial), compiled into the
+    substep; nothing for the others (``marker`` None)."""
+    return None
+
+
+@newton_redo.register(True)
+def newton_redo_coupled(marker, model, shared, S, nb, vvn, hn, wl, wr, tol, maxiter):
     """Finish the Newton solve of every NEWTON_REDO lane from its iterate
     with the exact operations (vi.newton_iterate, as the straightforward
     kernel iterates)."""
@@ -583,15 +615,6 @@ def _newton_redo(marker, model, shared, S, nb, vvn, hn, wl, wr, tol, maxiter):
         st(S, O_CODE + i, code)
         st(S, O_ITS + i, its)
         st(S, O_RUN + i, 0.0)
-
-
-def _no_redo(marker, model, shared, S, nb, vvn, hn, wl, wr, tol, maxiter):
-    return None
-
-
-#: _newton_redo for the coupled top (the only model whose Newton step has an
-#: inline polynomial), compiled into the substep; nothing for the others
-newton_redo = none_dispatch(_newton_redo, _no_redo)
 
 
 @lane
@@ -748,14 +771,21 @@ def _retire_failed(S, nb, nrows, n, cur, done, h, Y, ISTAT, FSTAT):
     return nb
 
 
+@generic(stepper_kind)
 def uses_newton(stepper):
     """Whether a method's blocks need the Newton compaction scratch."""
     return False
 
 
-uses_newton = by_stepper(uses_newton, lambda stepper: True)
+@uses_newton.register(Variational)
+def uses_newton_vi(stepper):
+    return True
 
 
+# the explicit step is pasted into the driver by numba (inline "ir"): LLVM then
+# compiles the RK sweeps as for a loop written in place; behind an LLVM-inlined
+# call the RK4 sweep measured 7-18 % slower on Zen 5
+@generic(stepper_kind, inline="ir")
 def block_step(stepper, model, shared, S, S2, idx, nb, nparam, nrows, n, cur, done, h, Y, ISTAT,
                FSTAT):
     """One step of lanes [0, nb) whose state is in the rows at ``cur``:
@@ -768,7 +798,8 @@ def block_step(stepper, model, shared, S, S2, idx, nb, nparam, nrows, n, cur, do
     return _rk_step(stepper.tab, model, shared, S, nb, h, par), nb
 
 
-def _split_block_step(stepper, model, shared, S, S2, idx, nb, nparam, nrows, n, cur, done, h, Y,
+@block_step.register(Split)
+def block_step_split(stepper, model, shared, S, S2, idx, nb, nparam, nrows, n, cur, done, h, Y,
                       ISTAT, FSTAT):
     """A splitting: as an explicit step, its Strang steps a stage at a time."""
     align_frame()
@@ -776,7 +807,8 @@ def _split_block_step(stepper, model, shared, S, S2, idx, nb, nparam, nrows, n, 
     return _split_step(stepper.factors, model, shared, S, nb, h, par), nb
 
 
-def _vi_block_step(stepper, model, shared, S, S2, idx, nb, nparam, nrows, n, cur, done, h, Y,
+@block_step.register(Variational, inline="llvm")
+def block_step_vi(stepper, model, shared, S, S2, idx, nb, nparam, nrows, n, cur, done, h, Y,
                    ISTAT, FSTAT):
     """The variational integrator: its substeps factors[s]·h, each accepted
     in the rows at Y, the lanes that fail in a substep retired at once (with
@@ -805,19 +837,16 @@ def _vi_block_step(stepper, model, shared, S, S2, idx, nb, nparam, nrows, n, cur
     return 0, nb
 
 
-# the explicit step is pasted into the driver by numba: LLVM then compiles the
-# RK sweeps as for a loop written in place; behind an LLVM-inlined call the
-# RK4 sweep measured 7-18 % slower on Zen 5
-block_step = by_stepper(block_step, _vi_block_step, split=_split_block_step, inline_explicit="ir")
-
-
+@generic(stepper_kind, inline="ir")
 def next_rows(stepper, cur):
     """Where the state of a block is after a step that started at ``cur``
     (explicit: the other state buffer)."""
     return O_YB if cur == O_Y else O_Y
 
 
-next_rows = by_stepper(next_rows, lambda stepper, cur: O_Y, inline_explicit="ir")
+@next_rows.register(Variational, inline="llvm")
+def next_rows_vi(stepper, cur):
+    return O_Y
 
 
 @jit(nogil=True)

@@ -20,8 +20,6 @@ tuple of forces are all trees.
   kernel, or a lane's parameter rows in the block kernel);
 * :func:`tree_fma`, :func:`tree_finite`, :func:`tree_select` — part-wise
   operations on states;
-* :func:`make_fold` — a generic function that threads accumulators through a
-  protocol function over every term of a tuple;
 * :func:`flatten` (plain Python) — the floats of a tree in the order
   :func:`unflatten` reads them;
 * :func:`compile_source` — the one place generated source becomes code: each
@@ -175,74 +173,6 @@ def register_overload(fn, args: str, typer, label: str, inline: str = "llvm") ->
                         "_typer", f"{label} typer"))
 
 
-def overload_choice(default, choose, arg: int = 0, label: str | None = None, inline="llvm"):
-    """A generic lane function whose implementation is ``choose(t)``, where
-    t is the numba type of its ``arg``-th argument when numba types a call
-    (and that argument itself when it runs as plain Python).  ``default``
-    lends its name, signature and docstring.  ``inline``: as for
-    :func:`register_overload`, or a function of the chosen implementation
-    that says it."""
-    import inspect
-
-    args = ", ".join(inspect.signature(default).parameters)
-    name = default.__name__
-    label = label or f"overload_choice {name}"
-    fn = compile_source(f"def {name}({args}):\n    return choose(({args},)[{arg}])({args})\n",
-                        {"choose": choose}, name, label)
-    fn.__doc__ = default.__doc__
-    if isinstance(inline, str):
-        register_overload(fn, args, lambda *types: choose(types[arg]), label, inline)
-    else:  # one overload per inline mode, each taking the implementations of its mode
-        def typer_for(mode):
-            def typer(*types):
-                impl = choose(types[arg])
-                return impl if inline(impl) == mode else None
-            return typer
-
-        for mode in ("llvm", "ir"):
-            register_overload(fn, args, typer_for(mode), label, mode)
-    return fn
-
-
-def none_dispatch(present, absent, arg: int = 0):
-    """A generic lane function that is ``present`` for arguments whose
-    ``arg``-th one is not None and ``absent`` when it is None, chosen when
-    numba types the call.  (A lane function that tests ``x is None`` has
-    that branch removed only when x *is* None; for any other type both
-    branches are compiled, and one that returns None makes the result
-    Optional.)  ``present`` lends its name, signature and docstring."""
-    return overload_choice(present, lambda t: absent if is_none(t) else present, arg,
-                           f"none_dispatch {present.__name__}")
-
-
-def has_capability(term, capability: str) -> bool:
-    """Whether a term (an instance, its class, or its numba type) declares
-    ``capability`` in its ``CAPABILITIES``: what it asks of a solver (e.g.
-    ``"entropy_dependent_inertia"``: the entropy joins the motion)."""
-    cls = getattr(term, "instance_class", None)
-    if cls is None:
-        cls = term if isinstance(term, type) else type(term)
-    return capability in getattr(cls, "CAPABILITIES", ())
-
-
-def overload_by_capability(default, capability: str, special, arg: int = 0):
-    """A generic lane function that is ``special`` when its ``arg``-th
-    argument is a term declaring ``capability`` (see :func:`has_capability`)
-    and ``default`` otherwise (chosen when numba types the call): solvers
-    ask terms for what they need, never for their class."""
-    return overload_choice(default,
-                           lambda t: special if has_capability(t, capability) else default, arg,
-                           f"overload_by_capability {default.__name__} {capability}")
-
-
-def scale_opt(a, x):
-    """``a·x``; None when ``x`` is None."""
-    return a * x
-
-
-scale_opt = none_dispatch(scale_opt, lambda a, x: None, arg=1)
-
-
 @lane
 def abs_or_zero(x):
     """|x|, or 0.0 when ``x`` is None."""
@@ -388,47 +318,6 @@ def _tree_select(c, x, y):
     ns: dict = {"select": select}
     expr = build(y, iter([f"select(c, {u}, {v})" for u, v in zip(lx, ly)]), ns)
     return compile_source(f"def impl(c, x, y):\n    return {expr}\n", ns, label=f"tree_select {len(lx)} leaves")
-
-
-# ----------------------------------------------------------------------------- folds
-
-
-def make_fold(protocol, n_args: int, n_acc: int, name: str, reverse: bool = False):
-    """A generic function ``fold(terms, *args, *acc) -> acc`` that applies
-    ``protocol(term, *args, *acc)`` to every term of the tuple ``terms`` in
-    order (last to first with ``reverse``), threading the ``n_acc``
-    accumulators (which may start as None; a protocol with one accumulator
-    returns it bare, with more a tuple)."""
-    args = [f"x{k}" for k in range(n_args)]
-    acc0 = [f"a{k}" for k in range(n_acc)]
-    sig = ", ".join(["terms"] + args + acc0)
-    ns: dict = {}
-    py = [f"def {name}({sig}):", f"    acc = ({', '.join(acc0)}{',' if n_acc == 1 else ''})",
-          f"    for term in {'terms[::-1]' if reverse else 'terms'}:",
-          f"        acc = protocol(term, {', '.join(args + [f'acc[{k}]' for k in range(n_acc)])})",
-          "        acc = (acc,)" if n_acc == 1 else "        pass",
-          "    return acc[0]" if n_acc == 1 else "    return acc"]
-    ns["protocol"] = protocol
-    fold = compile_source("\n".join(py) + "\n", ns, name, f"fold {name}")
-
-    def typer(terms, *rest):
-        if not isinstance(terms, types.BaseTuple):
-            return None
-        acc = acc0
-        lines = [f"def impl({sig}):"]
-        order = range(len(terms.types))
-        for t in (reversed(order) if reverse else order):
-            new = [f"a{k}_{t}" for k in range(n_acc)]
-            lhs = new[0] if n_acc == 1 else ", ".join(new)
-            lines.append(f"    {lhs} = protocol(terms[{t}], {', '.join(args + acc)})")
-            acc = new
-        lines.append(f"    return {acc[0] if n_acc == 1 else '(' + ', '.join(acc) + ')'}")
-        kinds = " ".join(getattr(getattr(t, "instance_class", None), "__name__", str(t)) for t in terms.types)
-        return compile_source("\n".join(lines) + "\n", {"protocol": protocol},
-                              label=f"fold {name} over {kinds or 'no terms'}")
-
-    register_overload(fold, sig, typer, f"fold {name}")
-    return fold
 
 
 @lane

@@ -64,7 +64,7 @@ class Traits:
 
 def traits(model) -> Traits:
     """Traits of a model instance or of its numba type."""
-    from .gen import has_capability
+    from .dispatch import has_capability
 
     if hasattr(model, "fields") and hasattr(model, "types"):  # numba NamedTuple type
         get = dict(zip(model.fields, model.types)).__getitem__
@@ -77,19 +77,25 @@ def traits(model) -> Traits:
                   coupled=has_capability(inertia, "entropy_dependent_inertia"))
 
 
+#: the parts of each state layout: (name, size) in tuple order, absent parts of size 0
+_STATE_PARTS = {
+    "rk": lambda tr: [("omega", 3), ("gamma", 3), ("sigma", 1 if tr.thermo else 0),
+                      ("attitude", 9 if tr.attitude else 0)],
+    "split": lambda tr: [("momentum", 3), ("gamma", 3), ("heat", 1 if tr.thermo else 0),
+                         ("attitude", 9 if tr.attitude else 0)],
+    "vi": lambda tr: [("omega_step", 3), ("gamma", 3), ("sigma", 1 if tr.thermo else 0),
+                      ("momentum", 3), ("sigma_next", 1 if tr.coupled else 0),
+                      ("attitude", 9 if tr.attitude else 0)],
+}
+
+
 def state_parts(tr: Traits, family: str) -> list[tuple[str, int]]:
-    """(name, size) of the parts, in tuple order, None-parts with size 0."""
-    if family == "rk":
-        return [("omega", 3), ("gamma", 3), ("sigma", 1 if tr.thermo else 0),
-                ("attitude", 9 if tr.attitude else 0)]
-    if family == "split":
-        return [("momentum", 3), ("gamma", 3), ("heat", 1 if tr.thermo else 0),
-                ("attitude", 9 if tr.attitude else 0)]
-    if family == "vi":
-        return [("omega_step", 3), ("gamma", 3), ("sigma", 1 if tr.thermo else 0),
-                ("momentum", 3), ("sigma_next", 1 if tr.coupled else 0),
-                ("attitude", 9 if tr.attitude else 0)]
-    raise ValueError(f"unknown method family {family!r}")
+    """(name, size) of the parts of the state layout ``family`` ("rk", "split"
+    or "vi"), in tuple order, None-parts with size 0."""
+    try:
+        return _STATE_PARTS[family](tr)
+    except KeyError:
+        raise ValueError(f"unknown state layout {family!r}: expected one of {sorted(_STATE_PARTS)}") from None
 
 
 @dataclass(frozen=True)

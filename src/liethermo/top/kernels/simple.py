@@ -37,6 +37,7 @@ import math
 import numpy as np
 
 from ._jit import align_frame, jit, lane
+from .dispatch import generic
 from .gen import abs_or_zero, tree_finite, unflatten
 from .layout import (FS_MAX_H_OMEGA, IS_FAIL_STEP, IS_NEWTON_MAX, IS_NEWTON_TOTAL, IS_NSUB,
                      IS_STATUS, IS_STEPS, NEWTON_OK, STATUS_NEWTON, STATUS_NONFINITE, STATUS_OK,
@@ -45,7 +46,7 @@ from .layout import (FS_MAX_H_OMEGA, IS_FAIL_STEP, IS_NEWTON_MAX, IS_NEWTON_TOTA
 from .rk import explicit_step
 from .split import split_speed2
 from .so3 import norm2_lane
-from .steppers import by_stepper
+from .steppers import Split, Variational, stepper_kind
 from .equations import omega_rate
 from .vi import (add_opt, entropy_predictor, momentum_map, newton_solve, node_rhs, vi_advance,
                  vi_coefficients)
@@ -69,47 +70,56 @@ def max_h_omega(entry, h, w2max):
     return hw if hw > entry else entry
 
 
-def member_load(stepper, md, row):
-    """The state of a member from its row (the layout of its method family)."""
-    return load_rk_state(md, row, 0, 1)
+@generic(stepper_kind)
+def member_load(stepper, md, buf, base, stride):
+    """The state of a member from ``buf[base + c·stride]`` (the layout of its method family)."""
+    return load_rk_state(md, buf, base, stride)
 
 
-def _vi_member_load(stepper, md, row):
-    return load_vi_state(md, row, 0, 1)
+@member_load.register(Variational)
+def member_load_vi(stepper, md, buf, base, stride):
+    return load_vi_state(md, buf, base, stride)
 
 
-def _split_member_load(stepper, md, row):
-    return load_split_state(md, row, 0, 1)
+@member_load.register(Split)
+def member_load_split(stepper, md, buf, base, stride):
+    return load_split_state(md, buf, base, stride)
 
 
-member_load = by_stepper(member_load, _vi_member_load, split=_split_member_load)
+@generic(stepper_kind)
+def member_store(stepper, md, buf, base, stride, y):
+    """Store a member's state y into ``buf[base + c·stride]``."""
+    store_rk_state(md, buf, base, stride, y)
 
 
-def member_store(stepper, md, row, y):
-    """Store a member's state y into its row."""
-    store_rk_state(md, row, 0, 1, y)
+@member_store.register(Variational)
+def member_store_vi(stepper, md, buf, base, stride, y):
+    store_vi_state(md, buf, base, stride, y)
 
 
-def _vi_member_store(stepper, md, row, y):
-    store_vi_state(md, row, 0, 1, y)
+@member_store.register(Split)
+def member_store_split(stepper, md, buf, base, stride, y):
+    store_split_state(md, buf, base, stride, y)
 
 
-def _split_member_store(stepper, md, row, y):
-    store_split_state(md, row, 0, 1, y)
-
-
-member_store = by_stepper(member_store, _vi_member_store, split=_split_member_store)
-
-
+@generic(stepper_kind)
 def speed2(stepper, md, y):
     """|Ω|² of an explicit method's state (the statistic max h|Ω|)."""
     w = y[0]
     return norm2_lane(w[0], w[1], w[2])
 
 
-speed2 = by_stepper(speed2, lambda stepper, md, y: 0.0, split=lambda stepper, md, y: split_speed2(md, y))
+@speed2.register(Variational)
+def speed2_vi(stepper, md, y):
+    return 0.0
 
 
+@speed2.register(Split)
+def speed2_split(stepper, md, y):
+    return split_speed2(md, y)
+
+
+@generic(stepper_kind)
 def member_sizes(stepper, h, ISTAT, m):
     """(h_s, n): what a step of member m is made of, worked out once per
     member.  Explicit: ``nsub`` substeps of h/nsub (0: the member's own
@@ -118,9 +128,12 @@ def member_sizes(stepper, h, ISTAT, m):
     return h / ns, ns
 
 
-member_sizes = by_stepper(member_sizes, lambda stepper, h, ISTAT, m: (h, np.int64(1)))
+@member_sizes.register(Variational)
+def member_sizes_vi(stepper, h, ISTAT, m):
+    return h, np.int64(1)
 
 
+@generic(stepper_kind)
 def member_step(stepper, md, y, h, sizes, w2, ISTAT, m):
     """One step of size h of member m from its state y: (y', w2', status),
     with w2' the running max |Ω|² (times the squared substep factor) and y'
@@ -137,7 +150,8 @@ def member_step(stepper, md, y, h, sizes, w2, ISTAT, m):
     return yn, w2, STATUS_OK
 
 
-def _vi_member_step(stepper, md, y, h, sizes, w2, ISTAT, m):
+@member_step.register(Variational)
+def member_step_vi(stepper, md, y, h, sizes, w2, ISTAT, m):
     """The variational integrator: the composition of substeps of sizes
     factors[i]·h (one substep for ``vi``), each a Newton solve."""
     factors = stepper.factors
@@ -164,10 +178,64 @@ def _vi_member_step(stepper, md, y, h, sizes, w2, ISTAT, m):
     return y, w2, STATUS_OK
 
 
-#: the two implementations, for a layout that composes them differently
-#: (:mod:`.cuda` calls them as device functions, without numba's IR inlining)
-member_step_impls = (member_step, _vi_member_step)
-member_step = by_stepper(member_step, _vi_member_step, inline_explicit="ir")
+@lane
+def take_steps(stepper, md, y, h, sizes, w2, every, ISTAT, m):
+    """``every`` steps of member m from its state y: (y', w2', failed).  A
+    step that fails sets the member's status and failing step, and y' is
+    then the state at the start of that step.  The member loops of the CPU
+    (:func:`advance_members`) and of the GPU (:mod:`.cuda`) both run this."""
+    for _ in range(every):
+        k = ISTAT[m, IS_STEPS]
+        yn, w2, status = member_step(stepper, md, y, h, sizes, w2, ISTAT, m)
+        if status != STATUS_OK:
+            ISTAT[m, IS_STATUS] = status
+            ISTAT[m, IS_FAIL_STEP] = k + 1
+            return y, w2, True
+        y = yn
+        ISTAT[m, IS_STEPS] = k + 1
+    return y, w2, False
+
+
+def array_ndim(a) -> int:
+    """Key: the number of dimensions of an array (or of its numba type)."""
+    return a.ndim
+
+
+@generic(array_ndim)
+def output_slot(OUT, j, m, n, N):
+    """(buffer, base, stride) of output j of member m (of N, state size n)
+    in the flat outputs of every member, member index fastest (the GPU:
+    ``j·n·N + c·N + m``)."""
+    return OUT, j * n * N + m, N
+
+
+@output_slot.register(2)
+def output_slot_rows(OUT, j, m, n, N):
+    """In the (outputs, n) rows of the member itself (the CPU)."""
+    return OUT[j], 0, 1
+
+
+@lane
+def advance_member(stepper, md, Y, base, stride, OUT, h, every, n_out, ISTAT, FSTAT, m, n, N):
+    """Member m: its state from ``Y[base + c·stride]``, ``every`` × ``n_out``
+    steps with an output after every ``every`` (:func:`output_slot`), its
+    state back and its max |h|·|Ω|; returns how many outputs it wrote.  The
+    CPU's member loop (:func:`advance_members`) and the GPU's thread
+    (:mod:`.cuda`) both run this."""
+    y = member_load(stepper, md, Y, base, stride)
+    sizes = member_sizes(stepper, h, ISTAT, m)
+    w2 = -1.0
+    jdone = 0
+    for j in range(n_out):
+        y, w2, failed = take_steps(stepper, md, y, h, sizes, w2, every, ISTAT, m)
+        if failed:
+            break
+        buf, ob, os = output_slot(OUT, j, m, n, N)
+        member_store(stepper, md, buf, ob, os, y)
+        jdone = j + 1
+    member_store(stepper, md, Y, base, stride, y)
+    FSTAT[m, FS_MAX_H_OMEGA] = max_h_omega(FSTAT[m, FS_MAX_H_OMEGA], h, w2)
+    return jdone
 
 
 @jit(nogil=True)
@@ -180,26 +248,7 @@ def advance_members(stepper, model, shared, Y, P, m0, m1, h, every, n_out, OUT, 
         if ISTAT[m, IS_STATUS] != STATUS_OK:
             continue
         md = member_model(shared, model, P, m)
-        y = member_load(stepper, md, Y[m])
-        sizes = member_sizes(stepper, h, ISTAT, m)
-        w2 = -1.0
-        failed = False
-        for j in range(n_out):
-            for _ in range(every):
-                k = ISTAT[m, IS_STEPS]
-                yn, w2, status = member_step(stepper, md, y, h, sizes, w2, ISTAT, m)
-                if status != STATUS_OK:
-                    ISTAT[m, IS_STATUS] = status
-                    ISTAT[m, IS_FAIL_STEP] = k + 1
-                    failed = True
-                    break
-                y = yn
-                ISTAT[m, IS_STEPS] = k + 1
-            if failed:
-                break
-            member_store(stepper, md, OUT[m, j], y)
-        member_store(stepper, md, Y[m], y)
-        FSTAT[m, FS_MAX_H_OMEGA] = max_h_omega(FSTAT[m, FS_MAX_H_OMEGA], h, w2)
+        advance_member(stepper, md, Y[m], 0, 1, OUT[m], h, every, n_out, ISTAT, FSTAT, m, Y.shape[1], Y.shape[0])
 
 
 @jit(nogil=True)

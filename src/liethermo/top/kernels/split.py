@@ -41,7 +41,8 @@ from collections import namedtuple
 from numba.extending import overload
 
 from ._jit import LANE_OPTIONS, lane
-from .gen import compile_source, has_capability, none_dispatch
+from .dispatch import generic, has_capability, is_present
+from .gen import compile_source
 from .so3 import norm2_lane
 from .terms import flow_backward, flow_forward
 from .terms.inertia import FREE_FLOW_STAGES, free_flow_stage
@@ -125,12 +126,15 @@ def split_stage(model, stage, t, z):
     return m, G, q, R
 
 
-def _add_heat(q0, q):
+@generic(is_present)
+def add_heat(q0, q):
+    """q₀ + q, None without thermodynamics (no heat row)."""
+    return None
+
+
+@add_heat.register(True)
+def add_heat_present(q0, q):
     return q0 + q
-
-
-#: q₀ + q, None without thermodynamics (no heat row)
-add_heat = none_dispatch(_add_heat, lambda q0, q: None)
 
 
 @lane

@@ -19,15 +19,13 @@ that the stepper's type selects when numba compiles the driver:
   substep factors of a composition (one for ``vi``), the friction weights,
   the entropy update and the Newton tolerance and iteration limit.
 
-:func:`by_stepper` builds a generic function from one implementation per
-kind of stepper; the layouts define their steps with it.
+The layouts declare their per-kind functions as generics keyed by
+:func:`stepper_kind` (:mod:`.dispatch`).
 """
 
 from __future__ import annotations
 
 from collections import namedtuple
-
-from .gen import overload_choice
 
 #: an explicit method: its tableau (or splitting) marker and substeps per step
 Explicit = namedtuple("Explicit", "tab nsub")
@@ -48,18 +46,4 @@ def stepper_kind(stepper) -> type:
     return cls
 
 
-def by_stepper(explicit, variational, split=None, inline_explicit: str = "llvm"):
-    """A generic lane function that is ``explicit`` for an :class:`Explicit`
-    first argument, ``variational`` for a :class:`Variational` one and
-    ``split`` (default: ``explicit``) for a :class:`Split` one (chosen when
-    numba types the call).  ``explicit`` lends its name and signature.
-    ``inline_explicit="ir"``: numba pastes the explicit (and split)
-    implementation into its caller (see :func:`.gen.register_overload`)."""
-    impls = {Explicit: explicit, Split: explicit if split is None else split,
-             Variational: variational}
-    return overload_choice(explicit, lambda t: impls[stepper_kind(t)],
-                           label=f"by_stepper {explicit.__name__}",
-                           inline=lambda impl: "llvm" if impl is variational else inline_explicit)
-
-
-__all__ = ["Explicit", "Split", "Variational", "by_stepper", "stepper_kind"]
+__all__ = ["Explicit", "Split", "Variational", "stepper_kind"]

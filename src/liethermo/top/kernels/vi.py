@@ -69,7 +69,8 @@ import numpy as np
 
 from ._jit import fma, jit, lane, select
 from .equations import entropy_and_omega_rates, omega_rate
-from .gen import axpy_opt, finite, none_dispatch, or_zero, overload_by_capability, scale_opt
+from .dispatch import capability, generic, is_present
+from .gen import axpy_opt, finite, or_zero
 from .lanemath import expm1_sel
 from .layout import NEWTON_MAXITER, NEWTON_OK, NEWTON_SINGULAR
 from .so3 import attitude_lane, cayley_lane, cross_lane
@@ -77,16 +78,34 @@ from .terms import (NONE3, NONE9, inertia_scale, inertia_scale_rate, scale_squar
                     sum_linear_friction, sum_nonlinear_friction, sum_torque, temperature_correction)
 from .terms.thermo import entropy_step, temperature
 
+#: key: the inertia part makes the inertia depend on the entropy (the coupled top)
+_COUPLED = capability("entropy_dependent_inertia")
+
 #: friction weights (w_L, w_R): on the Newton side and on the update side
 FRICTION_WEIGHTS = {"trapezoid": (0.5, 0.5), "endpoint": (1.0, 0.0)}
 
 
+@generic(_COUPLED)
 def _folded_friction(inertia, forces):
+    """The linear friction C folded into M and K (None for the coupled top,
+    whose inertia scales with S: see newton_step_coupled)."""
     return sum_linear_friction(forces, NONE3)
 
 
-_folded_friction = overload_by_capability(
-    _folded_friction, "entropy_dependent_inertia", lambda inertia, forces: (None, None, None))
+@_folded_friction.register(True)
+def _folded_friction_coupled(inertia, forces):
+    return None, None, None
+
+
+@generic(is_present, arg=1)
+def scale_opt(a, x):
+    """``a·x``; None when ``x`` is None."""
+    return None
+
+
+@scale_opt.register(True)
+def scale_opt_present(a, x):
+    return a * x
 
 
 class VICoefficients(namedtuple("VICoefficients",
@@ -109,7 +128,7 @@ class VICoefficients(namedtuple("VICoefficients",
 def vi_coefficients(model, h, wl, wr):
     """The :class:`VICoefficients` of a step of size h (s).  For the coupled
     top the linear friction is not folded into M and L (its inertia scales
-    with S; see _coupled_step)."""
+    with S; see newton_step_coupled)."""
     I = model.inertia
     c0, c1, c2 = _folded_friction(model.inertia, model.forces)
     cl = wl * h
@@ -185,21 +204,24 @@ def solve3_lane(J00, J01, J02, J10, J11, J12, J20, J21, J22, r0, r1, r2):
     return d0, d1, d2, det
 
 
+@generic(_COUPLED)
 def newton_data(inertia, model, s1):
     """What the Newton corrections of one solve share and need not recompute:
     T(σ') for the coupled top (σ' = s1), None otherwise."""
     return None
 
 
-newton_data = overload_by_capability(newton_data, "entropy_dependent_inertia",
-                                lambda inertia, model, s1: temperature(model.thermo, s1))
+@newton_data.register(True)
+def newton_data_coupled(inertia, model, s1):
+    return temperature(model.thermo, s1)
 
 
+@generic(is_present, arg=5)
 def newton_step(model, v, x0, x1, x2, xs, b0, b1, b2, tn, exact):
     """One Newton correction d = J⁻¹F: (d₀, d₁, d₂, d_s, det J, ok).  For a
     constant inertia the unknown is X alone (``xs`` and d_s are None; ok is
     True); for the coupled top it is (X, Δ) with σ_{k+1} = σ' + Δ (see
-    _coupled_step), ``tn`` = :func:`newton_data`, and with ``exact`` False
+    newton_step_coupled), ``tn`` = :func:`newton_data`, and with ``exact`` False
     the correction uses the small-argument expm1 and ok says whether that
     was valid (else the lane redoes it with ``exact``, as the entropy)."""
     F0, F1, F2, J00, J01, J02, J10, J11, J12, J20, J21, J22 = residual_jacobian(
@@ -208,7 +230,8 @@ def newton_step(model, v, x0, x1, x2, xs, b0, b1, b2, tn, exact):
     return d0, d1, d2, None, det, True
 
 
-def _coupled_step(model, v, x0, x1, x2, xs, b0, b1, b2, tn, exact):
+@newton_step.register(True)
+def newton_step_coupled(model, v, x0, x1, x2, xs, b0, b1, b2, tn, exact):
     """Newton correction of the coupled top, unknowns (X, Δ), σ_{k+1} = σ' + Δ:
 
         F₁ = s*(Δ) M_h⁰(X) + w_L h CX − r,     s* = ½(φ(σ')² + φ(σ'+Δ)²)
@@ -256,10 +279,6 @@ def _coupled_step(model, v, x0, x1, x2, xs, b0, b1, b2, tn, exact):
     return u0 - w0 * ds, u1 - w1 * ds, u2 - w2 * ds, ds, det * den, ok
 
 
-newton_step = none_dispatch(_coupled_step, newton_step, arg=5)
-newton_step.__doc__ = _coupled_step.__doc__
-
-
 #: the predicted next Newton correction must be below this fraction of the tolerance
 PREDICTION_MARGIN = 0.1
 
@@ -278,12 +297,7 @@ def converged(step, scale, prev, tol):
     return (step <= lim) | ((step * step) * step <= (PREDICTION_MARGIN * lim) * (prev * prev))
 
 
-def _stop3(x0, x1, x2, xs, d0, d1, d2, ds, scale0, scales, prev, prevs, tol):
-    step = max(abs(d0), abs(d1), abs(d2))
-    scale = max(abs(x0), abs(x1), abs(x2), scale0)
-    return step, None, converged(step, scale, prev, tol)
-
-
+@generic(is_present, arg=3)
 def newton_stop(x0, x1, x2, xs, d0, d1, d2, ds, scale0, scales, prev, prevs, tol):
     """(step, step_s, converged) for the new iterate (= old − d), with step =
     |d|∞ and step_s = |d_s| (None for a constant inertia): converged when
@@ -304,39 +318,55 @@ def newton_stop(x0, x1, x2, xs, d0, d1, d2, ds, scale0, scales, prev, prevs, tol
     return step + 0.0 * ds, steps, ok
 
 
-newton_stop = none_dispatch(newton_stop, _stop3, arg=3)
+@newton_stop.register(False)
+def newton_stop_x(x0, x1, x2, xs, d0, d1, d2, ds, scale0, scales, prev, prevs, tol):
+    step = max(abs(d0), abs(d1), abs(d2))
+    scale = max(abs(x0), abs(x1), abs(x2), scale0)
+    return step, None, converged(step, scale, prev, tol)
 
 
-def _sub_present(x, c, d):
+@generic(is_present)
+def sub_select(x, c, d):
+    """x − (d if c else +0) for an optional unknown (exact: x − (+0) is x); None when x is None."""
+    return None
+
+
+@sub_select.register(True)
+def sub_select_present(x, c, d):
     return x - select(c, d, 0.0)
 
 
-#: x − (d if c else +0) for an optional unknown (exact: x − (+0) is x)
-sub_select = none_dispatch(_sub_present, lambda x, c, d: None)
+@generic(is_present, arg=1)
+def select_opt(c, a, b):
+    """a if c else b for an optional unknown (None when a is None)."""
+    return None
 
 
-def _select_present(c, a, b):
+@select_opt.register(True)
+def select_opt_present(c, a, b):
     return select(c, a, b)
 
 
-#: a if c else b for an optional unknown (None when a is None)
-select_opt = none_dispatch(_select_present, lambda c, a, b: None, arg=1)
+@generic(is_present, arg=1)
+def add_opt(s, x):
+    """σ' + Δ for the coupled top, None otherwise."""
+    return None
 
 
-def _add_present(s, x):
+@add_opt.register(True)
+def add_opt_present(s, x):
     return s + x
 
 
-#: σ' + Δ for the coupled top, None otherwise
-add_opt = none_dispatch(_add_present, lambda s, x: None, arg=1)
-
-
+@generic(is_present)
 def attitude_step(R, w0, w1, w2):
     """R cay(ŵ), or None without the attitude."""
+    return None
+
+
+@attitude_step.register(True)
+def attitude_step_present(R, w0, w1, w2):
     return attitude_lane(R, w0, w1, w2)
-
-
-attitude_step = none_dispatch(attitude_step, lambda R, w0, w1, w2: None)
 
 
 @lane
@@ -359,7 +389,9 @@ def vi_advance(model, v, vn, y, hn, mode, exact):
     return _advance(model.inertia, model, v, vn, y, hn, mode, exact)
 
 
-def _advance_constant(inertia, model, v, vn, y, hn, mode, exact):
+@generic(_COUPLED)
+def _advance(inertia, model, v, vn, y, hn, mode, exact):
+    """Γ', σ', R', μ' and the next Newton data (see :func:`vi_advance`): a constant inertia."""
     X, G, s, mu, sn, R = y
     x0, x1, x2 = X
     h = v.h
@@ -393,6 +425,7 @@ def _advance_constant(inertia, model, v, vn, y, hn, mode, exact):
             max(abs(x0), abs(x1), abs(x2)), None, ok)
 
 
+@_advance.register(True)
 def _advance_coupled(inertia, model, v, vn, y, hn, mode, exact):
     """The coupled top: σ' is the σ_{k+1} solved with X; μ' =
     s* M⁰_{−h}(X) − w_R h CX + (h/2)τ(Γ') with the mean inertia of the step,
@@ -426,15 +459,15 @@ def _advance_coupled(inertia, model, v, vn, y, hn, mode, exact):
             max(abs(x0), abs(x1), abs(x2)), abs(s1), True)
 
 
-_advance = overload_by_capability(_advance_constant, "entropy_dependent_inertia", _advance_coupled)
-
-
+@generic(is_present)
 def zero_like(x):
     """0.0, or None when x is None."""
+    return None
+
+
+@zero_like.register(True)
+def zero_like_present(x):
     return 0.0
-
-
-zero_like = none_dispatch(zero_like, lambda x: None)
 
 
 @lane
@@ -501,12 +534,14 @@ def node_rhs(model, v, mu, G):
     return axpy_opt(v.hh, t0, mu[0]), axpy_opt(v.hh, t1, mu[1]), axpy_opt(v.hh, t2, mu[2])
 
 
+@generic(_COUPLED)
 def entropy_predictor(inertia, model, v, X, s):
     """Δ₀ of the coupled top's first solve (None for a constant inertia)."""
     return None
 
 
-def _entropy_predictor_coupled(inertia, model, v, X, s):
+@entropy_predictor.register(True)
+def entropy_predictor_coupled(inertia, model, v, X, s):
     th = model.thermo
     I = inertia
     c0, c1, c2 = sum_linear_friction(model.forces, NONE3)
@@ -515,7 +550,4 @@ def _entropy_predictor_coupled(inertia, model, v, X, s):
     th0 = temperature(th, s)
     K2 = fma(I.I1 * x0, x0, fma(I.I2 * x1, x1, (I.I3 * x2) * x2))
     return v.h * P / (th0 - temperature_correction(I, th, th0, K2))
-
-
-entropy_predictor = overload_by_capability(entropy_predictor, "entropy_dependent_inertia", _entropy_predictor_coupled)
 

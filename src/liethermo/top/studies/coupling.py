@@ -26,7 +26,7 @@ def _check(ctx) -> None:
     o, sweep = ctx.opt, ctx.study.get("sweep") or {}
     if list(sweep) != [SWEEP_KEY] or min(sweep[SWEEP_KEY]) < 0 or 0.0 not in sweep[SWEEP_KEY]:
         raise StudyError(f"sweep: a coupling study sweeps {SWEEP_KEY!r} over values ≥ 0 (1/K) that must include 0")
-    if o["motion_method"] not in ctx.methods or {c.start for c in map(method_choice, ctx.methods) if c.family == "vi"} - {"legendre"}:
+    if o["motion_method"] not in ctx.methods or {c.start for c in map(method_choice, ctx.methods) if c.method.solves_newton} - {"legendre"}:
         raise StudyError("methods: the legendre start (the coupled top needs it), options.motion_method among them")
     phys = physics_of_scene(ctx.scene({SWEEP_KEY: o["check_alpha"]}))
     if float(phys.linear_resistance().max()) <= 0 or float(phys.potential_span().max()) == 0:

@@ -35,7 +35,7 @@ def _spin(ctx, point: dict, method: str, h: float | None, limit: int | None):
     h = float(scene["integrator"]["h"]) if h is None else h
     every = max(1, int(round(ctx.opt["lambda_t_end"] / float(point[SWEEP_KEY]) / (h * ctx.opt["nodes"]))))
     tr = run_spec(phys, om, R, h, every * ctx.opt["nodes"], spec, every=every)
-    mu = tr.momentum if tr.family == "vi" else phys.inertia[:, None, :] * tr.omega
+    mu = tr.momentum if tr.choice.method.node_form else phys.inertia[:, None, :] * tr.omega
     mu0 = np.linalg.norm(phys.inertia * om, axis=-1)[:, None]
     return tr, phys, om, mu, np.abs(np.linalg.norm(mu, axis=-1) - mu0) / mu0, every * ctx.opt["nodes"] * h, N
 
@@ -120,7 +120,7 @@ def verdicts(ds, ctx) -> list[Verdict]:
     for m in [m for m in ctx.methods if m != ref]:
         c, p, q = float(ds["casimir_drift"].sel(scheme=m).max()), _orders(ds, m)[-1], ctx.model.method_order(m)
         out.append(Verdict(f"{m} keeps the Casimir |μ|", f"max casimir_drift {c:.1e}", "≤ 1e-11 (round-off)",
-                           c <= 1e-11) if method_choice(m).family == "vi" else Verdict(
+                           c <= 1e-11) if method_choice(m).method.solves_newton else Verdict(
             f"{m}'s Casimir drift falls at its order {q}", f"{p:.2f} (finest pair of casimir_h)",
             f"≥ {q} − {order_tolerance(q):g} (the declared order less the fitting tolerance)",
             None if not np.isfinite(p) else judge_order(p, q) != "below declared"))

@@ -77,12 +77,12 @@ def case_run(ctx, coords) -> xr.Dataset:
     phys, (om, R) = physics_of_scene(scene), initial_conditions(scene, 0, 1)
     tr, d = run(phys, om, R, h, int(c["steps"]), coords["scheme"])
     d.update(h_omega0=h * np.linalg.norm(om, axis=1), kappa=phys.linear_resistance().max(axis=1) * h /
-             phys.inertia.min(axis=1), jacobian_cond_max=tr.newton_condition() if tr.family == "vi" else [np.nan])
+             phys.inertia.min(axis=1), jacobian_cond_max=tr.newton_condition() if tr.choice.method.solves_newton else [np.nan])
     return xr.Dataset({k: ((), np.asarray(v)[0]) for k, v in d.items()})
 
 
 def newton_limit(ctx, coords) -> xr.Dataset:
-    vi, h = [m for m in ctx.methods if method_choice(m).family == "vi"], float(ctx.opt["h"])
+    vi, h = [m for m in ctx.methods if method_choice(m).method.solves_newton], float(ctx.opt["h"])
     hw = np.array([1, 2, 5, 10, 100, 1e3, 1e4, 3e4, 1e5, 1e6])  # h|Ω₀| far beyond any map
     if not vi:
         return xr.Dataset()
@@ -110,7 +110,7 @@ def _summary(ds, ctx):
     for m in ctx.methods:
         r, mc = ds["regime"].sel(scheme=m).values, method_choice(m)
         band = negative_substep_limits(mc.name, mc.friction, mc.composition or "small_error")["growth_band"] if (
-            mc.family == "vi") else None  # the κ band where a friction mode of the VI grows
+            mc.method.solves_newton) else None  # the κ band where a friction mode of the VI grows
         ok, acc, bad = hw[np.all(r <= 1, axis=1)], hw[np.all(r == 0, axis=1)], np.any(r >= 2, axis=0)
         inband = (ka >= band[0]) & (ka <= band[1]) if band else np.zeros(ka.size, bool)
         rows.append({"method": m, **{c: int(np.sum(r == i)) for i, c in enumerate(CLASSES)},
@@ -123,7 +123,7 @@ def _summary(ds, ctx):
 
 
 def tables(ds, ctx) -> list[Table]:
-    vi = next((m for m in ctx.methods if method_choice(m).family == "vi"), None)
+    vi = next((m for m in ctx.methods if method_choice(m).method.solves_newton), None)
     return [Table("stability_summary", f"Cells per regime ({ds.sizes['h_omega']}×{ds.sizes['kappa']} grid, h = "
                   f"{ctx.opt['h']:g} s, {ctx.opt['steps']} steps)", _summary(ds, ctx))] + [Table(name, title, ds[[
                       v for v in ds.data_vars if v.startswith(prefix)]].to_dataframe().reset_index().rename(

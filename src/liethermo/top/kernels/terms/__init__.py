@@ -88,7 +88,7 @@ import numpy as np
 
 from numba import types
 
-from ..gen import compile_source, is_none, make_fold, register_overload
+from ..dispatch import generic, is_nonempty, term_class
 
 Model = namedtuple("Model", "inertia thermo forces attitude")
 
@@ -102,78 +102,175 @@ class Attitude(namedtuple("Attitude", "on")):
 #: the ``attitude`` slot of a model that integrates R
 ATTITUDE = Attitude(1.0)
 
-_PROTOCOLS: dict[str, tuple] = {}
-#: (protocol name, term class) → implementation: what numba compiles, and what
-#: plain Python (NUMBA_DISABLE_JIT=1) calls
-_IMPLEMENTATIONS: dict[tuple[str, type], object] = {}
+# ----------------------------------------------------------------------------- the protocol
+# Each protocol function is a generic keyed by the term's class; its body is
+# what a term that has nothing to say returns (its accumulators).  A term
+# module registers its implementation with ``@torque.register(Gravity)``.
 
 
-def _protocol(name: str, args: str, passthrough: str):
-    """Declare a protocol function with the given argument list; terms that
-    do not implement it return ``passthrough`` (their accumulators)."""
-    ns: dict = {"_IMPLEMENTATIONS": _IMPLEMENTATIONS}
-    fn = compile_source(f"def {name}({args}):\n"
-                        f"    impl = _IMPLEMENTATIONS.get(({name!r}, type(term)))\n"
-                        f"    if impl is None:\n"
-                        f"        return {passthrough}\n"
-                        f"    return impl({args})\n", ns, name, f"protocol {name}")
-    _PROTOCOLS[name] = (fn, args)
-
-    def typer(term, *rest):
-        cls = getattr(term, "instance_class", None)
-        if is_none(term) or name not in getattr(cls, "ROLES", frozenset()):
-            return compile_source(f"def impl({args}):\n    return {passthrough}\n", {},
-                                  label=f"protocol {name} passthrough for {getattr(cls, '__name__', 'None')}")
-        return None
-
-    register_overload(fn, args, typer, f"protocol {name}")
-    return fn
+@generic(term_class)
+def angular_acceleration(term, inertia, iscale, w, G, a):
+    """a + 𝕀₀⁻¹ f(Ω, Γ) (rad s⁻²): the term's force or torque over the reference inertia."""
+    return a
 
 
-angular_acceleration = _protocol("angular_acceleration", "term, inertia, iscale, w, G, a", "a")
-dissipated_power = _protocol("dissipated_power", "term, inertia, iscale, w, p", "p")
-discrete_power = _protocol("discrete_power", "term, inertia, h, x, p", "p")
-linear_friction = _protocol("linear_friction", "term, c", "c")
-torque = _protocol("torque", "term, G, t", "t")
-exact_flow = _protocol("exact_flow", "term, inertia, t, G, m, q", "m, q")
-nonlinear_friction = _protocol("nonlinear_friction", "term, inertia, h, x, f, J", "f, J")
-#: the inertia slot's dependence on the entropy (the term argument is the inertia part)
-inertia_scale = _protocol("inertia_scale", "term, thermo, theta", "1.0")
-inertia_scale_rate = _protocol("inertia_scale_rate", "term, thermo, theta", "0.0")
-scale_square_change = _protocol("scale_square_change", "term, thermo, theta, e", "0.0")
-temperature_correction = _protocol("temperature_correction", "term, thermo, theta, K2", "0.0")
+@generic(term_class)
+def dissipated_power(term, inertia, iscale, w, p):
+    """p − ⟨f, Ω⟩ (W): frictions only."""
+    return p
 
 
-def implements(protocol, cls):
-    """Register ``impl`` (a function with the protocol's arguments) as the
-    implementation of ``protocol`` for terms of class ``cls``."""
-    fn, args = _PROTOCOLS[protocol.__name__]
-    cls.ROLES = frozenset(getattr(cls, "ROLES", frozenset())) | {protocol.__name__}
-
-    def deco(impl):
-        _IMPLEMENTATIONS[(protocol.__name__, cls)] = impl
-
-        def typer(term, *rest):
-            if getattr(term, "instance_class", None) is cls:
-                return impl
-            return None
-
-        register_overload(fn, args, typer, f"protocol {protocol.__name__} for {cls.__name__}")
-        return impl
-
-    return deco
+@generic(term_class)
+def discrete_power(term, inertia, h, x, p):
+    """p − ⟨D(X), X⟩ (W): the variational integrator's discrete friction at X."""
+    return p
 
 
-#: folds of the force protocols over a tuple of terms
-sum_angular_acceleration = make_fold(angular_acceleration, 4, 1, "sum_angular_acceleration")
-sum_dissipated_power = make_fold(dissipated_power, 3, 1, "sum_dissipated_power")
-sum_discrete_power = make_fold(discrete_power, 3, 1, "sum_discrete_power")
-sum_linear_friction = make_fold(linear_friction, 0, 1, "sum_linear_friction")
-sum_torque = make_fold(torque, 1, 1, "sum_torque")
-sum_nonlinear_friction = make_fold(nonlinear_friction, 3, 2, "sum_nonlinear_friction")
-#: the terms' exact flows one after the other, in registry order and back
-flow_forward = make_fold(exact_flow, 3, 2, "flow_forward")
-flow_backward = make_fold(exact_flow, 3, 2, "flow_backward", reverse=True)
+@generic(term_class)
+def linear_friction(term, c):
+    """c + the diagonal friction tensor C (N m s) of a friction linear in Ω."""
+    return c
+
+
+@generic(term_class)
+def torque(term, G, t):
+    """t + the conservative torque τ(Γ) (N m)."""
+    return t
+
+
+@generic(term_class)
+def exact_flow(term, inertia, t, G, m, q):
+    """(μ, q) after the exact flow over a time t of the term alone (Γ fixed)."""
+    return m, q
+
+
+@generic(term_class)
+def nonlinear_friction(term, inertia, h, x, f, J):
+    """(f + D(X), J + ∂D/∂X) of a nonlinear friction law."""
+    return f, J
+
+
+@generic(term_class)
+def inertia_scale(term, thermo, theta):
+    """φ(S) of the inertia part ``term`` (1 for a constant inertia)."""
+    return 1.0
+
+
+@generic(term_class)
+def inertia_scale_rate(term, thermo, theta):
+    """dφ/dS (1/(J K⁻¹)) of the inertia part ``term``."""
+    return 0.0
+
+
+@generic(term_class)
+def scale_square_change(term, thermo, theta, e):
+    """φ(S')² − φ(S)² over a step from θ(S) to θ(S)(1 + e)."""
+    return 0.0
+
+
+@generic(term_class)
+def temperature_correction(term, thermo, theta, K2):
+    """φφ′ K2: what T lies below θ(S) at Ω·𝕀₀Ω = K2."""
+    return 0.0
+
+
+# ----------------------------------------------------------------------------- folds over the terms
+# A fold applies a protocol to every term of a tuple in order (the flows also
+# last to first), threading the accumulators; the non-empty implementation
+# handles the first term and folds the rest.
+
+
+@generic(is_nonempty)
+def sum_angular_acceleration(terms, inertia, iscale, w, G, a):
+    """:func:`angular_acceleration` summed over ``terms``."""
+    return a
+
+
+@sum_angular_acceleration.register(True)
+def sum_angular_acceleration_terms(terms, inertia, iscale, w, G, a):
+    return sum_angular_acceleration(terms[1:], inertia, iscale, w, G,
+                                    angular_acceleration(terms[0], inertia, iscale, w, G, a))
+
+
+@generic(is_nonempty)
+def sum_dissipated_power(terms, inertia, iscale, w, p):
+    """:func:`dissipated_power` summed over ``terms``."""
+    return p
+
+
+@sum_dissipated_power.register(True)
+def sum_dissipated_power_terms(terms, inertia, iscale, w, p):
+    return sum_dissipated_power(terms[1:], inertia, iscale, w, dissipated_power(terms[0], inertia, iscale, w, p))
+
+
+@generic(is_nonempty)
+def sum_discrete_power(terms, inertia, h, x, p):
+    """:func:`discrete_power` summed over ``terms``."""
+    return p
+
+
+@sum_discrete_power.register(True)
+def sum_discrete_power_terms(terms, inertia, h, x, p):
+    return sum_discrete_power(terms[1:], inertia, h, x, discrete_power(terms[0], inertia, h, x, p))
+
+
+@generic(is_nonempty)
+def sum_linear_friction(terms, c):
+    """:func:`linear_friction` summed over ``terms``."""
+    return c
+
+
+@sum_linear_friction.register(True)
+def sum_linear_friction_terms(terms, c):
+    return sum_linear_friction(terms[1:], linear_friction(terms[0], c))
+
+
+@generic(is_nonempty)
+def sum_torque(terms, G, t):
+    """:func:`torque` summed over ``terms``."""
+    return t
+
+
+@sum_torque.register(True)
+def sum_torque_terms(terms, G, t):
+    return sum_torque(terms[1:], G, torque(terms[0], G, t))
+
+
+@generic(is_nonempty)
+def sum_nonlinear_friction(terms, inertia, h, x, f, J):
+    """:func:`nonlinear_friction` summed over ``terms``."""
+    return f, J
+
+
+@sum_nonlinear_friction.register(True)
+def sum_nonlinear_friction_terms(terms, inertia, h, x, f, J):
+    f1, J1 = nonlinear_friction(terms[0], inertia, h, x, f, J)
+    return sum_nonlinear_friction(terms[1:], inertia, h, x, f1, J1)
+
+
+@generic(is_nonempty)
+def flow_forward(terms, inertia, t, G, m, q):
+    """The terms' exact flows one after the other, in registry order."""
+    return m, q
+
+
+@flow_forward.register(True)
+def flow_forward_terms(terms, inertia, t, G, m, q):
+    m1, q1 = exact_flow(terms[0], inertia, t, G, m, q)
+    return flow_forward(terms[1:], inertia, t, G, m1, q1)
+
+
+@generic(is_nonempty)
+def flow_backward(terms, inertia, t, G, m, q):
+    """The terms' exact flows one after the other, last to first."""
+    return m, q
+
+
+@flow_backward.register(True)
+def flow_backward_terms(terms, inertia, t, G, m, q):
+    m1, q1 = exact_flow(terms[-1], inertia, t, G, m, q)
+    return flow_backward(terms[:-1], inertia, t, G, m1, q1)
+
 
 #: accumulators that no term has touched yet (a term adds to None as to nothing)
 NONE3 = (None, None, None)
@@ -344,10 +441,10 @@ class Term:
         term that makes the inertia depend on the entropy; None otherwise."""
         return None
 
-    def refuses(self, family: str, method: str) -> str | None:
-        """Why ``method`` (of ``family``: "vi", "rk" or "split") cannot run a
+    def refuses(self, method) -> str | None:
+        """Why ``method`` (a :class:`liethermo.top.methods.Method`) cannot run a
         model with this term (None: it can)."""
-        if family == "split" and self.no_exact_flow:
+        if method.needs_exact_flows and self.no_exact_flow:
             return f"{self.no_exact_flow}; the vi and rk methods run it"
         return None
 
@@ -498,5 +595,5 @@ def registry() -> Registry:
 
 __all__ = ["Model", "ATTITUDE", "Attitude", "angular_acceleration", "dissipated_power",
            "discrete_power", "linear_friction", "torque", "nonlinear_friction", "exact_flow",
-           "inertia_scale", "inertia_scale_rate", "scale_square_change", "temperature_correction", "implements", "types", "NONE3", "NONE9", "LAWS", "LAW_SPHERICAL_DECAY", "LAW_LAGRANGE_OMEGA3", "LAW_MOMENTUM_NORM", "ROLES", "ROLE_LINEAR_FRICTION",
+           "inertia_scale", "inertia_scale_rate", "scale_square_change", "temperature_correction", "types", "NONE3", "NONE9", "LAWS", "LAW_SPHERICAL_DECAY", "LAW_LAGRANGE_OMEGA3", "LAW_MOMENTUM_NORM", "ROLES", "ROLE_LINEAR_FRICTION",
            "ROLE_MOMENTUM_FRICTION", "ROLE_THERMAL_COUPLING", "ROLE_POTENTIAL", "key_of", "Term", "ScalarTerm", "Setting", "Parameter", "Registry", "registry", "bcast", "over_inertia"]

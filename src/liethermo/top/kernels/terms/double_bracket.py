@@ -36,7 +36,7 @@ from .._jit import fma
 from ..gen import cadd, madd
 from ..so3 import cross_lane, norm2_lane
 from . import (LAW_MOMENTUM_NORM, LAW_SPHERICAL_DECAY, ROLE_MOMENTUM_FRICTION, Parameter, ScalarTerm, Setting, angular_acceleration, bcast, discrete_power,
-               dissipated_power, implements, nonlinear_friction)
+               dissipated_power, nonlinear_friction)
 
 
 class DoubleBracket(namedtuple("DoubleBracket", "lam")):
@@ -48,7 +48,7 @@ def coefficients(internal_friction: np.ndarray, inertia0: np.ndarray) -> np.ndar
     return np.asarray(internal_friction, dtype=np.float64).reshape(-1, 1)
 
 
-@implements(angular_acceleration, DoubleBracket)
+@angular_acceleration.register(DoubleBracket)
 def _acceleration(term, inertia, iscale, w, G, a):
     w0, w1, w2 = w
     a0, a1, a2 = a
@@ -60,7 +60,7 @@ def _acceleration(term, inertia, iscale, w, G, a):
     return (madd(lam * I.iI1, f0, a0), madd(lam * I.iI2, f1, a1), madd(lam * I.iI3, f2, a2))
 
 
-@implements(dissipated_power, DoubleBracket)
+@dissipated_power.register(DoubleBracket)
 def _power(term, inertia, iscale, w, p):
     w0, w1, w2 = w
     I = inertia
@@ -69,7 +69,7 @@ def _power(term, inertia, iscale, w, p):
     return madd(lam, norm2_lane(u0, u1, u2), p)
 
 
-@implements(discrete_power, DoubleBracket)
+@discrete_power.register(DoubleBracket)
 def _discrete_power(term, inertia, h, x, p):
     x0, x1, x2 = x
     I = inertia
@@ -79,7 +79,7 @@ def _discrete_power(term, inertia, h, x, p):
     return madd(term.lam, norm2_lane(u0, u1, u2), p)
 
 
-@implements(nonlinear_friction, DoubleBracket)
+@nonlinear_friction.register(DoubleBracket)
 def _discrete(term, inertia, h, x, f, J):
     x0, x1, x2 = x
     f0, f1, f2 = f

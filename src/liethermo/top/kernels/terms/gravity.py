@@ -15,7 +15,7 @@ import numpy as np
 
 from .._jit import fma
 from ..gen import madd
-from . import LAW_LAGRANGE_OMEGA3, ROLE_POTENTIAL, Parameter, Setting, Term, angular_acceleration, bcast, exact_flow, implements, torque
+from . import LAW_LAGRANGE_OMEGA3, ROLE_POTENTIAL, Parameter, Setting, Term, angular_acceleration, bcast, exact_flow, torque
 
 
 class Gravity(namedtuple("Gravity", "gx gy gz gz1 gy1 gx2 gz2 gy3 gx3")):
@@ -39,7 +39,7 @@ def potential_energy(gravity_torque: np.ndarray, gamma: np.ndarray) -> np.ndarra
     return np.sum(g * gamma, axis=-1)
 
 
-@implements(angular_acceleration, Gravity)
+@angular_acceleration.register(Gravity)
 def _acceleration(term, inertia, iscale, w, G, a):
     G0, G1, G2 = G
     a0, a1, a2 = a
@@ -48,7 +48,7 @@ def _acceleration(term, inertia, iscale, w, G, a):
             madd(term.gy3, G0, madd(-term.gx3, G1, a2)))
 
 
-@implements(torque, Gravity)
+@torque.register(Gravity)
 def _torque(term, G, t):
     G0, G1, G2 = G
     t0, t1, t2 = t
@@ -57,7 +57,7 @@ def _torque(term, G, t):
             madd(G0, term.gy, madd(-G1, term.gx, t2)))
 
 
-@implements(exact_flow, Gravity)
+@exact_flow.register(Gravity)
 def _kick(term, inertia, t, G, m, q):
     """The exact flow of the torque alone (Γ fixed): μ ← μ + t Γ×g⃗."""
     G0, G1, G2 = G

@@ -23,8 +23,8 @@ from collections import namedtuple
 import numpy as np
 
 from .._jit import fma, lane
-from ..gen import none_dispatch
-from . import (LAW_MOMENTUM_NORM, ROLE_THERMAL_COUPLING, Parameter, ScalarTerm, Setting, bcast, implements, inertia_scale,
+from ..dispatch import generic, is_present
+from . import (LAW_MOMENTUM_NORM, ROLE_THERMAL_COUPLING, Parameter, ScalarTerm, Setting, bcast, inertia_scale,
                inertia_scale_rate, scale_square_change, temperature_correction)
 
 
@@ -61,23 +61,23 @@ def _dphi(term, thermo, theta):
     return (term.alpha * theta) * thermo.icv
 
 
-@implements(inertia_scale, ThermalInertia)
+@inertia_scale.register(ThermalInertia)
 def _thermal_scale(term, thermo, theta):
     return _phi(term, thermo, theta)
 
 
-@implements(inertia_scale_rate, ThermalInertia)
+@inertia_scale_rate.register(ThermalInertia)
 def _thermal_scale_rate(term, thermo, theta):
     return _dphi(term, thermo, theta)
 
 
-@implements(scale_square_change, ThermalInertia)
+@scale_square_change.register(ThermalInertia)
 def _thermal_scale_square_change(term, thermo, theta, e):
     """φ(S')² − φ(S)² = (φ' − φ)(φ' + φ), φ' − φ = α(θ' − θ) = αθe."""
     return (term.alpha * (theta * e)) * (_phi(term, thermo, fma(theta, e, theta)) + _phi(term, thermo, theta))
 
 
-@implements(temperature_correction, ThermalInertia)
+@temperature_correction.register(ThermalInertia)
 def _thermal_temperature_correction(term, thermo, theta, K2):
     """½ Ω·𝕀′(S)Ω = φφ′ Ω·𝕀₀Ω."""
     return (_phi(term, thermo, theta) * _dphi(term, thermo, theta)) * K2
@@ -122,7 +122,15 @@ def _turn(c, s, r, aj, ak):
     return fma(fma(aj, c, ak * s), r, aj), fma(fma(ak, c, -(aj * s)), r, ak)
 
 
-def _turn_rows(R, axis, c, s, r):
+@generic(is_present)
+def turn_rows(R, axis, c, s, r):
+    """R ← R cay(θ′ ê_axis) for R a row-major 9-tuple (each row turns as a
+    body vector); None without the attitude."""
+    return None
+
+
+@turn_rows.register(True)
+def turn_rows_present(R, axis, c, s, r):
     """R ← R cay(θ′ ê_axis) for R a row-major 9-tuple: each row turns as a body vector."""
     if axis == 0:
         r01, r02 = _turn(c, s, r, R[1], R[2])
@@ -138,9 +146,6 @@ def _turn_rows(R, axis, c, s, r):
     r10, r11 = _turn(c, s, r, R[3], R[4])
     r20, r21 = _turn(c, s, r, R[6], R[7])
     return (r00, r01, R[2], r10, r11, R[5], r20, r21, R[8])
-
-
-turn_rows = none_dispatch(_turn_rows, lambda R, axis, c, s, r: None)
 
 
 @lane

@@ -30,7 +30,7 @@ from .._jit import fma, select
 from ..gen import cadd, madd
 from ..so3 import norm2_lane
 from . import (Parameter, ScalarTerm, Setting, over_inertia, angular_acceleration, bcast, discrete_power,
-               dissipated_power, implements, nonlinear_friction)
+               dissipated_power, nonlinear_friction)
 
 
 class QuadraticDrag(namedtuple("QuadraticDrag", "c K1 K2 K3")):
@@ -42,7 +42,7 @@ def coefficients(c2: np.ndarray, inertia0: np.ndarray) -> np.ndarray:
     return over_inertia(c2, inertia0, 1)
 
 
-@implements(angular_acceleration, QuadraticDrag)
+@angular_acceleration.register(QuadraticDrag)
 def _acceleration(term, inertia, iscale, w, G, a):
     w0, w1, w2 = w
     a0, a1, a2 = a
@@ -51,21 +51,21 @@ def _acceleration(term, inertia, iscale, w, G, a):
             madd(-(term.K3 * n), w2, a2))
 
 
-@implements(dissipated_power, QuadraticDrag)
+@dissipated_power.register(QuadraticDrag)
 def _power(term, inertia, iscale, w, p):
     w0, w1, w2 = w
     n2 = norm2_lane(w0, w1, w2)
     return madd(term.c * math.sqrt(n2), n2, p)
 
 
-@implements(discrete_power, QuadraticDrag)
+@discrete_power.register(QuadraticDrag)
 def _discrete_power(term, inertia, h, x, p):
     x0, x1, x2 = x
     n2 = norm2_lane(x0, x1, x2)
     return madd(term.c * math.sqrt(n2), n2, p)
 
 
-@implements(nonlinear_friction, QuadraticDrag)
+@nonlinear_friction.register(QuadraticDrag)
 def _discrete(term, inertia, h, x, f, J):
     x0, x1, x2 = x
     f0, f1, f2 = f

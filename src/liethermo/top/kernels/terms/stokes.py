@@ -25,7 +25,7 @@ from ..lanemath import expm1_lane
 from ..gen import cadd, madd
 from ..so3 import norm2_lane
 from . import (LAW_LAGRANGE_OMEGA3, LAW_SPHERICAL_DECAY, ROLE_LINEAR_FRICTION, Parameter, Setting, Term, bcast, over_inertia, angular_acceleration, discrete_power, dissipated_power,
-               exact_flow, implements, linear_friction)
+               exact_flow, linear_friction)
 
 
 class StokesSphere(namedtuple("StokesSphere", "c K1 K2 K3")):
@@ -48,51 +48,51 @@ def diagonal_coefficients(C: np.ndarray, inertia0: np.ndarray) -> np.ndarray:
     return over_inertia(C, inertia0, 3)
 
 
-@implements(angular_acceleration, StokesSphere)
+@angular_acceleration.register(StokesSphere)
 def _sphere_acc(term, inertia, iscale, w, G, a):
     w0, w1, w2 = w
     a0, a1, a2 = a
     return madd(-term.K1, w0, a0), madd(-term.K2, w1, a1), madd(-term.K3, w2, a2)
 
 
-@implements(dissipated_power, StokesSphere)
+@dissipated_power.register(StokesSphere)
 def _sphere_power(term, inertia, iscale, w, p):
     w0, w1, w2 = w
     return madd(term.c, norm2_lane(w0, w1, w2), p)
 
 
-@implements(discrete_power, StokesSphere)
+@discrete_power.register(StokesSphere)
 def _sphere_discrete_power(term, inertia, h, x, p):
     x0, x1, x2 = x
     return madd(term.c, norm2_lane(x0, x1, x2), p)
 
 
-@implements(linear_friction, StokesSphere)
+@linear_friction.register(StokesSphere)
 def _sphere_linear(term, c):
     c0, c1, c2 = c
     return cadd(term.c, c0), cadd(term.c, c1), cadd(term.c, c2)
 
 
-@implements(angular_acceleration, StokesDiagonal)
+@angular_acceleration.register(StokesDiagonal)
 def _diag_acc(term, inertia, iscale, w, G, a):
     w0, w1, w2 = w
     a0, a1, a2 = a
     return madd(-term.K1, w0, a0), madd(-term.K2, w1, a1), madd(-term.K3, w2, a2)
 
 
-@implements(dissipated_power, StokesDiagonal)
+@dissipated_power.register(StokesDiagonal)
 def _diag_power(term, inertia, iscale, w, p):
     w0, w1, w2 = w
     return madd(term.C1 * w0, w0, madd(term.C2 * w1, w1, madd(term.C3 * w2, w2, p)))
 
 
-@implements(discrete_power, StokesDiagonal)
+@discrete_power.register(StokesDiagonal)
 def _diag_discrete_power(term, inertia, h, x, p):
     x0, x1, x2 = x
     return madd(term.C1 * x0, x0, madd(term.C2 * x1, x1, madd(term.C3 * x2, x2, p)))
 
 
-@implements(linear_friction, StokesDiagonal)
+@linear_friction.register(StokesDiagonal)
 def _diag_linear(term, c):
     c0, c1, c2 = c
     return cadd(term.C1, c0), cadd(term.C2, c1), cadd(term.C3, c2)
@@ -115,13 +115,13 @@ def _friction_flow(term, inertia, t, m0, m1, m2, q):
     return (fma(-m0, d0, m0), fma(-m1, d1, m1), fma(-m2, d2, m2)), q + dK
 
 
-@implements(exact_flow, StokesSphere)
+@exact_flow.register(StokesSphere)
 def _sphere_flow(term, inertia, t, G, m, q):
     m0, m1, m2 = m
     return _friction_flow(term, inertia, t, m0, m1, m2, q)
 
 
-@implements(exact_flow, StokesDiagonal)
+@exact_flow.register(StokesDiagonal)
 def _diag_flow(term, inertia, t, G, m, q):
     m0, m1, m2 = m
     return _friction_flow(term, inertia, t, m0, m1, m2, q)

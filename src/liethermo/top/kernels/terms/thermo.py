@@ -42,10 +42,10 @@ import math
 from collections import namedtuple
 
 import numpy as np
-from numba.extending import overload
 
-from .._jit import LANE_OPTIONS, fma, lane
-from ..gen import is_none, overload_by_capability
+from .._jit import fma, lane
+from ..dispatch import capability, generic, is_present, term_class
+from ..gen import is_none
 from ..lanemath import exp_lane
 
 #: |σ/c_v| up to which 1/T(σ) is its cubic Taylor polynomial
@@ -118,12 +118,14 @@ def coefficients_wide(heat_capacity: np.ndarray, T0: np.ndarray, reach: np.ndarr
     return np.column_stack([base, sc] + f)
 
 
-def _inverse_temperature_poly(th, s):
+@generic(capability("wide_inverse_temperature"))
+def inverse_temperature_poly(th, s):
     """(1/T(σ), valid): the cubic about 0."""
     return fma(s, fma(s, fma(s, th.e3, th.e2), th.e1), th.e0), abs(s) <= th.smax
 
 
-def _inverse_temperature_wide(th, s):
+@inverse_temperature_poly.register(True)
+def inverse_temperature_wide(th, s):
     """(1/T(σ), valid): the degree-8 polynomial about σ_c, by Estrin's scheme
     (a dependency chain of 5 operations instead of Horner's 8)."""
     x = s - th.sc
@@ -132,10 +134,6 @@ def _inverse_temperature_wide(th, s):
     b0 = fma(x2, fma(x, th.f3, th.f2), fma(x, th.f1, th.f0))
     b1 = fma(x2, fma(x, th.f7, th.f6), fma(x, th.f5, th.f4))
     return fma(x4, fma(x4, th.f8, b1), b0), abs(x) <= th.smax
-
-
-inverse_temperature_poly = overload_by_capability(_inverse_temperature_poly, "wide_inverse_temperature",
-                                                  _inverse_temperature_wide)
 
 
 @lane
@@ -170,61 +168,58 @@ def log1p_small(x, exact):
     return L, small
 
 
+def _heat_key(thermo, P) -> str:
+    """What an entropy update has to do: "none" without thermodynamics,
+    "still" when nothing dissipates (P is None), else "heat"."""
+    if is_none(thermo):
+        return "none"
+    return "heat" if is_present(P) else "still"
+
+
+@generic(_heat_key, arg=(0, 1))
 def entropy_rate(thermo, P, s, exact):
     """(σ̇, small) = (P/T(σ), small) in J K⁻¹ s⁻¹; (None, True) without thermodynamics."""
-    if thermo is None:
-        return None, True
-    if P is None:
-        return 0.0 * s, True
+    return None, True
+
+
+@entropy_rate.register("still")
+def entropy_rate_still(thermo, P, s, exact):
+    return 0.0 * s, True
+
+
+@entropy_rate.register("heat")
+def entropy_rate_heat(thermo, P, s, exact):
     f, small = inverse_temperature(thermo, s, exact)
     return P * f, small
 
 
-@overload(entropy_rate, jit_options=LANE_OPTIONS)
-def _entropy_rate(thermo, P, s, exact):
-    if is_none(thermo):
-        return lambda thermo, P, s, exact: (None, True)
-    if is_none(P):  # nothing dissipates: σ stays
-        return lambda thermo, P, s, exact: (0.0 * s, True)
-
-    def impl(thermo, P, s, exact):
-        f, small = inverse_temperature(thermo, s, exact)
-        return P * f, small
-
-    return impl
+def _update_key(thermo, mode, P):
+    """:func:`_heat_key`, and with heat the class of the update ``mode``."""
+    k = _heat_key(thermo, P)
+    return term_class(mode) if k == "heat" else k
 
 
+@generic(_update_key, arg=(0, 1, 3))
 def entropy_step(thermo, mode, h, P, s, exact):
     """(σ', small): the variational integrator's entropy update over a step
-    of size h dissipating P (explicit or symmetric, by the type of ``mode``)."""
-    if thermo is None:
-        return None, True
-    if P is None:
-        return s, True
+    of size h dissipating P (explicit or symmetric, by the type of ``mode``);
+    (None, True) without thermodynamics."""
+    return None, True
+
+
+@entropy_step.register("still")
+def entropy_step_still(thermo, mode, h, P, s, exact):
+    return s, True
+
+
+@entropy_step.register(Explicit)
+def entropy_step_explicit(thermo, mode, h, P, s, exact):
     f, small = inverse_temperature(thermo, s, exact)
-    if isinstance(mode, Explicit):
-        return fma(h, P * f, s), small
+    return fma(h, P * f, s), small
+
+
+@entropy_step.register(Symmetric)
+def entropy_step_symmetric(thermo, mode, h, P, s, exact):
+    f, small = inverse_temperature(thermo, s, exact)
     L, small2 = log1p_small(((h * P) * f) * thermo.icv, exact)
     return fma(thermo.cv, L, s), small & small2
-
-
-@overload(entropy_step, jit_options=LANE_OPTIONS)
-def _entropy_step(thermo, mode, h, P, s, exact):
-    if is_none(thermo):
-        return lambda thermo, mode, h, P, s, exact: (None, True)
-    if is_none(P):
-        return lambda thermo, mode, h, P, s, exact: (s, True)
-    if getattr(mode, "instance_class", None) is Explicit:
-        def impl(thermo, mode, h, P, s, exact):
-            f, small = inverse_temperature(thermo, s, exact)
-            return fma(h, P * f, s), small
-
-        return impl
-    if getattr(mode, "instance_class", None) is Symmetric:
-        def impl(thermo, mode, h, P, s, exact):
-            f, small = inverse_temperature(thermo, s, exact)
-            L, small2 = log1p_small(((h * P) * f) * thermo.icv, exact)
-            return fma(thermo.cv, L, s), small & small2
-
-        return impl
-    return None
