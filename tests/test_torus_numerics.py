@@ -16,6 +16,15 @@ from liethermo.torus import step as ts
 from torus_reference import PseudoSpectral, section7_modes
 
 
+@pytest.fixture(autouse=True)
+def one_blas_thread():
+    """As a run does: the small matrices' LAPACK calls on one thread (pools cost more than they give)."""
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=1):
+        yield
+
+
 def modes(N, d):
     """A real field's modes from {m: f_m} (the conjugates at −m added)."""
     f = np.zeros((1, N, N), complex)

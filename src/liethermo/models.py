@@ -378,7 +378,7 @@ def unregister(name: str) -> None:
 
 #: the modules that register the built-in models, imported on first need (when a
 #: scene is loaded); each is light and registers one model
-MODEL_MODULES = ("liethermo.top.model", "liethermo.zeitlin.model")
+MODEL_MODULES = ("liethermo.top.model", "liethermo.zeitlin.model", "liethermo.torus.model")
 
 
 def models() -> list[Model]:

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import functools
 import math
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -402,16 +403,20 @@ STATUS_MEANINGS = {0: "ok", 1: "fixed_point_not_converged", 2: "non_finite", 3: 
 
 
 def _cayley(p, b: Basis):
-    """A = (I − p)⁻¹ and C = A(I + p) of a skew-Hermitian batch p."""
+    """A = (I − p)⁻¹ and C = A(I + p) = 2A − I of a skew-Hermitian batch p."""
     A = b.xp.linalg.inv(b.eye - p)
-    return A, A + A @ p
+    return A, 2.0 * A - b.eye
 
 
-def _coadjoint(W, S, A, C, p, bS, b: Basis):
+def _conjugate(C, X):
+    """C X C† (Hermitian part)."""
+    return herm(C @ X @ dagger(C))
+
+
+def _coadjoint(W, S, A, C, bS, b: Basis):
     """S′ = CSC†, W′ = CWC† + [Z, S′], Z = 2AbA† (b = ``bS``, None at α = 0)."""
-    Cd = dagger(C)
-    S1 = herm(C @ S @ Cd)
-    W1 = C @ W @ Cd
+    S1 = _conjugate(C, S)
+    W1 = C @ W @ dagger(C)
     if bS is not None:
         Z = 2.0 * (A @ bS @ dagger(A))
         W1 = W1 + comm(Z, S1)
@@ -447,13 +452,14 @@ def ideal_step(W, S, h: float, alpha: float, b: Basis, *, kind: str = "cmp", tol
     act = np.arange(Mm)
     A_out = xp.empty_like(W)
     C_out = xp.empty_like(W)
-    p_out = xp.empty_like(W)
     while act.size:
-        Wa, Sa, Xa = W[act], S[act], X[act]
+        Wa, Xa = W[act], X[act]
+        Sa = S[act] if bS is not None else None
         if kind == "cmp":
             p = laplacian_inverse(0.5 * (Wa + Xa), b, 1.0) * sc
             A, C = _cayley(p, b)
-            Xn, _ = _coadjoint(Wa, Sa, A, C, p, bS, b)
+            # at α = 0 W′ does not depend on S: S is conjugated once, after the fixed point
+            Xn = _conjugate(C, Wa) if bS is None else _coadjoint(Wa, Sa, A, C, bS, b)[0]
         else:
             p = laplacian_inverse(Xa, b, 1.0) * sc
             A, C = _cayley(p, b)
@@ -467,7 +473,7 @@ def ideal_step(W, S, h: float, alpha: float, b: Basis, *, kind: str = "cmp", tol
         th_a = np.asarray(_to_host(thresh[act]))
         its[act] += 1
         X[act] = Xn
-        A_out[act], C_out[act], p_out[act] = A, C, p
+        A_out[act], C_out[act] = A, C
         done = (ch <= th_a) | ((its[act] >= 3) & (ch >= last[act]))
         bad = ~np.isfinite(ch)
         out = its[act] >= max_iter
@@ -476,10 +482,8 @@ def ideal_step(W, S, h: float, alpha: float, b: Basis, *, kind: str = "cmp", tol
         act = act[~(done | out | bad)]
     if kind == "cmp":
         # the last iterate is already the coadjoint update of the last p
-        Cd = dagger(C_out)
-        S1 = herm(C_out @ S @ Cd)
-        return X, S1, its, failed, X - W
-    W1, S1 = _coadjoint(W, S, A_out, C_out, p_out, bS, b)
+        return X, _conjugate(C_out, S), its, failed, X - W
+    W1, S1 = _coadjoint(W, S, A_out, C_out, bS, b)
     return W1, S1, its, failed, X - W
 
 
@@ -573,65 +577,69 @@ class ConductionCount:
 
     substeps: int = 0
     rejected: int = 0
+    seconds: float = 0.0  # time spent in conduction steps
 
 
 def conduction_step(S, tau: float, th: Thermo, b: Basis, count: ConductionCount | None = None):
     """C(τ) of one member (S of shape (1, N, N); W is fixed): explicit midpoint sub-steps of
     Ṡ = κΘ⁻¹∘L′Θ, each followed by the energy shift S + μI (U unchanged) and accepted iff
     Θ ≻ 0 and tr S does not fall; a rejected sub-step is halved."""
-    xp = b.xp
     if th.kappa == 0.0 or tau == 0.0:
         return S
     count = count if count is not None else ConductionCount()
-    lam = xp.linalg.eigvalsh(S)
-    Th, _ = theta(S, th, b)
-    ltmin = float(xp.linalg.eigvalsh(Th).min())
+    t0 = time.perf_counter()
+    try:
+        return _conduction(S, tau, th, b, count)
+    finally:
+        count.seconds += time.perf_counter() - t0
+
+
+def _conduction(S, tau, th: Thermo, b: Basis, count: ConductionCount):
+    lam = b.xp.linalg.eigvalsh(S)
+    F, ltmin = _conduction_field(S, th, b)
     if not ltmin > 0:
         raise SubstepFailure(STATUS_THETA, "Θ is not positive definite before the conduction step")
     Tmax = th.T0 * math.exp(float(lam.max()) / th.c)
     tau_s = 1.8 * th.c * ltmin / (th.kappa * b.Lambda * Tmax)
     n = max(1, math.ceil(tau / tau_s))
     delta = tau / n
+    U0 = float(U(S, th, b, lam)[0])  # every sub-step keeps it: the energy shift restores it exactly
     for _ in range(n):
-        S = _conduction_substep(S, delta, th, b, count, tau)
+        S, F = _conduction_substep(S, F, U0, delta, th, b, count, tau)
     return S
 
 
-def _conduction_substep(S, delta, th: Thermo, b: Basis, count: ConductionCount, tau: float):
+def _conduction_substep(S, F0, U0: float, delta, th: Thermo, b: Basis, count: ConductionCount, tau: float):
+    """One accepted sub-step δ (or two of δ/2, recursively) from S with F0 = F(S): (S′, F(S′))."""
     xp = b.xp
     if delta < 1e-12 * tau:
         raise SubstepFailure(STATUS_SUBSTEP, f"a conduction sub-step was halved below 1e-12 of τ = {tau:g} s")
 
-    def halve(S):
+    def halve():
         count.rejected += 1
-        S = _conduction_substep(S, 0.5 * delta, th, b, count, tau)
-        return _conduction_substep(S, 0.5 * delta, th, b, count, tau)
+        S1, F1 = _conduction_substep(S, F0, U0, 0.5 * delta, th, b, count, tau)
+        return _conduction_substep(S1, F1, U0, 0.5 * delta, th, b, count, tau)
 
-    F0, lt0 = _conduction_field(S, th, b)
-    if not lt0 > 0:
-        raise SubstepFailure(STATUS_THETA, "Θ lost positivity in conduction")
-    Smid = S + 0.5 * delta * F0
-    Fm, ltm = _conduction_field(Smid, th, b)
+    Fm, ltm = _conduction_field(S + 0.5 * delta * F0, th, b)
     if not ltm > 0:
-        return halve(S)
+        return halve()
     Sp = herm(S + delta * Fm)
-    U0 = float(U(S, th, b)[0])
     num = U0 + th.alpha * b.area * float(trace_product(b.Phi, Sp)[0])
     den = float(internal(Sp, th, b)[0])
     if not (num > 0 and den > 0):
-        return halve(S)
-    mu = th.c * math.log(num / den)
-    S1 = Sp + mu * b.eye
+        return halve()
+    S1 = Sp + (th.c * math.log(num / den)) * b.eye
+    F1, lt1 = _conduction_field(S1, th, b)  # Θ(S′)'s eigenvalues: the acceptance test, and the next F
+    if not lt1 > 0:
+        return halve()
     tr0, tr1 = float(trace(S).real[0]), float(trace(S1).real[0])
-    if not _posdef(theta(S1, th, b)[0], b):
-        return halve(S)
     if tr1 < tr0:
         if tr0 - tr1 <= 64 * EPS_MACH * (float(xp.abs(S.diagonal(axis1=-2, axis2=-1).real).sum()) + 1.0):
-            count.substeps += 1
-            return S
-        return halve(S)
+            count.substeps += 1  # at equilibrium: the entropy differences are below round-off
+            return S, F0
+        return halve()
     count.substeps += 1
-    return S1
+    return S1, F1
 
 
 # ----------------------------------------------------------------------------- helpers for states
