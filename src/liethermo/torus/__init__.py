@@ -8,8 +8,8 @@ and buoyancy: the third model (a scene with a ``[torus]`` table).
 * :mod:`.plotting` — maps of ω, T and Θ, the energy budget, the animation.
 
 ``vorticity_modes(ds)`` gives a run's stored vorticity as its Fourier modes ω_m.
-The model, the scheme and what each method keeps: docs/model.md, "The fluid on
-the torus".
+The model, the scheme and what each method keeps:
+docs/model.md, "The fluid on the torus".
 """
 
 

@@ -11,7 +11,8 @@ A member's state is (W, S).  The methods:
   (``integrator.composition``), at ν = κ = 0 only;
 * ``rk4`` — classical Runge–Kutta 4 on the continuous right-hand side
   (:func:`.kernels.rhs_thermo`);
-* ``reference`` — the same with ``integrator.substeps`` sub-steps per step.
+* ``reference`` — DOP853 (scipy) at rtol :data:`REFERENCE_RTOL` on the same right-hand
+  side, per member, restarted at every step (any h).
 
 The member bookkeeping (statuses, the members that leave, the outputs) is the
 shared :func:`liethermo.numerics.matrix_flow.run_members`; the fixed point's
@@ -26,6 +27,7 @@ from ..numerics import matrix_flow as mf
 from ..numerics.compositions import COMPOSITION_FACTORS
 from . import kernels as tk
 
+REFERENCE_RTOL = 1e-12
 IDEAL = {"cmp": "cmp", "magmp": "magmp", "isomp": "magmp"}
 METHODS = ("cmp", "magmp", "isomp", "cmp4", "magmp4", "isomp4", "rk4", "reference")
 
@@ -100,12 +102,34 @@ def strang_step(W, S, h: float, th: tk.Thermo, b: tk.Basis, *, method: str, comp
     return W, S, its, status
 
 
-def rk4_step(W, S, h: float, th: tk.Thermo, b: tk.Basis, substeps: int = 1):
-    """``substeps`` classical RK4 steps of h/substeps on the continuous right-hand side."""
-    y = (W, S)
-    for _ in range(substeps):
-        y = mf.rk4(lambda z: tk.rhs_thermo(z[0], z[1], th, b), y, h / substeps)
-    return y
+def rk4_step(W, S, h: float, th: tk.Thermo, b: tk.Basis):
+    """One classical RK4 step on the continuous right-hand side."""
+    return mf.rk4(lambda z: tk.rhs_thermo(z[0], z[1], th, b), (W, S), h)
+
+
+def reference_step(W, S, h: float, th: tk.Thermo, b: tk.Basis):
+    """DOP853 over h per member at rtol REFERENCE_RTOL; status 2 where it fails."""
+    from scipy.integrate import solve_ivp
+
+    N = b.N
+    W, S = W.copy(), S.copy()
+    status = np.zeros(W.shape[0], dtype=np.int8)
+
+    def f(t, y):
+        z = y.view(np.complex128).reshape(2, 1, N, N)
+        dW, dS = tk.rhs_thermo(z[0], z[1], th, b)
+        return np.concatenate([dW.ravel(), dS.ravel()]).view(np.float64)
+
+    for i in range(W.shape[0]):
+        y0 = np.concatenate([W[i].ravel(), S[i].ravel()]).view(np.float64)
+        atol = REFERENCE_RTOL * max(np.abs(y0).max(), 1e-300)
+        sol = solve_ivp(f, (0.0, h), y0, method="DOP853", rtol=REFERENCE_RTOL, atol=atol, t_eval=[h])
+        if not sol.success:
+            status[i] = tk.STATUS_NON_FINITE
+            continue
+        z = sol.y[:, -1].copy().view(np.complex128).reshape(2, N, N)
+        W[i], S[i] = tk.herm(z[0]), tk.herm(z[1])
+    return W, S, status
 
 
 def theta_status(S, th: tk.Thermo, b: tk.Basis, status: np.ndarray) -> np.ndarray:
@@ -118,7 +142,7 @@ def theta_status(S, th: tk.Thermo, b: tk.Basis, status: np.ndarray) -> np.ndarra
 
 
 def drive(W0, S0, record, *, th: tk.Thermo, b: tk.Basis, method: str, composition: str = "triple_jump",
-          h: float, steps: int, every: int, tol: float = 1e-14, max_iter: int = 100, substeps: int = 8,
+          h: float, steps: int, every: int, tol: float = 1e-14, max_iter: int = 100,
           budget_members: int | None = None, bar=None, check_stop=None, count=None):
     """Run the members (W0, S0) ``steps`` steps; ``record(j, members, (W, S))`` at every
     ``every``-th step.  Returns (iterations (members, outputs), status, failed_step)."""
@@ -134,10 +158,12 @@ def drive(W0, S0, record, *, th: tk.Thermo, b: tk.Basis, method: str, compositio
 
     def step(state, k, act):
         W, S = state
-        if kind is None:
-            W, S = rk4_step(W, S, h, th, b, substeps if method == "reference" else 1)
+        its = np.zeros(W.shape[0])
+        if method == "reference":
+            W, S, st = reference_step(W, S, h, th, b)
+        elif method == "rk4":
+            W, S = rk4_step(W, S, h, th, b)
             st = np.zeros(W.shape[0], dtype=np.int8)
-            its = np.zeros(W.shape[0])
         else:
             W, S, its, st = strang_step(W, S, h, th, b, method=method, composition=composition, tol=tol,
                                         max_iter=max_iter, predictor=predictor, active=act, count=count)
