@@ -13,7 +13,7 @@ import pytest
 
 from liethermo.torus import kernels as tk
 from liethermo.torus import step as ts
-from torus_reference import PseudoSpectral, section7_modes
+from liethermo.torus.pseudospectral import PseudoSpectral, section7_modes
 
 
 @pytest.fixture(autouse=True)

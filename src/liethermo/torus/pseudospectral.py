@@ -1,7 +1,8 @@
 """A continuum reference for the torus fluid: a dealiased pseudo-spectral solver of
 ω_t = {ω, ψ} + νΔω on [0, 2π)², ψ = Δ⁻¹ω, {f, g} = f_x g_y − f_y g_x (numpy FFTs,
-2/3 rule, classical RK4).  Independent of liethermo: it shares no code with the
-sine bracket, so agreement in N is a check from outside the model's convention.
+2/3 rule, classical RK4).  It imports nothing of the model and shares no code with
+the sine bracket, so agreement in N is a check from outside the model's convention
+(tests/test_torus_numerics.py, the torus_resolution study).
 
 Fields are given and returned as Fourier coefficients f̂[m₁ mod n, m₂ mod n] of
 f = Σ f̂_m e^{i(m₁x + m₂y)} (the torus model's layout)."""
