@@ -140,11 +140,19 @@ class BaseSummary:
                f"steps, h = {self.h:g} s",
                f"  wall time {self.wall_time:.3g} s (simulating and writing), kernels {k:.3g} s"]
         out += self.body()
-        if self.resumed_members:
-            out.append(f"  resumed: members 0-{self.resumed_members - 1} came from the interrupted run")
-        if self.path is not None:
-            out.append(f"  wrote {self.path}")
-        return out
+        return out + closing_lines(self.resumed_members, self.path)
+
+
+def closing_lines(resumed_members: int, path, resumed_note: str = "") -> list[str]:
+    """A summary's last lines: the members a resumed run took from the interrupted one
+    (``resumed_note``: what that means for the figures above) and the file written."""
+    out = []
+    if resumed_members:
+        out.append(f"  resumed: members 0-{resumed_members - 1} came from the interrupted run"
+                   + (f" ({resumed_note})" if resumed_note else ""))
+    if path is not None:
+        out.append(f"  wrote {path}")
+    return out
 
 
 def basic_setup(scene, history: str | None, title: str, summary=BaseSummary, **attrs) -> tuple[dict, Any]:

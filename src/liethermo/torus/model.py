@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..models import MethodInfo, Model, StudyDefaults, register
+from ..models import MethodInfo, Model, StudyDefaults, closing_lines, register
 
 
 def _max(a) -> float:
@@ -121,12 +121,7 @@ class TorusSummary:
         if st.failed:
             why = ", ".join(f"{v} {k}" for k, v in st.status.items() if k != "ok" and v)
             out.append(f"  {st.failed} member(s) stopped ({why}): see status and failed_step")
-        if self.resumed_members:
-            out.append(f"  resumed: members 0-{self.resumed_members - 1} came from the interrupted run "
-                       "(not in the stepping time above)")
-        if self.path is not None:
-            out.append(f"  wrote {self.path}")
-        return out
+        return out + closing_lines(self.resumed_members, self.path, "not in the stepping time above")
 
 
 @dataclass

@@ -5,7 +5,6 @@ labelled dataset.  Runs with an output go through the common runner
 from __future__ import annotations
 
 import math
-import platform
 import time as _time
 from dataclasses import dataclass, field
 
@@ -14,7 +13,7 @@ import xarray as xr
 
 from .. import cf
 from ..faults import check_stop
-from ..version import __version__
+from ..numerics.fluid_outputs import provenance, run_variables
 from . import kernels as tk
 from . import step as ts
 from .kernels import STATUS_MEANINGS
@@ -279,13 +278,7 @@ def trajectory_dataset(scene, traj: Trajectory, method: str, member_offset: int 
         "temperature_max": _var(r.temperature_max, dims_t, "K", "largest temperature T"),
         "casimir": _var(r.cas, dims_t + ("k",), "1", "Casimir C_k",
                         comment="C_k = (4π²/N) tr W^k ≈ ∫ω^k dA (unit m2 s-k); conserved at ν = 0 and α = 0"),
-        "fixed_point_iterations": _var(traj.iterations, dims_t, "1", "fixed-point iterations",
-                                       comment="mean per step over the output interval (0 for rk4 and reference)"),
-        "status": _var(traj.status, ("member",), "1", "member status",
-                       flag_values=np.array(sorted(STATUS_MEANINGS), dtype=np.int8),
-                       flag_meanings=" ".join(STATUS_MEANINGS[k] for k in sorted(STATUS_MEANINGS))),
-        "failed_step": _var(traj.failed_step, ("member",), "1", "step that failed",
-                            comment="the step at which the member stopped (-1: none); later values are NaN"),
+        **run_variables(traj.iterations, traj.status, traj.failed_step, STATUS_MEANINGS, dims_t),
     }
     how = ("W = Σ ω_m T_m (clock-and-shift basis T_m); liethermo.torus.vorticity_modes(ds) gives ω_m in s-1")
     dims_w = dims_t + ("row", "col")
@@ -311,7 +304,6 @@ def trajectory_dataset(scene, traj: Trajectory, method: str, member_offset: int 
 def run_attrs(scene, method: str, history: str | None = None) -> dict:
     N = int(scene["torus"]["N"])
     itg = scene["integrator"]
-    created = cf.timestamp()
     return {
         "Conventions": cf.CONVENTIONS,
         "title": "liethermo ensemble: Zeitlin's sine-bracket fluid on the torus with heat",
@@ -323,12 +315,7 @@ def run_attrs(scene, method: str, history: str | None = None) -> dict:
         "hbar": 4 * math.pi / N,
         "h": float(itg["h"]),
         "h_units": "s",
-        "scene": scene.to_toml(),
-        "software": f"liethermo {__version__}",
-        "software_version": __version__,
-        "python": platform.python_version(),
-        "created": created,
-        "history": cf.history_entry(history or f"liethermo {__version__}", created),
+        **provenance(scene, history),
         "references": "Zeitlin (1991); Fairlie, Fletcher & Zachos (1989); McLachlan (1993); Modin & Roop (2023); "
                       "liethermo docs/model.md, the fluid on the torus",
     }

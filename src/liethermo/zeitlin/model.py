@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..models import MethodInfo, Model, StudyDefaults, register
+from ..models import MethodInfo, Model, StudyDefaults, closing_lines, register
 
 #: a run of at least this N is timed before it starts (its basis alone takes seconds)
 ANNOUNCE_N = 256
@@ -131,12 +131,7 @@ class FluidSummary:
             out.append(f"  fixed-point iterations per step: mean {st.its_sum / st.its_n:.2f}, max {st.its_max:.2f}")
         if st.failed:
             out.append(f"  {st.failed} member(s) failed: see status and failed_step")
-        if self.resumed_members:
-            out.append(f"  resumed: members 0-{self.resumed_members - 1} came from the interrupted run "
-                       "(not in the stepping time above)")
-        if self.path is not None:
-            out.append(f"  wrote {self.path}")
-        return out
+        return out + closing_lines(self.resumed_members, self.path, "not in the stepping time above")
 
 
 @dataclass

@@ -13,8 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..bands import (Band, completed, draw_band, ensemble_band, legend_beside, member_band,  # noqa: F401
-                     sample_times, save, series)
+from ..bands import completed, ensemble_band, legend_beside, sample_times, save, series
 from . import kernels as zk
 
 

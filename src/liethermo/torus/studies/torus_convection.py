@@ -27,7 +27,7 @@ def predicted_end(H0: float, N: int, c: float, T0: float, alpha: float) -> dict:
     theta = brentq(lambda x: energy(x) - H0, lo, max(10 * H0 / (4 * math.pi**2 * c), 10 * T0) + 10 * alpha,
                    xtol=1e-15, rtol=1e-15)
     return {"theta": theta, "S_tot": area * c * float(np.sum(np.log((theta + alpha * phi) / T0))),
-            "T_min": theta - alpha, "T_max": theta + alpha}
+            "T_min": theta + alpha * float(phi.min()), "T_max": theta + alpha * float(phi.max())}
 
 
 def relax(ctx, coords) -> xr.Dataset:
@@ -58,8 +58,8 @@ QUANTITIES = {
     "entropy_from_rate": ("J K-1", "S_tot(0) + the trapezoid integral of the rate formula"),
     "predicted_theta": ("K", "θ∞ of the rest state with the initial energy"),
     "predicted_entropy": ("J K-1", "S_tot of that rest state (the largest at that energy)"),
-    "predicted_temperature_min": ("K", "θ∞ − α: the rest state's coldest T (at Φ = 1)"),
-    "predicted_temperature_max": ("K", "θ∞ + α: its warmest T (at Φ = −1)"),
+    "predicted_temperature_min": ("K", "θ∞ + α min eig Φ: the rest state's coldest T"),
+    "predicted_temperature_max": ("K", "θ∞ + α max eig Φ: its warmest T"),
     "conduction_substeps": ("1", "conduction sub-steps of the run"),
     "kernel_time": ("s", "the run's stepping time"),
 }
@@ -140,7 +140,7 @@ def draw(ds, ctx, fig):
     b.plot(t, ds["theta_max"] - ds["theta_min"], color="C1", label="Θ max − min")
     b.plot(t, ds["temperature_max"] - ds["temperature_min"], color="C3", label="T max − min")
     b.axhline(float(ds["predicted_temperature_max"] - ds["predicted_temperature_min"]), color="C3", ls=":",
-              label="predicted T max − min at rest (2α)")
+              label="predicted T max − min at rest")
     b.set(xlabel="t (s)", ylabel="spread (K)", title="Θ becomes uniform, T stratified")
     b.legend(fontsize=8)
     return [a, b]
