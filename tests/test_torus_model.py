@@ -130,3 +130,12 @@ def test_torus_convection_writes_its_file_and_figures(tmp_path):
                 "integrator.steps=40", "--set", "output.theta_map=true"]) == 0
     names = sorted(p.name for p in tmp_path.iterdir())
     assert names == ["c.nc", "c_budget.png", "c_maps.png"], names
+
+
+def test_an_animation_on_request(tmp_path):
+    from liethermo.cli import main as cli
+
+    assert cli(["run", "torus_convection", "-o", str(tmp_path / "a.nc"), "--no-progress", "--set", "torus.N=9",
+                "--set", "integrator.steps=8", "--set", "output.every=2", "--set", "output.animation=true"]) == 0
+    anim = [p for p in tmp_path.iterdir() if p.stem == "a_animation"]
+    assert len(anim) == 1 and anim[0].suffix in (".gif", ".mp4") and anim[0].stat().st_size > 1000
