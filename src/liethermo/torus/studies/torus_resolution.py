@@ -130,7 +130,7 @@ STUDY = Study(
     options=(Option("method", "rk4", "one of cmp|isomp|rk4", "", "the method run"),
              Option("h", 2.5e-3, "number>0", "s", "time step (small: the error in N must dominate)"),
              Option("t_end", 1.0, "number>0", "s", "end time"),
-             Option("nu", 0.0, "number>=0", "m2 s-1", "viscosity"),
+             Option("nu", 0.0, "number>=0", "m2 s-1", "kinematic viscosity ν"),
              Option("reference_n", 192, "int>=3", "1", "the pseudo-spectral grid (modes |k| < n/3 kept)"),
              Option("reference_dt", 2.5e-3, "number>0", "s", "the pseudo-spectral RK4 step")),
     check=_check,
