@@ -245,3 +245,48 @@ def interrupt_at_chunk(monkeypatch, k: int):
 
     monkeypatch.setattr(lr, "run_chunk", chunk)
     return calls
+
+
+def kill_and_resume(tmp_path: Path, args: list[str], chunks: int = 3, name: str = "z.nc"):
+    """Run ``liethermo`` ``args`` (a command line without ``-o``) to ``tmp_path/name``
+    as a reference, then again, killed with SIGKILL once ``chunks`` member chunks
+    are in its journal, and resumed.  Returns (the resumed output, the reference
+    made at the same path, the resumed run's stdout); ``tmp_path`` then holds
+    ``ref/<name>`` (the reference), ``ref.nc`` (a first run) and ``<name>``."""
+    import json
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    cli = [sys.executable, "-m", "liethermo.cli"]
+    ref = tmp_path / "ref" / name
+    out = tmp_path / name
+    r = subprocess.run(cli + args + ["-o", str(ref)], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    ref.rename(tmp_path / "ref.nc")  # same_but_created compares the command too: run both at out's path
+    r = subprocess.run(cli + args + ["-o", str(out)], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    out.rename(ref)
+    p = subprocess.Popen(cli + args + ["-o", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 120
+    journal = None
+    while time.time() < deadline:  # once `chunks` member chunks are in the journal
+        js = list(tmp_path.glob(f".{name}.*.tmp.json"))
+        if js:
+            try:
+                if len(json.loads(js[0].read_text())["chunks"]) >= chunks:
+                    journal = js[0]
+                    break
+            except (OSError, ValueError):
+                pass
+        assert p.poll() is None, p.communicate()
+        time.sleep(0.005)
+    assert journal is not None
+    os.kill(p.pid, signal.SIGKILL)
+    p.communicate()
+    assert not out.exists()
+    r = subprocess.run(cli + args + ["-o", str(out), "--resume"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    return out, ref, r.stdout

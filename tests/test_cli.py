@@ -435,9 +435,11 @@ def test_help_describes_both_models_and_lists_every_builtin_scene(capsys):
     with pytest.raises(SystemExit):
         main(["run", "--help"])
     text = " ".join(capsys.readouterr().out.split())
-    fluid = text[text.index("the Zeitlin fluid:"):]
+    fluid = text[text.index("the Zeitlin fluid:"):text.index("the fluid on the torus:")]
+    torus = text[text.index("the fluid on the torus:"):]
     for name in builtin_scenes():
         assert name in text and (name in fluid) == name.startswith("zeitlin"), name
+        assert (name in torus) == name.startswith("torus"), name
 
 
 def test_check_warns_of_an_output_conflict_and_still_estimates(tmp_path, capsys):

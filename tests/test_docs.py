@@ -72,11 +72,14 @@ def test_scenes_md_lists_every_key_and_builtin_scene():
     """Each key appears once, in its section's table, with its unit and its
     default; each built-in scene with its description; table rows have as many
     cells as their header."""
+    from liethermo.torus.scene import KEYS as TKEYS
     from liethermo.zeitlin.scene import KEYS as ZKEYS
 
     full = scenes_markdown()
     cut = full.index("## Keys of a Zeitlin fluid")
-    for keys, text, heading in ((KEYS, full[:cut], "### ["), (ZKEYS, full[cut:], "### zeitlin scene: [")):
+    cut2 = full.index("## Keys of a torus fluid")
+    for keys, text, heading in ((KEYS, full[:cut], "### ["), (ZKEYS, full[cut:cut2], "### zeitlin scene: ["),
+                                (TKEYS, full[cut2:], "### torus scene: [")):
         for k in keys:
             rows = [line for line in text.splitlines() if line.startswith(f"| `{k.path}` |")]
             assert len(rows) == 1, k.path

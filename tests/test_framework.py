@@ -156,4 +156,4 @@ def test_one_study_file_runs_on_a_scene_of_either_model(tmp_path, capsys):
     bad = tmp_path / "bad.toml"
     bad.write_text('methods = ["rk4"]\n[study]\nkind = "convergence"\n[model.fluid.options]\nh0 = 1.0\n')
     assert main(["study", str(bad), "-o", str(tmp_path / "o"), "--no-progress"]) == 2
-    assert "model.fluid: must be a table named after a model (top, zeitlin)" in capsys.readouterr().err
+    assert "model.fluid: must be a table named after a model (top, zeitlin, torus)" in capsys.readouterr().err

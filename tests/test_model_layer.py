@@ -5,12 +5,8 @@ the command line."""
 
 from __future__ import annotations
 
-import os
 import re
-import signal
-import subprocess
 import sys
-import time
 from pathlib import Path
 
 import netCDF4
@@ -21,6 +17,7 @@ import liethermo
 from liethermo.cli import main
 from liethermo.runner import run_scene
 from liethermo.scene import SceneError, load_scene
+from conftest import kill_and_resume
 from ncsame import same_but_created
 
 CLI = [sys.executable, "-m", "liethermo.cli"]
@@ -114,39 +111,8 @@ def test_fluid_check_says_disk_memory_and_time(tmp_path, capsys):
 
 def test_a_fluid_run_killed_and_resumed_gives_the_same_file(tmp_path):
     over = FLUID + ["zeitlin.N=16", "integrator.steps=400", "output.every=40", "output.member_chunk=2"]
-    ref = tmp_path / "ref" / "z.nc"
-    out = tmp_path / "z.nc"
-    args = ["run", "zeitlin_decay", "--no-progress", *_sets(over)]
-    r = subprocess.run(CLI + args + ["-o", str(ref)], capture_output=True, text=True)
-    assert r.returncode == 0, r.stderr
-    ref_moved = tmp_path / "ref.nc"
-    ref.rename(ref_moved)  # same_but_created compares the command too: run both at out's path
-    r = subprocess.run(CLI + args + ["-o", str(out)], capture_output=True, text=True)
-    assert r.returncode == 0, r.stderr
-    out.rename(ref)
-    p = subprocess.Popen(CLI + args + ["-o", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    deadline = time.time() + 120
-    journal = None
-    while time.time() < deadline:  # once three member chunks are in the journal
-        js = list(tmp_path.glob(".z.nc.*.tmp.json"))
-        if js:
-            try:
-                import json
-
-                if len(json.loads(js[0].read_text())["chunks"]) >= 3:
-                    journal = js[0]
-                    break
-            except (OSError, ValueError):
-                pass
-        assert p.poll() is None, p.communicate()
-        time.sleep(0.005)
-    assert journal is not None
-    os.kill(p.pid, signal.SIGKILL)
-    p.communicate()
-    assert not out.exists()
-    r = subprocess.run(CLI + args + ["-o", str(out), "--resume"], capture_output=True, text=True)
-    assert r.returncode == 0, r.stderr
-    assert re.search(r"resumed: members 0-\d+ came from the interrupted run", r.stdout), r.stdout
+    out, ref, stdout = kill_and_resume(tmp_path, ["run", "zeitlin_decay", "--no-progress", *_sets(over)])
+    assert re.search(r"resumed: members 0-\d+ came from the interrupted run", stdout), stdout
     assert sorted(q.name for q in tmp_path.iterdir()) == ["ref", "ref.nc", "z.nc"]
     assert same_but_created(out, ref)
 

@@ -357,6 +357,12 @@ def test_every_builtin_scene_loads_and_runs_briefly():
             ds = zeitlin_simulate(scene.with_overrides({"zeitlin.N": 9, "ensemble.members": 2}), progress=False)
             assert (ds["status"] == 0).all(), name
             continue
+        if getattr(scene, "model", None) == "torus":  # the third: its own runner
+            from liethermo.torus.run import simulate as torus_simulate
+
+            ds = torus_simulate(scene.with_overrides({"torus.N": 9, "ensemble.members": 2}), progress=False)
+            assert (ds["status"] == 0).all(), name
+            continue
         om0, R = _scene_ic(scene)
         tr = simulate(physics_of_scene(scene), om0, R, scene.integrator.h, 4, MethodChoice.of(scene.integrator.method, start=scene.integrator.start, entropy=scene.integrator.entropy, friction=scene.integrator.friction), attitude=scene.output.attitude)
         assert np.all(tr.status == STATUS_OK), name

@@ -88,6 +88,10 @@ MODELS = {
         size={"zeitlin.N": 8, "ensemble.members": 2, "integrator.steps": 100, "output.every": 10,
               "initial.lmax": 4, **_COMMON},
         steps={"reference": 20}),
+    "torus": ModelCases(
+        size={"torus.N": 9, "ensemble.members": 2, "integrator.steps": 40, "output.every": 10,
+              "initial.kmax": 3, "output.vorticity": True, "output.entropy_field": True, **_COMMON},
+        steps={"reference": 10}),
 }
 #: a model golden has no entry for: its scenes as they are, shortened
 DEFAULT = ModelCases(size={"ensemble.members": 2, "integrator.steps": 50, "output.every": 10, **_COMMON},

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -71,3 +72,53 @@ def draw_band(ax, x, band: Band, *, color, label: str | None = None, median_labe
     (line,) = ax.plot(x, band.median, color=color, zorder=zorder + 1, label=median_label, **median_style)
     return poly, line
 
+
+# ----------------------------------------------------------------------------- helpers of every model's figures
+
+
+def sample_times(n_times: int, count: int) -> np.ndarray:
+    """Indices of ``count`` output times spread evenly over a run (first and last included)."""
+    return np.unique(np.linspace(0, n_times - 1, count).round().astype(int))
+
+
+def completed(ds):
+    """Members of ``ds`` that completed, as an index array."""
+    return np.flatnonzero(ds["status"].values == 0)
+
+
+def ensemble_band(values: np.ndarray, ok: np.ndarray):
+    """The band of ``values`` (members, ...) over the members ``ok`` that
+    completed; the words say so when some did not."""
+    why = "that completed" if len(ok) < values.shape[0] else ""
+    return member_band(values[ok], of=values.shape[0], why=why)
+
+
+def series(ax, x, values: np.ndarray, ok: np.ndarray, label: str, floor: float | None = None, **line):
+    """``values`` (members, times) on ``ax``: one member as a line, an
+    ensemble as its median line and band (legend: ``label`` and the band's
+    words); ``floor``: values below it drawn at it (log axes)."""
+    def f(v):
+        return v if floor is None else np.maximum(v, floor)
+
+    if values.shape[0] == 1:
+        ax.plot(x, f(values[0]), label=label, **line)
+        return
+    band = ensemble_band(values, ok)
+    color = line.pop("color")
+    draw_band(ax, x, Band(f(band.median), f(band.lo), f(band.hi), band.members, band.label), color=color,
+              label=label, median_label=f"{label}: median", zorder=line.pop("zorder", 1.0), **line)
+
+
+def legend_beside(ax, **kwargs):
+    """The legend right of the axes (constrained layout makes room): it covers no data."""
+    kwargs.setdefault("fontsize", 8)
+    return ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0, **kwargs)
+
+
+def save(fig, path) -> Path:
+    """Write a figure as PNG (110 dpi, tight) and close it."""
+    import matplotlib.pyplot as plt
+
+    fig.savefig(path, dpi=110, bbox_inches="tight")
+    plt.close(fig)
+    return Path(path)

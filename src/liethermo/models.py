@@ -139,19 +139,19 @@ class BaseSummary:
         out = [f"scene {self.scene_name!r}, method {self.method}: {self.members} member(s) x {self.steps} "
                f"steps, h = {self.h:g} s",
                f"  wall time {self.wall_time:.3g} s (simulating and writing), kernels {k:.3g} s"]
-        return out + self.body() + closing_lines(self)
+        out += self.body()
+        return out + closing_lines(self.resumed_members, self.path)
 
 
-def closing_lines(summary, timed: str = "") -> list[str]:
-    """The lines every run's summary ends with: which members a resumed run
-    took from the interrupted one (``timed``: the times they are not in), and
-    the file written (``summary.resumed_members``, ``summary.path``)."""
+def closing_lines(resumed_members: int, path, resumed_note: str = "") -> list[str]:
+    """A summary's last lines: the members a resumed run took from the interrupted one
+    (``resumed_note``: what that means for the figures above) and the file written."""
     out = []
-    if summary.resumed_members:
-        out.append(f"  resumed: members 0-{summary.resumed_members - 1} came from the interrupted run"
-                   + (f" (not in {timed})" if timed else ""))
-    if summary.path is not None:
-        out.append(f"  wrote {summary.path}")
+    if resumed_members:
+        out.append(f"  resumed: members 0-{resumed_members - 1} came from the interrupted run"
+                   + (f" ({resumed_note})" if resumed_note else ""))
+    if path is not None:
+        out.append(f"  wrote {path}")
     return out
 
 
@@ -386,7 +386,7 @@ def unregister(name: str) -> None:
 
 #: the modules that register the built-in models, imported on first need (when a
 #: scene is loaded); each is light and registers one model
-MODEL_MODULES = ("liethermo.top.model", "liethermo.zeitlin.model")
+MODEL_MODULES = ("liethermo.top.model", "liethermo.zeitlin.model", "liethermo.torus.model")
 
 
 def models() -> list[Model]:

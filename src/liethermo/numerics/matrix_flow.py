@@ -115,14 +115,70 @@ def split_step(ops, W, q, h, nu, fac, tol, max_iter, guess=None, predictor: Pred
     return W, q + dq, its, failed, D
 
 
+def rk4(f, y: tuple, h: float) -> tuple:
+    """One classical Runge–Kutta 4 step of a state given as a tuple of arrays,
+    ``f(y) -> ẏ`` (a tuple of the same shapes)."""
+    k1 = f(y)
+    k2 = f(tuple(a + 0.5 * h * k for a, k in zip(y, k1)))
+    k3 = f(tuple(a + 0.5 * h * k for a, k in zip(y, k2)))
+    k4 = f(tuple(a + h * k for a, k in zip(y, k3)))
+    return tuple(a + (h / 6.0) * (c1 + 2.0 * c2 + 2.0 * c3 + c4) for a, c1, c2, c3, c4 in zip(y, k1, k2, k3, k4))
+
+
 def rk4_step(ops, W, q, h, nu):
-    """One classical Runge–Kutta 4 step of (W, q)."""
-    k1, r1 = ops.rhs(W, nu)
-    k2, r2 = ops.rhs(W + 0.5 * h * k1, nu)
-    k3, r3 = ops.rhs(W + 0.5 * h * k2, nu)
-    k4, r4 = ops.rhs(W + h * k3, nu)
-    return (W + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4),
-            q + (h / 6.0) * (r1 + 2.0 * r2 + 2.0 * r3 + r4))
+    """One classical Runge–Kutta 4 step of (W, q) (q does not act back on W)."""
+    return rk4(lambda y: ops.rhs(y[0], nu), (W, q), h)
+
+
+def run_members(state0: tuple, step, record, *, xp, to_host, steps: int, every: int, bar=None,
+                check_stop=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The member bookkeeping of every matrix fluid's run: ``steps`` steps of the
+    batch ``state0`` (a tuple of backend arrays with a leading member axis).
+    ``step(state, k, act) -> (state, iterations, status)`` advances the members
+    ``act`` (their part of the state; iterations and status per member on the
+    host, status 0 where the step went well); a member with a status, or a
+    non-finite state, leaves the batch with its status (:data:`STATUS_NON_FINITE`
+    for the latter) and step.  Every ``every`` steps ``record(j, members, state)``
+    gets the members still running, on the host.  Returns ``(mean iterations
+    per step (members, outputs), status (members,), failed_step (members,), −1
+    where none)``; ``bar.update(1)`` after each step, ``check_stop()`` before each."""
+    M = state0[0].shape[0]
+    n_out = steps // every + 1
+    its = np.zeros((M, n_out))
+    status = np.zeros(M, dtype=np.int8)
+    failed_step = np.full(M, -1, dtype=np.int64)
+    state = tuple(state0)
+    active = np.arange(M)
+    acc_its = np.zeros(M)
+    for k in range(1, steps + 1):
+        if check_stop is not None:
+            check_stop()
+        if active.size == 0:
+            break
+        act = xp.asarray(active)
+        sub, it, st = step(tuple(a[act] for a in state), k, act)
+        acc_its[active] += it
+        fin = None
+        for a in sub:
+            f = xp.isfinite(a).reshape(a.shape[0], -1).all(axis=1)
+            fin = f if fin is None else fin & f
+        finite = to_host(fin)
+        st = np.where((st == STATUS_OK) & ~finite, STATUS_NON_FINITE, st).astype(np.int8)
+        bad = st != STATUS_OK
+        status[active[bad]] = st[bad]
+        failed_step[active[bad]] = k
+        for a, s in zip(state, sub):
+            a[act] = s
+        active = active[~bad]
+        if k % every == 0:
+            j = k // every
+            act = xp.asarray(active)
+            record(j, active, tuple(to_host(a[act]) for a in state))
+            its[active, j] = acc_its[active] / every
+            acc_its[:] = 0.0
+        if bar is not None:
+            bar.update(1)
+    return its, status, failed_step
 
 
 def drive(ops, W0: np.ndarray, record, *, method: str, composition: str, h: float, steps: int, every: int,
@@ -136,46 +192,22 @@ def drive(ops, W0: np.ndarray, record, *, method: str, composition: str, h: floa
     ``check_stop()`` before each."""
     xp = ops.xp
     M, N = W0.shape[0], W0.shape[-1]
-    n_out = steps // every + 1
-    its = np.zeros((M, n_out))
-    status = np.zeros(M, dtype=np.int8)
-    failed_step = np.full(M, -1, dtype=np.int64)
     fac = factors(method, composition) if method != "rk4" else ()
-    W = ops.asarray(W0)
-    q = xp.zeros(M)
-    active = np.arange(M)
-    acc_its = np.zeros(M)
-    guess = xp.zeros_like(W)
     predictor = Predictor(len(fac), M, N, budget_members=budget_members, xp=xp) if method != "rk4" else None
-    for k in range(1, steps + 1):
-        if check_stop is not None:
-            check_stop()
-        if active.size == 0:
-            break
-        act = xp.asarray(active)
-        Wa, qa = W[act], q[act]
+    guess = xp.zeros_like(ops.asarray(W0))
+    none = np.zeros(M)
+
+    def step(state, k, act):
+        Wa, qa = state
         if method == "rk4":
             Wa, qa = rk4_step(ops, Wa, qa, h, nu)
-            bad = np.zeros(active.size, dtype=bool)
-        else:
-            Wa, qa, it, bad, Da = split_step(ops, Wa, qa, h, nu, fac, tol, max_iter,
-                                             None if k == 1 else guess[act], predictor, act)
-            guess[act] = Da
-            acc_its[active] += ops.to_host(it)
-            bad = ops.to_host(bad)
-        finite = ops.to_host(xp.isfinite(Wa).all(axis=(1, 2)) & xp.isfinite(qa))
-        status[active[bad]] = STATUS_NOT_CONVERGED
-        status[active[~finite & ~bad]] = STATUS_NON_FINITE
-        failed_step[active[bad | ~finite]] = k
-        W[act], q[act] = Wa, qa
-        active = active[~(bad | ~finite)]
-        if k % every == 0:
-            j = k // every
-            act = xp.asarray(active)
-            record(j, active, ops.to_host(W[act]), ops.to_host(q[act]))
-            its[active, j] = acc_its[active] / every
-            acc_its[:] = 0.0
-        if bar is not None:
-            bar.update(1)
+            return (Wa, qa), none[:Wa.shape[0]], np.zeros(Wa.shape[0], dtype=np.int8)
+        Wa, qa, it, bad, Da = split_step(ops, Wa, qa, h, nu, fac, tol, max_iter,
+                                         None if k == 1 else guess[act], predictor, act)
+        guess[act] = Da
+        return (Wa, qa), ops.to_host(it), np.where(ops.to_host(bad), STATUS_NOT_CONVERGED, STATUS_OK)
+
+    out = run_members((ops.asarray(W0), xp.zeros(M)), step, lambda j, m, s: record(j, m, *s), xp=xp,
+                      to_host=ops.to_host, steps=steps, every=every, bar=bar, check_stop=check_stop)
     ops.synchronize()
-    return its, status, failed_step
+    return out

@@ -129,7 +129,7 @@ class RunSummary:
             per_solve = (f"mean {self.newton_mean / n:.3g} per solve ({self.newton_mean:.3g} per step "
                          f"of {n} solves)" if n > 1 else f"mean {self.newton_mean:.3g} per solve (one per step)")
             out.append(f"  Newton iterations         {per_solve}, max {self.newton_max} in one solve")
-        return out + closing_lines(self, "the times above")
+        return out + closing_lines(self.resumed_members, self.path, "not in the times above")
 
 
 def _nanmax(a) -> float:

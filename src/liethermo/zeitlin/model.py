@@ -131,7 +131,7 @@ class FluidSummary:
             out.append(f"  fixed-point iterations per step: mean {st.its_sum / st.its_n:.2f}, max {st.its_max:.2f}")
         if st.failed:
             out.append(f"  {st.failed} member(s) failed: see status and failed_step")
-        return out + closing_lines(self, "the stepping time above")
+        return out + closing_lines(self.resumed_members, self.path, "not in the stepping time above")
 
 
 @dataclass

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..bands import Band, draw_band, member_band
+from ..bands import completed, ensemble_band, legend_beside, sample_times, save, series
 from . import kernels as zk
 
 
@@ -51,11 +51,6 @@ def _harmonics_at_zero_longitude(N: int, n_lat: int) -> np.ndarray:
     return _Y0_CACHE[key]
 
 
-def sample_times(n_times: int, count: int) -> np.ndarray:
-    """Indices of ``count`` output times spread evenly over a run (first and last included)."""
-    return np.unique(np.linspace(0, n_times - 1, count).round().astype(int))
-
-
 #: Colour and line of each method in every panel; the later methods are drawn
 #: over the earlier ones, dashed and marked, so coinciding curves both show.
 STYLE = {"split": dict(color="C0", ls="-", lw=2.2),
@@ -69,40 +64,6 @@ FLOOR = 1e-17  # relative drifts at or below round-off are drawn here on the log
 
 def style(method: str) -> dict:
     return STYLE.get(method, dict(color="0.3", ls="-", lw=1.2))
-
-
-def completed(ds):
-    """Members of ``ds`` that completed, as an index array."""
-    return np.flatnonzero(ds["status"].values == 0)
-
-
-def ensemble_band(values: np.ndarray, ok: np.ndarray):
-    """The band of ``values`` (members, ...) over the members ``ok`` that
-    completed; the words say so when some did not."""
-    why = "that completed" if len(ok) < values.shape[0] else ""
-    return member_band(values[ok], of=values.shape[0], why=why)
-
-
-def series(ax, x, values: np.ndarray, ok: np.ndarray, label: str, floor: float | None = None, **line):
-    """``values`` (members, times) on ``ax``: one member as a line, an
-    ensemble as its median line and band (legend: ``label`` and the band's
-    words); ``floor``: values below it drawn at it (log axes)."""
-    def f(v):
-        return v if floor is None else np.maximum(v, floor)
-
-    if values.shape[0] == 1:
-        ax.plot(x, f(values[0]), label=label, **line)
-        return
-    band = ensemble_band(values, ok)
-    color = line.pop("color")
-    draw_band(ax, x, Band(f(band.median), f(band.lo), f(band.hi), band.members, band.label), color=color,
-              label=label, median_label=f"{label}: median", zorder=line.pop("zorder", 1.0), **line)
-
-
-def legend_beside(ax, **kwargs):
-    """The legend right of the axes (constrained layout makes room): it covers no data."""
-    kwargs.setdefault("fontsize", 8)
-    return ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0, **kwargs)
 
 
 def spectrum_lines(ax, ls, t, spec, count: int, ok: np.ndarray | None = None) -> None:
@@ -130,15 +91,6 @@ def spectrum_lines(ax, ls, t, spec, count: int, ok: np.ndarray | None = None) ->
         ax.loglog(ls, e, color=c, label=f"t = {t[i]:g} s")
     if ens:
         ax.fill_between([], [], [], color="0.5", alpha=0.3, lw=0, label=f"band: {band.label}")
-
-
-def save(fig, path) -> Path:
-    """Write a figure as PNG (110 dpi, tight) and close it."""
-    import matplotlib.pyplot as plt
-
-    fig.savefig(path, dpi=110, bbox_inches="tight")
-    plt.close(fig)
-    return Path(path)
 
 
 def draw(datasets: dict, W_member0: np.ndarray | None, folder, stem: str) -> list[Path]:

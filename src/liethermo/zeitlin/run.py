@@ -5,7 +5,6 @@ an output go through the common runner (:mod:`liethermo.zeitlin.model`);
 
 from __future__ import annotations
 
-import platform
 import time as _time
 from dataclasses import dataclass
 
@@ -13,12 +12,12 @@ import numpy as np
 import xarray as xr
 
 from .. import cf
-from ..version import __version__
 from ..numerics import matrix_flow as mf
 from ..numerics.matrix_flow import Predictor, factors  # noqa: F401  (the fluid's names)
 from ..numerics.laws import LAW_ENTROPY_MONOTONE
 from . import kernels as zk
 from ..numerics import heat as _heat
+from ..numerics.fluid_outputs import provenance, run_variables
 from ..faults import check_stop
 from .field import read_field, triangle_to_modes
 from .scene import ZeitlinScene
@@ -351,13 +350,7 @@ def trajectory_dataset(scene: ZeitlinScene, traj: Trajectory, method: str, histo
                                          "part of ω; a solid-body rotation Ω has L = (8π/3)Ω"),
         "energy_spectrum": _var(spec, dims_t + ("l",), "J", "energy of degree l",
                                 comment="E_l = ½ Σ_m |ω_lm|²/(l(l+1)); Σ_l E_l = H"),
-        "fixed_point_iterations": _var(traj.iterations, dims_t, "1", "fixed-point iterations",
-                                       comment="mean per step over the output interval (0 for rk4 and the reference)"),
-        "status": _var(traj.status, ("member",), "1", "member status",
-                       flag_values=np.array(sorted(STATUS_MEANINGS), dtype=np.int8),
-                       flag_meanings=" ".join(STATUS_MEANINGS[k] for k in sorted(STATUS_MEANINGS))),
-        "failed_step": _var(traj.failed_step, ("member",), "1", "step that failed",
-                            comment="the step at which the member failed (-1: none); the member's later values are NaN"),
+        **run_variables(traj.iterations, traj.status, traj.failed_step, STATUS_MEANINGS, dims_t),
     }
     if scene["output"]["vorticity"] and r.W is not None:
         dims_w = dims_t + ("row", "col")
@@ -397,7 +390,6 @@ def run_attrs(scene: ZeitlinScene, method: str, history: str | None = None) -> d
     """The global attributes of a run's dataset (without its kernel time)."""
     N = scene["zeitlin"]["N"]
     itg = scene["integrator"]
-    created = cf.timestamp()
     attrs = {
         "Conventions": cf.CONVENTIONS,
         "title": "liethermo ensemble: thermodynamic Zeitlin fluid on the sphere",
@@ -410,12 +402,7 @@ def run_attrs(scene: ZeitlinScene, method: str, history: str | None = None) -> d
         "hbar": zk.hbar(N),
         "h": float(itg["h"]),
         "h_units": "s",
-        "scene": scene.to_toml(),
-        "software": f"liethermo {__version__}",
-        "software_version": __version__,
-        "python": platform.python_version(),
-        "created": created,
-        "history": cf.history_entry(history or f"liethermo {__version__}", created),
+        **provenance(scene, history),
         "references": "Zeitlin (1991, 2004); Modin & Viviani (2020), the isospectral midpoint; "
                       "liethermo docs/model.md, the thermodynamic Zeitlin fluid",
     }
