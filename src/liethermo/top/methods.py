@@ -105,12 +105,20 @@ class Method:
         (:mod:`liethermo.top.kernels.steppers`)."""
         raise NotImplementedError
 
-    def initial_state(self, layout, physics, omega0: np.ndarray, R0: np.ndarray, h: float,
-                      choice: "MethodChoice") -> np.ndarray:
-        """The (N, layout.size) state rows at t = 0 from Ω(0) and R(0)."""
-        from .simulate import _explicit_initial
-
-        return _explicit_initial(layout, physics, omega0, R0)
+    def initial_state(self, layout, physics, omega0: np.ndarray, R0: np.ndarray,
+                      step_velocity: np.ndarray | None = None) -> np.ndarray:
+        """The (N, layout.size) state rows at t = 0 from Ω(0) and R(0): Ω (the
+        ``rk`` layout) or μ = 𝕀Ω with no heat yet (``split``), Γ and R."""
+        N = omega0.shape[0]
+        Y = np.zeros((N, layout.size))
+        if layout.has("omega"):
+            Y[:, layout.slice("omega")] = omega0
+        else:
+            Y[:, layout.slice("momentum")] = physics.inertia * omega0
+        Y[:, layout.slice("gamma")] = R0[:, 2, :]  # Γ = Rᵀe₃ = third row of R
+        if layout.has("attitude"):
+            Y[:, layout.slice("attitude")] = R0.reshape(N, 9)
+        return Y
 
 
 @dataclass(frozen=True)
@@ -203,17 +211,15 @@ class VariationalMethod(Method):
         mode = EXPLICIT if choice.entropy == "explicit" else SYMMETRIC
         return Variational(factors, float(wl), float(wr), mode, float(newton_tol), int(newton_maxiter))
 
-    def initial_state(self, layout, physics, omega0: np.ndarray, R0: np.ndarray, h: float,
-                      choice: "MethodChoice") -> np.ndarray:
-        """The step velocity to start from (Ω(0), or the staggered start's),
-        Γ, 𝕀(S₀)Ω(0) as the momentum and R: the start kernel then solves the
-        first step velocity or the node momentum from these."""
-        from .simulate import staggered_omega
-
+    def initial_state(self, layout, physics, omega0: np.ndarray, R0: np.ndarray,
+                      step_velocity: np.ndarray | None = None) -> np.ndarray:
+        """The step velocity to start from (``step_velocity``, e.g. the
+        staggered start's Ω(h/2), or Ω(0)), Γ, 𝕀(S₀)Ω(0) as the momentum and
+        R: the start kernel then solves the first step velocity or the node
+        momentum from these."""
         N = omega0.shape[0]
         Y = np.zeros((N, layout.size))
-        x0 = staggered_omega(physics, omega0, R0, h) if (choice.start == "staggered" and N) else omega0
-        Y[:, layout.slice("omega_step")] = x0
+        Y[:, layout.slice("omega_step")] = omega0 if step_velocity is None else step_velocity
         Y[:, layout.slice("gamma")] = R0[:, 2, :]
         Y[:, layout.slice("momentum")] = physics.inertia * omega0  # 𝕀(S₀)Ω(0)
         if layout.has("attitude"):

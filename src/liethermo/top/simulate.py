@@ -233,20 +233,6 @@ def _ensure_compiled(fn, args) -> float:
     return time.perf_counter() - t0
 
 
-def _explicit_initial(layout: StateLayout, physics: Physics, omega0, R0) -> np.ndarray:
-    """The initial state of the ``rk`` (Ω) or ``split`` (μ = 𝕀Ω, no heat yet) layout."""
-    N = omega0.shape[0]
-    Y = np.zeros((N, layout.size))
-    if layout.has("omega"):
-        Y[:, layout.slice("omega")] = omega0
-    else:
-        Y[:, layout.slice("momentum")] = physics.inertia * omega0
-    Y[:, layout.slice("gamma")] = R0[:, 2, :]  # Γ = Rᵀe₃ = third row of R
-    if layout.has("attitude"):
-        Y[:, layout.slice("attitude")] = R0.reshape(N, 9)
-    return Y
-
-
 def staggered_omega(physics: Physics, omega0: np.ndarray, R0: np.ndarray, h: float) -> np.ndarray:
     """Ω(h/2) from the initial data, by the high-accuracy reference (N, 3)."""
     tr = simulate(physics, omega0, R0, 0.5 * h, 1, "reference", kernel="simple")
@@ -363,7 +349,8 @@ def simulate(
     if threads is None and N < SMALL_ENSEMBLE:
         threads = 1  # a few members: waking threads costs more than it gains
 
-    Y = m.initial_state(layout, physics, omega0, R0, h, choice)
+    x0 = staggered_omega(physics, omega0, R0, h) if (choice.start == "staggered" and N) else None
+    Y = m.initial_state(layout, physics, omega0, R0, x0)
     start_args = None
     if m.solves_newton:
         stepper = m.stepper(choice, newton_tol=newton_tol, newton_maxiter=newton_maxiter)
