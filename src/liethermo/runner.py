@@ -1,9 +1,10 @@
 """Run a scene of any model: member chunks → labelled datasets → netCDF.
 
 :func:`run_scene` is what ``liethermo run`` calls.  Members are simulated in
-chunks of ``output.member_chunk`` and each chunk is labelled and (with an
-output path) written before the next starts, so memory is bounded by one
-chunk whatever the ensemble size.  What a chunk is (initial conditions,
+chunks of ``output.member_chunk``; with an output path, a writer thread
+writes chunk k while chunk k+1 computes (:class:`_WritePipeline`), so memory
+is bounded by two chunks whatever the ensemble size, and the file is the one
+a run writing each chunk before computing the next would write.  What a chunk is (initial conditions,
 kernels, variables, stats) is the scene's model's
 (:func:`liethermo.models.model_of`); this module only orders, writes,
 journals and resumes the chunks.
@@ -181,16 +182,17 @@ def _run_to_file(scene, attrs, out: Path, summ, total, bar, kernel, resume, mode
             summ.resumed_members = journal.members_done
             source.remove()  # superseded by this run's file and journal
             source = None
-        for k in range(i, len(plan)):
-            lo, hi = plan[k]
-            ds, st = run_chunk(scene, lo, hi, progress_cb=bar.update if bar else None, kernel=kernel)
-            with critical():
-                crc = writer.write(ds, lo)
-                writer.sync()
-                journal.chunks.append({"lo": lo, "hi": hi, "crc": crc, "stats": st.to_dict()})
-                journal.save(jpath)
-            del ds
-            total.merge(st)
+        pipe = _WritePipeline(writer, journal, jpath)
+        try:
+            for k in range(i, len(plan)):
+                lo, hi = plan[k]
+                ds, st = run_chunk(scene, lo, hi, progress_cb=bar.update if bar else None, kernel=kernel)
+                pipe.put(ds, lo, hi, st)  # waits for the previous chunk's write, then writes this one
+                del ds
+                total.merge(st)
+            pipe.wait()
+        finally:
+            pipe.close()  # a chunk being written is complete (or failed) before the file is kept
         with critical():
             writer.close()
             _unlink(jpath)
@@ -206,6 +208,64 @@ def _run_to_file(scene, attrs, out: Path, summ, total, bar, kernel, resume, mode
         writer.abort()
         _unlink(jpath)
         raise
+
+
+class _WritePipeline:
+    """Write member chunks on a thread of their own while the next chunk computes.
+
+    ``put(ds, lo, hi, stats)`` waits until the chunk before is written (so at
+    most two chunks are in memory: the one being written and the one being
+    computed), then hands this one to the writer thread: encode, write, flush,
+    journal, in the order of the plan, so the file and journal are those of a
+    run that writes each chunk before computing the next.  The kernels release
+    the GIL, so the write (netCDF, CRC-32, the page cache) overlaps them.  A
+    write error is raised from the next ``put`` or ``wait``; a stop signal in
+    the main thread lets the chunk being written finish first (``close``), so
+    a kept partial file holds every chunk its journal lists.
+    """
+
+    def __init__(self, writer, journal, jpath: Path):
+        from concurrent.futures import ThreadPoolExecutor
+
+        self.writer, self.journal, self.jpath = writer, journal, jpath
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="liethermo-writer")
+        self._pending = None
+
+    def _write(self, ds, lo: int, hi: int, stats: dict) -> None:
+        crc = self.writer.write(ds, lo)
+        self.writer.sync()
+        self.journal.chunks.append({"lo": lo, "hi": hi, "crc": crc, "stats": stats})
+        self.journal.save(self.jpath)
+
+    def wait(self) -> None:
+        """Until the chunk handed over last is written (its error raised here);
+        checks for a stop signal while waiting."""
+        from concurrent.futures import wait
+
+        from .faults import wait_checking
+
+        fut, self._pending = self._pending, None
+        if fut is not None:
+            try:
+                wait_checking(lambda t: bool(wait([fut], timeout=t).done))
+            except BaseException:
+                self._pending = fut  # close() still waits for it
+                raise
+            fut.result()
+
+    def put(self, ds, lo: int, hi: int, stats) -> None:
+        self.wait()
+        self._pending = self._pool.submit(self._write, ds, lo, hi, stats.to_dict())
+
+    def close(self) -> None:
+        """Let a write in progress finish (its error is dropped: an exception is on its way)."""
+        fut, self._pending = self._pending, None
+        if fut is not None:
+            try:
+                fut.result()
+            except BaseException:
+                pass
+        self._pool.shutdown(wait=True)
 
 
 def _unlink(p: Path) -> None:
