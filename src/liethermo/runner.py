@@ -41,19 +41,62 @@ def run_chunk(scene, lo: int, hi: int, *, progress_cb=None, kernel: str | None =
     :mod:`liethermo.distributed`; member i's result depends only on (scene, i).
     ``progress_cb(n)`` gets the number of member-steps just done.
     """
+    from .threads import pools, usable_cores
+
     check_stop()  # a stop signal whose exception a library swallowed still stops the run
-    return model_of(scene).run_chunk(scene, lo, hi, progress_cb=progress_cb, kernel=kernel, threads=threads)
+    model = model_of(scene)
+    # the pools fit the cores this process may use (or the threads it was given)
+    with pools(model.thread_counts(scene, threads or usable_cores())):
+        return model.run_chunk(scene, lo, hi, progress_cb=progress_cb, kernel=kernel, threads=threads)
 
 
-def estimate_time(scene):
-    """The run's kernel time on this machine (``.seconds``, ``.line()``, ``.warnings()``),
-    from the model's probe; a model without :class:`liethermo.models.Estimates` says it has none."""
+def estimate_time(scene, out: str | Path | None = None):
+    """The run's time on this machine (``.seconds``, ``.line()``, ``.warnings()``):
+    the model's probe (kernel time, and what else the model times), run with the
+    thread pools the run will use, plus writing the file at the rate a probe
+    write measures in ``out``'s folder (the current folder without ``out``).
+    A model without :class:`liethermo.models.Estimates` says it has none."""
     from .models import Estimates
+    from .threads import pools, usable_cores
 
     model = model_of(scene)
-    if isinstance(model, Estimates):
-        return model.estimate_time(scene)
-    return _NoTimeEstimate(model.title or model.name)
+    if not isinstance(model, Estimates):
+        return _NoTimeEstimate(model.title or model.name)
+    with pools(model.thread_counts(scene, usable_cores())):  # the probe runs as the run will
+        inner = model.estimate_time(scene)
+    from .io import write_rate
+    from .preflight import estimate
+
+    folder = Path(out).parent if out is not None else Path.cwd()
+    return _WithWriting(inner, estimate(scene).file_bytes, write_rate(folder), folder)
+
+
+class _WithWriting:
+    """A model's time estimate with the time to write the file added."""
+
+    def __init__(self, inner, file_bytes: int, rate: float, folder: Path):
+        self.inner, self.file_bytes, self.rate, self.folder = inner, int(file_bytes), float(rate), folder
+
+    @property
+    def write_seconds(self) -> float:
+        return self.file_bytes / self.rate if self.rate > 0 else float("inf")
+
+    @property
+    def seconds(self) -> float:
+        """The whole run: the model's figure (kernels, and labelling where it says so) and writing."""
+        return getattr(self.inner, "total_seconds", self.inner.seconds) + self.write_seconds
+
+    def line(self) -> str:
+        from .faults import human_bytes
+
+        return (self.inner.line() + "\n"
+                f"  writing: about {human_bytes(self.file_bytes)} at {self.rate / 1e6:.3g} MB/s (a probe write "
+                f"in {self.folder}): about {human_seconds(self.write_seconds)}; the run in all about "
+                f"{human_seconds(self.seconds)} (not compiling, start-up or figures; a writer thread "
+                "overlaps writing with computing where cores are free)")
+
+    def warnings(self) -> list[str]:
+        return self.inner.warnings()
 
 
 class _NoTimeEstimate:
