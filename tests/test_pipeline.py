@@ -18,6 +18,7 @@ import liethermo.runner as lr
 from liethermo.faults import Interrupted
 from liethermo.runner import run_scene
 
+WAIT = 30  # s: a run that writes before computing on waits this long, then fails
 SMALL = ["output.compare=[]", "output.figures=false", "integrator.steps=20", "output.every=5",
          "ensemble.members=40", "output.member_chunk=8", "integrator.method=\"rk2\""]
 
@@ -67,7 +68,7 @@ def test_chunk_k_is_written_while_chunk_k_plus_1_computes(tmp_path, monkeypatch)
     def write(self, ds, offset):
         events.append(("write", offset, threading.current_thread().name))
         if offset == 0:
-            assert started.setdefault(8, threading.Event()).wait(timeout=30), "chunk 1 did not start"
+            assert started.setdefault(8, threading.Event()).wait(timeout=WAIT), "chunk 1 did not start"
         out = real_write(self, ds, offset)
         events.append(("written", offset))
         return out
