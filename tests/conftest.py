@@ -22,7 +22,18 @@ other or a neighbouring panel, or if any of them is cut off.
 
 from __future__ import annotations
 
+import atexit
+import os
 import re
+import shutil
+import tempfile
+
+# the disk cache of slow values (the fluid's bases) is a temporary folder of the test
+# session, never the user's; subprocesses inherit it
+if "liethermo-test-cache-" not in os.environ.get("LIETHERMO_CACHE_DIR", ""):
+    os.environ["LIETHERMO_CACHE_DIR"] = tempfile.mkdtemp(prefix="liethermo-test-cache-")
+    atexit.register(shutil.rmtree, os.environ["LIETHERMO_CACHE_DIR"], True)
+os.environ.pop("LIETHERMO_CACHE", None)
 
 import math
 from dataclasses import dataclass, replace

@@ -54,7 +54,7 @@ def cmd_run(args) -> int:
             print(f"scene {scene['scene']['name']!r} is valid: {plan.check_line()}")
             for o in plan.outputs:
                 if not o.skip and not args.dask:
-                    est = estimate_time(o.scene)
+                    est = estimate_time(o.scene, o.path)
                     print(est.line())
                     for w in est.warnings():
                         print(one_line(w), file=sys.stderr)

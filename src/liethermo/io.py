@@ -303,6 +303,39 @@ class ChunkedWriter:
         self._lock_fd = None
 
 
+#: bytes the write probe of ``--check`` writes (:func:`write_rate`)
+WRITE_PROBE_BYTES = 64 * 2**20
+
+
+def write_rate(folder: str | os.PathLike, nbytes: int = WRITE_PROBE_BYTES) -> float:
+    """Bytes per second a run's writer reaches in ``folder`` (or the nearest
+    folder above it that exists), measured: ``nbytes`` of member variables
+    written in four chunks through :class:`ChunkedWriter` (CF encoding,
+    CRC-32, netCDF/HDF5, a flush after each chunk, as a run does) into a
+    temporary file that is removed afterwards.  The operating system's page
+    cache absorbs what it can, as it does for a run."""
+    import time
+
+    folder = Path(folder)
+    while not folder.is_dir() and folder != folder.parent:
+        folder = folder.parent
+    members, width = 131072, 8  # chunks of 32768 members, as a run's disk chunks
+    per = max(1, nbytes // (members * width * 8))  # variables of (member, width) float64
+    rng = np.random.default_rng(0)
+    ds = xr.Dataset({f"v{k}": (("member", "w"), rng.random((members // 4, width)),
+                               {"units": "1", "long_name": "probe"}) for k in range(per)})
+    w = ChunkedWriter(folder / ".liethermo-write-probe.nc", members)
+    try:
+        t = time.perf_counter()
+        for k in range(4):
+            w.write(ds, k * (members // 4))
+            w.sync()
+        seconds = time.perf_counter() - t
+    finally:
+        w.abort()
+    return per * members * width * 8 / max(seconds, 1e-9)
+
+
 # ---------------------------------------------------------------- resume
 def partial_path(out: Path) -> Path:
     """Where an interrupted run keeps its completed members: ``<OUT>.partial``."""

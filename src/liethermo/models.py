@@ -242,6 +242,16 @@ class Model:
         ``progress_cb(n)`` gets the member-steps just done."""
         raise NotImplementedError
 
+    def thread_counts(self, scene, cores: int):
+        """The threads a run of ``scene`` uses on ``cores`` usable cores
+        (:class:`liethermo.threads.ThreadCounts`): by default the model's own
+        kernels on every core and numpy's BLAS on one (a model whose work is
+        not BLAS products gains nothing from a BLAS pool, and a pool beside
+        busy kernels spins).  A count may change speed only, never a result."""
+        from .threads import ThreadCounts
+
+        return ThreadCounts(blas=1, kernel=max(1, int(cores)))
+
     def warm(self, scene, methods: list[str], progress: bool | None):
         """Before the first run of ``methods``: what can be made ready (kernels
         compiled in another process, bases built); returns a process to join

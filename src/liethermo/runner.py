@@ -1,9 +1,10 @@
 """Run a scene of any model: member chunks → labelled datasets → netCDF.
 
 :func:`run_scene` is what ``liethermo run`` calls.  Members are simulated in
-chunks of ``output.member_chunk`` and each chunk is labelled and (with an
-output path) written before the next starts, so memory is bounded by one
-chunk whatever the ensemble size.  What a chunk is (initial conditions,
+chunks of ``output.member_chunk``; with an output path, a writer thread
+writes chunk k while chunk k+1 computes (:class:`_WritePipeline`), so memory
+is bounded by two chunks whatever the ensemble size, and the file is the one
+a run writing each chunk before computing the next would write.  What a chunk is (initial conditions,
 kernels, variables, stats) is the scene's model's
 (:func:`liethermo.models.model_of`); this module only orders, writes,
 journals and resumes the chunks.
@@ -40,19 +41,62 @@ def run_chunk(scene, lo: int, hi: int, *, progress_cb=None, kernel: str | None =
     :mod:`liethermo.distributed`; member i's result depends only on (scene, i).
     ``progress_cb(n)`` gets the number of member-steps just done.
     """
+    from .threads import pools, usable_cores
+
     check_stop()  # a stop signal whose exception a library swallowed still stops the run
-    return model_of(scene).run_chunk(scene, lo, hi, progress_cb=progress_cb, kernel=kernel, threads=threads)
+    model = model_of(scene)
+    # the pools fit the cores this process may use (or the threads it was given)
+    with pools(model.thread_counts(scene, threads or usable_cores())):
+        return model.run_chunk(scene, lo, hi, progress_cb=progress_cb, kernel=kernel, threads=threads)
 
 
-def estimate_time(scene):
-    """The run's kernel time on this machine (``.seconds``, ``.line()``, ``.warnings()``),
-    from the model's probe; a model without :class:`liethermo.models.Estimates` says it has none."""
+def estimate_time(scene, out: str | Path | None = None):
+    """The run's time on this machine (``.seconds``, ``.line()``, ``.warnings()``):
+    the model's probe (kernel time, and what else the model times), run with the
+    thread pools the run will use, plus writing the file at the rate a probe
+    write measures in ``out``'s folder (the current folder without ``out``).
+    A model without :class:`liethermo.models.Estimates` says it has none."""
     from .models import Estimates
+    from .threads import pools, usable_cores
 
     model = model_of(scene)
-    if isinstance(model, Estimates):
-        return model.estimate_time(scene)
-    return _NoTimeEstimate(model.title or model.name)
+    if not isinstance(model, Estimates):
+        return _NoTimeEstimate(model.title or model.name)
+    with pools(model.thread_counts(scene, usable_cores())):  # the probe runs as the run will
+        inner = model.estimate_time(scene)
+    from .io import write_rate
+    from .preflight import estimate
+
+    folder = Path(out).parent if out is not None else Path.cwd()
+    return _WithWriting(inner, estimate(scene).file_bytes, write_rate(folder), folder)
+
+
+class _WithWriting:
+    """A model's time estimate with the time to write the file added."""
+
+    def __init__(self, inner, file_bytes: int, rate: float, folder: Path):
+        self.inner, self.file_bytes, self.rate, self.folder = inner, int(file_bytes), float(rate), folder
+
+    @property
+    def write_seconds(self) -> float:
+        return self.file_bytes / self.rate if self.rate > 0 else float("inf")
+
+    @property
+    def seconds(self) -> float:
+        """The whole run: the model's figure (kernels, and labelling where it says so) and writing."""
+        return getattr(self.inner, "total_seconds", self.inner.seconds) + self.write_seconds
+
+    def line(self) -> str:
+        from .faults import human_bytes
+
+        return (self.inner.line() + "\n"
+                f"  writing: about {human_bytes(self.file_bytes)} at {self.rate / 1e6:.3g} MB/s (a probe write "
+                f"in {self.folder}): about {human_seconds(self.write_seconds)}; the run in all about "
+                f"{human_seconds(self.seconds)} (not compiling, start-up or figures; a writer thread "
+                "overlaps writing with computing where cores are free)")
+
+    def warnings(self) -> list[str]:
+        return self.inner.warnings()
 
 
 class _NoTimeEstimate:
@@ -107,6 +151,7 @@ def run_scene(scene, out: str | Path | None = None, *, overrides=None,
     members, steps = summ.members, summ.steps
     chunk = int(scene["output"]["member_chunk"])
     t_wall = time.perf_counter()
+    _warm_labelling()
     bar = _progress_bar(members * steps, progress, f"{scene['scene']['name']} [{summ.method}]")
     model = model_of(scene)
     total = model.new_stats()
@@ -134,6 +179,30 @@ def run_scene(scene, out: str | Path | None = None, *, overrides=None,
                    join="override") if len(pieces) > 1 else pieces[0]
     ds.attrs.update(attrs)
     return ds, summ
+
+
+_WARMED = False
+
+
+def _warm_labelling() -> None:
+    """Start, on a thread of its own, what labelling the first chunk would otherwise
+    wait for: xarray's first variable imports dask where it is installed (0.3-0.9 s
+    measured), once per process; it then overlaps the first chunk's kernels, which
+    release the GIL.  A failure here only means the first chunk pays it."""
+    global _WARMED
+    if _WARMED:
+        return
+    _WARMED = True
+
+    def warm():
+        try:
+            xr.Variable(("member",), np.zeros(1))
+        except Exception:  # pragma: no cover - the chunk's own labelling reports any problem
+            pass
+
+    import threading
+
+    threading.Thread(target=warm, name="liethermo-warm", daemon=True).start()
 
 
 def _run_to_file(scene, attrs, out: Path, summ, total, bar, kernel, resume, model) -> None:
@@ -181,16 +250,17 @@ def _run_to_file(scene, attrs, out: Path, summ, total, bar, kernel, resume, mode
             summ.resumed_members = journal.members_done
             source.remove()  # superseded by this run's file and journal
             source = None
-        for k in range(i, len(plan)):
-            lo, hi = plan[k]
-            ds, st = run_chunk(scene, lo, hi, progress_cb=bar.update if bar else None, kernel=kernel)
-            with critical():
-                crc = writer.write(ds, lo)
-                writer.sync()
-                journal.chunks.append({"lo": lo, "hi": hi, "crc": crc, "stats": st.to_dict()})
-                journal.save(jpath)
-            del ds
-            total.merge(st)
+        pipe = _WritePipeline(writer, journal, jpath)
+        try:
+            for k in range(i, len(plan)):
+                lo, hi = plan[k]
+                ds, st = run_chunk(scene, lo, hi, progress_cb=bar.update if bar else None, kernel=kernel)
+                pipe.put(ds, lo, hi, st)  # waits for the previous chunk's write, then writes this one
+                del ds
+                total.merge(st)
+            pipe.wait()
+        finally:
+            pipe.close()  # a chunk being written is complete (or failed) before the file is kept
         with critical():
             writer.close()
             _unlink(jpath)
@@ -206,6 +276,64 @@ def _run_to_file(scene, attrs, out: Path, summ, total, bar, kernel, resume, mode
         writer.abort()
         _unlink(jpath)
         raise
+
+
+class _WritePipeline:
+    """Write member chunks on a thread of their own while the next chunk computes.
+
+    ``put(ds, lo, hi, stats)`` waits until the chunk before is written (so at
+    most two chunks are in memory: the one being written and the one being
+    computed), then hands this one to the writer thread: encode, write, flush,
+    journal, in the order of the plan, so the file and journal are those of a
+    run that writes each chunk before computing the next.  The kernels release
+    the GIL, so the write (netCDF, CRC-32, the page cache) overlaps them.  A
+    write error is raised from the next ``put`` or ``wait``; a stop signal in
+    the main thread lets the chunk being written finish first (``close``), so
+    a kept partial file holds every chunk its journal lists.
+    """
+
+    def __init__(self, writer, journal, jpath: Path):
+        from concurrent.futures import ThreadPoolExecutor
+
+        self.writer, self.journal, self.jpath = writer, journal, jpath
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="liethermo-writer")
+        self._pending = None
+
+    def _write(self, ds, lo: int, hi: int, stats: dict) -> None:
+        crc = self.writer.write(ds, lo)
+        self.writer.sync()
+        self.journal.chunks.append({"lo": lo, "hi": hi, "crc": crc, "stats": stats})
+        self.journal.save(self.jpath)
+
+    def wait(self) -> None:
+        """Until the chunk handed over last is written (its error raised here);
+        checks for a stop signal while waiting."""
+        from concurrent.futures import wait
+
+        from .faults import wait_checking
+
+        fut, self._pending = self._pending, None
+        if fut is not None:
+            try:
+                wait_checking(lambda t: bool(wait([fut], timeout=t).done))
+            except BaseException:
+                self._pending = fut  # close() still waits for it
+                raise
+            fut.result()
+
+    def put(self, ds, lo: int, hi: int, stats) -> None:
+        self.wait()
+        self._pending = self._pool.submit(self._write, ds, lo, hi, stats.to_dict())
+
+    def close(self) -> None:
+        """Let a write in progress finish (its error is dropped: an exception is on its way)."""
+        fut, self._pending = self._pending, None
+        if fut is not None:
+            try:
+                fut.result()
+            except BaseException:
+                pass
+        self._pool.shutdown(wait=True)
 
 
 def _unlink(p: Path) -> None:

@@ -34,6 +34,8 @@ def _sfx(ctx) -> list[str]:
 
 
 def ensemble(ctx, coords) -> xr.Dataset:
+    from ..runner import run_chunk
+
     opt, m, model, h = ctx.opt, coords["scheme"], ctx.model, float(coords["point"]["integrator.h"])
     steps, be = round(opt["t_end"] / h), round(opt["band_dt"] / h)
     sc = ctx.scene(coords["point"]).with_overrides({**model.method_overrides(m), "integrator.steps": steps,
@@ -42,7 +44,7 @@ def ensemble(ctx, coords) -> xr.Dataset:
     rel, status, wall = {c: np.full((N, t.size), np.nan) for c in _sfx(ctx)}, np.empty(N, np.int8), 0.0
     for lo in range(0, N, int(opt["member_chunk"])):
         hi = min(N, lo + int(opt["member_chunk"]))
-        ds, st = model.run_chunk(sc, lo, hi)
+        ds, st = run_chunk(sc, lo, hi)  # with the pools a run of sc uses
         status[lo:hi], wall = ds["status"].values, wall + st.kernel_time
         for c, r in {"": model.relative_energy_error(ds), **model.energy_conventions(ds)}.items():
             rel[f"_{c}" if c else ""][lo:hi] = r

@@ -303,7 +303,9 @@ def run_scene(scene, method: str, *, h: float, steps: int, every: int = 1, membe
         over["ensemble.members"] = int(members)
     sc = scene.with_overrides(over)
     n = int(sc["ensemble"]["members"])
-    return model.run_chunk(sc, 0, n, threads=threads, kernel=kernel)
+    from ..runner import run_chunk  # with the thread pools a run of sc uses
+
+    return run_chunk(sc, 0, n, threads=threads, kernel=kernel)
 
 
 # ----------------------------------------------------------------------------- computing

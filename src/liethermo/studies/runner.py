@@ -134,6 +134,7 @@ def run_study(study: dict, outdir: Path, *, reduced: bool = False, progress: boo
     OSError (a figure) or :class:`liethermo.faults.Interrupted`.
     ``notes(line)`` gets what is worth telling (removed leftovers)."""
     from ..faults import folder_leftovers, human_bytes, remove_files
+    from ..threads import ThreadCounts, pools, usable_cores
 
     lock = _prepare_outdir(outdir)
     try:
@@ -142,7 +143,10 @@ def run_study(study: dict, outdir: Path, *, reduced: bool = False, progress: boo
             notes(f"liethermo: removed {n} temporary file{'s' if n != 1 else ''} ({human_bytes(size)}) "
                   f"left by interrupted or killed runs in {outdir}")
         mod = get_study(study["study"]["kind"])
-        return Path(mod.STUDY.run(study, outdir, reduced=reduced, progress=progress, dask=dask, history=history))
+        # BLAS on one thread and the kernels on the usable cores unless a run or timing sets its own
+        with pools(ThreadCounts(blas=1, kernel=usable_cores())):
+            return Path(mod.STUDY.run(study, outdir, reduced=reduced, progress=progress, dask=dask,
+                                      history=history))
     finally:
         lock.release()
 

@@ -150,9 +150,9 @@ def _trajectory_dataset(traj, omega0, R0, member_offset):
         "initial_omega": _var(omega0, ("member", "axis"), "rad s-1", "initial Omega(0)",
                               comment="initial body angular velocity"),
         "initial_attitude": _var(R0, ("member", "row", "col"), "1", "initial attitude R(0)"),
-        "inertia": _var(phys.inertia, ("member", "axis"), "kg m2", "moments of inertia I0",
-                        comment="principal moments of inertia about the fixed point"),
-        "heat_capacity": _var(phys.heat_capacity, ("member",), "J K-1", "heat capacity c_v"),
+        "inertia": _parameter(phys.inertia, ("member", "axis"), "kg m2", "moments of inertia I0",
+                              comment="principal moments of inertia about the fixed point"),
+        "heat_capacity": _parameter(phys.heat_capacity, ("member",), "J K-1", "heat capacity c_v"),
     }
     data.update(term_variables(phys))
     if vi:
@@ -217,8 +217,21 @@ def term_variables(phys) -> dict:
             if prm.always or np.any(v != 0.0):
                 dims = ("member",) + (("axis",) if prm.shape == (3,) else ())
                 extra = {"comment": prm.comment} if prm.comment else {}
-                out[prm.variable_name] = _var(v, dims, prm.unit, prm.long_name, **extra)
+                out[prm.variable_name] = _parameter(v, dims, prm.unit, prm.long_name, **extra)
     return out
+
+
+def _parameter(v: np.ndarray, dims: tuple, units: str, long_name: str, **extra) -> xr.Variable:
+    """A per-member parameter: stored once, without the member dimension, where every
+    member has it bit for bit (every run of a scene: the scene gives one body), else
+    per member (an ensemble of bodies built through the API)."""
+    v = np.asarray(v)
+    rows = np.ascontiguousarray(v).reshape(v.shape[0], -1).view(np.uint8) if v.shape[0] else None
+    if rows is not None and (rows == rows[0]).all():
+        note = "the same for every member"
+        extra["comment"] = f"{extra['comment']}; {note}" if extra.get("comment") else note
+        return _var(v[0], dims[1:], units, long_name, **extra)
+    return _var(v, dims, units, long_name, **extra)
 
 
 def global_attrs(scene_toml: str, *, method: str, h: float, friction: str | None,

@@ -240,13 +240,22 @@ class TimeEstimate:
     probe_steps: int
     probe_seconds: float    # the faster of two probe runs (warm kernel)
     compile_seconds: float  # compiling or loading the kernels from the cache, once
+    #: labelling the chunks (energies, statistics; outside the kernels), scaled from
+    #: the probe's by members x stored times
+    host_seconds: float = 0.0
+
+    @property
+    def total_seconds(self) -> float:
+        """Kernels and labelling (writing is the run layer's: :func:`liethermo.runner.estimate_time`)."""
+        return self.seconds + self.host_seconds
 
     def line(self) -> str:
         from ..runner import human_seconds
 
         return (f"  {self.method}: about {human_seconds(self.seconds)} of kernel time on this machine "
                 f"(from a timed probe of {self.probe_members} members x {self.probe_steps} steps; "
-                f"compiling or loading kernels took {human_seconds(self.compile_seconds)})")
+                f"compiling or loading kernels took {human_seconds(self.compile_seconds)}); labelling "
+                f"the member chunks about {human_seconds(self.host_seconds)}")
 
     def warnings(self) -> list[str]:
         return []
@@ -269,7 +278,19 @@ def estimate_time(scene) -> TimeEstimate:
         traj = run.simulate(om0, R0, steps=ps, every=ps)
         best = min(best, traj.wall_time)
         compile_s += traj.compile_time
-    return TimeEstimate(run.choice.name, best * (members * steps) / (pm * ps), pm, ps, best, compile_s)
+    # labelling: the probe's chunk as a run labels it (two stored times), scaled by stored values
+    import time
+
+    t = time.perf_counter()
+    _labelled_stats(traj, trajectory_dataset_of(traj, om0, R0))
+    host = (time.perf_counter() - t) * (members / pm) * ((steps // int(scene["output"]["every"]) + 1) / 2)
+    return TimeEstimate(run.choice.name, best * (members * steps) / (pm * ps), pm, ps, best, compile_s, host)
+
+
+def trajectory_dataset_of(traj, om0, R0, lo: int = 0):
+    from .dataset import trajectory_dataset
+
+    return trajectory_dataset(traj, omega0=om0, R0=R0, member_offset=lo)
 
 
 def run_chunk(scene: dict, lo: int, hi: int, *, progress_cb=None, kernel: str | None = None,
@@ -280,11 +301,16 @@ def run_chunk(scene: dict, lo: int, hi: int, *, progress_cb=None, kernel: str | 
     :mod:`liethermo.distributed`; member i's result depends only on (scene, i).
     ``progress_cb(n)`` gets the number of member-steps just done.
     """
+    traj, ds = _chunk(scene, lo, hi, progress_cb=progress_cb, kernel=kernel, threads=threads)
+    return ds, _labelled_stats(traj, ds)
+
+
+def _labelled_stats(traj, ds) -> "ChunkStats":
+    """The stats of a chunk from its trajectory and labelled dataset."""
     from .findings import chunk_findings
     from .simulate import STATUS_MEANINGS
 
-    traj, ds = _chunk(scene, lo, hi, progress_cb=progress_cb, kernel=kernel, threads=threads)
-    st = ChunkStats(members=hi - lo, kernel_time=traj.wall_time, compile_time=traj.compile_time)
+    st = ChunkStats(members=ds.sizes["member"], kernel_time=traj.wall_time, compile_time=traj.compile_time)
     ncounts = len(STATUS_MEANINGS)
     st.counts = [int(c) for c in np.bincount(traj.status, minlength=ncounts)[:ncounts]]
     ok = traj.status == 0  # accuracy figures are over members that completed
@@ -308,7 +334,7 @@ def run_chunk(scene: dict, lo: int, hi: int, *, progress_cb=None, kernel: str | 
     st.first_fail = int(traj.fail_step[~ok].min()) if not ok.all() else 0
     with np.errstate(over="ignore", invalid="ignore"):
         st.findings = chunk_findings(ds, traj.physics)
-    return ds, st
+    return st
 
 
 def _chunk(scene, lo: int, hi: int, *, progress_cb=None, kernel=None, threads=None) -> tuple:

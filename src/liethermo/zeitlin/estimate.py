@@ -126,6 +126,7 @@ class Estimate:
     basis_bytes: int
     methods: dict = field(default_factory=dict)  # method -> (seconds, bytes, probe N)
     available: int | None = None
+    basis_cached: bool = False  # the disk cache holds it (liethermo.diskcache)
 
     @property
     def seconds(self) -> float:
@@ -139,8 +140,10 @@ class Estimate:
         from ..faults import human_bytes
         from ..runner import human_seconds
 
-        out = [f"  basis of su({self.N}): about {human_seconds(self.basis_seconds)} and "
-               f"{human_bytes(self.basis_bytes)} to build (once per N; ~N³)"]
+        out = [f"  basis of su({self.N}): {human_bytes(self.basis_bytes)}, read from the disk cache"
+               if self.basis_cached else
+               f"  basis of su({self.N}): about {human_seconds(self.basis_seconds)} and "
+               f"{human_bytes(self.basis_bytes)} to build (once per N, then read from the disk cache; ~N³)"]
         for m, (s, b, Np) in self.methods.items():
             scaled = f", scaled by (N/{Np})³ from a timed probe at N = {Np}" if Np != self.N else " from a timed probe"
             out.append(f"  {m}: about {human_seconds(s)} for {self.members} member(s) x {self.steps} steps"
@@ -172,7 +175,11 @@ def estimate(scene, methods: list[str] | None = None) -> Estimate:
     steps = int(scene["integrator"]["steps"])
     if methods is None:
         methods = list(dict.fromkeys([scene["integrator"]["method"], *scene["output"]["compare"]]))
-    est = Estimate(N, M, steps, basis_seconds(N), basis_bytes(N), available=_available_bytes())
+    from . import kernels as zk
+
+    on_disk = zk.basis_on_disk(N)
+    est = Estimate(N, M, steps, 0.0 if on_disk else basis_seconds(N), basis_bytes(N),
+                   available=_available_bytes(), basis_cached=on_disk)
     for m in methods:
         if m == "reference":  # scipy's DOP853 per member: not probed (a study's reference, not a run's)
             continue
@@ -187,7 +194,7 @@ def build_basis(N: int, progress: bool | None = None) -> None:
     from . import kernels as zk
 
     seconds = basis_seconds(N)
-    loud = progress is not False and seconds > 2.0
+    loud = progress is not False and seconds > 2.0 and not zk.basis_on_disk(N)
     if loud:
         from ..faults import human_bytes
         from ..runner import human_seconds

@@ -168,10 +168,44 @@ def _orient(vs: list, N: int) -> None:
                 vs[m - 1][:, l - m + 1] = -v
 
 
+#: the version of the basis's construction: a change of its values bumps it (the
+#: disk cache keys its entries by it, :mod:`liethermo.diskcache`)
+BASIS_VERSION = 1
+_BASIS_ARRAYS = ("offset", "ell", "voff", "vecs", "vecs_t", "g0", "diag", "off", "tc", "tinv")
+
+
 @functools.lru_cache(maxsize=16)
 def basis(N: int) -> Basis:
+    """The basis of su(N), once per process, from the disk cache when it holds
+    it (:mod:`liethermo.diskcache`: keyed by N, :data:`BASIS_VERSION` and the
+    numpy and scipy versions, so its bits are those of :func:`compute_basis`)."""
     if not (isinstance(N, (int, np.integer)) and N >= 2):
         raise ValueError(f"N must be an integer of at least 2, not {N!r}")
+    from ..diskcache import cached_arrays
+
+    N = int(N)
+
+    def build() -> dict:
+        b = compute_basis(N)
+        return {k: getattr(b, k) for k in _BASIS_ARRAYS}
+
+    arrays = cached_arrays("zeitlin-basis", f"N{N}", BASIS_VERSION, build)
+    if arrays["offset"].shape != (N + 1,):  # a foreign file under the entry's name
+        arrays = build()
+    return Basis(N, hbar(N), **{k: arrays[k] for k in _BASIS_ARRAYS})
+
+
+def basis_on_disk(N: int) -> bool:
+    """Whether the disk cache holds the basis of su(N) (reading it is then quick)."""
+    from ..diskcache import is_cached
+
+    return is_cached("zeitlin-basis", f"N{int(N)}", BASIS_VERSION)
+
+
+def compute_basis(N: int) -> Basis:
+    """Compute the basis of su(N) (no cache): the eigenvectors of −Δ_N's
+    tridiagonal blocks, oriented as the spherical harmonics, and the Thomas
+    factors of the blocks."""
     from scipy.linalg import eigh_tridiagonal
 
     N = int(N)

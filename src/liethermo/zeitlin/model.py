@@ -151,6 +151,14 @@ class TimeEstimate:
         return self.estimate.warnings()
 
 
+#: From this matrix size N on, a run's BLAS products use every usable core; below
+#: it one thread.  benchmarks/blas_threads.py on the 2-core machine: one thread was
+#: faster at every N measured (64 to 256: 2 threads took 5-29 times as long on a
+#: loaded machine, where OpenBLAS's spinning threads wait for the scheduler).
+#: The bits are the same on either count (tests/test_threads.py).
+BLAS_THREADED_N = 512
+
+
 def budget_members(scene) -> int:
     """The batch size that sets the predictor's order: the scene's chunk, not the chunk computed."""
     return min(int(scene["ensemble"]["members"]), int(scene["output"]["member_chunk"]))
@@ -199,6 +207,14 @@ class Fluid(StudyDefaults, Model):
 
     def dissipation_overrides(self, scene, factor: float) -> dict:
         return {"fluid.kinematic_viscosity": float(f"{float(factor) * scene['fluid']['kinematic_viscosity']:.15g}")}
+
+    def thread_counts(self, scene, cores: int):
+        from ..threads import ThreadCounts
+
+        N = int(scene["zeitlin"]["N"])
+        if N < BLAS_THREADED_N:
+            return ThreadCounts(blas=1, kernel=1, why=f"BLAS on one thread below N = {BLAS_THREADED_N}")
+        return ThreadCounts(blas=max(1, int(cores)), kernel=1, why=f"BLAS on every core from N = {BLAS_THREADED_N}")
 
     def run_with_laws(self, scene, *, kernel=None, threads=None):
         ds, st = self.run_chunk(scene, 0, int(scene["ensemble"]["members"]), kernel=kernel, threads=threads)

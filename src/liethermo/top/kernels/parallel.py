@@ -4,22 +4,23 @@ uneven members (diverging RK members, slow Newton iterations) balance out.
 
 The kernel functions are compiled with ``nogil=True``; Python threads then
 run them truly in parallel, with no numba threading layer to compile or
-configure.  ``threads`` defaults to ``NUMBA_NUM_THREADS`` (the machine's
-cores, or what the environment says: a Dask worker sets 1).
+configure.  ``threads`` defaults to :func:`liethermo.threads.kernel_threads`:
+the cores the process may use (affinity, cgroup quota) or what the run set,
+capped by ``NUMBA_NUM_THREADS`` (a Dask worker sets 1).
 """
 
 from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
 
-import numba
-
 TASKS_PER_THREAD = 4
 _POOLS: dict[int, ThreadPoolExecutor] = {}
 
 
 def default_threads() -> int:
-    return max(1, int(numba.config.NUMBA_NUM_THREADS))
+    from ...threads import kernel_threads
+
+    return kernel_threads()
 
 
 def _pool(threads: int) -> ThreadPoolExecutor:

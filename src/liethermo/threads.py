@@ -1,0 +1,128 @@
+"""Thread pools that fit the machine: every run, probe and study sets them.
+
+A process may use fewer cores than the machine has: its CPU affinity
+(``taskset``, a batch scheduler) and its cgroup's CPU quota (a container
+with ``--cpus``) both limit it, while numpy's BLAS and numba start one
+thread per core of the machine.  On a loaded machine a BLAS pool larger
+than the free cores is worse than none: OpenBLAS threads wait for each
+other by spinning, and a product of two 96 × 96 matrices then waits for
+the scheduler (docs/operations.md, "Threads").
+
+:func:`usable_cores` is the number of cores the process may use;
+:func:`pools` sets the BLAS/OpenMP pools (threadpoolctl) and numba's thread
+count inside a block and restores them on leaving.  What a run uses is the
+model's choice (:meth:`liethermo.models.Model.thread_counts`): the top's
+kernels run members on ``usable_cores()`` threads and need no BLAS; the
+fluid uses BLAS on one thread below a measured matrix size.
+
+Thread counts change no result: the top's members are independent of one
+another, and the fluid's BLAS products (OpenBLAS ``zgemm``/``dgemm``) give
+the same bits on one and two threads (tests/test_threads.py checks both).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterator
+
+#: cgroup v2 and v1 files that hold a CPU quota (the first that exists counts)
+_CGROUP_V2 = Path("/sys/fs/cgroup/cpu.max")
+_CGROUP_V1 = (Path("/sys/fs/cgroup/cpu/cpu.cfs_quota_us"), Path("/sys/fs/cgroup/cpu/cpu.cfs_period_us"))
+
+
+def affinity_cores() -> int:
+    """Cores in the process's CPU affinity mask (the machine's where there is none)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):  # pragma: no cover - macOS, Windows
+        return max(1, os.cpu_count() or 1)
+
+
+def cgroup_quota_cores(v2: Path = _CGROUP_V2, v1: tuple = _CGROUP_V1) -> float | None:
+    """The cgroup's CPU quota in cores (``cpu.max`` 200000 100000 → 2.0); None: no quota."""
+    try:
+        quota, period = v2.read_text().split()[:2]
+        return None if quota == "max" else int(quota) / int(period)
+    except (OSError, ValueError):
+        pass
+    try:
+        quota, period = (int(p.read_text()) for p in v1)
+        return None if quota <= 0 else quota / period
+    except (OSError, ValueError):
+        return None
+
+
+def usable_cores() -> int:
+    """The cores this process may use: its affinity, capped by its cgroup's
+    quota (rounded up: 1.5 cores lets two threads run half the time each)."""
+    n = affinity_cores()
+    q = cgroup_quota_cores()
+    if q is not None and q > 0:
+        n = min(n, max(1, math.ceil(q)))
+    return n
+
+
+@dataclass(frozen=True)
+class ThreadCounts:
+    """What a run uses: ``blas`` threads in numpy's BLAS/OpenMP pools,
+    ``kernel`` threads for the model's own kernels (numba), and why."""
+
+    blas: int
+    kernel: int
+    why: str = ""
+
+    def line(self) -> str:
+        return (f"  threads: {self.kernel} for the kernels, {self.blas} for BLAS (of {usable_cores()} usable "
+                f"core(s)){'; ' + self.why if self.why else ''}")
+
+
+#: the kernel threads set by :func:`pools` (None: outside one, the usable cores)
+_kernel_threads: int | None = None
+
+
+def kernel_threads() -> int:
+    """Threads for a model's own kernels: the count :func:`pools` set, else
+    :func:`usable_cores`; never more than ``NUMBA_NUM_THREADS`` (a Dask
+    worker sets 1)."""
+    import numba
+
+    n = usable_cores() if _kernel_threads is None else _kernel_threads
+    return max(1, min(n, int(numba.config.NUMBA_NUM_THREADS)))
+
+
+@contextmanager
+def pools(counts: ThreadCounts) -> Iterator[ThreadCounts]:
+    """Set the BLAS/OpenMP pools (threadpoolctl) and the kernels' thread count
+    (:func:`kernel_threads`) to ``counts`` inside the block; both restored on leaving."""
+    from threadpoolctl import threadpool_limits
+
+    global _kernel_threads
+    old = _kernel_threads
+    _kernel_threads = max(1, int(counts.kernel))
+    try:
+        with threadpool_limits(limits=max(1, int(counts.blas))):
+            yield counts
+    finally:
+        _kernel_threads = old
+
+
+def counts_for(scene) -> ThreadCounts:
+    """The thread counts a run of ``scene`` uses on this machine (the model's choice)."""
+    from .models import model_of
+
+    return model_of(scene).thread_counts(scene, usable_cores())
+
+
+@contextmanager
+def scene_pools(scene) -> Iterator[ThreadCounts]:
+    """:func:`pools` with the counts of ``scene`` (:func:`counts_for`)."""
+    with pools(counts_for(scene)) as c:
+        yield c
+
+
+__all__ = ["ThreadCounts", "affinity_cores", "cgroup_quota_cores", "counts_for", "kernel_threads", "pools", "scene_pools",
+           "usable_cores"]

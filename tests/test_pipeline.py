@@ -1,0 +1,133 @@
+"""The write pipeline of a run with an output file: chunk k is written on a
+thread of its own while chunk k+1 computes, at most two chunks are in memory,
+and the file is the one a run that writes each chunk before the next would
+write (values, layout, journal); write errors and stop signals end the run
+as before."""
+
+from __future__ import annotations
+
+import signal
+import threading
+
+import netCDF4
+import numpy as np
+import pytest
+
+import liethermo.io as lio
+import liethermo.runner as lr
+from liethermo.faults import Interrupted
+from liethermo.runner import run_scene
+
+WAIT = 30  # s: a run that writes before computing on waits this long, then fails
+SMALL = ["output.compare=[]", "output.figures=false", "integrator.steps=20", "output.every=5",
+         "ensemble.members=40", "output.member_chunk=8", "integrator.method=\"rk2\""]
+
+
+def _values(path) -> dict:
+    with netCDF4.Dataset(path) as nc:
+        nc.set_auto_mask(False)
+        return {k: v[...] for k, v in nc.variables.items()}
+
+
+def _serial(monkeypatch):
+    """Make the pipeline write each chunk in the caller's thread at once (the
+    order of a run without a writer thread)."""
+    def put(self, ds, lo, hi, stats):
+        self.wait()
+        self._write(ds, lo, hi, stats.to_dict())
+
+    monkeypatch.setattr(lr._WritePipeline, "put", put)
+
+
+def test_the_file_equals_a_serial_runs_and_the_in_memory_dataset(tmp_path, monkeypatch):
+    run_scene("paper", tmp_path / "piped.nc", overrides=SMALL, progress=False)
+    with monkeypatch.context() as m:
+        _serial(m)
+        run_scene("paper", tmp_path / "serial.nc", overrides=SMALL, progress=False)
+    ds, _ = run_scene("paper", None, overrides=SMALL, progress=False)
+    a, b = _values(tmp_path / "piped.nc"), _values(tmp_path / "serial.nc")
+    assert list(a) == list(b)
+    for k in a:
+        assert a[k].dtype == b[k].dtype and np.array_equal(a[k], b[k], equal_nan=a[k].dtype.kind == "f"), k
+    for k in ("omega", "gamma", "energy_error", "status"):
+        assert np.array_equal(a[k], ds[k].values, equal_nan=True), k
+
+
+def test_chunk_k_is_written_while_chunk_k_plus_1_computes(tmp_path, monkeypatch):
+    """The write of chunk 0 waits for chunk 1 to start computing: a run that
+    wrote before computing on would wait forever (here: time out and fail)."""
+    started = {}
+    events = []
+    real_chunk, real_write = lr.run_chunk, lio.ChunkedWriter.write
+
+    def chunk(scene, lo, hi, **kw):
+        events.append(("compute", lo))
+        started.setdefault(lo, threading.Event()).set()
+        return real_chunk(scene, lo, hi, **kw)
+
+    def write(self, ds, offset):
+        events.append(("write", offset, threading.current_thread().name))
+        if offset == 0:
+            assert started.setdefault(8, threading.Event()).wait(timeout=WAIT), "chunk 1 did not start"
+        out = real_write(self, ds, offset)
+        events.append(("written", offset))
+        return out
+
+    monkeypatch.setattr(lr, "run_chunk", chunk)
+    monkeypatch.setattr(lio.ChunkedWriter, "write", write)
+    run_scene("paper", tmp_path / "x.nc", overrides=SMALL, progress=False)
+    writes = [e for e in events if e[0] == "write"]
+    assert [e[1] for e in writes] == [0, 8, 16, 24, 32]  # in the plan's order
+    assert all(e[2].startswith("liethermo-writer") for e in writes)
+    # memory: chunk k+2 starts computing only once chunk k is written
+    for k in range(0, 24, 8):
+        assert events.index(("written", k)) < events.index(("compute", k + 16))
+
+
+def test_a_write_error_on_the_writer_thread_ends_the_run_and_leaves_nothing(tmp_path, monkeypatch):
+    real = lio.ChunkedWriter.write_arrays
+
+    def write_arrays(self, arrays, offset):
+        if offset == 16:
+            self._fail(OSError(28, "No space left on device"))
+        return real(self, arrays, offset)
+
+    monkeypatch.setattr(lio.ChunkedWriter, "write_arrays", write_arrays)
+    with pytest.raises(lio.WriteError, match="No space left on device"):
+        run_scene("paper", tmp_path / "x.nc", overrides=SMALL, progress=False)
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+def test_a_stop_while_a_chunk_is_written_keeps_every_chunk_written(tmp_path, monkeypatch):
+    """Stopped while chunk 2 computes and chunk 1 is being written: the kept
+    file and its journal hold chunks 0 and 1, and a resume equals a whole run."""
+    from liethermo.faults import stop_on_signals
+
+    real_chunk, real_write = lr.run_chunk, lio.ChunkedWriter.write
+    writing = threading.Event()
+    release = threading.Event()
+
+    def write(self, ds, offset):
+        if offset == 8:
+            writing.set()
+            release.wait(timeout=30)
+        return real_write(self, ds, offset)
+
+    def chunk(scene, lo, hi, **kw):
+        if lo == 16:
+            assert writing.wait(timeout=30)
+            threading.Timer(0.2, release.set).start()  # the write finishes after the stop
+            raise Interrupted(signal.SIGTERM)
+        return real_chunk(scene, lo, hi, **kw)
+
+    monkeypatch.setattr(lr, "run_chunk", chunk)
+    monkeypatch.setattr(lio.ChunkedWriter, "write", write)
+    out = tmp_path / "x.nc"
+    with stop_on_signals(), pytest.raises(Interrupted) as exc:
+        run_scene("paper", out, overrides=SMALL, progress=False)
+    assert "members 0-15 kept in" in exc.value.kept[0]
+    monkeypatch.undo()
+    run_scene("paper", out, overrides=SMALL, progress=False, resume=True)
+    run_scene("paper", tmp_path / "whole.nc", overrides=SMALL, progress=False)
+    a, b = _values(out), _values(tmp_path / "whole.nc")
+    assert all(np.array_equal(a[k], b[k], equal_nan=a[k].dtype.kind == "f") for k in a)
