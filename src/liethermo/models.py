@@ -50,6 +50,12 @@ class MethodInfo:
     laws: tuple[str, ...]
     description: str
 
+    @staticmethod
+    def table(order: dict, laws: dict, description: dict) -> dict[str, "MethodInfo"]:
+        """``{method: MethodInfo}`` from a model's tables of orders, laws and descriptions
+        (keyed by method, in the order of ``order``)."""
+        return {m: MethodInfo(m, order[m], laws[m], description[m]) for m in order}
+
 
 # ----------------------------------------------------------------------------- stats and summaries
 

@@ -44,6 +44,12 @@ def factors(method: str, composition: str) -> tuple[float, ...]:
     return COMPOSITION_FACTORS[(composition, 4 if method == "split4" else 6)]
 
 
+def budget_members(scene) -> int:
+    """The batch size that sets the predictor's order (:class:`Predictor`):
+    the scene's chunk of members, not the chunk computed."""
+    return min(int(scene["ensemble"]["members"]), int(scene["output"]["member_chunk"]))
+
+
 class Predictor:
     """The first guess of each substep's fixed point: the same substep's
     solutions D of the last steps, extrapolated by a polynomial (order 4:

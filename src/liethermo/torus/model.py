@@ -14,7 +14,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..models import MethodInfo, Model, StudyDefaults, closing_lines, register
+from ..numerics.matrix_flow import budget_members
+from ..models import BaseSummary, MethodInfo, Model, StudyDefaults, closing_lines, register
 
 
 def _max(a) -> float:
@@ -86,22 +87,12 @@ class TorusStats:
         return st
 
 
-@dataclass
-class TorusSummary:
-    scene_name: str
-    method: str
-    members: int
-    steps: int
-    h: float
-    N: int
-    wall_time: float = 0.0
-    resumed_members: int = 0
-    path: object = None
-    stats: TorusStats = field(default_factory=TorusStats)
+@dataclass(kw_only=True)
+class TorusSummary(BaseSummary):
+    """What a torus run did, for the one-screen report."""
 
-    def finish(self, st: TorusStats) -> "TorusSummary":
-        self.stats = st
-        return self
+    N: int
+    stats: TorusStats = field(default_factory=TorusStats)
 
     def lines(self) -> list[str]:
         st = self.stats
@@ -139,9 +130,6 @@ class TimeEstimate:
         return [f"this run takes about {self.seconds / 3600:.2g} hours"] if self.seconds > 3600 else []
 
 
-def budget_members(scene) -> int:
-    return min(int(scene["ensemble"]["members"]), int(scene["output"]["member_chunk"]))
-
 
 class Torus(StudyDefaults, Model):
     """Zeitlin's sine-bracket fluid on the torus with heat (a scene with a ``[torus]`` table)."""
@@ -169,8 +157,7 @@ class Torus(StudyDefaults, Model):
     def methods(self) -> dict[str, MethodInfo]:
         from . import run as tr
 
-        return {m: MethodInfo(m, tr.METHOD_ORDER[m], tr.METHOD_LAWS[m], tr.METHOD_DESCRIPTION[m])
-                for m in tr.METHOD_ORDER}
+        return MethodInfo.table(tr.METHOD_ORDER, tr.METHOD_LAWS, tr.METHOD_DESCRIPTION)
 
     # ---------------------------------------------------------- studies
     def study_state(self, ds) -> dict:
@@ -213,7 +200,7 @@ class Torus(StudyDefaults, Model):
         itg = scene["integrator"]
         attrs = run_attrs(scene, itg["method"], history)
         return attrs, TorusSummary(scene.name, itg["method"], int(scene["ensemble"]["members"]), int(itg["steps"]),
-                                   float(itg["h"]), int(scene["torus"]["N"]))
+                                   float(itg["h"]), N=int(scene["torus"]["N"]))
 
     def run_chunk(self, scene, lo, hi, *, progress_cb=None, kernel=None, threads=None):
         from .run import integrate, run_attrs, trajectory_dataset

@@ -13,11 +13,11 @@ This module is light: the kernels, xarray and the basis load on first use.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
-from ..models import MethodInfo, Model, StudyDefaults, closing_lines, register
+from ..numerics.matrix_flow import budget_members
+from ..models import BaseSummary, MethodInfo, Model, StudyDefaults, closing_lines, register
 
 #: a run of at least this N is timed before it starts (its basis alone takes seconds)
 ANNOUNCE_N = 256
@@ -91,26 +91,14 @@ class FluidStats:
         return st
 
 
-@dataclass
-class FluidSummary:
+@dataclass(kw_only=True)
+class FluidSummary(BaseSummary):
     """What a fluid run did, for the one-screen report."""
 
-    scene_name: str
-    method: str
-    members: int
-    steps: int
-    h: float
     N: int
     t_end: float
     viscous: bool
-    wall_time: float = 0.0
-    resumed_members: int = 0
-    path: Path | None = None
     stats: FluidStats = field(default_factory=FluidStats)
-
-    def finish(self, st: FluidStats) -> "FluidSummary":
-        self.stats = st
-        return self
 
     def lines(self) -> list[str]:
         st = self.stats
@@ -159,10 +147,6 @@ class TimeEstimate:
 BLAS_THREADED_N = 512
 
 
-def budget_members(scene) -> int:
-    """The batch size that sets the predictor's order: the scene's chunk, not the chunk computed."""
-    return min(int(scene["ensemble"]["members"]), int(scene["output"]["member_chunk"]))
-
 
 class Fluid(StudyDefaults, Model):
     """The thermodynamic Zeitlin fluid on the sphere (a scene with a ``[zeitlin]`` table)."""
@@ -189,8 +173,7 @@ class Fluid(StudyDefaults, Model):
     def methods(self) -> dict[str, MethodInfo]:
         from . import run as zr
 
-        return {m: MethodInfo(m, zr.METHOD_ORDER[m], zr.METHOD_LAWS[m], zr.METHOD_DESCRIPTION[m])
-                for m in zr.METHOD_ORDER}
+        return MethodInfo.table(zr.METHOD_ORDER, zr.METHOD_LAWS, zr.METHOD_DESCRIPTION)
 
     study_outputs = {"output.vorticity": True}
 
@@ -241,8 +224,8 @@ class Fluid(StudyDefaults, Model):
         attrs = run_attrs(scene, method, history)
         steps = int(itg["steps"])
         summ = FluidSummary(scene.name, method, int(scene["ensemble"]["members"]), steps, float(itg["h"]),
-                            int(scene["zeitlin"]["N"]), float(steps * float(itg["h"])),
-                            scene["fluid"]["kinematic_viscosity"] > 0)
+                            N=int(scene["zeitlin"]["N"]), t_end=float(steps * float(itg["h"])),
+                            viscous=scene["fluid"]["kinematic_viscosity"] > 0)
         return attrs, summ
 
     def run_chunk(self, scene, lo, hi, *, progress_cb=None, kernel=None, threads=None):
