@@ -409,7 +409,7 @@ def test_resume_does_not_recompute(visc, monkeypatch):
     def boom(*a, **k):
         raise AssertionError("a finished sweep point was recomputed")
 
-    monkeypatch.setattr(viscosity_sweep, "run_spec", boom)
+    monkeypatch.setattr(viscosity_sweep, "run_members", boom)
     study = load_study(STUDIES / "viscosity_sweep.toml")
     viscosity_sweep.STUDY.run(study, out, reduced=True, progress=False)
 

@@ -156,7 +156,7 @@ def draw_bands(d, ctx, fig):
     axes[0].set_ylabel(f"|relative energy error| (1), median and 5–95 %; ≥ {CLIP:g} drawn at {CLIP:g}")
     for ax in axes[len(hs):]:
         ax.set_visible(False)
-    fig.legend(*axes[0].get_legend_handles_labels(), title="scheme", loc="outside right upper", fontsize=8)
+    fig.legend(*axes[0].get_legend_handles_labels(), title="scheme", loc="outside right center", fontsize=8)
 
 
 STUDY = Study(

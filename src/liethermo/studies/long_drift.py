@@ -256,7 +256,7 @@ def draw(d, ctx, fig):
         ax.grid(True, which="major", alpha=0.3)
     for ax in axes[len(panels):]:
         ax.set_visible(False)
-    fig.legend(*axes[0].get_legend_handles_labels(), title="scheme", loc="outside right upper", fontsize=8)
+    fig.legend(*axes[0].get_legend_handles_labels(), title="scheme", loc="outside right center", fontsize=8)
 
 
 STUDY = Study(

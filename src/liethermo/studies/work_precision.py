@@ -282,7 +282,7 @@ def _draw(ds, ctx, fig) -> None:
             Line2D([], [], marker="^", fillstyle="none", color="0.3", ls="", label="lower bound (≥)"),
             Line2D([], [], marker="x", color="0.3", ls=":", label="h^p-line estimate")]
     handles, labels = ax.get_legend_handles_labels()
-    fig.legend(handles + keys, labels + [k.get_label() for k in keys], fontsize=8, loc="outside right upper")
+    fig.legend(handles + keys, labels + [k.get_label() for k in keys], fontsize=8, loc="outside right center")
 
 
 _Q = {"error": ("1", "max over members of the error at t_end"), "failed": ("1", "members that failed"), "cost_repeats":
