@@ -26,6 +26,8 @@ TOL = 0.5  # px: boxes that merely touch do not overlap
 #: resolved path -> layout engine class name (None: explicit margins) of every
 #: figure the test session saved and checked (filled by conftest.legible_figures)
 SAVED_FIGURES: dict[str, str | None] = {}
+#: file names of the study figures the session checked with :func:`readability_problems`
+STUDY_FIGURES_CHECKED: set[str] = set()
 
 
 def _overlap(a, b) -> bool:

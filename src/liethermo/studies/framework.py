@@ -94,8 +94,9 @@ class Option:
 @dataclass(frozen=True)
 class Stage:
     """Tasks of one kind: ``fn(ctx, coords, **needed)`` over the Cartesian
-    product of the axes ``over``; ``needs``: stages whose axes are a subset
-    of these, passed by name; ``prefix``: put before every variable name;
+    product of the axes ``over``; ``needs``: earlier stages, passed by name
+    (one dataset where their axes are a subset of these, else the list of
+    ``(coords, dataset)`` of their tasks at these coordinates); ``prefix``: put before every variable name;
     ``serial``: run in this process even under Dask (timings)."""
 
     name: str
@@ -358,7 +359,16 @@ def _compute(study: Study, ctx: Context, progress, dask) -> dict[str, list[tuple
     done: dict[tuple[str, str], xr.Dataset] = {}
 
     def needed(stage: Stage, coords: dict) -> dict:
-        return {n: done[(n, point_key({k: coords[k] for k in stages[n].over}))] for n in stage.needs}
+        """The results of the stages ``stage`` needs at ``coords``: one dataset, or where the needed stage runs
+        over more axes, the ``[(coords, dataset)]`` of its tasks that match these coordinates, in plan order."""
+        out = {}
+        for n in stage.needs:
+            shared = [k for k in stages[n].over if k in coords]
+            if len(shared) == len(stages[n].over):
+                out[n] = done[(n, point_key({k: coords[k] for k in stages[n].over}))]
+            else:
+                out[n] = [(c, done[(n, point_key(c))]) for c in plan[n] if all(c[k] == coords[k] for k in shared)]
+        return out
 
     with contextlib.ExitStack() as stack:
         if dask is not None:
@@ -620,10 +630,9 @@ def _draw_lines(f: Figure, ds: xr.Dataset, ctx: Context):
             handles.setdefault(hv or var, ln)
         if f.decorate is not None:
             f.decorate(ax, var, d, ctx)
-        if f.x in ds.dims and 1 < ds.sizes[f.x] <= 16:  # ticks at the swept values, at most 6 labelled
+        if f.x in ds.dims and 1 < ds.sizes[f.x] <= 16:  # ticks at the swept values, labelled where they part
             xv = np.asarray(ds[f.x].values, float)
-            every = -(-len(xv) // 6)
-            ax.set_xticks(xv, [f"{v:.3g}" if i % every == 0 else "" for i, v in enumerate(xv)])
+            ax.set_xticks(xv, _spaced_labels(xv, logs[0]))
             ax.xaxis.set_minor_locator(NullLocator())
         ax.set_xlabel(axis_label(ds[f.x]))
         units = ds[var].attrs.get("units", "")
@@ -648,6 +657,18 @@ def _draw_lines(f: Figure, ds: xr.Dataset, ctx: Context):
         fig.legend(allh.values(), allh.keys(), fontsize=8, title=title if len(handles) > 1 else None,
                    loc="outside right center")
     return fig
+
+
+def _spaced_labels(xv, log: bool) -> list[str]:
+    """Labels of ticks at swept values: from the largest down, a value is labelled when it lies at least a
+    seventh of the axis (in decades on a log axis) from the last labelled one; at most 6."""
+    pos = np.log10(np.where(xv > 0, xv, np.nan)) if log else np.asarray(xv, float)
+    span = np.nanmax(pos) - np.nanmin(pos) if np.isfinite(pos).sum() > 1 else 0.0
+    out, last = [""] * len(xv), None
+    for i in np.argsort(-np.nan_to_num(pos, nan=-np.inf)):
+        if np.isfinite(pos[i]) and (last is None or abs(last - pos[i]) >= span / 7) and sum(map(bool, out)) < 6:
+            out[i], last = f"{xv[i]:.3g}", pos[i]
+    return out
 
 
 def _band_span(ds, dim) -> str:

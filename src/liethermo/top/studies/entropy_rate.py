@@ -184,8 +184,8 @@ STUDY = Study(
                     claim=("the relative entropy error of each method over the grid (one panel per method; the worse "
                            "of the grid's heat capacities); hatched cells are runs that failed")),
              Figure("errors_in_time", kind="lines", x="t", y=("entropy_error_t", "rate_error_t"),
-                    title=lambda ds, ctx: "Entropy rate: errors in time at the first grid point (" + ", ".join(
-                        f"{k} = {v:g}" for k, v in (ctx.points[0] if ctx.points else {}).items()) + ")",
+                    title=lambda ds, ctx: "Entropy rate: errors in time at the first grid point\n" + ", ".join(
+                        f"{k} = {v}" for k, v in (ctx.points[0] if ctx.points else {}).items()),
                     claim="at the first grid point, how each method's entropy and rate errors grow in time (the "
                           "computed and exact curves themselves are in the netCDF)")),
     report=("Scene `{scene}`, h = {opt[h]} s to t = {opt[t_end]} s, one member per grid point; the exact solution "

@@ -93,6 +93,7 @@ def draw_spectrum(ds, ctx, fig):
     for a, nu in zip(axes, nus):
         spectrum_lines(a, ds["l"].values, ds["t"].values, ds["energy_spectrum"].sel({NU: nu}).values, 5)
         a.set(title=f"ν = {nu:g} s⁻¹", xlabel="degree l", ylabel="E_l (J)")
+        a.yaxis.set_tick_params(labelleft=True)  # shared, but numbered on every panel
     for a in axes[len(nus):]:
         a.set_visible(False)
     fig.legend(*axes[0].get_legend_handles_labels(), fontsize=7, loc="outside right center")
