@@ -172,8 +172,10 @@ def reference_slopes(ax, var, d, ctx) -> None:
         hh = h[(c * (h / h0) ** p) >= floor]  # down to the panel's least error, not below it
         if hh.size < 2:
             continue
-        ax.plot(hh, c * (hh / h0) ** p * 3.0, ls=":", color="0.35", lw=1.0,  # a factor 3 above: beside the data
-                scalex=False, scaley=False)  # the data set the view, not the guide
+        from matplotlib.lines import Line2D
+
+        # a factor 3 above: beside the data; an artist, not a plotted line, so that the data alone set the view
+        ax.add_artist(Line2D(hh, c * (hh / h0) ** p * 3.0, ls=":", color="0.35", lw=1.0))
         ax.annotate(f"h$^{p}$", (hh.min(), c * (hh.min() / h0) ** p * 3.0), fontsize=8, color="0.25",
                     xytext=(-2, 0), textcoords="offset points", ha="right", va="center", annotation_clip=True)
 
