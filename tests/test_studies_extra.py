@@ -151,7 +151,7 @@ def test_work_precision_times_in_this_process():
     from liethermo.studies.work_precision import STUDY
 
     assert {s.name: s.serial for s in STUDY.stages} == {"reference": False, "errors": False, "costs": True,
-                                                       "scipy": True}
+                                                       "extend": True, "scipy": True}
 
 
 def test_time_to_error_interpolation():
