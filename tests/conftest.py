@@ -42,7 +42,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from layout import SAVED_FIGURES, layout_problems
+from layout import SAVED_FIGURES, STUDY_FIGURES_CHECKED, layout_problems, readability_problems
 from liethermo.top.physics import Physics
 
 
@@ -68,6 +68,27 @@ def legible_figures():
     Figure.savefig = checked_savefig
     yield
     Figure.savefig = save
+
+
+@pytest.fixture(scope="session", autouse=True)
+def readable_study_figures():
+    """Every figure a study draws in the session (each study's reduced run, in the
+    module that runs it) also has a title and at least two tick labels on every
+    axis (:func:`layout.readability_problems`); the names of the checked figures
+    are kept in ``STUDY_FIGURES_CHECKED``."""
+    from liethermo.studies import framework
+
+    save = framework.save_figure
+
+    def checked(fig, path):
+        problems = readability_problems(fig, 120)
+        assert not problems, f"{path}: unreadable study figure:\n  " + "\n  ".join(problems)
+        STUDY_FIGURES_CHECKED.add(Path(path).name)
+        return save(fig, path)
+
+    framework.save_figure = checked
+    yield
+    framework.save_figure = save
 
 A_RADIUS = 0.05  # m
 MU = 0.1  # kg m^-1 s^-1

@@ -26,6 +26,8 @@ TOL = 0.5  # px: boxes that merely touch do not overlap
 #: resolved path -> layout engine class name (None: explicit margins) of every
 #: figure the test session saved and checked (filled by conftest.legible_figures)
 SAVED_FIGURES: dict[str, str | None] = {}
+#: file names of the study figures the session checked with :func:`readability_problems`
+STUDY_FIGURES_CHECKED: set[str] = set()
 
 
 def _overlap(a, b) -> bool:
@@ -113,4 +115,29 @@ def layout_problems(fig, dpi: float | None = None) -> list[str]:
     for (da, _, ba), (db, _, bb) in combinations(items, 2):
         if _overlap(ba, bb):
             problems.append(f"overlap: {da} / {db}")
+    return problems
+
+
+def readability_problems(fig, dpi: float | None = None) -> list[str]:
+    """What a reader of a study figure misses, with :func:`layout_problems`:
+    a title (the figure's suptitle), and at least two non-empty tick labels
+    drawn on every visible axis of every visible axes (a colorbar: its long
+    axis) — a log axis spanning less than a decade with its minor labels
+    blanked has none."""
+    fig.draw_without_rendering()
+    problems = list(layout_problems(fig, dpi))
+    sup = fig._suptitle
+    if sup is None or not sup.get_visible() or not sup.get_text().strip():
+        problems.append("no title")
+    for ax in fig.axes:
+        if not ax.get_visible() or not ax.axison:
+            continue
+        name = ax.get_label() or ax.get_title().split("\n")[0] or f"axes@{id(ax):x}"
+        keys = [k for k, axis in ax._axis_map.items() if axis.get_visible()]
+        if ax.get_label() == "<colorbar>":  # only the long axis carries ticks
+            keys = ["y"] if ax.bbox.height >= ax.bbox.width else ["x"]
+        for key in keys:
+            n = len(_drawn_ticklabels(ax._axis_map[key]))
+            if n < 2:
+                problems.append(f"{name}: {key} axis has {n} tick label(s)")
     return problems

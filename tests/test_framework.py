@@ -157,3 +157,24 @@ def test_one_study_file_runs_on_a_scene_of_either_model(tmp_path, capsys):
     bad.write_text('methods = ["rk4"]\n[study]\nkind = "convergence"\n[model.fluid.options]\nh0 = 1.0\n')
     assert main(["study", str(bad), "-o", str(tmp_path / "o"), "--no-progress"]) == 2
     assert "model.fluid: must be a table named after a model (top, zeitlin, torus)" in capsys.readouterr().err
+
+
+def _imports_simulate(source: str) -> list[str]:
+    """The lines of ``source`` that import the integrator entry point ``simulate`` itself."""
+    import ast
+
+    return [f"line {n.lineno}" for n in ast.walk(ast.parse(source)) if isinstance(n, ast.ImportFrom)
+            and any(a.name == "simulate" for a in n.names)
+            or isinstance(n, ast.Import) and any(a.name.endswith(".simulate") for a in n.names)]
+
+
+def test_studies_run_their_methods_through_the_run_layer():
+    """No study module calls the integrator directly: each runs a scene's members through the
+    resolved run (liethermo.top.resolve, or the framework's run_scene), as every run of the scene does."""
+    pkg = ROOT / "src" / "liethermo"
+    modules = sorted(pkg.glob("studies/*.py")) + sorted(pkg.glob("*/studies/*.py"))
+    assert len(modules) >= 20
+    bad = {str(p.relative_to(pkg)): hits for p in modules if (hits := _imports_simulate(p.read_text()))}
+    assert not bad, bad
+    assert _imports_simulate("from ..simulate import Trajectory, simulate\n") == ["line 1"]  # the check can fail
+    assert _imports_simulate("def f():\n    from liethermo.top.simulate import simulate\n") == ["line 2"]

@@ -151,7 +151,7 @@ def test_work_precision_times_in_this_process():
     from liethermo.studies.work_precision import STUDY
 
     assert {s.name: s.serial for s in STUDY.stages} == {"reference": False, "errors": False, "costs": True,
-                                                       "scipy": True}
+                                                       "extend": True, "scipy": True}
 
 
 def test_time_to_error_interpolation():
@@ -409,7 +409,7 @@ def test_resume_does_not_recompute(visc, monkeypatch):
     def boom(*a, **k):
         raise AssertionError("a finished sweep point was recomputed")
 
-    monkeypatch.setattr(viscosity_sweep, "run_spec", boom)
+    monkeypatch.setattr(viscosity_sweep, "run_members", boom)
     study = load_study(STUDIES / "viscosity_sweep.toml")
     viscosity_sweep.STUDY.run(study, out, reduced=True, progress=False)
 

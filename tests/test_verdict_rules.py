@@ -99,3 +99,51 @@ def test_the_bootstrap_is_seeded():
     a, b = rng.lognormal(0.0, 1.0, 32), rng.lognormal(0.2, 1.0, 32)
     assert paired_ratio(a, b) == paired_ratio(a, b)
     assert paired_ratio(a, b, seed=1) != paired_ratio(a, b, seed=2)
+
+
+# ----------------------------------------------------------------------------- work_precision's ladder extension
+
+def _ladder(p: float = 2.0, floor: float = 0.0):
+    calls = []
+
+    def error_at(h):
+        calls.append(h)
+        return h ** p + floor
+    return error_at, calls
+
+
+def test_an_unbracketed_time_extends_the_ladder_until_it_is_bracketed():
+    from liethermo.studies.work_precision import extend_ladder, time_to_error
+
+    hs = [0.1, 0.05, 0.025]
+    f, calls = _ladder()
+    es = [f(h) for h in hs]
+    assert time_to_error(es, [1 / h for h in hs], 1e-4)[1] == "lower bound"  # 0.025² = 6.25e-4 > 1e-4
+    calls.clear()
+    got = extend_ladder(hs, es, [1e-4], 2, f)
+    assert [h for h, _ in got] == [0.0125, 0.00625] == calls
+    h2, e2 = hs + [h for h, _ in got], es + [e for _, e in got]
+    assert time_to_error(e2, [1 / h for h in h2], 1e-4)[1] == "bracketed"
+    # the upper side: the coarsest level is already below ε = 0.05, so h is doubled while it divides t_end = 0.4
+    got = extend_ladder(hs, es, [0.05], 2, f, fits=lambda h: abs(0.4 / h - round(0.4 / h)) < 1e-9)
+    assert [h for h, _ in got] == [0.4, 0.2]
+    h2, e2 = [h for h, _ in got] + hs, [e for _, e in got] + es
+    assert time_to_error(e2, [1 / h for h in h2], 0.05)[1] == "bracketed"
+
+
+def test_a_time_out_of_the_caps_reach_keeps_its_bound_label():
+    from liethermo.studies.work_precision import extend_ladder
+
+    hs = [0.1, 0.05, 0.025]
+    f, calls = _ladder()
+    es = [f(h) for h in hs]
+    calls.clear()
+    assert extend_ladder(hs, es, [1e-6], 2, f) == [] and calls == []  # the h² line needs 4.6 halvings > 2
+    assert extend_ladder(hs, es, [1e-4], 0, f) == [] and calls == []  # no extension allowed
+    assert [h for h, _ in extend_ladder(hs, es, [1e-4, 1e-6], 2, f)] == [0.0125, 0.00625]  # the reachable ε still
+    calls.clear()
+    assert extend_ladder(hs, es, [1e-2, 1e-3], 2, f) == [] and calls == []  # bracketed already: nothing to add
+    g, calls = _ladder(floor=5e-4)  # a round-off floor just below the finest level: the first added level stops it
+    es = [g(h) for h in hs]
+    calls.clear()
+    assert len(extend_ladder(hs, es, [5.5e-4], 2, g)) == 1 and len(calls) == 1

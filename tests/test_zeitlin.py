@@ -3,6 +3,9 @@ conservation laws, scenes, datasets, the command line."""
 
 from __future__ import annotations
 
+import warnings
+from pathlib import Path
+
 import numpy as np
 import pytest
 import xarray as xr
@@ -457,3 +460,23 @@ def test_the_predicted_start_saves_iterations_not_accuracy():
         runs[use] = (W, np.mean(its[10:]))
     assert np.abs(runs[True][0] - runs[False][0]).max() < 1e-12 * np.abs(W0).max()
     assert runs[True][1] < runs[False][1] - 1.5
+
+
+def test_the_compositions_heat_never_fell_where_measured():
+    """docs/model.md's measured (not a law) monotone heat of split4 and split6, on a small grid
+    (benchmarks/zeitlin_entropy.py runs the full one): no step lowers the heat up to ν h λ_max = 47.6,
+    and at 99 split6's fixed point does not converge in its first step (status 1) while split4's does."""
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    from zeitlin_entropy import measure
+
+    for m in ("split4", "split6"):
+        for N, nu, h in ((16, 1.0, 0.2), (16, 0.1, 0.05)):
+            r = measure(m, N, nu, h, members=2, steps=60)
+            assert r["failed"] == 0 and r["compared"] == 120 and r["decreasing"] == 0, (m, N, nu, h, r)
+    with np.errstate(all="ignore"), warnings.catch_warnings():  # the failing member's last iterates overflow
+        warnings.simplefilter("ignore", RuntimeWarning)
+        hot = {m: measure(m, 32, 1.0, 0.1, members=2, steps=5) for m in ("split4", "split6")}
+    assert hot["split6"]["status"] == [1] and hot["split6"]["first_failed_step"] == 1
+    assert hot["split4"]["failed"] == 0 and hot["split4"]["decreasing"] == 0

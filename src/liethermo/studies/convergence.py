@@ -155,6 +155,31 @@ def findings(ds, ctx) -> list[str]:
     return out
 
 
+def reference_slopes(ax, var, d, ctx) -> None:
+    """Dashed grey lines C h^p, one per declared order p, through the median error at the coarsest h of the methods
+    of that order: the slope a method of order p follows until the round-off floor."""
+    h = np.asarray(d["h"].values, float)
+    h0 = h.max()
+    for p in sorted({int(ctx.model.method_order(m)) for m in ctx.methods}):
+        ms = [m for m in ctx.methods if int(ctx.model.method_order(m)) == p and m in d["scheme"].values]
+        e0 = [float(d[var].sel(scheme=m, h=h0)) for m in ms]
+        e0 = [e for e in e0 if np.isfinite(e) and e > 0]
+        if not e0:
+            continue
+        c = float(np.median(e0))
+        vals = np.asarray(d[var].values, float)
+        floor = np.min(vals[np.isfinite(vals) & (vals > 0)], initial=c)
+        hh = h[(c * (h / h0) ** p) >= floor]  # down to the panel's least error, not below it
+        if hh.size < 2:
+            continue
+        from matplotlib.lines import Line2D
+
+        # a factor 3 above: beside the data; an artist, not a plotted line, so that the data alone set the view
+        ax.add_artist(Line2D(hh, c * (hh / h0) ** p * 3.0, ls=":", color="0.35", lw=1.0))
+        ax.annotate(f"h$^{p}$", (hh.min(), c * (hh.min() / h0) ** p * 3.0), fontsize=8, color="0.25",
+                    xytext=(-2, 0), textcoords="offset points", ha="right", va="center", annotation_clip=True)
+
+
 STUDY = Study(
     kind="convergence", title="Convergence", models=None,
     description="Observed orders per method and variable against the reference, h halving",
@@ -168,6 +193,7 @@ STUDY = Study(
             Stage("errors", errors, over=("point", "scheme", "h"), needs=("reference",))),
     quantities=QUANTITIES, derive=derive, tables=tables, verdicts=verdicts, findings=findings,
     figures=(Figure("convergence", kind="lines", x="h", y=lambda ds: [f"error_{n}" for n in _names(ds)], logx=True, logy=True,
+                    decorate=reference_slopes, title="Convergence: error against the step (dotted: h^p, the declared orders)",
                     claim="the errors fall as h^p with each method's declared order until the round-off floor"),),
     report=("Scene `{scene}` ({model}), {opt[members]} member(s), t_end = {opt[t_end]} s, h = {opt[h0]} s halved "
             "{levels_less} times, compared at t = j·{opt[h0]} s with the reference at h = {h_ref:.3g} s. The fit "

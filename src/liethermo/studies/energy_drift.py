@@ -155,10 +155,11 @@ def draw_bands(d, ctx, fig):
         blown = ", ".join(f"{m} {n}/{d.sizes['member']}" for m, n in x["blown_up_members"].to_series().items() if n)
         ax.set(yscale="log", xlabel="t (s)", title=f"h = {h:g} s" + (f"\nblown up: {blown}" if blown else ""))
         ax.grid(True, which="major", alpha=0.3)
+        ax.yaxis.set_tick_params(labelleft=True)  # shared, but numbered on every panel
     axes[0].set_ylabel(f"|relative energy error| (1), median and 5–95 %; ≥ {CLIP:g} drawn at {CLIP:g}")
     for ax in axes[len(hs):]:
         ax.set_visible(False)
-    fig.legend(*axes[0].get_legend_handles_labels(), title="scheme", loc="outside right upper", fontsize=8)
+    fig.legend(*axes[0].get_legend_handles_labels(), title="scheme", loc="outside right center", fontsize=8)
 
 
 STUDY = Study(

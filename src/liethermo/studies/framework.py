@@ -94,8 +94,9 @@ class Option:
 @dataclass(frozen=True)
 class Stage:
     """Tasks of one kind: ``fn(ctx, coords, **needed)`` over the Cartesian
-    product of the axes ``over``; ``needs``: stages whose axes are a subset
-    of these, passed by name; ``prefix``: put before every variable name;
+    product of the axes ``over``; ``needs``: earlier stages, passed by name
+    (one dataset where their axes are a subset of these, else the list of
+    ``(coords, dataset)`` of their tasks at these coordinates); ``prefix``: put before every variable name;
     ``serial``: run in this process even under Dask (timings)."""
 
     name: str
@@ -124,10 +125,15 @@ class Figure:
     facet: str | None = None  # a dimension: one panel per value (wrapped, at most 3 columns)
     logx: bool | None = None  # None: where the values span more than two decades
     logy: bool | None = None
-    title: str = ""
+    title: str | Callable = ""  # the suptitle ("{opt[h]}" fields), or (ds, ctx) -> it; default "<study>: <name>"
     draw: Callable | None = None
     select: Callable | None = None  # ds, ctx -> the part of ds drawn (default: the first sweep point)
     size: tuple[float, float] | None = None
+    band: str | None = None  # a dimension of stored quantiles: its middle value drawn as the line, the outer ones
+    #                         as a shaded band (lines figures)
+    points: bool = False  # markers only, not joined (values sampled too sparsely for a curve, or categories)
+    categories: tuple[str, ...] = ()  # heatmap of codes 0, 1, …: one colour per named category, a legend
+    decorate: Callable | None = None  # (ax, var, ds, ctx) -> None: drawn on each lines panel (reference slopes)
 
 
 @dataclass(frozen=True)
@@ -355,7 +361,16 @@ def _compute(study: Study, ctx: Context, progress, dask) -> dict[str, list[tuple
     done: dict[tuple[str, str], xr.Dataset] = {}
 
     def needed(stage: Stage, coords: dict) -> dict:
-        return {n: done[(n, point_key({k: coords[k] for k in stages[n].over}))] for n in stage.needs}
+        """The results of the stages ``stage`` needs at ``coords``: one dataset, or where the needed stage runs
+        over more axes, the ``[(coords, dataset)]`` of its tasks that match these coordinates, in plan order."""
+        out = {}
+        for n in stage.needs:
+            shared = [k for k in stages[n].over if k in coords]
+            if len(shared) == len(stages[n].over):
+                out[n] = done[(n, point_key({k: coords[k] for k in stages[n].over}))]
+            else:
+                out[n] = [(c, done[(n, point_key(c))]) for c in plan[n] if all(c[k] == coords[k] for k in shared)]
+        return out
 
     with contextlib.ExitStack() as stack:
         if dask is not None:
@@ -450,9 +465,13 @@ COMMON_QUANTITIES = {
 
 # ----------------------------------------------------------------------------- figures
 
+#: a method's colour by its place in the study's list; from the ninth on its lines are dashed
+#: (:func:`method_style`), and each colour differs in hue from the one eight places before it
 PALETTE = ("#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#17becf",
-           "#7f7f7f", "#bcbd22", "#393b79", "#ad494a", "#637939", "#843c39", "#7b4173", "#3182bd")
+           "#7f7f7f", "#bcbd22", "#000000", "#0b6e4f", "#ad494a", "#393b79", "#7b4173", "#e6ab02")
 MARKERS = ("o", "s", "^", "v", "D", "P", "X", "*", "<", ">", "h", "p")
+#: colours of a heatmap's categories (good to bad): green, yellow, orange, red, dark purple, …
+CATEGORY_COLORS = ("#1a9850", "#fee08b", "#fc8d59", "#d73027", "#542788", "#4d4d4d", "#91bfdb")
 #: colours of hues that are not methods (members, quantiles): none of them a method's
 OTHER_COLORS = ("#000000", "#8a8a8a", "#b8860b", "#4b0082", "#2f4f4f", "#c71585")
 
@@ -460,6 +479,53 @@ OTHER_COLORS = ("#000000", "#8a8a8a", "#b8860b", "#4b0082", "#2f4f4f", "#c71585"
 def method_color(methods: list[str], method: str) -> str:
     i = list(methods).index(method) if method in methods else len(methods) + hash(method) % 7
     return PALETTE[i % len(PALETTE)]
+
+
+def method_style(methods: list[str], method: str) -> str:
+    """The line style of a method: solid for the first eight of the study's list, dashed after."""
+    return "-" if method not in methods or list(methods).index(method) < 8 else "--"
+
+
+def sci_label(v: float) -> str:
+    """A tick label: ``0.02``, ``3×10⁻⁵`` (mathtext) for values far from 1."""
+    if v == 0 or not np.isfinite(v):
+        return f"{v:g}"
+    k = int(np.floor(np.log10(abs(v)) + 1e-9))
+    if -3 <= k <= 3:
+        return f"{v:.3g}"
+    m = v / 10.0 ** k
+    return f"$10^{{{k}}}$" if abs(m - 1) < 1e-6 else f"${m:.2g}\\times10^{{{k}}}$"
+
+
+def readable_log_ticks(ax) -> None:
+    """Give each log axis of ``ax`` at least two tick labels: where its view holds fewer than two powers of ten
+    (a log axis spanning less than a decade shows no number otherwise), labelled ticks at 1, 2, 5 × 10^k (or
+    denser, or the view's ends) replace the decades."""
+    from matplotlib.ticker import FixedLocator, FuncFormatter, NullFormatter
+
+    for axis in (ax.xaxis, ax.yaxis):
+        if axis.get_scale() != "log" or not axis.get_visible():
+            continue
+        lo, hi = sorted(float(v) for v in axis.get_view_interval())
+        if not (lo > 0 and hi > lo and np.isfinite(hi)):
+            continue
+        axis.set_minor_formatter(NullFormatter())  # minor labels run into each other
+        k0, k1 = int(np.ceil(np.log10(lo) - 1e-9)), int(np.floor(np.log10(hi) + 1e-9))
+        if k1 - k0 + 1 >= 2:
+            continue
+        ticks = []
+        for subs in ((1, 2, 5), (1, 2, 3, 5, 7), tuple(range(1, 10))):
+            ticks = [m * 10.0 ** k for k in range(k0 - 1, k1 + 2) for m in subs if lo <= m * 10.0 ** k <= hi]
+            if len(ticks) >= 2:
+                break
+        if len(ticks) < 2:  # less than a factor 10/9: the ends, with the digits that tell them apart
+            ticks = list(np.geomspace(lo, hi, 5)[[1, 3]])
+            digits = max(2, int(np.ceil(-np.log10(np.log10(hi / lo)))) + 2)
+            axis.set_major_locator(FixedLocator(ticks))
+            axis.set_major_formatter(FuncFormatter(lambda v, _, d=digits: f"{v:.{d}g}"))
+            continue
+        axis.set_major_locator(FixedLocator(ticks[::-(-len(ticks) // 6)]))  # at most 6 labelled
+        axis.set_major_formatter(FuncFormatter(lambda v, _: sci_label(v)))
 
 
 def spans_decades(values, decades: float = 2.0) -> bool:
@@ -516,41 +582,60 @@ def _expand(names, ds) -> list[str]:
 
 
 def _draw_lines(f: Figure, ds: xr.Dataset, ctx: Context):
-    from matplotlib.ticker import NullFormatter
+    from matplotlib.ticker import NullLocator
+
     ys = _expand(f.y, ds)
     panels = [(v, None) for v in ys] if f.facet is None else [(ys[0], i) for i in range(ds.sizes[f.facet])]
     fig, axes = _grid(len(panels), f.size)
     hues = [str(h) for h in ds[f.hue].values] if f.hue in ds.dims else [None]
-    handles = {}
+    handles, nonfinite = {}, False
     for ax, (var, fi) in zip(axes, panels):
         d = ds if fi is None else ds.isel({f.facet: fi})
         lines = []
         for j, hv in enumerate(hues):
             dd = d if hv is None else d.isel({f.hue: j})  # by position: a numeric hue is not its text
             x = np.asarray(dd[f.x].values, float).ravel()
-            y = np.asarray(dd[var].values, float).ravel()
+            band = None
+            if f.band and f.band in dd[var].dims:  # the middle quantile, the outer ones as a band
+                qd = dd[var].sortby(f.band)
+                y = np.asarray(qd.isel({f.band: qd.sizes[f.band] // 2}).values, float).ravel()
+                band = [np.asarray(qd.isel({f.band: i}).values, float).ravel() for i in (0, -1)]
+            else:
+                y = np.asarray(dd[var].values, float).ravel()
             ok = np.isfinite(x) & np.isfinite(y)
-            if ok.any():
+            bad = np.isfinite(x) & ~np.isfinite(y)  # a blow-up, a failed or censored run: marked, not dropped
+            if ok.any() or bad.any():
                 order = np.argsort(x[ok])
-                lines.append((j, hv, x[ok][order], y[ok][order]))
+                lines.append((j, hv, x[ok][order], y[ok][order], x[bad],
+                              None if band is None else [b[ok][order] for b in band]))
         xs = np.concatenate([ln[2] for ln in lines]) if lines else np.array([])
-        ys = np.concatenate([ln[3] for ln in lines]) if lines else np.array([])
-        logs = [on if on is not None else spans_decades(vals) for on, vals in ((f.logx, xs), (f.logy, ys))]
-        for j, hv, x, y in lines:
+        yv = np.concatenate([ln[3] for ln in lines] + [b for ln in lines if ln[5] for b in ln[5]]) if lines else xs
+        logs = [on if on is not None else spans_decades(vals) for on, vals in ((f.logx, xs), (f.logy, yv))]
+        for on, axis in zip(logs, ("x", "y")):
+            if on:
+                (ax.set_xscale if axis == "x" else ax.set_yscale)("log")
+        for j, hv, x, y, xbad, band in lines:
             if logs[1]:  # a zero on a log axis is a gap, not a line to the bottom
                 y = np.where(y > 0, y, np.nan)
-            color = ctx.color(hv) if hv in ctx.methods else OTHER_COLORS[j % len(OTHER_COLORS)]
+            is_method = hv in ctx.methods
+            color = ctx.color(hv) if is_method else OTHER_COLORS[j % len(OTHER_COLORS)]
+            style = "none" if f.points else method_style(ctx.methods, hv) if is_method else "-"
             (ln,) = ax.plot(x, y, color=color, marker=MARKERS[j % len(MARKERS)], ms=7 - 2 * (j % 2), mfc="none",
-                            lw=1.2, label=hv or var, markevery=max(1, len(x) // 12))  # a long series: few markers
+                            ls=style, lw=1.2, label=hv or var, markevery=1 if f.points else max(1, len(x) // 12))
+            if band is not None:
+                lo_, hi_ = (np.where(b > 0, b, np.nan) if logs[1] else b for b in band)
+                ax.fill_between(x, lo_, hi_, color=color, alpha=0.15, lw=0)
+            if xbad.size:
+                nonfinite = True
+                ax.plot(xbad, np.full(xbad.size, 0.97), transform=ax.get_xaxis_transform(), ls="none", marker="X",
+                        ms=8, color=color, clip_on=False)
             handles.setdefault(hv or var, ln)
-        for on, axis in zip(logs, (ax.xaxis, ax.yaxis)):
-            if on:
-                (ax.set_xscale if axis is ax.xaxis else ax.set_yscale)("log")
-                axis.set_minor_formatter(NullFormatter())  # minor labels run into each other
-        if f.x in ds.dims and 1 < ds.sizes[f.x] <= 16:  # ticks at the swept values, at most 6 labelled
+        if f.decorate is not None:
+            f.decorate(ax, var, d, ctx)
+        if f.x in ds.dims and 1 < ds.sizes[f.x] <= 16:  # ticks at the swept values, labelled where they part
             xv = np.asarray(ds[f.x].values, float)
-            every = -(-len(xv) // 6)
-            ax.set_xticks(xv, [f"{v:.3g}" if i % every == 0 else "" for i, v in enumerate(xv)])
+            ax.set_xticks(xv, _spaced_labels(xv, logs[0]))
+            ax.xaxis.set_minor_locator(NullLocator())
         ax.set_xlabel(axis_label(ds[f.x]))
         units = ds[var].attrs.get("units", "")
         ax.set_ylabel(axis_label(ds[var]) if len(panels) == 1 else f"{var} ({units})" if units else var)
@@ -559,11 +644,38 @@ def _draw_lines(f: Figure, ds: xr.Dataset, ctx: Context):
         elif len(panels) > 1:
             ax.set_title(str(ds[var].attrs.get("long_name", var)))
         ax.grid(True, which="both", alpha=0.3)
-    if len(handles) > 1:  # one legend for every panel, outside the axes: it covers no data
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    extra = {}
+    if f.band:
+        extra[f"band: {f.band} {_band_span(ds, f.band)}"] = Patch(color="0.5", alpha=0.3)
+    if nonfinite:
+        extra["× at the top: no finite value"] = Line2D([], [], ls="none", marker="X", color="0.3")
+    if len(handles) > 1 or extra:  # one legend for every panel, outside the axes: it covers no data
         unit = ds[f.hue].attrs.get("units", "") if f.hue in ds.coords else ""
         title = f"{f.hue} ({unit})" if unit and unit != "1" else f.hue  # a legend of values says their unit
-        fig.legend(handles.values(), handles.keys(), fontsize=8, title=title, loc="outside right upper")
+        allh = {**(handles if len(handles) > 1 else {}), **extra}
+        fig.legend(allh.values(), allh.keys(), fontsize=8, title=title if len(handles) > 1 else None,
+                   loc="outside right center")
     return fig
+
+
+def _spaced_labels(xv, log: bool) -> list[str]:
+    """Labels of ticks at swept values: from the largest down, a value is labelled when it lies at least a
+    seventh of the axis (in decades on a log axis) from the last labelled one; at most 6."""
+    pos = np.log10(np.where(xv > 0, xv, np.nan)) if log else np.asarray(xv, float)
+    span = np.nanmax(pos) - np.nanmin(pos) if np.isfinite(pos).sum() > 1 else 0.0
+    out, last = [""] * len(xv), None
+    for i in np.argsort(-np.nan_to_num(pos, nan=-np.inf)):
+        if np.isfinite(pos[i]) and (last is None or abs(last - pos[i]) >= span / 7) and sum(map(bool, out)) < 6:
+            out[i], last = f"{xv[i]:.3g}", pos[i]
+    return out
+
+
+def _band_span(ds, dim) -> str:
+    q = np.sort(np.asarray(ds[dim].values, float)) if dim in ds.coords else np.array([])
+    return f"{q[0]:g} – {q[-1]:g}, line {q[q.size // 2]:g}" if q.size > 1 else ""
 
 
 def _fmt_coord(v) -> str:
@@ -583,6 +695,11 @@ def _draw_heatmap(f: Figure, ds: xr.Dataset, ctx: Context):
         ydim = "row"
     panels = [None] if f.facet is None else list(range(ds.sizes[f.facet]))
     fig, axes = _grid(len(panels), f.size)
+    if f.categories:
+        from matplotlib.colors import BoundaryNorm, ListedColormap
+
+        cmap = ListedColormap(CATEGORY_COLORS[:len(f.categories)])
+        cnorm = BoundaryNorm(np.arange(len(f.categories) + 1) - 0.5, len(f.categories))
     finite_all = np.asarray(ds[var].values, float)
     finite_all = finite_all[np.isfinite(finite_all)]
     log = f.logy if f.logy is not None else spans_decades(finite_all)
@@ -593,9 +710,13 @@ def _draw_heatmap(f: Figure, ds: xr.Dataset, ctx: Context):
         z = np.asarray(d[var].transpose(ydim, xdim).values, float)
         bad = ~np.isfinite(z)
         ax.set_facecolor("none")
-        norm = LogNorm(vmin=vmin, vmax=vmax) if log and vmin else None
-        im = ax.imshow(np.ma.masked_invalid(z), aspect="auto", origin="lower", norm=norm,
-                       vmin=None if norm else vmin, vmax=None if norm else vmax, cmap="viridis")
+        if f.categories:  # codes 0, 1, …: one colour each, named in a legend
+            im = ax.imshow(np.ma.masked_invalid(z), aspect="auto", origin="lower", cmap=cmap, norm=cnorm,
+                           interpolation="nearest")
+        else:
+            norm = LogNorm(vmin=vmin, vmax=vmax) if log and vmin else None
+            im = ax.imshow(np.ma.masked_invalid(z), aspect="auto", origin="lower", norm=norm,
+                           vmin=None if norm else vmin, vmax=None if norm else vmax, cmap="viridis")
         for (i, j) in zip(*np.nonzero(bad)):
             ax.add_patch(plt.Rectangle((j - 0.5, i - 0.5), 1, 1, fill=False, hatch="xx", color="0.4", lw=0))
         ax.set_xticks(range(z.shape[1]), [_fmt_coord(v) for v in d[xdim].values], rotation=45, fontsize=7)
@@ -605,6 +726,14 @@ def _draw_heatmap(f: Figure, ds: xr.Dataset, ctx: Context):
         if fi is not None:
             ax.set_title(f"{f.facet} = {_fmt_coord(ds[f.facet].values[fi])}")
     bad_any = not np.isfinite(np.asarray(ds[var].values, float)).all()
+    if f.categories:
+        from matplotlib.patches import Patch
+
+        patches = [Patch(color=CATEGORY_COLORS[i], label=c) for i, c in enumerate(f.categories)]
+        if bad_any:
+            patches.append(Patch(fill=False, hatch="xx", color="0.4", label="not finite"))
+        fig.legend(handles=patches, title=axis_label(ds[var]), fontsize=8, loc="outside right center")
+        return fig
     fig.colorbar(im, ax=axes, label=axis_label(ds[var]) + ("; hatched: not finite" if bad_any else ""))
     return fig
 
@@ -626,8 +755,11 @@ def draw_figures(study: Study, ctx: Context, ds: xr.Dataset) -> list[tuple[Figur
         else:
             fig = plt.figure(figsize=f.size or (7, 4.5), layout="constrained")
             f.draw(d, ctx, fig)
-        if f.title:
-            fig.suptitle(f.title)
+        title = f.title(d, ctx) if callable(f.title) else f.title.format(opt=ctx.opt, scene=ctx.scene_name)
+        if title or fig._suptitle is None or not fig._suptitle.get_text():
+            fig.suptitle(title or f"{ctx.name}: {f.name.replace('_', ' ')}")
+        for ax in fig.axes:
+            readable_log_ticks(ax)
         out.append((f, save_figure(fig, ctx.outdir / f"{f.name}.png")))
     return out
 

@@ -73,6 +73,11 @@ def errors(ctx, coords, reference) -> xr.Dataset:
                        "failed": ((), int(bad.sum()))}, coords={"state": list(ref)})
 
 
+def _max_error(ctx, coords, reference, h: float) -> float:
+    """The largest error over the members and state variables of the method at step h (inf: a failed member)."""
+    return float(np.max(errors(ctx, {**coords, "h": h}, reference)["state_error"].values))
+
+
 def costs(ctx, coords) -> xr.Dataset:
     """Every method at this h timed interleaved, each run of the members repeated to cover timing_member_steps."""
     h, N = float(coords["h"]), ctx.opt["members"]
@@ -83,6 +88,78 @@ def costs(ctx, coords) -> xr.Dataset:
         if not timing.loaded(c):
             break
     return _cost_ds({m: c[m].per(n) for m in ctx.methods}, "scheme", timed_members=((), n))
+
+
+def extend_ladder(levels, errors, epsilons, cap: int, error_at, fits=lambda h: True) -> list[tuple[float, float]]:
+    """Levels to add to a ladder of steps (coarse → fine) so that a time to each ε in ``epsilons`` the ladder only
+    bounds becomes bracketed: ``[(h, error)]``, found by calling ``error_at(h)``.
+
+    Where the finest level is still above an ε (a lower bound), h is halved below the finest level; where the
+    coarsest is already below one (an upper bound), h is doubled above the coarsest (while ``fits(h)``, e.g. h
+    divides t_end).  At most ``cap`` levels at each end, and only while the log–log line of the two levels at
+    that end (the method's observed h^p) says the ε it bounds is reached within what is left of the cap;
+    otherwise that time keeps its bound label.  A level that stops gaining (the round-off floor) or fails ends
+    that side."""
+    hs, es, added = [float(h) for h in levels], [float(e) for e in errors], []
+    left = {"fine": int(cap), "coarse": int(cap)}
+
+    def side() -> tuple[str, float] | None:
+        t = 1.0 / np.asarray(hs)  # cost ∝ 1/h: only what the ladder brackets matters here
+        hows = {eps: time_to_error(es, t, eps)[1] for eps in epsilons}
+        lower = [x for x, how in hows.items() if how == "lower bound"]
+        upper = [x for x, how in hows.items() if how == "upper bound"]
+        if lower and left["fine"]:  # the nearest ε first: the largest one still above the finest level
+            return "fine", max(lower)
+        if upper and left["coarse"]:  # the smallest one already below the coarsest level
+            return "coarse", min(upper)
+        return None
+
+    while (s := side()) is not None:
+        where, eps = s
+        i, j = (-2, -1) if where == "fine" else (1, 0)
+        e_end = np.nan_to_num(es[j], nan=np.inf)
+        if len(hs) < 2 or not (np.isfinite(es[i]) and np.isfinite(e_end) and es[i] > 0 and e_end > 0):
+            left[where] = 0
+            continue
+        p = math.log(es[i] / e_end) / math.log(hs[i] / hs[j])  # the observed order at that end
+        need = math.log(e_end / eps) / (p * math.log(2.0)) if p > 0 else math.inf  # halvings (doublings) to ε
+        h = hs[j] / 2.0 if where == "fine" else hs[j] * 2.0
+        if not (0 < abs(need) <= left[where]) or (where == "coarse" and not fits(h)):
+            left[where] = 0
+            continue
+        e = float(error_at(h))
+        left[where] -= 1
+        added.append((h, e))
+        if where == "fine":
+            hs.append(h), es.append(e)
+            if not np.isfinite(e) or e * FLOOR_GAIN > e_end:  # failed, or stopped gaining: the floor
+                left["fine"] = 0
+        else:
+            hs.insert(0, h), es.insert(0, e)
+            if not np.isfinite(e):
+                left["coarse"] = 0
+    return sorted(added, reverse=True)
+
+
+def extend(ctx, coords, reference, errors) -> xr.Dataset:
+    """The levels this method's ladder adds to bracket its times to ε (:func:`extend_ladder`, at most
+    ``extend_levels`` at each end), each run on the members and timed alone like the ladder's levels."""
+    m, cap, T = coords["scheme"], int(ctx.opt["extend_levels"]), float(ctx.opt["t_end"])
+    lev = sorted(((float(c["h"]), float(np.max(d["state_error"].values))) for c, d in errors), reverse=True)
+    got = extend_ladder([h for h, _ in lev], [e for _, e in lev], ctx.opt["epsilons"], cap,
+                        lambda h: _max_error(ctx, coords, reference, h),
+                        fits=lambda h: h <= T and abs(T / h - round(T / h)) <= 1e-9 * T / h)
+    rows = {k: np.full(2 * cap, np.nan) for k in ("h", "error", "cost", "cost_spread", "cost_repeats", "failed")}
+    N = ctx.opt["members"]
+    for k, (h, e) in enumerate(got):
+        n = N * -(-ctx.opt["timing_member_steps"] // (N * round(T / h)))
+        c = timing.measure({m: lambda: _run(ctx, coords["point"], m, h, n)[1].kernel_time},
+                           repeats=ctx.opt["repeats"], min_time=ctx.opt["min_timing"], threads=ctx.opt["threads"])[m]
+        c = c.per(n)
+        for key, v in (("h", h), ("error", e), ("cost", c.best), ("cost_spread", c.spread),
+                       ("cost_repeats", c.repeats), ("failed", float(not np.isfinite(e)))):
+            rows[key][k] = v
+    return xr.Dataset({k: ("added", v) for k, v in rows.items()})
 
 
 def _cost_ds(c: dict, dim: str, **more) -> xr.Dataset:
@@ -157,9 +234,19 @@ def time_to_error(errors, times, eps: float):
 
 
 def _curves(ds) -> dict:
-    """{candidate: (levels, errors, costs, spreads, repeats, failed)}: the methods over h, scipy's over rtol."""
+    """{candidate: (levels, errors, costs, spreads, repeats, failed)}: the methods over h (the ladder and the levels
+    it added, coarse to fine), scipy's over rtol."""
     v = ("error", "cost", "cost_spread", "cost_repeats", "failed")
-    out = {m: (ds["h"].values, *(ds[k].sel(scheme=m).values for k in v)) for m in ds["scheme"].values}
+    out = {}
+    for m in ds["scheme"].values:
+        cols = [np.asarray(ds["h"].values, float), *(np.asarray(ds[k].sel(scheme=m).values, float) for k in v)]
+        if "added_h" in ds and ds.sizes.get("added", 0):
+            more = [np.asarray(ds[f"added_{k}"].sel(scheme=m).values, float) for k in ("h", *v)]
+            keep = np.isfinite(more[0])
+            cols = [np.concatenate([a, b[keep]]) for a, b in zip(cols, more)]
+            order = np.argsort(-cols[0], kind="stable")
+            cols = [c[order] for c in cols]
+        out[m] = tuple(cols)
     for sm in ds["solver"].values if "solver" in ds.dims else []:
         out[f"scipy {sm}"] = (ds["rtol"].values, *(ds[f"scipy_{k}"].sel(solver=sm).values for k in v))
     return out
@@ -200,6 +287,15 @@ def reach(ds, ctx) -> tuple[list[dict], list[dict]]:
                      "possibly cheaper, not bracketed": "; ".join(_bound_text(n, got[n], eps) for n in could) or "none",
                      "loaded": ", ".join(f"{n} (spread {c[n].spread:.0%})" for n in busy) or "no"})
     return list(ttr.values()), rows
+
+
+def _added_text(ds) -> str:
+    """``": added vi at h = 2.44e-05, 1.22e-05 s"`` (or ``"; none added"``)."""
+    if "added_h" not in ds or not ds.sizes.get("added", 0):
+        return "; none added"
+    parts = [f"{m} at h = " + ", ".join(f"{h:.3g}" for h in ds["added_h"].sel(scheme=m).values if np.isfinite(h)) + " s"
+             for m in ds["scheme"].values if np.isfinite(ds["added_h"].sel(scheme=m).values).any()]
+    return ": added " + "; ".join(parts) if parts else "; none added"
 
 
 def derive(ds, ctx) -> xr.Dataset:
@@ -282,14 +378,16 @@ def _draw(ds, ctx, fig) -> None:
             Line2D([], [], marker="^", fillstyle="none", color="0.3", ls="", label="lower bound (≥)"),
             Line2D([], [], marker="x", color="0.3", ls=":", label="h^p-line estimate")]
     handles, labels = ax.get_legend_handles_labels()
-    fig.legend(handles + keys, labels + [k.get_label() for k in keys], fontsize=8, loc="outside right upper")
+    fig.legend(handles + keys, labels + [k.get_label() for k in keys], fontsize=8, loc="outside right center")
 
 
 _Q = {"error": ("1", "max over members of the error at t_end"), "failed": ("1", "members that failed"), "cost_repeats":
       ("1", "repeats"), "cost": ("s", "cost per member (min over repeats)"), "cost_spread": ("1", "median / min - 1")}
 QUANTITIES = {**_Q, **{f"scipy_{k}": v for k, v in _Q.items()}, "timed_members": ("1", "members of one timed run"),
               "state_error": ("1", "|x - x_ref| / |x(0)| at t_end"), "state": ("1", "state variable of the model"),
-              "rtol": ("1", "solve_ivp relative tolerance"), "solver": ("1", "solve_ivp method")}
+              "rtol": ("1", "solve_ivp relative tolerance"), "solver": ("1", "solve_ivp method"),
+              **{f"added_{k}": (u, f"level added to the ladder: {n}") for k, (u, n) in
+                 {**_Q, "h": ("s", "time step")}.items()}, "added": ("1", "level added to the ladder (NaN: none)")}
 
 STUDY = Study(
     kind="work_precision", title="Work–precision", models=None, needs_methods=False,
@@ -303,11 +401,15 @@ STUDY = Study(
              Option("epsilons", [1e-3, 1e-6, 1e-9], "list[number>0]", "1", "error levels of the closing tables"),
              Option("threads", 1, "int>=1", "1", "threads when timing"), Option("repeats", 5, "int>=1", "1", "rounds"),
              Option("min_timing", 0.05, "number>0", "s", "timed seconds per method and h, at least"),
+             Option("extend_levels", 2, "int>=0", "1", "levels the ladder may add at each end (h halved below the "
+                    "finest, doubled above the coarsest) to bracket a time to ε it only bounds"),
              Option("timing_member_steps", 2**18, "int>=1", "1", "member-steps of a timed run, at least")),
     axes=_axes, check=_check, quantities=QUANTITIES, derive=derive, tables=tables, verdicts=verdicts, findings=findings,
     stages=(Stage("reference", reference, keep=()),
             Stage("errors", errors, over=("point", "scheme", "h"), needs=("reference",)),
             Stage("costs", costs, over=("point", "h"), serial=True),
+            Stage("extend", extend, over=("point", "scheme"), needs=("reference", "errors"), serial=True,
+                  prefix="added_"),
             Stage("scipy", scipy_runs, over=("point", "rtol"), needs=("reference",), serial=True, prefix="scipy_")),
     figures=(Figure("work_precision", kind="custom", draw=_draw, size=(9.5, 5.5), claim=(
         "the lowest curve at an error level (dashed lines) is the tables' cheapest; bars reach the median repeat; "
@@ -321,10 +423,14 @@ STUDY = Study(
             "it is not stated). A time to ε is **bracketed** when two neighbouring levels lie on either side of ε; "
             "where the coarsest level is already below ε it is an **upper bound**, where the finest is still above "
             "it a **lower bound** (each with its h^p-line estimate, not used by any verdict), and where the finest "
-            "levels stopped gaining (less than 2× per level) ε is **below the round-off floor**. A verdict rests on "
+            "levels stopped gaining (less than 2× per level) ε is **below the round-off floor**. Where a time is only "
+            "bounded, the ladder adds up to {opt[extend_levels]} level(s) at that end (h halved below the finest, doubled "
+            "above the coarsest while it divides t_end), each timed alone, when the log–log line of its two end levels "
+            "says ε is reached within them{added}. A verdict rests on "
             "bracketed times only and is left undecided (—) where a method with only a bound could be cheaper. "
             "{scipy}"),
-    facts=lambda ds, ctx: {"state": ", ".join(ds["state"].values), "ref": ctx.model.methods()["reference"].description,
+    facts=lambda ds, ctx: {"added": _added_text(ds),
+                           "state": ", ".join(ds["state"].values), "ref": ctx.model.methods()["reference"].description,
                            "scipy": SCIPY_NOTE.format(s=", ".join(ctx.axes["solver"]), o=ctx.opt) if ctx.axes["solver"]
                            else "scipy's solve_ivp is skipped (no continuous right-hand side, or scipy_members = 0)."},
 )

@@ -75,16 +75,21 @@ class ResolvedRun:
                     heat_bound=self.heat_bound, device=self.scene["ensemble"]["device"])
 
     def simulate(self, omega0: np.ndarray, R0: np.ndarray, *, steps: int | None = None,
-                 every: int | None = None, kernel: str = "auto", **kw):
+                 every: int | None = None, kernel: str = "auto", physics: Physics | None = None, **kw):
         """:func:`liethermo.top.simulate.simulate` of the members with these initial
         conditions (as many as ``omega0`` has rows), the run's whole length
-        unless ``steps`` (and ``every``) say otherwise."""
+        unless ``steps`` (and ``every``) say otherwise.  ``physics``: the
+        members' own parameters (one row per member, e.g. a study's map of
+        frictions) instead of the scene's; ``kw`` (``heat_bound``, ``threads``,
+        ``chunk_steps``, …) replace the scene's :meth:`simulate_options`."""
         from .simulate import simulate
 
         n = len(omega0)
-        return simulate(self.physics_for(n), omega0, R0, self.h, self.steps if steps is None else steps,
-                        self.choice, every=self.every if every is None else every,
-                        **self.simulate_options(kernel), **kw)
+        if physics is not None and physics.n != n:
+            raise ValueError(f"physics: {physics.n} members for {n} initial conditions")
+        return simulate(self.physics_for(n) if physics is None else physics, omega0, R0, self.h,
+                        self.steps if steps is None else steps, self.choice,
+                        every=self.every if every is None else every, **{**self.simulate_options(kernel), **kw})
 
 
 def resolve(scene) -> ResolvedRun:

@@ -110,7 +110,7 @@ CORE_KEYS: tuple[Key, ...] = (
         "(coupled_egg: 299.4 K)", number(0.0, lo_open=True)),
     Key("thermo", "S0", 0.0, "J K-1", "finite", "initial entropy", number()),
     Key("thermo", "heat_capacity", "material", "J K-1", '"material" | > 0',
-        'heat capacity c_v of body and fluid; "material": Dulong–Petit 3 (m/M) R',
+        'heat capacity c_v of the body (the fluid\'s is not counted); "material": Dulong–Petit 3 (m/M) R of the body\'s mass m',
         word_or("material", _cv_check)),
     Key("initial", "omega", [0.0, 1.0, 1.0], "rad s-1", "[Ω1, Ω2, Ω3], finite",
         "initial body angular velocity Ω(0)", vector((3,))),

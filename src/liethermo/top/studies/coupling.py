@@ -15,7 +15,7 @@ from ...studies.common import StudyError, dim_name
 from ...studies.framework import Figure, Option, Stage, Study, Table, Verdict
 from ..laws import energy_errors
 from ...analysis import direction_angle, rotation_angle, settling_time
-from .tools import column, ensemble, method_choice, pad_members, quantile_columns, reference_label, run_spec, same_members, status_units
+from .tools import column, ensemble, method_choice, pad_members, quantile_columns, reference_label, run_members, same_members, status_units
 
 SWEEP_KEY = key_of(ROLE_THERMAL_COUPLING)
 DIM = dim_name(SWEEP_KEY)
@@ -38,7 +38,7 @@ def _energy(ctx, point, method, limit, **kw):
     scene, spec, phys, om, R, N = ensemble(ctx, point, method, limit)
     steps = int(round(kw.pop("t_end") / (h := float(scene["integrator"]["h"]))))
     every = max(1, steps // kw.pop("nodes", steps))
-    tr = run_spec(phys, om, R, h, (steps // every) * every, spec, every=every, **kw)
+    tr = run_members(scene, spec, om, R, h=h, steps=(steps // every) * every, every=every, **kw)
     with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
         err, e = energy_errors(tr, om, R), node_energies(tr)
         rel = np.abs(err["node"] / err["scale"][:, None])
@@ -180,18 +180,24 @@ STUDY = Study(
              Option("drift_nodes", 1000, "int>=1", "1", "stored nodes of the long run")),
     models=("top",), check=_check, quantities=Q, derive=derive, tables=tables, verdicts=verdicts, findings=findings,
     stages=(Stage("run", run, over=("point", "scheme")), Stage("drift", drift, over=("scheme",))),
-    figures=(Figure("coupling_settling", x=DIM, y=("settling_time", "settling_time_change"), select=lambda ds, ctx: ds
+    figures=(Figure("coupling_settling", x=DIM, title="Coupling: median settling time against alpha", y=("settling_time", "settling_time_change"), select=lambda ds, ctx: ds
                     .isel(member=same_members(ds, ctx.methods)).median("member", keep_attrs=True), claim="median over "
                     "the reference's members: methods agree; the coupled top settles later, the more at larger alpha"),
-             Figure("coupling_traces", x="t", y=("temperature_trace", "inertia_factor_trace"), hue="trace", logx=False,
+             Figure("coupling_traces", x="t", title="Coupling: temperature and inertia of a few members", y=("temperature_trace", "inertia_factor_trace"), hue="trace", logx=False,
                     select=lambda ds, ctx: ds.sel({DIM: ctx.opt["check_alpha"], "scheme": ctx.opt["motion_method"]})
                     .assign_coords(trace=[f"member {int(i)}" for i in ds["trace"]]), claim="{opt[motion_method]}, "
                     "alpha = {opt[check_alpha]} K-1: friction heats the top, its inertia grows; T dips in fast spin"),
-             Figure("coupling_energy", x="t", y=("relative_energy_error_quantiles",), logx=False,
-                    select=lambda ds, ctx: ds.sel({DIM: ctx.opt["check_alpha"], "quantile": 0.5}), claim="at alpha = "
-                    "{opt[check_alpha]} K-1 the median energy error over the same members stops changing at rest"),
-             Figure("coupling_drift", x="drift_time", y=("drift_error_median",), logx=False,
-                    claim="over the long low-viscosity horizon the median energy error stays bounded")),
+             Figure("coupling_energy", x="t", y=("relative_energy_error_quantiles",), logx=False, band="quantile",
+                    select=lambda ds, ctx: ds.sel({DIM: ctx.opt["check_alpha"]}), title="Coupling: energy error at "
+                    "alpha = {opt[check_alpha]} K-1 (median, 5-95 % band)",
+                    claim="at alpha = {opt[check_alpha]} K-1 the median energy error over the same members stops "
+                    "changing at rest"),
+             Figure("coupling_drift", x="drift_time", y=("drift_error_median",), logx=False, points=True,
+                    title=lambda ds, ctx: "Coupling: long-run median energy error, a node every "
+                                          f"{ctx.opt['drift_t_end'] / ctx.opt['drift_nodes']:g} s",
+                    claim="over the long low-viscosity horizon the median energy error stays bounded; the nodes "
+                          "(every drift_t_end / drift_nodes: 2 s at full size, 1 s reduced) are coarser than the "
+                          "top's oscillation (about 1.2 s), so the points are samples of it, not a curve")),
     report=("Scene `{scene}` (𝕀(S) = 𝕀₀(1 + α(θ − T₀))²), the same random members at every alpha, node values "
             "(kinetic energy from the node velocity 𝕀(S_k)⁻¹μ_k), t_end = {opt[t_end]} s. The reference (DOP853 with "
             "substeps) runs the first {opt[reference_members]} members, compared there. No cost is reported."),

@@ -180,10 +180,12 @@ STUDY = Study(
              Option("tolerance", 1e-4, "number>0", "1", "largest relative error the verdicts accept")),
     check=_check, stages=(Stage("run", run, over=("point", "scheme")),),
     quantities=QUANTITIES, derive=derive, tables=tables, verdicts=verdicts, findings=findings,
-    figures=(Figure("entropy_error", kind="heatmap", facet="scheme", y=("entropy_error",), select=_worst_over_cv,
+    figures=(Figure("entropy_error", kind="heatmap", title="Entropy rate: relative entropy error over the grid", facet="scheme", y=("entropy_error",), select=_worst_over_cv,
                     claim=("the relative entropy error of each method over the grid (one panel per method; the worse "
                            "of the grid's heat capacities); hatched cells are runs that failed")),
              Figure("errors_in_time", kind="lines", x="t", y=("entropy_error_t", "rate_error_t"),
+                    title=lambda ds, ctx: "Entropy rate: errors in time at the first grid point\n" + ", ".join(
+                        f"{k} = {v}" for k, v in (ctx.points[0] if ctx.points else {}).items()),
                     claim="at the first grid point, how each method's entropy and rate errors grow in time (the "
                           "computed and exact curves themselves are in the netCDF)")),
     report=("Scene `{scene}`, h = {opt[h]} s to t = {opt[t_end]} s, one member per grid point; the exact solution "

@@ -14,7 +14,7 @@ from ..physics import kinetic_energy, physics_of_scene
 from ...studies.common import StudyError, dim_name
 from ...studies.framework import Figure, Option, Stage, Study, Table, Verdict
 from ...analysis import direction_angle, observed_orders, settling_time
-from .tools import column, ensemble, method_choice, pad_members, quantile_columns, reference_label, run_spec, same_members, status_units
+from .tools import column, ensemble, method_choice, pad_members, quantile_columns, reference_label, run_members, same_members, status_units
 
 SWEEP_KEY = key_of(ROLE_MOMENTUM_FRICTION)
 DIM, ROUNDOFF = dim_name(SWEEP_KEY), 1e-12  # ROUNDOFF: a Casimir drift below it is round-off, no order is fitted
@@ -34,7 +34,7 @@ def _spin(ctx, point: dict, method: str, h: float | None, limit: int | None):
     scene, spec, phys, om, R, N = ensemble(ctx, point, method, limit)
     h = float(scene["integrator"]["h"]) if h is None else h
     every = max(1, int(round(ctx.opt["lambda_t_end"] / float(point[SWEEP_KEY]) / (h * ctx.opt["nodes"]))))
-    tr = run_spec(phys, om, R, h, every * ctx.opt["nodes"], spec, every=every)
+    tr = run_members(scene, spec, om, R, h=h, steps=every * ctx.opt["nodes"], every=every)
     mu = tr.momentum if tr.choice.method.node_form else phys.inertia[:, None, :] * tr.omega
     mu0 = np.linalg.norm(phys.inertia * om, axis=-1)[:, None]
     return tr, phys, om, mu, np.abs(np.linalg.norm(mu, axis=-1) - mu0) / mu0, every * ctx.opt["nodes"] * h, N
@@ -157,15 +157,18 @@ STUDY = Study(
     verdicts=verdicts, findings=findings, derive=lambda ds, ctx: ds if not (ref := reference_label(ctx.methods)) else
         ds.assign(settling_time_minus_reference=ds.settling_time - ds.settling_time.sel(scheme=ref, drop=True)),
     figures=(Figure("flat_spin_excess", x="node_time", y=("excess_ratio_quantiles",), hue=DIM, logx=False, logy=True,
-                    select=lambda ds, ctx: ds.sel(scheme=ctx.methods[0], quantile=0.5), claim="the kinetic energy "
-                    "falls onto the floor |μ|²/(2 I_max) of its orbit, sooner for a larger λ (first method, median)"),
-             Figure("flat_spin_casimir", x="node_time", y=("casimir_drift_quantiles",), logx=False,
-                    select=lambda ds, ctx: ds.sel({DIM: ctx.opt["casimir_lambda"]}, method="nearest").sel(quantile=.5),
+                    band="quantile", select=lambda ds, ctx: ds.sel(scheme=ctx.methods[0]),
+                    title="Flat spin: kinetic energy above its floor (first method; median, 5-95 % band)",
+                    claim="the kinetic energy falls onto the floor |μ|²/(2 I_max) of its orbit, sooner for a larger "
+                          "λ (first method, median)"),
+             Figure("flat_spin_casimir", x="node_time", y=("casimir_drift_quantiles",), logx=False, band="quantile",
+                    select=lambda ds, ctx: ds.sel({DIM: ctx.opt["casimir_lambda"]}, method="nearest"),
+                    title="Flat spin: Casimir drift |μ| (median, 5-95 % band over members)",
                     claim="the variational integrators keep |μ| to round-off; the others drift (median over members)"),
-             Figure("flat_spin_casimir_h", x="casimir_step", y=("casimir_drift_h",), logx=True, logy=True,
+             Figure("flat_spin_casimir_h", x="casimir_step", title="Flat spin: Casimir drift against the step", y=("casimir_drift_h",), logx=True, logy=True,
                     select=lambda ds, ctx: ds[["casimir_drift_h"]].max("casimir_member", keep_attrs=True),
                     claim="the explicit methods' Casimir drift (max over members) falls with h at their order"),
-             Figure("flat_spin_settling", x=DIM, y=("settling_time",), logx=True, logy=True, select=lambda ds, ctx: ds
+             Figure("flat_spin_settling", x=DIM, title="Flat spin: median settling time against λ", y=("settling_time",), logx=True, logy=True, select=lambda ds, ctx: ds
                     .isel(member=same_members(ds, ctx.methods)).median("member", keep_attrs=True), claim="the median "
                     "settling time over the members the reference ran falls as 1/λ, alike for every method")),
     report=("Scene `{scene}`, node values over t_end = {opt[lambda_t_end]} s² kg⁻¹ m⁻² / λ ({opt[nodes]} nodes). The "

@@ -11,10 +11,9 @@ from numpy.linalg import norm
 from ..initial import initial_conditions
 from ..methods import negative_substep_limits
 from ..physics import kinetic_energy, physics_of_scene, potential_energy
-from ..simulate import simulate
 from ..methods import keeps_geometry
 from ...studies.common import StudyError
-from .tools import method_choice, status_units
+from .tools import method_choice, run_members, status_units
 from ...studies.framework import Figure, Option, Stage, Study, Table, Verdict
 from ...timing import pinned_threads
 
@@ -31,11 +30,13 @@ def _check(ctx) -> None:
         ctx.scene(c.get("scene", {}))
 
 
-def run(phys, om, R, h, steps, method, ref=True):
-    """Every member with one method (and against the reference): the trajectory and per-member diagnostics."""
+def run(scene, phys, om, R, h, steps, method, ref=True):
+    """Every member (its own ``phys`` row) of ``scene`` with one method (and against the reference): the trajectory
+    and per-member diagnostics."""
+    kw = dict(h=h, steps=int(steps), physics=phys, chunk_steps=max(int(steps), 1), threads=1)
     with pinned_threads(1):
-        tr = simulate(phys, om, R, h, steps, method_choice(method), chunk_steps=max(int(steps), 1), threads=1)
-        rf = simulate(phys, om, R, h, steps, "reference", chunk_steps=max(int(steps), 1), threads=1) if ref else None
+        tr = run_members(scene, method, om, R, **kw)
+        rf = run_members(scene, "reference", om, R, **kw) if ref else None
     d = {"status": tr.status, "newton_max": tr.newton_max, "newton_mean": tr.newton_iterations / np.maximum(
          tr.steps_done, 1), "failed_at_step": np.where(tr.status != 0, tr.fail_step, -1), "max_h_omega": tr.max_h_omega}
     if rf is not None:
@@ -50,20 +51,21 @@ def run(phys, om, R, h, steps, method, ref=True):
 
 
 def _spun(scene, hw, h):
-    """The scene's physics, spins (h|Ω₀|)/h along its spin, and its attitude: one member per h|Ω₀|."""
+    """The scene, its physics, spins (h|Ω₀|)/h along its spin, and its attitude: one member per h|Ω₀|."""
     d, R = np.asarray(scene["initial"]["omega"], float), np.asarray(scene["initial"]["R"], float)
-    return physics_of_scene(scene, hw.size), np.outer(hw / h, d / np.linalg.norm(d)), np.repeat(R[None], hw.size, 0)
+    return (scene, physics_of_scene(scene, hw.size), np.outer(hw / h, d / np.linalg.norm(d)),
+            np.repeat(R[None], hw.size, 0))
 
 
 def map_cells(ctx, coords) -> xr.Dataset:
     opt, h = ctx.opt, float(ctx.opt["h"])
     hw, ka = np.asarray(opt["h_omega"], float), np.asarray(opt["kappa"], float)
     HW, KA = np.meshgrid(hw, ka, indexing="ij")
-    phys, om, R = _spun(ctx.scene(opt["map_scene"]), HW.ravel(), h)
+    scene, phys, om, R = _spun(ctx.scene(opt["map_scene"]), HW.ravel(), h)
     C = phys.linear_resistance()[0]  # its shape kept, its largest entry c = κ I_min / h
     C = C / C.max() if C.max() > 0 else np.ones(3)
     phys = phys.with_linear_resistance((KA.ravel() * phys.inertia.min(axis=1) / h)[:, None] * C[None])
-    _, d = run(phys, om, R, h, int(opt["steps"]), coords["scheme"])
+    _, d = run(scene, phys, om, R, h, int(opt["steps"]), coords["scheme"])
     bounded = (d["energy_growth"] <= opt["growth_limit"]) & (d["gamma_defect"] <= 0.1)
     d["regime"] = np.select([d["status"] == 2, d["status"] == 1, ~bounded, d["error_max"] > opt["error_threshold"]],
                             [4, 3, 2, 1], 0).astype(np.int8)
@@ -75,7 +77,7 @@ def case_run(ctx, coords) -> xr.Dataset:
     c = next(c for c in ctx.opt["cases"] if c["name"] == coords["case"])
     scene, h = ctx.scene(c.get("scene", {})), float(c["h"])
     phys, (om, R) = physics_of_scene(scene), initial_conditions(scene, 0, 1)
-    tr, d = run(phys, om, R, h, int(c["steps"]), coords["scheme"])
+    tr, d = run(scene, phys, om, R, h, int(c["steps"]), coords["scheme"])
     d.update(h_omega0=h * np.linalg.norm(om, axis=1), kappa=phys.linear_resistance().max(axis=1) * h /
              phys.inertia.min(axis=1), jacobian_cond_max=tr.newton_condition() if tr.choice.method.solves_newton else [np.nan])
     return xr.Dataset({k: ((), np.asarray(v)[0]) for k, v in d.items()})
@@ -188,11 +190,13 @@ STUDY = Study(
             Stage("limit", newton_limit, over=(), prefix="limit_")),
     quantities=QUANTITIES, tables=tables, verdicts=verdicts, findings=findings,
     figures=(Figure("regimes", kind="heatmap", x="h_omega", hue="kappa", facet="scheme", y=("regime",), logy=False,
-                    claim="each method's regime per cell (" + ", ".join(f"{i} {c}" for i, c in enumerate(CLASSES)) +
+                    categories=tuple(c.replace("_", " ") for c in CLASSES),
+                    title="Stability: each method's regime per cell (h = {opt[h]} s, {opt[steps]} steps)", claim="each method's regime per cell (" + ", ".join(f"{i} {c}" for i, c in enumerate(CLASSES)) +
                     "): the VIs stay bounded outside their growth band, the explicit methods not at large h|Ω₀|"),
              Figure("errors", kind="heatmap", x="h_omega", hue="kappa", facet="scheme", y=("error_max",), logy=True,
                     select=lambda ds, ctx: ds.assign(error_max=ds["error_max"].where(~np.isfinite(ds["error_max"]) | (
-                        ds["error_max"] <= 1e3), 1e3)), claim="errors above 1e3 drawn at 1e3; hatched: overflow")),
+                        ds["error_max"] <= 1e3), 1e3)), title="Stability: max error against the reference per cell",
+                    claim="errors above 1e3 drawn at 1e3; hatched: not finite")),
     report=("Map scene `{scene}` (overrides {opt[map_scene]}), h = {opt[h]} s, {opt[steps]} steps. Error: max_k max("
             "|Ω_k − Ω_ref(t_k)|/|Ω₀|, |Γ_k − Γ_ref(t_k)|), node values against the reference; accurate: error ≤ "
             "{opt[error_threshold]}; bounded: E_mech above rest ≤ {opt[growth_limit]}× its start and ||Γ| − 1| ≤ 0.1. "

@@ -3,13 +3,15 @@ the quantities (ensemble numerics are :mod:`liethermo.analysis`, what a trajecto
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 
 import numpy as np
 
 from ...analysis import quantile_band
 from ..physics import Physics, physics_of_scene
-from ..simulate import Trajectory, simulate
+from ..resolve import resolve
+from ..simulate import Trajectory
 from ...studies.common import StudyError
 
 #: the sentence every report uses to say what node values are
@@ -21,9 +23,21 @@ NODE_VALUES_NOTE = (
     "and so adds an O(h) error of the diagnostic itself (\"paper convention\").")
 
 
-def run_spec(phys: Physics, omega0, R0, h: float, steps: int, spec, **kw) -> Trajectory:
-    """:func:`simulate` with a method label or its :func:`method_choice`."""
-    return simulate(phys, omega0, R0, h, steps, method_choice(spec) if isinstance(spec, str) else spec, **kw)
+def run_members(scene, method, omega0, R0, *, h: float, steps: int, every: int = 1, attitude: bool = False,
+                physics: Physics | None = None, **kw) -> Trajectory:
+    """Members with the initial conditions ``omega0`` (n, 3) and ``R0`` (n, 3, 3) run with ``method`` (a label or its
+    :func:`method_choice`) at step ``h`` for ``steps`` steps, keeping every ``every``-th node, through the run layer:
+    the scene with the method's keys and this step, resolved as every run of it is
+    (:func:`liethermo.top.resolve.resolve`: physics, method choice, Newton settings, ensemble loop, device).
+    ``physics``: the members' own parameters (one row per member) instead of the scene's.  The studies keep the
+    exact 1/T beyond the cubic's range (no heat bound, ``heat_bound=None``) unless ``kw`` says otherwise; ``kw``:
+    further keywords of :func:`liethermo.top.simulate.simulate` (``threads``, ``chunk_steps``, …)."""
+    spec = method_choice(method) if isinstance(method, str) else method
+    run = resolve(scene.with_overrides({**spec.overrides(), "integrator.h": float(h), "integrator.steps": int(steps),
+                                        "output.every": int(every), "output.attitude": bool(attitude)}))
+    if dataclasses.replace(run.choice, label=spec.label) != spec:
+        raise StudyError(f"method {method!r}: the scene resolves it to {run.choice}")
+    return run.simulate(omega0, R0, physics=physics, **{"heat_bound": None, **kw})
 
 
 def column(ds, name: str, stat: str = "") -> str:

@@ -12,7 +12,7 @@ from ..kernels.terms import ROLE_LINEAR_FRICTION, key_of
 from ..physics import physics_of_scene, temperature
 from ...studies.common import StudyError, dim_name
 from ...studies.framework import Figure, Option, Stage, Study, Table, Verdict
-from .tools import method_choice, run_spec, status_units
+from .tools import method_choice, run_members, status_units
 
 SWEEP_KEY = key_of(ROLE_LINEAR_FRICTION)  #: the key swept: the strength of the friction linear in Ω
 DIM = dim_name(SWEEP_KEY)
@@ -52,7 +52,7 @@ def sweep(ctx, coords) -> xr.Dataset:
     t_end = float(np.clip(opt["t_end_factor"] * tau, lo, max(lo, float(opt["t_end_max"]))))
     # about `outputs` nodes, the first entropy time resolved
     every = min(max(1, int(round(t_end / h / int(opt["outputs"])))), max(1, int(np.floor(min(times) / h + 1e-9))))
-    tr = run_spec(phys, om, R, h, int(np.ceil(t_end / (h * every))) * every, opt["method"], every=every)
+    tr = run_members(scene, opt["method"], om, R, h=h, steps=int(np.ceil(t_end / (h * every))) * every, every=every)
     t, sig, E = tr.times, tr.sigma, phys.mechanical_energy((e := node_energies(tr))["K"], e["V"])
     by = [np.full(n, np.nan) if ti > t[-1] else np.array([np.interp(ti, t, y) for y in sig]) for ti in times]
     mb = "member"
@@ -139,9 +139,10 @@ STUDY = Study(
              Option("outputs", 4000, "int>=1", "1", "stored steps per run, about (≥ 10)")),
     needs_methods=False, check=_check, stages=(Stage("sweep", sweep, over=("point",)),),
     quantities=QUANTITIES, derive=derive, tables=tables, verdicts=verdicts, findings=findings,
-    figures=(Figure("settling_time", x=DIM, y=("settling_time_quartiles",), hue="quantile", logy=True,
+    figures=(Figure("settling_time", x=DIM, y=("settling_time_quartiles",), band="quantile", logy=True,
+                    title="Viscosity sweep: settling time (median, quartile band)",
                     select=lambda ds, ctx: ds, claim="settled members' quartiles: ∝ 1/μ below μ_crit, longer above"),
-             Figure("entropy_by_time", x=DIM, y=("entropy_by_time_mean",), hue="entropy_time",
+             Figure("entropy_by_time", x=DIM, title="Viscosity sweep: mean entropy produced by each time", y=("entropy_by_time_mean",), hue="entropy_time",
                     select=lambda ds, ctx: ds, claim="the mean entropy produced by each entropy_time against μ: by the last it is the same at "
                           "every μ (the initial mechanical energy over T₀), while at an early time it depends on "
                           "how fast each μ has settled, not monotonically")),

@@ -83,7 +83,7 @@ def draw_decay(ds, ctx, fig):
         a.set(xlabel=x, ylabel=y, yscale="log" if a is axes[2] else "linear")
         a.grid(True, alpha=0.3)
     axes[1].ticklabel_format(axis="y", style="sci", scilimits=(-2, 3))
-    fig.legend(*axes[0].get_legend_handles_labels(), fontsize=8, loc="outside right upper")
+    fig.legend(*axes[0].get_legend_handles_labels(), fontsize=8, loc="outside right center")
     return axes
 
 
@@ -93,9 +93,10 @@ def draw_spectrum(ds, ctx, fig):
     for a, nu in zip(axes, nus):
         spectrum_lines(a, ds["l"].values, ds["t"].values, ds["energy_spectrum"].sel({NU: nu}).values, 5)
         a.set(title=f"ν = {nu:g} s⁻¹", xlabel="degree l", ylabel="E_l (J)")
+        a.yaxis.set_tick_params(labelleft=True)  # shared, but numbered on every panel
     for a in axes[len(nus):]:
         a.set_visible(False)
-    fig.legend(*axes[0].get_legend_handles_labels(), fontsize=7, loc="outside right upper")
+    fig.legend(*axes[0].get_legend_handles_labels(), fontsize=7, loc="outside right center")
     return axes
 
 

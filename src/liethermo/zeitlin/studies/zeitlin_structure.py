@@ -130,7 +130,7 @@ def draw(ds, ctx, fig):
             a.set(title=f"N = {N}, ν = {nu:g} s⁻¹", ylabel=f"{RUN[var][2]} (1)",
                   xlabel="time t (s)" if i == len(cases) - 1 else "")
             a.grid(True, alpha=0.3)
-    fig.legend(*axes[0][0].get_legend_handles_labels(), fontsize=8, loc="outside right upper")
+    fig.legend(*axes[0][0].get_legend_handles_labels(), fontsize=8, loc="outside right center")
     return axes.ravel()
 
 
