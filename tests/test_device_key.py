@@ -2,8 +2,9 @@
 
 The top's GPU kernels run here in numba-cuda's simulator (a subprocess with
 ``NUMBA_ENABLE_CUDASIM=1``) through the whole command line: the file equals
-the CPU's bit for bit.  The fluid's GPU steps are the array-namespace steps
-with CuPy; here the namespace is numpy, through the same run layer.
+the CPU's bit for bit.  The fluids' GPU steps (the sphere's and the torus's)
+are the array-namespace steps with CuPy; here the namespace is numpy, through
+the same run layer.
 """
 
 from __future__ import annotations
@@ -60,7 +61,7 @@ def test_gpu_without_a_device_is_refused_in_one_line(tmp_path):
     ok, why = gpu_available()
     if ok:
         pytest.skip(f"this machine has a device: {why}")
-    for scene in ("paper", "zeitlin_decay"):
+    for scene in ("paper", "zeitlin_decay", "torus_euler"):
         out = tmp_path / f"{scene}.nc"
         p = _cli("run", scene, "-o", str(out), "--device", "gpu", "--no-progress")
         assert p.returncode != 0
@@ -74,10 +75,10 @@ def test_the_fluid_on_the_array_namespace_through_the_run_layer(monkeypatch):
     array-namespace steps (numpy standing in for CuPy): the CPU's run to
     round-off, with the same status and fixed-point iterations."""
     import liethermo
-    from liethermo.zeitlin import xpstep
+    from liethermo import gpu
 
-    real = xpstep.namespace
-    monkeypatch.setattr(xpstep, "namespace", lambda backend: np if backend == "gpu" else real(backend))
+    real = gpu.namespace
+    monkeypatch.setattr(gpu, "namespace", lambda backend: np if backend == "gpu" else real(backend))
     small = {"zeitlin.N": 8, "initial.lmax": 4, "ensemble.members": 5, "integrator.steps": 30,
              "output.every": 5, "output.member_chunk": 2, "output.compare": [], "output.figures": False}
     cpu = liethermo.run("zeitlin_decay", small, compare=False)
@@ -98,15 +99,43 @@ def test_the_fluid_on_the_array_namespace_through_the_run_layer(monkeypatch):
     assert checked >= 8
 
 
+def test_the_torus_on_the_array_namespace_through_the_run_layer(monkeypatch):
+    """ensemble.device = "gpu" sends every member chunk of the torus through its
+    array-namespace steps (numpy standing in for CuPy): the CPU's run bit for
+    bit (the same kernels, written once over the array module), every variable."""
+    import liethermo
+    from liethermo import gpu
+
+    calls = []
+
+    def stand_in(backend):
+        calls.append(backend)
+        return np
+
+    monkeypatch.setattr(gpu, "namespace", stand_in)
+    small = {"torus.N": 9, "ensemble.members": 3, "integrator.steps": 10, "output.every": 5,
+             "output.member_chunk": 2, "integrator.h": 0.05, "output.compare": [], "output.figures": False}
+    cpu = liethermo.run("torus_convection", small, compare=False)
+    assert calls == []
+    gpu_run = liethermo.run("torus_convection", {**small, "ensemble.device": "gpu"}, compare=False)
+    assert calls.count("gpu") >= 3  # the preflight and each of the two member chunks
+    assert 'device = "gpu"' in gpu_run.attrs["scene"]
+    assert sorted(cpu.data_vars) == sorted(gpu_run.data_vars) and len(cpu.data_vars) >= 15
+    for v in cpu.data_vars:
+        np.testing.assert_array_equal(cpu[v].values, gpu_run[v].values, err_msg=v)
+    assert np.abs(np.diff(cpu["entropy"].values, axis=1)).max() > 0  # heat moved: the run is not trivial
+
+
 def test_the_device_is_a_scene_difference_only_where_it_changes_bits():
     """The top's GPU kernels give the CPU's bits: a file of one device is the
     same run as the other's (replaced, resumed).  The fluid's products round
-    differently on the GPU: its file holds one device's run."""
+    differently on the GPU: its file holds one device's run (the sphere's and the torus's)."""
     from liethermo.models import get_model
     from liethermo.preflight import scene_difference
     from liethermo.scene import load_scene, scene_to_toml
 
-    for name, model, same in (("paper", "top", True), ("zeitlin_decay", "zeitlin", False)):
+    for name, model, same in (("paper", "top", True), ("zeitlin_decay", "zeitlin", False),
+                              ("torus_euler", "torus", False)):
         a = scene_to_toml(load_scene(name))
         b = scene_to_toml(load_scene(name, {"ensemble.device": "gpu"}))
         diff = scene_difference(a, b, get_model(model).not_in_results)

@@ -207,8 +207,14 @@ class Torus(StudyDefaults, Model):
 
         method = scene["integrator"]["method"]
         W0, S0 = self.initial_conditions(scene, lo, hi)
-        traj = integrate(scene, W0, S0, method=method, progress=False, budget_members=budget_members(scene),
-                         threads=threads)
+        kw = dict(method=method, progress=False, budget_members=budget_members(scene), threads=threads)
+        if scene["ensemble"]["device"] == "gpu":
+            from ..gpu import namespace
+            from .run import integrate_xp
+
+            traj = integrate_xp(namespace("gpu"), scene, W0, S0, **kw)
+        else:
+            traj = integrate(scene, W0, S0, **kw)
         ds = trajectory_dataset(scene, traj, method, member_offset=lo, attrs=run_attrs(scene, method))
         if progress_cb is not None:
             progress_cb((hi - lo) * int(scene["integrator"]["steps"]))
@@ -229,6 +235,11 @@ class Torus(StudyDefaults, Model):
         from . import step as ts
         from .run import thermo_of
 
+        from ..gpu import device_refusal
+
+        why = device_refusal(scene, ts.XP_METHODS)
+        if why is not None:
+            raise PreflightError(why)
         try:
             ts.check_method(scene["integrator"]["method"], thermo_of(scene))
         except ValueError as e:

@@ -213,16 +213,22 @@ class Trajectory:
 
 
 def integrate(scene, W0, S0, *, method: str | None = None, progress=None, keep=None,
-              budget_members: int | None = None, threads: int | None = None) -> Trajectory:
+              budget_members: int | None = None, threads: int | None = None, xp=None) -> Trajectory:
     """Integrate the members (W0, S0) with the scene's method (or ``method``).  The
     matrices are small and each member's own: BLAS and LAPACK run on ``threads``
-    threads (default 1; their thread pools cost more than they give at these sizes)."""
+    threads (default 1; their thread pools cost more than they give at these sizes).
+    ``xp``: the array module the steps run on (None: numpy, the CPU; see
+    :func:`integrate_xp`)."""
     from threadpoolctl import threadpool_limits
     from tqdm.auto import tqdm
 
+    from ..gpu import synchronize
+
     itg, out = scene["integrator"], scene["output"]
     method = method or itg["method"]
-    b = tk.basis(int(scene["torus"]["N"]))
+    N = int(scene["torus"]["N"])
+    b = tk.basis(N)  # the diagnostics of the kept outputs run on the host
+    bx = b if xp is None else tk.basis(N, xp)
     th = thermo_of(scene)
     h, steps, every = float(itg["h"]), int(itg["steps"]), int(out["every"])
     M = W0.shape[0]
@@ -235,14 +241,25 @@ def integrate(scene, W0, S0, *, method: str | None = None, progress=None, keep=N
                disable=None if progress is None else not progress)
     t0 = _time.perf_counter()
     with threadpool_limits(limits=threads or 1):
-        its, status, failed = ts.drive(W0, S0, rec.record, th=th, b=b, method=method,
+        its, status, failed = ts.drive(W0, S0, rec.record, th=th, b=bx, method=method,
                                        composition=itg["composition"], h=h, steps=steps, every=every,
                                        tol=float(itg["tol"]), max_iter=int(itg["max_iter"]),
                                        budget_members=budget_members, bar=bar,
                                        check_stop=check_stop, count=count)
+        synchronize(bx.xp)
     bar.close()
     times = np.arange(n_out) * every * h
     return Trajectory(times, rec, its, status, failed, _time.perf_counter() - t0, count, count.seconds)
+
+
+def integrate_xp(xp, scene, W0, S0, *, method: str | None = None, **kw) -> Trajectory:
+    """:func:`integrate` with the steps on the array module ``xp`` (CuPy on a GPU:
+    ``ensemble.device = "gpu"``; numpy runs the same steps on the host).  The
+    members' states stay on ``xp``; the kept outputs and the per-member flags come
+    back to the host, where the diagnostics are taken.  Methods:
+    :data:`.step.XP_METHODS` (the reference, scipy's DOP853, is refused)."""
+    ts.check_xp_method(method or scene["integrator"]["method"])
+    return integrate(scene, W0, S0, method=method, xp=xp, **kw)
 
 
 # ----------------------------------------------------------------------------- dataset

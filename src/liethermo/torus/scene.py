@@ -86,8 +86,10 @@ KEYS: tuple[Key, ...] = (
     Key("ensemble", "members", 4, "1", "integer ≥ 1", "members (initial conditions drawn from the seed)",
         integer()),
     Key("ensemble", "seed", 0, "1", "integer ≥ 0", "seed of the random initial conditions", integer(0)),
-    Key("ensemble", "device", "cpu", "", '"cpu"', "where the steps run (the torus runs on the CPU)",
-        choice("cpu")),
+    Key("ensemble", "device", "cpu", "", '"cpu" | "gpu"',
+        "where the steps run: gpu runs every method but the reference on a CUDA device through CuPy "
+        "(the kept outputs' diagnostics on the host; a file holds one device's run: the products round "
+        "differently); refused before any work where CuPy or a device is missing", choice("cpu", "gpu")),
     Key("output", "every", 10, "1", "integer ≥ 1 dividing integrator.steps", "keep every k-th step", integer()),
     Key("output", "vorticity", False, "", "true | false",
         "also store W (vorticity_real, vorticity_imag); liethermo.torus.vorticity_modes(ds) gives ω_m", boolean),

@@ -14,6 +14,10 @@ A member's state is (W, S).  The methods:
 * ``reference`` — DOP853 (scipy) at rtol :data:`REFERENCE_RTOL` on the same right-hand
   side, per member, restarted at every step (any h).
 
+Every method but ``reference`` runs on the array module of its basis
+(``b.xp``: numpy, or CuPy on a GPU, :data:`XP_METHODS`); the run loop moves
+only the kept outputs and the per-member flags to the host.
+
 The member bookkeeping (statuses, the members that leave, the outputs) is the
 shared :func:`liethermo.numerics.matrix_flow.run_members`; the fixed point's
 first guess is the shared :class:`liethermo.numerics.matrix_flow.Predictor`.
@@ -23,6 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..gpu import to_host
 from ..numerics import matrix_flow as mf
 from ..numerics.compositions import COMPOSITION_FACTORS
 from . import kernels as tk
@@ -33,6 +38,8 @@ METHODS = ("cmp", "magmp", "isomp", "cmp4", "magmp4", "isomp4", "rk4", "referenc
 
 
 COMPOSED = ("cmp4", "magmp4", "isomp4")
+#: the methods that run on an array namespace other than numpy (CuPy); the reference uses scipy on the host
+XP_METHODS = tuple(m for m in METHODS if m != "reference")
 
 
 def ideal_kind(method: str) -> str | None:
@@ -56,6 +63,13 @@ def check_method(method: str, th: tk.Thermo) -> None:
     if method.startswith("isomp") and th.alpha:
         raise ValueError(f"integrator.method {method!r}: IsoMP has no buoyancy term; with thermo.buoyancy > 0 "
                          "use \"magmp\" (its Lie–Poisson form with buoyancy) or \"cmp\"")
+
+
+def check_xp_method(method: str) -> None:
+    """Refuse, in one line, a method the array-namespace backends do not run."""
+    if method not in XP_METHODS:
+        raise ValueError(f"method {method!r} does not run on the array-namespace backends "
+                         f"(they run {', '.join(XP_METHODS)}; the reference runs on the CPU)")
 
 
 def dissipative(W, S, tau: float, th: tk.Thermo, b: tk.Basis, status: np.ndarray, count, order: str):
@@ -148,6 +162,8 @@ def drive(W0, S0, record, *, th: tk.Thermo, b: tk.Basis, method: str, compositio
     ``every``-th step.  Returns (iterations (members, outputs), status, failed_step)."""
     check_method(method, th)
     xp = b.xp
+    if xp is not np:
+        check_xp_method(method)
     M, N = W0.shape[0], b.N
     count = count if count is not None else tk.ConductionCount()
     kind = ideal_kind(method)
@@ -170,7 +186,7 @@ def drive(W0, S0, record, *, th: tk.Thermo, b: tk.Basis, method: str, compositio
         return (W, S), its, theta_status(S, th, b, st)
 
     return mf.run_members((xp.array(W0, copy=True), xp.array(S0, copy=True)), step, record, xp=xp,
-                          to_host=lambda a: np.asarray(tk._to_host(a)), steps=steps, every=every, bar=bar,
+                          to_host=to_host, steps=steps, every=every, bar=bar,
                           check_stop=check_stop)
 
 

@@ -234,7 +234,8 @@ class Fluid(StudyDefaults, Model):
         method = scene["integrator"]["method"]
         W0 = self.initial_conditions(scene, lo, hi)
         if scene["ensemble"]["device"] == "gpu":
-            from .xpstep import integrate_xp, namespace
+            from ..gpu import namespace
+            from .xpstep import integrate_xp
 
             traj = integrate_xp(namespace("gpu"), scene, W0, method=method, progress=False,
                                 budget_members=budget_members(scene))
@@ -295,16 +296,12 @@ class Fluid(StudyDefaults, Model):
     def check_parameters(self, scene) -> None:
         from ..preflight import PreflightError
 
-        if scene["ensemble"]["device"] == "gpu":
-            from .xpstep import namespace
+        from ..gpu import device_refusal
+        from .xpstep import METHODS as XP_METHODS
 
-            try:
-                namespace("gpu")
-            except RuntimeError as exc:
-                raise PreflightError(f"scene key 'ensemble.device': \"gpu\" cannot run here: {exc}") from None
-            if scene["integrator"]["method"] == "reference":
-                raise PreflightError("scene key 'ensemble.device': the reference method runs on the CPU "
-                                     "only (\"gpu\" runs split, split4, split6 and rk4)")
+        why = device_refusal(scene, XP_METHODS)
+        if why is not None:
+            raise PreflightError(why)
 
         for key in ("integrator.steps", "output.every", "output.member_chunk", "ensemble.members"):
             section, name = key.split(".")

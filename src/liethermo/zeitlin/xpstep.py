@@ -31,54 +31,14 @@ import time as _time
 
 import numpy as np
 
+# the array namespace of a backend and its host transfers are the run layer's (liethermo.gpu), shared
+# with the torus; named here too for the callers of this module
+from ..gpu import BACKENDS, CUPY_WHEEL, namespace, synchronize, to_host  # noqa: F401
 from ..numerics import matrix_flow as mf
 from . import kernels as zk
 
 #: padded eigenvector blocks (two N³ float64 arrays) are used up to this many bytes
 BATCHED_BLOCKS_BYTES = 2**31
-
-BACKENDS = ("cpu", "cpu-xp", "gpu")
-
-
-#: the CuPy wheel of the ``gpu`` extra: the same CUDA major version as numba-cuda's ``cu13``,
-#: with its ``ctk`` extra (the CUDA libraries from pip)
-CUPY_WHEEL = "cupy-cuda13x[ctk]"
-
-
-def namespace(backend: str):
-    """The array module of a backend: numpy for ``cpu-xp``, CuPy for ``gpu``
-    (refused in one line where CuPy or a CUDA device is missing)."""
-    if backend == "cpu-xp":
-        return np
-    if backend == "gpu":
-        try:
-            import cupy
-        except ImportError as e:
-            raise RuntimeError(f"backend 'gpu' needs CuPy, which does not import here ({e}); install it "
-                               f"with pip install 'liethermo[gpu]' (CuPy for CUDA 13: {CUPY_WHEEL})") from None
-        try:
-            n = cupy.cuda.runtime.getDeviceCount()
-        except Exception as e:  # no driver, no runtime
-            raise RuntimeError(f"backend 'gpu': no usable CUDA device ({e})") from None
-        if n < 1:
-            raise RuntimeError("backend 'gpu': no CUDA device on this machine")
-        return cupy
-    raise ValueError(f"backend must be one of {', '.join(BACKENDS[1:])} for the array-namespace steps, "
-                     f"not {backend!r}")
-
-
-def to_host(a) -> np.ndarray:
-    """A numpy copy (or view) of an xp array."""
-    get = getattr(a, "get", None)
-    return get() if callable(get) else np.asarray(a)
-
-
-def synchronize(xp) -> None:
-    """Wait for the device (nothing to wait for with numpy)."""
-    cuda = getattr(xp, "cuda", None)
-    if cuda is not None:
-        cuda.Device().synchronize()
-
 
 # ----------------------------------------------------------------------------- the basis on xp
 
