@@ -107,3 +107,39 @@ def test_backends_refuse_what_they_cannot_run(monkeypatch):
         model.check_parameters(gpu_scene.with_overrides({"output.compare": ["magmp", "reference"]}))
     cpu_scene = load_scene("torus_euler", {**SMALL, "integrator.method": "reference"})
     model.check_parameters(cpu_scene)  # the CPU runs the reference
+
+
+@pytest.mark.parametrize("name, method", [("torus_euler", "cmp"), ("torus_euler", "cmp4"), ("torus_euler", "rk4"),
+                                          ("torus_convection", "magmp"), ("torus_convection", "rk4")])
+def test_the_memory_estimate_bounds_what_numpy_allocates(name, method):
+    """The device memory :func:`step.memory_bytes` names for a member chunk bounds the
+    peak of numpy's allocations over the same steps (the basis built anew), within 1.6×."""
+    import tracemalloc
+
+    N, M = 15, 8
+    sc = load_scene(name, {**SMALL, "torus.N": N, "ensemble.members": M, "integrator.method": method,
+                           "integrator.h": 0.05, "integrator.steps": 4, "output.every": 4})
+    W0, S0 = tr.initial_fields(sc, np.arange(M))
+    th = tr.thermo_of(sc)
+    ns = types.ModuleType("numpy_for_the_memory")  # a basis of its own, allocated under the trace
+    ns.__dict__.update(XP.__dict__)
+    tracemalloc.start()
+    try:
+        ts.drive(W0, S0, lambda *a: None, th=th, b=tk.basis(N, ns), method=method, h=0.05, steps=4, every=4)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    est = ts.memory_bytes(N, M, method, sc["integrator"]["composition"])
+    assert peak <= est <= 1.6 * peak, (peak, est)
+
+
+def test_a_gpu_scene_names_its_device_memory():
+    from liethermo.models import get_model
+
+    model = get_model("torus")
+    cpu = model.estimate(load_scene("torus_convection", SMALL))
+    gpu = model.estimate(load_scene("torus_convection", {**SMALL, "ensemble.device": "gpu"}))
+    assert cpu.device_memory == 0
+    assert gpu.device_memory == ts.memory_bytes(9, gpu.chunk_members, "cmp")
+    with pytest.raises(ValueError, match="'reference' does not run"):
+        ts.memory_bytes(9, 4, "reference")

@@ -259,8 +259,14 @@ class Torus(StudyDefaults, Model):
         file_per = sum(n for n, _ in layout)
         mat = 16 * N * N
         work = 40 * mat + 16 * T * 13 + n_fields * 8 * T * N * N
-        return Estimate(file_per, work + 2 * file_per, M, int(scene["output"]["member_chunk"]), layout,
-                        2 * mat * T)
+        est = Estimate(file_per, work + 2 * file_per, M, int(scene["output"]["member_chunk"]), layout, 2 * mat * T)
+        method = scene["integrator"]["method"]
+        if scene["ensemble"]["device"] == "gpu" and method != "reference":
+            from .step import memory_bytes
+
+            est.device_memory = memory_bytes(N, est.chunk_members, method, scene["integrator"]["composition"],
+                                             budget_members(scene))
+        return est
 
     def estimate_time(self, scene):
         """Times two steps of one member here and scales to the run."""

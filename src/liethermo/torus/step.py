@@ -72,6 +72,24 @@ def check_xp_method(method: str) -> None:
                          f"(they run {', '.join(XP_METHODS)}; the reference runs on the CPU)")
 
 
+def memory_bytes(N: int, members: int, method: str, composition: str = "triple_jump",
+                 budget_members: int | None = None) -> int:
+    """An upper estimate of the device memory a run of ``members`` members takes
+    on an array namespace (:func:`drive` with ``b.xp`` CuPy), measured with
+    numpy's allocations: at most about 28 arrays of the batch's size at once
+    (24 for rk4; the ideal step's fixed point, its Cayley factors, the state and
+    its active members' copy) besides the predictor's history, and the basis and
+    one member's V and C (24 matrices)."""
+    check_xp_method(method)
+    unit = members * N * N * 16
+    if ideal_kind(method) is None:
+        arrays = 24 * unit
+    else:
+        pred = mf.Predictor(len(substep_factors(method, composition)), members, N, budget_members=budget_members)
+        arrays = 28 * unit + pred.order * len(pred.hist) * unit
+    return int(arrays + (96 + 24 * 16) * N * N)
+
+
 def dissipative(W, S, tau: float, th: tk.Thermo, b: tk.Basis, status: np.ndarray, count, order: str):
     """V(τ) then C(τ) (``order="VC"``) or C then V (``"CV"``) per member; a member that
     fails gets its status (and keeps its state)."""
