@@ -231,11 +231,10 @@ class Torus(StudyDefaults, Model):
         return plotting.draw(datasets, folder, stem)
 
     def check_parameters(self, scene) -> None:
+        from ..gpu import device_refusal
         from ..preflight import PreflightError
         from . import step as ts
         from .run import thermo_of
-
-        from ..gpu import device_refusal
 
         why = device_refusal(scene, ts.XP_METHODS)
         if why is not None:

@@ -294,9 +294,8 @@ class Fluid(StudyDefaults, Model):
 
     # ---------------------------------------------------------- preflight
     def check_parameters(self, scene) -> None:
-        from ..preflight import PreflightError
-
         from ..gpu import device_refusal
+        from ..preflight import PreflightError
         from .xpstep import METHODS as XP_METHODS
 
         why = device_refusal(scene, XP_METHODS)
