@@ -54,9 +54,10 @@ def test_discrete_jacobian_matches_finite_differences():
     import numba
 
     jit = numba.njit(error_model="numpy")
-    nl = jit(terms._IMPLEMENTATIONS[("nonlinear_friction", QuadraticDrag)])
-    pw = jit(terms._IMPLEMENTATIONS[("discrete_power", QuadraticDrag)])
     term = QuadraticDrag(C2, 0.0, 0.0, 0.0)
+    nl = jit(terms.nonlinear_friction.dispatch(term))  # the drag's own implementations
+    pw = jit(terms.discrete_power.dispatch(term))
+    assert nl is not None and terms.nonlinear_friction.dispatch(None) is not terms.nonlinear_friction.dispatch(term)
     rng = np.random.default_rng(3)
     for X in rng.standard_normal((5, 3)):
         f, Jt = nl(term, None, 0.1, tuple(X), (0.0,) * 3, (0.0,) * 9)
