@@ -142,7 +142,6 @@ def generic(key, *, arg: int | tuple[int, ...] = 0, inline: str = "llvm"):
         dispatcher.register = register
         dispatcher.dispatch = lambda *args: lookup(key_of(args))
         dispatcher.implementations = lambda: [default] + list(impls.values())
-        dispatcher.key = key
         GENERICS.append(dispatcher)
         return dispatcher
 
