@@ -179,6 +179,32 @@ def test_a_run_records_the_composition():
     assert plain.attrs["composition"] == "none"
 
 
+def test_a_splitting_marker_comes_back_from_the_kernel_cache_as_itself():
+    """numba's on-disk cache index pickles the kernels' argument types, the splitting
+    markers among them: a new process must read back the very class it builds (pickled
+    by reference), or no cached splitting kernel is ever found and every process
+    compiles them again (about 20 s for split, split4 and split6)."""
+    import subprocess
+    import sys
+
+    from numba.core.serialize import dumps
+
+    from liethermo.top.kernels.split import splitting
+    from liethermo.top.methods import COMPOSITION_FACTORS
+
+    blobs = [dumps(type(splitting(f, o))) for f, o in (((1.0,), 2), (COMPOSITION_FACTORS[("triple_jump", 6)], 6))]
+    code = ("import pickle, sys\n"
+            "from liethermo.top.kernels.split import splitting\n"
+            "from liethermo.top.methods import COMPOSITION_FACTORS\n"
+            "blobs = pickle.loads(sys.stdin.buffer.read())\n"
+            "first = [pickle.loads(b) for b in blobs]\n"  # before the process has built any marker
+            "built = [type(splitting((1.0,), 2)), type(splitting(COMPOSITION_FACTORS[('triple_jump', 6)], 6))]\n"
+            "print([a is b for a, b in zip(first, built)], [c.factors == b.factors for c, b in zip(first, built)])\n")
+    out = subprocess.run([sys.executable, "-c", code], input=__import__("pickle").dumps(blobs),
+                         capture_output=True, check=True).stdout.decode().strip()
+    assert out == "[True, True] [True, True]"
+
+
 def test_compositions_of_one_length_compile_apart():
     """Kahan–Li's and the triple jump's order-6 compositions both have nine
     factors; in one process each runs its own kernel (their markers differ by

@@ -71,7 +71,26 @@ def splitting(factors: tuple, order: int):
     name = f"Splitting{len(factors)}o{order}x{digest}"
     cls = type(name, (namedtuple(name, "unused"), Splitting),
                {"__slots__": (), "factors": tuple(float(f) for f in factors), "order": int(order)})
+    # a module attribute, so that pickle (numba's cache index) stores the class by
+    # reference: pickled by value, it would come back as a new class whose numba
+    # type equals no type in memory, and every process would compile the kernel again
+    globals()[name] = cls
     return cls(0.0)
+
+
+def __getattr__(name: str):
+    """A splitting marker class by name, for unpickling a kernel cache index in a
+    process that has not built it yet: the markers of every composition the methods
+    offer are built on first request."""
+    if name.startswith("Splitting"):
+        from ...numerics.compositions import COMPOSITION_FACTORS
+
+        for factors in [(1.0,)] + list(COMPOSITION_FACTORS.values()):
+            for order in (2, 4, 6, 8):
+                splitting(factors, order)
+        if name in globals():
+            return globals()[name]
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def splitting_class(t):
