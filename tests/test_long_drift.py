@@ -85,7 +85,13 @@ def test_a_drift_is_reported_only_where_it_stands_out_of_the_oscillation(ld):
     line = next(s for s in text.split("At dissipation × ") if s.startswith("0: "))
     assert "no measurable drift over T = 200 s for vi, vi4, vi6, split4, split6" in line and "rk2 drifts on 8 of 8" in line
     assert "drifts least" not in text and "too few for paired intervals" in line
-    assert "max |relative energy error| rk4" in line  # the least median max error, named without a ranking
+    # the least median max error, named without a ranking: which method it is follows from the steps that
+    # the timed calibration gives (rk4 on a quiet machine, not always under load), so read it from the data
+    med = {}
+    for m in x["scheme"].values:
+        v = x["max_relative_energy_error"].sel(scheme=m).values
+        med[str(m)] = float(np.median(np.where(np.isfinite(v), np.abs(v), np.inf)))
+    assert f"max |relative energy error| {min(med, key=med.get)} (" in line
 
 
 def test_the_findings_are_the_same_on_a_rerun(ld):
