@@ -388,6 +388,9 @@ def _study(kind: str) -> dict:
     study = load_study(STUDIES / f"{kind}.toml")
     if kind == "energy_drift":  # RK2 at the paper's h: part of the ensemble blows up (non-zero status)
         study["reduced"]["methods"] = ["vi:node:explicit", "rk2"]
+    if kind == "long_drift":  # one method per family and a tenth of the horizon: the Dask path is what is tested
+        study["reduced"]["methods"] = ["vi", "split4", "rk2"]
+        study["reduced"]["options"].update(t_end=20.0, outputs=200, kn_steps=200, calibration_steps=200)
     return study
 
 
