@@ -131,3 +131,18 @@ def test_a_stop_while_a_chunk_is_written_keeps_every_chunk_written(tmp_path, mon
     run_scene("paper", tmp_path / "whole.nc", overrides=SMALL, progress=False)
     a, b = _values(out), _values(tmp_path / "whole.nc")
     assert all(np.array_equal(a[k], b[k], equal_nan=a[k].dtype.kind == "f") for k in a)
+
+
+def test_the_write_probe_measures_a_disk_once_per_process(tmp_path, monkeypatch):
+    """``--check`` measures the writer's rate; a sweep of checks in one process probes
+    each file system once, and a folder that does not exist yet is probed where it will be."""
+    from liethermo import io
+
+    calls = []
+    real = io._measure_write_rate
+    monkeypatch.setattr(io, "_WRITE_RATES", {})
+    monkeypatch.setattr(io, "_measure_write_rate", lambda f, n: calls.append(f) or real(f, n))
+    rate = io.write_rate(tmp_path / "not" / "yet", nbytes=2**20)
+    assert 0 < rate < float("inf") and calls == [tmp_path]
+    assert io.write_rate(tmp_path, nbytes=2**20) == rate and len(calls) == 1
+    assert not list(tmp_path.iterdir())  # the probe file is gone

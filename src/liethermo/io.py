@@ -313,12 +313,26 @@ def write_rate(folder: str | os.PathLike, nbytes: int = WRITE_PROBE_BYTES) -> fl
     written in four chunks through :class:`ChunkedWriter` (CF encoding,
     CRC-32, netCDF/HDF5, a flush after each chunk, as a run does) into a
     temporary file that is removed afterwards.  The operating system's page
-    cache absorbs what it can, as it does for a run."""
+    cache absorbs what it can, as it does for a run.  Measured once per file
+    system and process (a sweep of checks probes its disk once)."""
     import time
 
     folder = Path(folder)
     while not folder.is_dir() and folder != folder.parent:
         folder = folder.parent
+    key = (os.stat(folder).st_dev, int(nbytes))
+    if key not in _WRITE_RATES:
+        _WRITE_RATES[key] = _measure_write_rate(folder, nbytes)
+    return _WRITE_RATES[key]
+
+
+#: (file system, probe bytes) → bytes per second, measured in this process
+_WRITE_RATES: dict = {}
+
+
+def _measure_write_rate(folder: Path, nbytes: int) -> float:
+    import time
+
     members, width = 131072, 8  # chunks of 32768 members, as a run's disk chunks
     per = max(1, nbytes // (members * width * 8))  # variables of (member, width) float64
     rng = np.random.default_rng(0)
