@@ -455,7 +455,14 @@ def test_cli_study_dask_address(client, tmp_path, capsys):
     (convergence: references, then the errors against them)."""
     from liethermo.cli import main
 
-    study = STUDIES / "convergence.toml"
+    # three of its methods (one per family): the Dask path, not the methods, is what is tested
+    text = (STUDIES / "convergence.toml").read_text()
+    first = next(line for line in text.splitlines() if line.startswith("methods = "))
+    study = tmp_path / "convergence.toml"
+    reduced = "[reduced.options]\nh0 = 0.05\nlevels = 5\nt_end = 2.0\n"
+    assert reduced in text
+    study.write_text(text.replace(first, 'methods = ["vi", "split", "rk4"]', 1)
+                     .replace(reduced, "[reduced.options]\nh0 = 0.05\nlevels = 3\nt_end = 0.5\n", 1))
     base = ["study", str(study), "--reduced", "--no-progress"]
     assert main(base + ["-o", str(tmp_path / "inproc")]) == 0
     assert main(base + ["-o", str(tmp_path / "dask"), "--dask", client.scheduler.address]) == 0
