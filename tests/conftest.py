@@ -322,3 +322,17 @@ def kill_and_resume(tmp_path: Path, args: list[str], chunks: int = 3, name: str 
     r = subprocess.run(cli + args + ["-o", str(out), "--resume"], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     return out, ref, r.stdout
+
+
+#: the test files that take longest (``pytest --durations``, from an empty kernel cache),
+#: longest first.  The two workers each take whole files (``--dist loadfile``) in the
+#: order of the collection, so these go first: a long file started last would keep
+#: one worker busy after the other has finished.
+LONGEST_FILES = ("test_fast_kernels.py", "test_distributed.py", "test_studies_extra.py", "test_quadratic_drag.py",
+                 "test_zeitlin_physics.py", "test_gpu_sim.py", "test_framework.py", "test_coupling_flat_spin.py",
+                 "test_torus_model.py", "test_fuzz.py")
+
+
+def pytest_collection_modifyitems(session, config, items):
+    rank = {name: k for k, name in enumerate(LONGEST_FILES)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: the rest keep their order
