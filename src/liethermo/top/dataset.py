@@ -298,8 +298,10 @@ def stored_variables(scene, traj_layout) -> set[str] | None:
     asked = requested_variables(scene, VARIABLE_GROUPS)
     if asked is None:
         return None
-    out = set(asked) | set(RUN_VARIABLES) | {STATE_VARIABLES[n] for n, _, _ in traj_layout.parts
-                                            if n in STATE_VARIABLES}
+    # Ω(t_k) of every method: the state of the Runge-Kutta methods, the node velocity
+    # 𝕀(S_k)⁻¹μ_k of the others (derived, and stored too: the variable a reader looks for first)
+    out = set(asked) | set(RUN_VARIABLES) | {"omega"} | {STATE_VARIABLES[n] for n, _, _ in traj_layout.parts
+                                                        if n in STATE_VARIABLES}
     if scene["initial"]["file"]:  # the initial data live in a file the run may not find again
         out |= {"initial_omega", "initial_attitude"}
     return out
