@@ -451,11 +451,13 @@ def estimate(scene: dict):
             out.append((n, disk_chunk_members(members, n) if var.ndim > 1 else 0))
         return out
 
-    stored = per_member(select_variables(full, scene, layout))  # the file: the variables the scene stores
+    kept = select_variables(full, scene, layout)
+    stored = per_member(kept)  # the file: the variables the scene stores
     per = sum(n for n, _ in stored)
     # a chunk is labelled whole (its summary reads every variable) before the file's are kept
     memory = int(MEMORY_FACTOR * sum(n for n, _ in per_member(full))) + n_t * width * 8
-    est = Estimate(per, memory, members, int(outp["member_chunk"]), stored)
+    est = Estimate(per, memory, members, int(outp["member_chunk"]), stored,
+                   variables=tuple(sorted(n for n, v in kept.data_vars.items() if "member" in v.dims)))
     if scene["ensemble"]["device"] == "gpu":
 
         est.device_memory = top_device_bytes(est.chunk_members, width, run.model.nparam,
