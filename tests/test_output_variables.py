@@ -92,6 +92,8 @@ def test_derived_of_a_subset_of_members_and_times(tmp_path):
     ref = full.isel(member=[2, 5, 6], t=[0, 3])
     for name in ("energy_error", "center_of_mass", "initial_omega", "temperature"):
         assert _same(part[name].values, ref[name].values), name
+    with liethermo.open_runs([tmp_path / "rk2_default.nc"], derived=True, lazy=False) as both:
+        assert _same(both["energy_error"].sel(method="rk2").values, full["energy_error"].values)
 
 
 def test_unknown_variable_is_refused_naming_it():
@@ -131,3 +133,5 @@ def test_estimate_counts_the_stored_variables():
     # and the member coordinate (8 bytes)
     assert small == 2 * 8 * (3 + 3 + 1 + 9) + 1 + 8 + 8 + 8 + 8
     assert full > 2 * small
+    assert estimate(sc).variables == ("attitude", "entropy_change", "failed_at_step", "gamma", "max_h_omega",
+                                      "omega", "status", "steps_done")

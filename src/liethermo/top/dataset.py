@@ -1,4 +1,7 @@
-"""Label a :class:`~liethermo.top.simulate.Trajectory` as a CF-style xarray Dataset.
+"""Label a :class:`~liethermo.top.simulate.Trajectory` as a CF-style xarray Dataset,
+keep the variables a run stores (:func:`select_variables`: the state by default,
+``output.variables`` for more) and derive the others from a stored state
+(:func:`derive`, behind ``ds.liethermo.derived()``).
 
 Every variable has ``units`` and ``long_name`` (docs/netcdf.md lists them).
 Values are node values at t_k = k h for every method: ``omega`` is Ω(t_k)
@@ -340,7 +343,7 @@ def derive(ds: xr.Dataset) -> xr.Dataset:
     from ..scene import load_scene
     from .initial import initial_conditions
     from .resolve import resolve
-    from .simulate import Trajectory
+    from .scene import STATE_VARIABLES
 
     text = ds.attrs.get("scene")
     if not isinstance(text, str) or not text:
@@ -354,7 +357,7 @@ def derive(ds: xr.Dataset) -> xr.Dataset:
     N, T = members.size, ds.sizes["t"]
     states = np.full((N, T, layout.size), np.nan)
     for part, start, size in layout.parts:
-        name = _STATE_NAME.get(part)
+        name = STATE_VARIABLES.get(part)
         if name is None:  # sigma_next: the coupled VI's next entropy, read by nothing the file shows
             continue
         if name not in ds:
@@ -393,15 +396,6 @@ def derive(ds: xr.Dataset) -> xr.Dataset:
     out.attrs = dict(ds.attrs)
     return out
 
-
-#: the dataset variable of each state part (:data:`liethermo.top.scene.STATE_VARIABLES`)
-def _state_names() -> dict:
-    from .scene import STATE_VARIABLES
-
-    return STATE_VARIABLES
-
-
-_STATE_NAME = _state_names()
 
 
 def _scene_tables(text: str) -> dict:
