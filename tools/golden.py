@@ -153,10 +153,6 @@ def _scene(case: Case):
     mc = MODELS.get(case.model, DEFAULT)
     method, *variants = case.method.split(".")
     ov = dict(mc.size, **{"integrator.method": method})
-    from liethermo.models import get_model
-
-    if "output.variables" not in {k.path for k in get_model(case.model).keys()}:  # a model without the key
-        ov.pop("output.variables", None)
     if method in mc.steps:
         ov["integrator.steps"] = mc.steps[method]
     ov.update({f"integrator.{v.split('=')[0]}": v.split("=")[1] for v in variants})

@@ -322,8 +322,8 @@ def variables_key(names, doc: str) -> Key:
         valid = names() if callable(names) else names
         for x in v:
             if x != ALL_VARIABLES and x not in valid:
-                raise SceneError(name, f"unknown variable {x!r}; valid names: \"{ALL_VARIABLES}\", "
-                                 f"{', '.join(sorted(valid))}", show_value=False)
+                known = ", ".join([f'"{ALL_VARIABLES}"'] + sorted(valid))
+                raise SceneError(name, f"unknown variable {x!r}; valid names: {known}", show_value=False)
         return list(dict.fromkeys(v))
 
     return Key("output", "variables", [], "", f'"{ALL_VARIABLES}" | list of variable or group names', doc, check)
@@ -347,7 +347,8 @@ def run_keys(methods: tuple[str, ...], variables=None) -> tuple[Key, ...]:
     are ``methods`` (the first is the default); a model's key of the same path
     replaces one of these (its own default or meaning).  ``variables``: the
     names ``output.variables`` takes (:func:`variables_key`; the model's
-    ``{name: (variable, ...)}``, or a function that gives it)."""
+    ``{name: (variable, ...)}``, or a function that gives it; none: ``"all"``
+    only, for a model whose files hold every variable it has)."""
     out = (
         Key("scene", "name", "custom", "", "a string", "name of the scene (files are named after it)", string),
         Key("scene", "description", "", "", "a string", "one line on what the scene is", string),
@@ -363,9 +364,7 @@ def run_keys(methods: tuple[str, ...], variables=None) -> tuple[Key, ...]:
         Key("output", "member_chunk", 65536, "1", "integer ≥ 1",
             "members simulated and written at a time (bounds memory)", integer()),
     )
-    if variables is not None:
-        out += (variables_key(variables, VARIABLES_DOC),)
-    return out
+    return out + (variables_key(variables or {}, VARIABLES_DOC),)
 
 
 #: what ``output.variables`` means, for every model
@@ -447,7 +446,8 @@ def declare_scene(name: str, keys: tuple[Key, ...], *, methods: tuple[str, ...],
     the (section, key) pairs the scene's tables and the overrides set.
 
     ``variables`` (``{name: (variable, ...)}``: every variable and group the
-    model can store beyond its default set) adds ``output.variables``;
+    model can store beyond its default set) are the names ``output.variables``
+    takes (without them, ``"all"`` only);
     ``switches`` (``{name: "output.KEY"}``) names the boolean keys that store a
     group, which naming the group (or one of its variables, or ``"all"``) sets."""
     own = {k.path for k in keys}
