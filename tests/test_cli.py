@@ -240,7 +240,8 @@ def test_dataset_contract_plain_xarray(tmp_path):
     units and long_name on every variable; CF flags on status; provenance
     attributes, with the API call that made the file in 'history'."""
     out = tmp_path / "r.nc"
-    _, summ = run_scene(_small(members=3, integrator__method="rk4"), out, progress=False)
+    # a file with every variable (the default holds the state: tests/test_output_variables.py)
+    _, summ = run_scene(_small(members=3, integrator__method="rk4", output__variables="all"), out, progress=False)
     code = f"""
 import sys, warnings, numpy as np, xarray as xr
 warnings.simplefilter("error")

@@ -590,7 +590,12 @@ class HeavyTop(StudyDefaults, Model):
 
         return {n: MethodInfo(n, m.order(), tuple(m.laws), m.description) for n, m in METHODS.items()}
 
+    def _full(self, ds):
+        """``ds`` with the derived variables (a dataset of the default variables gets them)."""
+        return ds if "energy_error" in ds else self.derived(ds)
+
     def study_state(self, ds) -> dict:
+        ds = self._full(ds)
         return {"omega": (ds["omega"].values, "rad s-1", "body angular velocity Omega (node values)", None),
                 "gamma": (ds["gamma"].values, "1", "direction of gravity Gamma", None),
                 "entropy": (ds["entropy"].values, "J K-1", "entropy S", None),
@@ -617,6 +622,7 @@ class HeavyTop(StudyDefaults, Model):
         return MethodChoice.parse(label).order()
 
     def relative_energy_error(self, ds):
+        ds = self._full(ds)
         with np.errstate(divide="ignore", invalid="ignore"):
             return ds["energy_error"].values / np.abs(ds["mechanical_energy_initial"].values)[:, None]
 
@@ -638,6 +644,7 @@ class HeavyTop(StudyDefaults, Model):
         return rel
 
     def energy_conventions(self, ds) -> dict:
+        ds = self._full(ds)
         if "energy_error_paper" not in ds:
             return {}
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
