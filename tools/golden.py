@@ -28,7 +28,7 @@ line) names variables that moved on purpose: ``NAME`` matches that variable
 in every case, ``CASE_GLOB:NAME`` in the cases matching the glob
 (``zeitlin_ideal__*:vorticity_real``); NAME may be a glob too and matches the
 variable's name with or without its ``data:``/``coord:`` prefix; a file's global
-attribute is ``global:NAME`` (``--allow global:scene``).  An allowed
+attribute is ``global:NAME`` (``--allow global:scene``), its dimensions ``file:dimensions``.  An allowed
 difference is printed (``moved, allowed``) and does not fail the check.
 
 Every case stores every variable its model can write (``output.variables = "all"``).
@@ -313,7 +313,7 @@ def file_differences(a: Path, b: Path) -> list[tuple[str, str]]:
         dx = {k: len(d) for k, d in x.dimensions.items()}
         dy = {k: len(d) for k, d in y.dimensions.items()}
         if dx != dy:
-            out.append(("", f"dimensions {dx} -> {dy}"))
+            out.append(("file:dimensions", f"dimensions {dx} -> {dy}"))
         gx = {k: str(x.getncattr(k)) for k in x.ncattrs() if k not in FILE_RUN_ATTRS and not _varies(k)}
         gy = {k: str(y.getncattr(k)) for k in y.ncattrs() if k not in FILE_RUN_ATTRS and not _varies(k)}
         keys = sorted(k for k in set(gx) | set(gy) if gx.get(k) != gy.get(k))
@@ -352,7 +352,7 @@ def allowed(case: str, variable: str, patterns: list[str]) -> bool:
     bare = variable.split(":", 1)[1] if variable.startswith(("data:", "coord:")) else variable
     for p in patterns:
         where, name = "", p
-        if ":" in p and not p.startswith(("data:", "coord:", "global:")):
+        if ":" in p and not p.startswith(("data:", "coord:", "global:", "file:")):
             where, name = p.split(":", 1)
         if where and not fnmatch.fnmatchcase(case, where):
             continue
