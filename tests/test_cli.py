@@ -143,7 +143,8 @@ def test_paper_scene_derived_values():
 
 
 def _small(members=1, **kw):
-    over = {"integrator": {"steps": 40}, "ensemble": {"members": members}}
+    """A short paper run storing every variable (these tests read derived ones)."""
+    over = {"integrator": {"steps": 40}, "ensemble": {"members": members}, "output": {"variables": "all"}}
     for k, v in kw.items():
         s, key = k.split("__")
         over.setdefault(s, {})[key] = v
