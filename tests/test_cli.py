@@ -143,7 +143,8 @@ def test_paper_scene_derived_values():
 
 
 def _small(members=1, **kw):
-    over = {"integrator": {"steps": 40}, "ensemble": {"members": members}}
+    """A short paper run storing every variable (these tests read derived ones)."""
+    over = {"integrator": {"steps": 40}, "ensemble": {"members": members}, "output": {"variables": "all"}}
     for k, v in kw.items():
         s, key = k.split("__")
         over.setdefault(s, {})[key] = v
@@ -240,7 +241,8 @@ def test_dataset_contract_plain_xarray(tmp_path):
     units and long_name on every variable; CF flags on status; provenance
     attributes, with the API call that made the file in 'history'."""
     out = tmp_path / "r.nc"
-    _, summ = run_scene(_small(members=3, integrator__method="rk4"), out, progress=False)
+    # a file with every variable (the default holds the state: tests/test_output_variables.py)
+    _, summ = run_scene(_small(members=3, integrator__method="rk4", output__variables="all"), out, progress=False)
     code = f"""
 import sys, warnings, numpy as np, xarray as xr
 warnings.simplefilter("error")

@@ -365,7 +365,7 @@ def test_an_ensemble_too_large_for_the_disk(tmp_path, capsys, no_simulation):
     err = one_line(capsys.readouterr().err)
     assert err.startswith(f"liethermo: error: {out} and {tmp_path / 'x_rk2.nc'} would need about ")
     assert f"(1000000000000 members x {per / 1e3:.3g} kB) but " in err
-    assert " free; run fewer members (ensemble.members) or store less (output.every, output.attitude)" in err
+    assert " free; run fewer members (ensemble.members) or store less (output.every, output.attitude, output.variables)" in err
     assert names(tmp_path) == []
 
 

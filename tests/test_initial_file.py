@@ -266,7 +266,7 @@ def test_a_top_run_from_a_file_of_omega_and_attitudes(tmp_path):
         one = liethermo.run("paper", {**TOP, "initial.omega": om[k].tolist(), "initial.R": R[k].tolist()},
                             compare=False)
         for v in ("omega", "gamma", "entropy", "total_energy"):
-            np.testing.assert_array_equal(ds[v].values[k], one[v].values[0], err_msg=v)
+            np.testing.assert_array_equal(ds.liethermo[v].values[k], one.liethermo[v].values[0], err_msg=v)
     again = liethermo.run("paper", {**TOP, "ensemble.members": 3, "initial.file": str(tmp_path / "x.nc")},
                           compare=False)
     np.testing.assert_array_equal(again["omega"].values, ds["omega"].values)

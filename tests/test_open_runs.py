@@ -12,7 +12,8 @@ import pytest
 import liethermo
 from liethermo.scene import SceneError
 
-TOP = {"integrator.steps": 20, "ensemble.members": 5, "output.member_chunk": 2, "output.figures": False}
+TOP = {"integrator.steps": 20, "ensemble.members": 5, "output.member_chunk": 2, "output.figures": False,
+       "output.variables": "all"}  # the combined files with their derived variables too
 FLUID = {"zeitlin.N": 6, "initial.lmax": 4, "integrator.steps": 20, "ensemble.members": 2,
          "output.figures": False, "output.compare": ["rk4"]}
 

@@ -49,7 +49,7 @@ def test_the_file_equals_a_serial_runs_and_the_in_memory_dataset(tmp_path, monke
     assert list(a) == list(b)
     for k in a:
         assert a[k].dtype == b[k].dtype and np.array_equal(a[k], b[k], equal_nan=a[k].dtype.kind == "f"), k
-    for k in ("omega", "gamma", "energy_error", "status"):
+    for k in ("omega", "gamma", "entropy_change", "status"):
         assert np.array_equal(a[k], ds[k].values, equal_nan=True), k
 
 

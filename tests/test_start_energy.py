@@ -18,7 +18,8 @@ SMALL = {"integrator.steps": 40, "output.compare": [], "output.figures": False}
 
 
 def _summary(scene, overrides=None):
-    return liethermo.run(scene, {**SMALL, **(overrides or {})}, compare=False)
+    """A run's dataset with its derived variables (the energies, from the stored state)."""
+    return liethermo.run(scene, {**SMALL, **(overrides or {})}, compare=False).liethermo.derived()
 
 
 def test_the_papers_start_is_named_where_its_error_at_t0_shows():
@@ -66,7 +67,7 @@ def test_a_composition_has_no_papers_convention_in_summary_or_figure(tmp_path, m
 
 
 def test_the_readme_quotes_the_error_at_t0_the_run_gives():
-    ds = liethermo.run("paper", {**SMALL}, compare=False)
+    ds = _summary("paper")
     e0 = abs(float(ds["energy_error"].values[0, 0])) / float(ds["mechanical_energy_initial"].values[0])
     readme = " ".join((ROOT / "README.md").read_text(encoding="utf-8").split())
     said = re.search(r"The VI starts (\d+) % of E_mech,0 off at t = 0: the paper's start takes Ω\(0\) as its first "

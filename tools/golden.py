@@ -27,8 +27,15 @@ file another way (a pipeline, a chunking, a resume).
 line) names variables that moved on purpose: ``NAME`` matches that variable
 in every case, ``CASE_GLOB:NAME`` in the cases matching the glob
 (``zeitlin_ideal__*:vorticity_real``); NAME may be a glob too and matches the
-variable's name with or without its ``data:``/``coord:`` prefix.  An allowed
+variable's name with or without its ``data:``/``coord:`` prefix; a file's global
+attribute is ``global:NAME`` (``--allow global:scene``), its dimensions ``file:dimensions``.  An allowed
 difference is printed (``moved, allowed``) and does not fail the check.
+
+Every case stores every variable its model can write (``output.variables = "all"``).
+``--derived`` (with ``compare --files``): each case of a model that derives
+variables (the heavy top) runs a second time with its scene's default
+variables, and the values ``ds.liethermo.derived()`` gives from that file are
+compared with the recorded file's (``derived:NAME`` in the report).
 
 ``--only SUBSTRING`` keeps the cases whose name contains it (repeatable);
 ``list`` prints the cases with their model.
@@ -70,7 +77,9 @@ class ModelCases:
     steps: dict = field(default_factory=dict)
 
 
-_COMMON = {"output.compare": [], "output.figures": False}
+#: every case stores every variable its model can write (``output.variables = "all"``), so
+#: that a compare judges every value, derived ones included
+_COMMON = {"output.compare": [], "output.figures": False, "output.variables": ["all"]}
 #: per model (by its registered name); a model not named here runs with DEFAULT
 MODELS = {
     "top": ModelCases(
@@ -152,13 +161,41 @@ def _scene(case: Case):
     return liethermo.load_scene(scene, ov)
 
 
-def run_case(case: Case, out: Path | None = None):
-    """The in-memory dataset of one case, or (``out``) its file written through the run layer."""
+def run_case(case: Case, out: Path | None = None, default_variables: bool = False):
+    """The in-memory dataset of one case, or (``out``) its file written through the run layer;
+    ``default_variables``: with the scene's default variables instead of every one."""
     from liethermo.runner import run_scene
 
     kernel = None if case.kernel == "-" else case.kernel
-    ds, _ = run_scene(_scene(case), out, kernel=kernel, progress=False, history="golden")
+    scene = _scene(case)
+    if default_variables:
+        scene = scene.with_overrides({"output.variables": []})
+    ds, _ = run_scene(scene, out, kernel=kernel, progress=False, history="golden")
     return ds
+
+
+def _derives(model: str) -> bool:
+    from liethermo.models import get_model
+
+    return hasattr(get_model(model), "derived")
+
+
+def derived_differences(recorded: Path, case: Case, tmp: Path) -> list[tuple[str, str]]:
+    """``[(variable, what differs)]`` between the values of a recorded file and those
+    the accessor derives (``ds.liethermo.derived()``) from the file the case writes
+    with its scene's default variables; the variables neither derived nor recorded
+    are not compared."""
+    import liethermo
+
+    out = tmp / f"{case.name}.default.nc"
+    run_case(case, out, default_variables=True)
+    with liethermo.open_dataset(out) as small, liethermo.open_dataset(recorded) as full:
+        derived = small.load().liethermo.derived()
+        old = {n: np.asarray(full[n].values) for n in full.variables if n in derived.variables}
+        new = {n: np.asarray(derived[n].values) for n in old}
+        missing = [(n, f"{n}: recorded, not derived") for n in full.data_vars if n not in derived.variables]
+    out.unlink()
+    return missing + array_differences(old, new)
 
 
 def _refusal(case: Case, out: Path | None = None):
@@ -276,12 +313,11 @@ def file_differences(a: Path, b: Path) -> list[tuple[str, str]]:
         dx = {k: len(d) for k, d in x.dimensions.items()}
         dy = {k: len(d) for k, d in y.dimensions.items()}
         if dx != dy:
-            out.append(("", f"dimensions {dx} -> {dy}"))
+            out.append(("file:dimensions", f"dimensions {dx} -> {dy}"))
         gx = {k: str(x.getncattr(k)) for k in x.ncattrs() if k not in FILE_RUN_ATTRS and not _varies(k)}
         gy = {k: str(y.getncattr(k)) for k in y.ncattrs() if k not in FILE_RUN_ATTRS and not _varies(k)}
         keys = sorted(k for k in set(gx) | set(gy) if gx.get(k) != gy.get(k))
-        if keys:
-            out.append(("", f"global attributes: {', '.join(keys)}"))
+        out += [(f"global:{k}", f"global attribute {k}") for k in keys]
         out += [(n, f"{n}: missing") for n in x.variables if n not in y.variables]
         out += [(n, f"{n}: new") for n in y.variables if n not in x.variables]
         for n in x.variables:
@@ -316,7 +352,7 @@ def allowed(case: str, variable: str, patterns: list[str]) -> bool:
     bare = variable.split(":", 1)[1] if variable.startswith(("data:", "coord:")) else variable
     for p in patterns:
         where, name = "", p
-        if ":" in p and not p.startswith(("data:", "coord:")):
+        if ":" in p and not p.startswith(("data:", "coord:", "global:", "file:")):
             where, name = p.split(":", 1)
         if where and not fnmatch.fnmatchcase(case, where):
             continue
@@ -366,7 +402,8 @@ def record(folder: Path, only: list[str], files: bool = False) -> int:
     return 0
 
 
-def compare(folder: Path, only: list[str], attrs: bool, patterns: list[str], files: bool = False) -> int:
+def compare(folder: Path, only: list[str], attrs: bool, patterns: list[str], files: bool = False,
+            derived: bool = False) -> int:
     bad = 0
     sel = _selected(only)
     with tempfile.TemporaryDirectory(prefix="golden.") as tmp:
@@ -393,6 +430,8 @@ def compare(folder: Path, only: list[str], attrs: bool, patterns: list[str], fil
             if files:
                 diffs = file_differences(recorded, out)
                 out.unlink()
+                if derived and _derives(c.model):
+                    diffs += [(f"derived:{v}", f"derived {m}") for v, m in derived_differences(recorded, c, Path(tmp))]
             else:
                 with np.load(recorded) as f:
                     old = {k: f[k] for k in f.files}
@@ -444,6 +483,9 @@ def main(argv=None) -> int:
                    help="keep the cases whose name contains it (repeatable)")
     p.add_argument("--attrs", action="store_true", help="compare attributes too")
     p.add_argument("--files", action="store_true", help="record and compare written netCDF files")
+    p.add_argument("--derived", action="store_true",
+                   help="compare --files: also run each case of a model that derives variables with its "
+                        "default variables and compare what ds.liethermo.derived() gives with the record")
     p.add_argument("--allow", action="append", default=[], metavar="[CASE_GLOB:]NAME",
                    help="a variable that moved on purpose (repeatable)")
     p.add_argument("--allow-file", action="append", default=[], metavar="FILE",
@@ -461,7 +503,7 @@ def main(argv=None) -> int:
         return compare_files(a.folder, a.other, _patterns(a))
     if a.action == "record":
         return record(a.folder, a.only, a.files)
-    return compare(a.folder, a.only, a.attrs, _patterns(a), a.files)
+    return compare(a.folder, a.only, a.attrs, _patterns(a), a.files, a.derived)
 
 
 if __name__ == "__main__":

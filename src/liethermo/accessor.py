@@ -53,6 +53,31 @@ class LiethermoAccessor:
             tables = {}
         return model_of(tables)
 
+    def derived(self) -> xr.Dataset:
+        """Every variable a run of the file's scene can write, with
+        ``output.variables = "all"``: those the file stores, and those its model
+        derives from them (the heavy top: the energies, the entropy and temperature,
+        the momenta, the centre of mass, the initial data, from the stored state,
+        bit for bit).  A model that derives nothing gives the dataset as it is."""
+        derive = getattr(self.model(), "derived", None)
+        if derive is None:
+            return self._ds
+        out = derive(self._ds)
+        for name, var in self._ds.data_vars.items():  # what the file holds stays as it is
+            if name not in out:
+                out[name] = var
+        return out
+
+    def __getitem__(self, name: str) -> xr.DataArray:
+        """One variable, stored or derived (:meth:`derived`): ``ds.liethermo["kinetic_energy"]``."""
+        if name in self._ds.variables:
+            return self._ds[name]
+        out = self.derived()
+        if name not in out.variables:
+            raise KeyError(f"{name!r}: neither stored in the dataset nor derived by its model; "
+                           f"it has {', '.join(sorted(map(str, out.data_vars)))}")
+        return out[name]
+
     def relative_energy_error(self, convention: str = "node") -> xr.DataArray:
         """The energy error relative to the run's natural energy scale (dimensionless),
         as the file's model defines it.  The top: (E_k − E₀)/E_mech,0 with E_mech,0 =
@@ -63,14 +88,17 @@ class LiethermoAccessor:
         reader = getattr(model, "energy_error_of", None)
         if reader is None:
             raise KeyError(f"{model.title or model.name}: its files carry no relative energy error")
-        return reader(self._ds, convention)
+        ds = self._ds
+        if "energy_error" not in ds and getattr(model, "derived", None) is not None:
+            ds = self.derived()
+        return reader(ds, convention)
 
     def quantiles(self, variable: str | xr.DataArray, q=(0.05, 0.5, 0.95), *,
                   only_ok: bool = False) -> xr.DataArray:
         """Quantiles over the members (e.g. the 5–95 % band and the median of an
         energy error over time); ``only_ok``: over the members that completed.
         A failed member's NaN values count as +inf (they are above every band)."""
-        da = self._ds[variable] if isinstance(variable, str) else variable
+        da = self[variable] if isinstance(variable, str) else variable
         if only_ok:
             da = da.where(self.ok, drop=True)
         da = da.fillna(np.inf)

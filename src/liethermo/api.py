@@ -277,7 +277,7 @@ def open_dataset(path: str | Path, **kwargs) -> xr.Dataset:
     return cf.open_dataset(path, **kwargs)
 
 
-def open_runs(paths, *, methods=None, lazy: bool = True) -> xr.Dataset:
+def open_runs(paths, *, methods=None, lazy: bool = True, derived: bool = False) -> xr.Dataset:
     """The runs of one scene by several methods (their ``.nc`` files: a list,
     or ``{method: path}``) as one Dataset with a ``method`` dimension.
 
@@ -291,7 +291,9 @@ def open_runs(paths, *, methods=None, lazy: bool = True) -> xr.Dataset:
     Opened lazily, as ``xarray.open_mfdataset`` does: the variables are dask
     arrays read chunk by chunk when computed, so 10⁶ members do not load into
     memory.  Without dask installed (or with ``lazy=False``) the files are
-    loaded into memory, with a warning when dask is missing."""
+    loaded into memory, with a warning when dask is missing.  ``derived``: each
+    run with the variables its model derives from the stored state
+    (``ds.liethermo.derived()``, in memory), before they are combined."""
     from .combine import open_runs as _open_runs
 
-    return _open_runs(paths, methods=methods, lazy=lazy)
+    return _open_runs(paths, methods=methods, lazy=lazy, derived=derived)

@@ -38,7 +38,7 @@ def dask_available() -> bool:
     return True
 
 
-def open_runs(paths, *, methods=None, lazy: bool = True):
+def open_runs(paths, *, methods=None, lazy: bool = True, derived: bool = False):
     """One dataset of the runs in ``paths`` (``.nc`` files of liethermo runs
     of one scene, e.g. a run with its ``output.compare`` methods), with a
     ``method`` dimension labelled by each file's ``method`` attribute (or by
@@ -48,7 +48,9 @@ def open_runs(paths, *, methods=None, lazy: bool = True):
     when computed, so an ensemble larger than the memory can be combined and
     reduced.  Without dask (``pip install dask``) — or with ``lazy=False`` —
     the files are loaded into memory instead (with a warning when dask is
-    missing).  Close the result (``ds.close()`` or ``with``) to close the files."""
+    missing).  ``derived``: each run with every variable its model derives from
+    the stored state (``ds.liethermo.derived()``, computed in memory) before they
+    are combined.  Close the result (``ds.close()`` or ``with``) to close the files."""
     from . import cf
 
     if isinstance(paths, dict):
@@ -73,6 +75,8 @@ def open_runs(paths, *, methods=None, lazy: bool = True):
         for i, p in enumerate(paths):
             ds = cf.open_dataset(p, chunks={}) if lazy else cf.load_dataset(p)
             opened.append(ds)
+            if derived:
+                ds = ds.liethermo.derived()
             name = methods[i] if methods is not None else str(ds.attrs.get("method", p.stem))
             if name in datasets:
                 raise ValueError(f"two runs of method {name!r} ({paths[list(datasets).index(name)]} and {p}): "

@@ -170,6 +170,8 @@ class Estimate:
     fixed_memory: int = 0
     #: GPU memory of one member chunk (bytes; 0 for a run on the CPU)
     device_memory: int = 0
+    #: the names of the per-member variables the file stores (``output.variables``), where the model says
+    variables: tuple = ()
 
     @property
     def file_bytes(self) -> int:
@@ -295,7 +297,9 @@ class RunPlan:
         if e.device_memory:
             have = f", {human_bytes(self.device_free)} free" if self.device_free is not None else ""
             gpu = f"; about {human_bytes(e.device_memory)} of GPU memory{have}"
-        return (f"{n} output file(s), about {human_bytes(self.disk_need)} on disk{free}; "
+        stored = (f" ({human_bytes(e.file_per_member)} per member in {len(e.variables)} variables: "
+                  f"{', '.join(e.variables)})" if e.variables else "")
+        return (f"{n} output file(s), about {human_bytes(self.disk_need)} on disk{stored}{free}; "
                 f"at most about {mem} of memory (member chunks of {e.chunk_members}){avail}{gpu}")
 
 

@@ -304,11 +304,52 @@ def compare_check(methods: tuple[str, ...]):
     return check
 
 
-def run_keys(methods: tuple[str, ...]) -> tuple[Key, ...]:
+#: the name of ``output.variables`` that asks for every variable a model can write
+ALL_VARIABLES = "all"
+
+
+def variables_key(names, doc: str) -> Key:
+    """The key ``output.variables`` of a model: a list of names, each a variable
+    or a named group of variables of ``names`` (``{name: (variable, ...)}``, or a
+    function that gives it), or ``"all"``, stored beyond the model's default
+    set.  An unknown name is refused with the valid ones."""
+
+    def check(name, v, scene):
+        if isinstance(v, str):
+            v = [v]
+        if not isinstance(v, (list, tuple)) or not all(isinstance(x, str) for x in v):
+            raise SceneError(name, f'must be "{ALL_VARIABLES}" or a list of variable names', v)
+        valid = names() if callable(names) else names
+        for x in v:
+            if x != ALL_VARIABLES and x not in valid:
+                known = ", ".join([f'"{ALL_VARIABLES}"'] + sorted(valid))
+                raise SceneError(name, f"unknown variable {x!r}; valid names: {known}", show_value=False)
+        return list(dict.fromkeys(v))
+
+    return Key("output", "variables", [], "", f'"{ALL_VARIABLES}" | list of variable or group names', doc, check)
+
+
+def requested_variables(scene, names) -> set[str] | None:
+    """The variables ``output.variables`` of ``scene`` asks for, its groups
+    expanded through ``names`` (``{name: (variable, ...)}``); None: every one."""
+    out_table = scene["output"]
+    asked = out_table["variables"] if "variables" in out_table else ()
+    if ALL_VARIABLES in asked:
+        return None
+    out: set[str] = set()
+    for x in asked:
+        out.update(names.get(x, (x,)))
+    return out
+
+
+def run_keys(methods: tuple[str, ...], variables=None) -> tuple[Key, ...]:
     """The keys the run layer reads of every model's scene, for a model whose methods
     are ``methods`` (the first is the default); a model's key of the same path
-    replaces one of these (its own default or meaning)."""
-    return (
+    replaces one of these (its own default or meaning).  ``variables``: the
+    names ``output.variables`` takes (:func:`variables_key`; the model's
+    ``{name: (variable, ...)}``, or a function that gives it; none: ``"all"``
+    only, for a model whose files hold every variable it has)."""
+    out = (
         Key("scene", "name", "custom", "", "a string", "name of the scene (files are named after it)", string),
         Key("scene", "description", "", "", "a string", "one line on what the scene is", string),
         Key("integrator", "method", methods[0], "", " | ".join(f'"{m}"' for m in methods), "the integrator",
@@ -323,6 +364,13 @@ def run_keys(methods: tuple[str, ...]) -> tuple[Key, ...]:
         Key("output", "member_chunk", 65536, "1", "integer ≥ 1",
             "members simulated and written at a time (bounds memory)", integer()),
     )
+    return out + (variables_key(variables or {}, VARIABLES_DOC),)
+
+
+#: what ``output.variables`` means, for every model
+VARIABLES_DOC = ('variables stored beyond the model\'s default set: variable names, group names or "all" '
+                 "(docs/netcdf.md lists each model's; ds.liethermo.derived() gives those a file does not hold "
+                 "where the model derives them)")
 
 
 #: the paths of :func:`run_keys`: what the run layer reads of every scene
@@ -384,7 +432,8 @@ def declare_scene(name: str, keys: tuple[Key, ...], *, methods: tuple[str, ...],
                   title: str, intro: str = "", defaults: dict | None = None, scene_class: type = TableScene,
                   check: Callable[[dict], None] | None = None,
                   refuse: Callable[[dict], None] | None = None, noun: str | None = None,
-                  adjust: Callable[[dict, set], None] | None = None) -> SceneModel:
+                  adjust: Callable[[dict, set], None] | None = None, variables: dict | None = None,
+                  switches: dict | None = None) -> SceneModel:
     """The scene side of a model from its own ``keys``: the keys every run reads
     (:func:`run_keys`, with ``defaults`` ``{"section.key": value}`` of the model's
     own) are added where the model does not declare them, after the model's keys of
@@ -394,10 +443,16 @@ def declare_scene(name: str, keys: tuple[Key, ...], *, methods: tuple[str, ...],
     table merged in first (a message for a key of another model).  ``noun`` names
     such a scene in messages ("a Zeitlin scene"; default ``title``).  ``adjust(tables,
     given)`` sets defaults that follow other keys, before the checks; ``given`` holds
-    the (section, key) pairs the scene's tables and the overrides set."""
+    the (section, key) pairs the scene's tables and the overrides set.
+
+    ``variables`` (``{name: (variable, ...)}``: every variable and group the
+    model can store beyond its default set) are the names ``output.variables``
+    takes (without them, ``"all"`` only);
+    ``switches`` (``{name: "output.KEY"}``) names the boolean keys that store a
+    group, which naming the group (or one of its variables, or ``"all"``) sets."""
     own = {k.path for k in keys}
     out = list(keys)
-    for k in run_keys(tuple(methods)):
+    for k in run_keys(tuple(methods), variables):
         if k.path in own:
             continue
         if defaults and k.path in defaults:
@@ -420,6 +475,7 @@ def declare_scene(name: str, keys: tuple[Key, ...], *, methods: tuple[str, ...],
             clean[sec].update(d.get(sec, {}))
         for k in keys:
             clean[k.section][k.name] = k.check(k.path, clean[k.section][k.name], clean)
+        apply_switches(clean, variables or {}, switches or {})
         steps, every = clean["integrator"]["steps"], clean["output"]["every"]
         if steps % every:
             raise SceneError("output.every", f"must divide integrator.steps = {steps}", every)
@@ -440,6 +496,18 @@ def declare_scene(name: str, keys: tuple[Key, ...], *, methods: tuple[str, ...],
 
     return SceneModel(name=name, marks=marks, load=load, scene_class=scene_class, keys=keys, title=title,
                       intro=intro)
+
+
+def apply_switches(clean: dict, variables: dict, switches: dict, every: bool = True) -> None:
+    """Set the boolean output keys of ``switches`` (``{group: "output.KEY"}``) whose
+    group ``output.variables`` of the validated tables ``clean`` names, itself, by
+    one of its variables or (``every``) by ``"all"``: a switch and the names say
+    the same thing, and the stored scene says it both ways."""
+    asked = set(clean["output"].get("variables") or ())
+    for group, path in switches.items():
+        if group in asked or asked & set(variables.get(group, ())) or (every and ALL_VARIABLES in asked):
+            section, key = path.split(".")
+            clean[section][key] = True
 
 
 def _scene_model(source):

@@ -38,7 +38,7 @@ def ensemble(ctx, coords) -> xr.Dataset:
 
     opt, m, model, h = ctx.opt, coords["scheme"], ctx.model, float(coords["point"]["integrator.h"])
     steps, be = round(opt["t_end"] / h), round(opt["band_dt"] / h)
-    sc = ctx.scene(coords["point"]).with_overrides({**model.method_overrides(m), "integrator.steps": steps,
+    sc = ctx.scene(coords["point"]).with_overrides({**model.study_outputs, **model.method_overrides(m), "integrator.steps": steps,
                                                     "output.every": 1})
     N, t = int(sc["ensemble"]["members"]), np.arange(steps + 1) * h
     rel, status, wall = {c: np.full((N, t.size), np.nan) for c in _sfx(ctx)}, np.empty(N, np.int8), 0.0

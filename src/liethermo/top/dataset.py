@@ -1,4 +1,7 @@
-"""Label a :class:`~liethermo.top.simulate.Trajectory` as a CF-style xarray Dataset.
+"""Label a :class:`~liethermo.top.simulate.Trajectory` as a CF-style xarray Dataset,
+keep the variables a run stores (:func:`select_variables`: the state by default,
+``output.variables`` for more) and derive the others from a stored state
+(:func:`derive`, behind ``ds.liethermo.derived()``).
 
 Every variable has ``units`` and ``long_name`` (docs/netcdf.md lists them).
 Values are node values at t_k = k h for every method: ``omega`` is Ω(t_k)
@@ -119,6 +122,7 @@ def _trajectory_dataset(traj, omega0, R0, member_offset):
                                                   "Kelvin-Noether quantity; d/dt = -Gamma . C Omega)"),
         "gamma": _var(traj.gamma, dims_v, "1", "gravity direction (body)",
                       comment="direction of gravity in the body frame, Gamma = R^T e3"),
+        **_heat_parts(traj, dims_t),
         "entropy": _var(phys.S0[:, None] + traj.sigma, dims_t, "J K-1", "entropy S",
                         comment="entropy of body and fluid"),
         "temperature": _var(e["T"], dims_t, "K", "temperature T",
@@ -197,6 +201,21 @@ def _trajectory_dataset(traj, omega0, R0, member_offset):
     return xr.Dataset(data, coords=coords)
 
 
+def _heat_parts(traj, dims_t) -> dict:
+    """The state's own thermodynamic part, as the kernels store it: σ = S − S₀
+    (variational integrators, Runge–Kutta) or the heat q = U − U₀ (splittings).
+    The entropy, temperature and energies derive from it bit for bit; from
+    S = S₀ + σ they would not (S₀ + σ − S₀ rounds)."""
+    out = {}
+    if traj.layout.has("sigma"):
+        out["entropy_change"] = _var(traj.part("sigma")[..., 0], dims_t, "J K-1", "entropy change S - S0",
+                                     comment="entropy produced since t = 0, as the integrator carries it")
+    if traj.layout.has("heat"):
+        out["heat"] = _var(traj.part("heat")[..., 0], dims_t, "J", "heat absorbed q = U - U0",
+                           comment="internal energy gained since t = 0, as the splitting carries it")
+    return out
+
+
 def status_flags(dtype) -> dict:
     """CF ``flag_values``/``flag_meanings`` of a member status variable of ``dtype``."""
     return {"flag_values": np.array(sorted(STATUS_MEANINGS), dtype=dtype),
@@ -266,3 +285,124 @@ def global_attrs(scene_toml: str, *, method: str, h: float, friction: str | None
     if extra:
         attrs.update(extra)
     return attrs
+
+
+# ----------------------------------------------------------------------------- what a file stores
+
+
+def stored_variables(scene, traj_layout) -> set[str] | None:
+    """The variables a run of ``scene`` stores (None: every one): the state parts of
+    the method's layout (``traj_layout``, a :class:`~liethermo.top.kernels.layout.StateLayout`),
+    the members' run, the parameters, the initial data of an ``initial.file`` scene,
+    and what ``output.variables`` names (:data:`liethermo.top.scene.VARIABLE_GROUPS`)."""
+    from ..scene import requested_variables
+    from .scene import RUN_VARIABLES, STATE_VARIABLES, VARIABLE_GROUPS
+
+    asked = requested_variables(scene, VARIABLE_GROUPS)
+    if asked is None:
+        return None
+    # Ω(t_k) of every method: the state of the Runge-Kutta methods, the node velocity
+    # 𝕀(S_k)⁻¹μ_k of the others (derived, and stored too: the variable a reader looks for first)
+    out = set(asked) | set(RUN_VARIABLES) | {"omega"} | {STATE_VARIABLES[n] for n, _, _ in traj_layout.parts
+                                                        if n in STATE_VARIABLES}
+    if scene["initial"]["file"]:  # the initial data live in a file the run may not find again
+        out |= {"initial_omega", "initial_attitude"}
+    return out
+
+
+def select_variables(ds: xr.Dataset, scene, traj_layout) -> xr.Dataset:
+    """``ds`` with the data variables a run of ``scene`` stores (:func:`stored_variables`);
+    the parameters (no time dimension, no member dimension) always."""
+    keep = stored_variables(scene, traj_layout)
+    if keep is None:
+        return ds
+    drop = [n for n, v in ds.data_vars.items() if n not in keep and "member" in v.dims
+            and not _is_parameter(n)]
+    return ds.drop_vars(drop)
+
+
+def _is_parameter(name: str) -> bool:
+    return name in _parameter_names()
+
+
+def _parameter_names() -> tuple[str, ...]:
+    from .kernels.terms import registry
+
+    return ("inertia", "heat_capacity") + tuple(prm.variable_name for t in registry() for prm in t.parameters
+                                                if prm.shape is not None and prm.variable_name)
+
+
+def derive(ds: xr.Dataset) -> xr.Dataset:
+    """Every variable a run of the file's scene can write, from the stored state of
+    ``ds`` (a top's run file or its in-memory dataset, any subset of its members and
+    times): the stored parts are put back into the kernels' state layout and labelled
+    by the very code a run labels its chunks with (:func:`trajectory_dataset`), with the
+    members' initial data and parameters rebuilt from the stored scene, so every value
+    equals, bit for bit, the one a run storing every variable writes.  Raises
+    ValueError for a dataset that does not hold the state."""
+    from ..scene import load_scene
+    from .initial import initial_conditions
+    from .resolve import resolve
+    from .scene import STATE_VARIABLES
+
+    text = ds.attrs.get("scene")
+    if not isinstance(text, str) or not text:
+        if all(n in ds for n in ("kinetic_energy", "energy_error", "mechanical_energy_initial")):
+            return ds  # a chunk labelled whole (a study's run): it holds them already
+        raise ValueError("the dataset has no 'scene' attribute: the derived variables need the run's scene")
+    scene = load_scene(_scene_tables(text))
+    run = resolve(scene)
+    layout = run.model.layout(run.method.layout)
+    members = np.asarray(ds["member"].values, dtype=np.int64)
+    N, T = members.size, ds.sizes["t"]
+    states = np.full((N, T, layout.size), np.nan)
+    for part, start, size in layout.parts:
+        name = STATE_VARIABLES.get(part)
+        if name is None:  # sigma_next: the coupled VI's next entropy, read by nothing the file shows
+            continue
+        if name not in ds:
+            raise ValueError(f"the dataset has no {name!r}: it does not hold the state of its method "
+                             f"{run.choice.name} (store it, or run with output.variables = \"all\")")
+        v = np.asarray(ds[name].transpose("member", "t", ...).values, dtype=np.float64)
+        states[..., start:start + size] = v.reshape(N, T, size)
+    member_vals = lambda n: np.asarray(ds[n].values)  # noqa: E731
+    status = member_vals("status").astype(np.int8)
+    fail = member_vals("failed_at_step").astype(np.int64)
+    zeros = np.zeros(N, dtype=np.int64)
+    traj = Trajectory(choice=run.choice, h=run.h, steps=run.steps, every=run.every,
+                      physics=run.physics_for(N), layout=layout, terms=run.terms, states=states, status=status,
+                      fail_step=fail, newton_iterations=zeros, newton_max=zeros,
+                      steps_done=member_vals("steps_done").astype(np.int64),
+                      max_h_omega=member_vals("max_h_omega").astype(np.float64))
+    if "initial_omega" in ds and "initial_attitude" in ds:
+        om0 = np.asarray(ds["initial_omega"].values, dtype=np.float64)
+        R0 = np.asarray(ds["initial_attitude"].values, dtype=np.float64)
+    else:
+        lo, hi = (int(members.min()), int(members.max()) + 1) if N else (0, 0)
+        om_all, R_all = initial_conditions(scene, lo, hi) if N else (np.zeros((0, 3)), np.zeros((0, 3, 3)))
+        om0, R0 = om_all[members - lo], R_all[members - lo]
+    out = trajectory_dataset(traj, omega0=om0, R0=R0)
+    for n in ("newton_iterations_mean", "newton_iterations_max"):  # per member, not rebuilt: the stored ones
+        if n in out:
+            if n not in ds:
+                out = out.drop_vars(n)
+            else:
+                out[n] = ds[n].variable
+    for n in _parameter_names():
+        if n in ds and n in out and not np.array_equal(np.asarray(ds[n].values), out[n].values):
+            raise ValueError(f"the dataset's {n!r} is not its scene's: its members were not run from the "
+                             "stored scene alone, and their derived variables cannot be rebuilt")
+    out = out.assign_coords({c: ds[c].variable for c in ("member", "t", "step") if c in ds.coords})
+    out.attrs = dict(ds.attrs)
+    return out
+
+
+
+def _scene_tables(text: str) -> dict:
+    import sys
+
+    if sys.version_info >= (3, 11):
+        import tomllib
+    else:  # pragma: no cover
+        import tomli as tomllib
+    return tomllib.loads(text)

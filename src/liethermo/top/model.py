@@ -305,8 +305,11 @@ def run_chunk(scene: dict, lo: int, hi: int, *, progress_cb=None, kernel: str | 
     :mod:`liethermo.distributed`; member i's result depends only on (scene, i).
     ``progress_cb(n)`` gets the number of member-steps just done.
     """
+    from .dataset import select_variables
+
     traj, ds = _chunk(scene, lo, hi, progress_cb=progress_cb, kernel=kernel, threads=threads)
-    return ds, _labelled_stats(traj, ds)
+    stats = _labelled_stats(traj, ds)  # from every variable; the file holds those the scene stores
+    return select_variables(ds, scene, traj.layout), stats
 
 
 def _labelled_stats(traj, ds) -> "ChunkStats":
@@ -416,8 +419,9 @@ def top_device_bytes(members: int, width: int, nparam: int, shared: bool, n_out:
 
 def estimate(scene: dict):
     """Output size and chunk memory of a resolved scene, from the layout of a
-    one-member, two-time dataset labelled like a run's (no kernel runs)."""
-    from .dataset import trajectory_dataset
+    one-member, two-time dataset labelled like a run's, with the variables the
+    scene stores (``output.variables``; no kernel runs)."""
+    from .dataset import select_variables, trajectory_dataset
     from ..io import disk_chunk_members
     from ..preflight import Estimate
     from .resolve import resolve
@@ -437,19 +441,27 @@ def estimate(scene: dict):
                       newton_iterations=one(np.int64), newton_max=one(np.int64), steps_done=one(np.int64),
                       max_h_omega=one(np.float64))
     with np.errstate(all="ignore"):
-        ds = trajectory_dataset(traj, omega0=np.zeros((1, 3)), R0=np.eye(3)[None])
+        full = trajectory_dataset(traj, omega0=np.zeros((1, 3)), R0=np.eye(3)[None])
     members = int(scene["ensemble"]["members"])
-    layout = []
-    for var in ds.variables.values():
-        if "member" not in var.dims:
-            continue
-        n = var.dtype.itemsize if var.dtype.kind != "O" else 16
-        for d in var.dims[1:]:
-            n *= n_t if d == "t" else ds.sizes[d]
-        layout.append((n, disk_chunk_members(members, n) if var.ndim > 1 else 0))
-    per = sum(n for n, _ in layout)
-    memory = int(MEMORY_FACTOR * per) + n_t * width * 8
-    est = Estimate(per, memory, members, int(outp["member_chunk"]), layout)
+
+    def per_member(ds):
+        out = []
+        for var in ds.variables.values():
+            if "member" not in var.dims:
+                continue
+            n = var.dtype.itemsize if var.dtype.kind != "O" else 16
+            for d in var.dims[1:]:
+                n *= n_t if d == "t" else ds.sizes[d]
+            out.append((n, disk_chunk_members(members, n) if var.ndim > 1 else 0))
+        return out
+
+    kept = select_variables(full, scene, layout)
+    stored = per_member(kept)  # the file: the variables the scene stores
+    per = sum(n for n, _ in stored)
+    # a chunk is labelled whole (its summary reads every variable) before the file's are kept
+    memory = int(MEMORY_FACTOR * sum(n for n, _ in per_member(full))) + n_t * width * 8
+    est = Estimate(per, memory, members, int(outp["member_chunk"]), stored,
+                   variables=tuple(sorted(n for n, v in kept.data_vars.items() if "member" in v.dims)))
     if scene["ensemble"]["device"] == "gpu":
 
         est.device_memory = top_device_bytes(est.chunk_members, width, run.model.nparam,
@@ -565,14 +577,29 @@ class HeavyTop(StudyDefaults, Model):
 
     study_kinds = STUDY_KINDS
     stats_type = ChunkStats
-    store_less = "output.every, output.attitude"
+    store_less = "output.every, output.attitude, output.variables"
+    #: a study reads the derived variables of the datasets it runs
+    study_outputs = {"output.variables": ["all"]}
+
+    def derived(self, ds):
+        """Every variable a run can write, from the state ``ds`` stores, bit for bit
+        (:func:`liethermo.top.dataset.derive`)."""
+        from .dataset import derive
+
+        with np.errstate(over="ignore", invalid="ignore"):
+            return derive(ds)
 
     def methods(self) -> dict[str, MethodInfo]:
         from .methods import METHODS
 
         return {n: MethodInfo(n, m.order(), tuple(m.laws), m.description) for n, m in METHODS.items()}
 
+    def _full(self, ds):
+        """``ds`` with the derived variables (a dataset of the default variables gets them)."""
+        return ds if "energy_error" in ds else self.derived(ds)
+
     def study_state(self, ds) -> dict:
+        ds = self._full(ds)
         return {"omega": (ds["omega"].values, "rad s-1", "body angular velocity Omega (node values)", None),
                 "gamma": (ds["gamma"].values, "1", "direction of gravity Gamma", None),
                 "entropy": (ds["entropy"].values, "J K-1", "entropy S", None),
@@ -599,6 +626,7 @@ class HeavyTop(StudyDefaults, Model):
         return MethodChoice.parse(label).order()
 
     def relative_energy_error(self, ds):
+        ds = self._full(ds)
         with np.errstate(divide="ignore", invalid="ignore"):
             return ds["energy_error"].values / np.abs(ds["mechanical_energy_initial"].values)[:, None]
 
@@ -620,6 +648,7 @@ class HeavyTop(StudyDefaults, Model):
         return rel
 
     def energy_conventions(self, ds) -> dict:
+        ds = self._full(ds)
         if "energy_error_paper" not in ds:
             return {}
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):

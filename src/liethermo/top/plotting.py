@@ -126,7 +126,7 @@ def _start_words(ds) -> str:
 def _ensemble(full) -> Ensemble:
     """The bands of a run's ensemble (more than one member), over the members
     that completed among the first :data:`MAX_BAND_MEMBERS`; each variable is
-    read on its own, so memory holds one (members, times) array at a time."""
+    derived (:meth:`liethermo.accessor.LiethermoAccessor.derived`) from their stored state."""
     n = full.sizes["member"]
     k = min(n, MAX_BAND_MEMBERS)
     status = full["status"].values
@@ -137,19 +137,19 @@ def _ensemble(full) -> Ensemble:
         return ens
     why = " ".join(w for w in ("that completed" if failed else "",
                                f"(among the first {k})" if k < n else "") if w)
-    part = full.isel(member=slice(0, k))
+    part = full.isel(member=slice(0, k)).liethermo.derived()  # the energies from the stored state
 
     def get(name):  # a contiguous read, then the members that completed
         return np.asarray(part[name].values, dtype=np.float64)[ok]
 
     for name in SCALE:
-        if name in full:
+        if name in part:
             ens.bands[name] = member_band(_shown(name, get(name)), of=n, why=why)
     ee = get("energy_error")
     ens.E0 = get("total_energy")[:, 0] - ee[:, 0]
     ens.emech = get("mechanical_energy_initial")
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        paper = get("energy_error_paper") if _paper_convention(full) else None
+        paper = get("energy_error_paper") if _paper_convention(part) else None
         ens.bands["relative_top"] = member_band((ee if paper is None else paper) / ens.E0[:, None], of=n, why=why)
         ens.bands["abs_node"] = member_band(np.abs(ee) / ens.emech[:, None], of=n, why=why)
         if paper is not None:
@@ -183,8 +183,8 @@ def scene_figures(outputs: dict, folder, stem: str = "run", member: int = 0) -> 
     folder.mkdir(parents=True, exist_ok=True)
     data, ensembles = {}, {}
     for m, p in outputs.items():  # one member read from each file, and the ensemble's bands
-        with cf.open_dataset(p) as full:
-            data[m] = full.isel(member=member).load()
+        with cf.open_dataset(p) as full:  # the derived variables (energies, centre of mass) through the accessor
+            data[m] = full.isel(member=[member]).load().liethermo.derived().isel(member=0)
             if full.sizes["member"] > 1:
                 ensembles[m] = _ensemble(full)
     first = next(iter(data.values()))

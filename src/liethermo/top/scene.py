@@ -18,8 +18,8 @@ from typing import Any
 import numpy as np
 import tomli_w
 
-from ..scene import (Key, SceneError, SceneModel, _freeze, _merge, _overrides_as_tables, _thaw, boolean,
-                     choice, integer, number, string, vector, word_or)
+from ..scene import (VARIABLES_DOC, Key, SceneError, SceneModel, _freeze, _merge, _overrides_as_tables, _thaw,
+                     apply_switches, boolean, choice, integer, number, string, variables_key, vector, word_or)
 from .methods import COMPOSITION_KINDS, ENTROPY_UPDATES, FRICTION, METHODS, STARTS
 
 #: most Newton iterations a step may take: a converging solve takes fewer than 30
@@ -167,6 +167,8 @@ CORE_KEYS: tuple[Key, ...] = (
         "keep every k-th step", integer()),
     Key("output", "attitude", False, "", "true | false",
         "also integrate and store R (and the centre-of-mass path)", boolean),
+    variables_key(lambda: variable_names(), VARIABLES_DOC + "; naming attitude or center_of_mass also "
+                  "integrates R (as output.attitude = true), \"all\" does not"),
     Key("output", "compare", [], "", "list of methods",
         "further methods run on the same scene (files <OUT>_<method>.nc)", _compare_check),
     Key("output", "figures", False, "", "true | false", "write PNG figures next to the netCDF",
@@ -175,6 +177,42 @@ CORE_KEYS: tuple[Key, ...] = (
         "members simulated and written at a time (bounds memory)", integer()),
 )
 
+
+
+#: The variables of a top's run file.  A file always holds the state the method
+#: integrates, as its kernels carry it (:data:`STATE_VARIABLES`: those of the
+#: method's state layout), the members' run (:data:`RUN_VARIABLES`) and the
+#: parameters; every other variable derives from those bit for bit
+#: (``ds.liethermo.derived()``) and is stored only when ``output.variables`` names it.
+STATE_VARIABLES = {"omega": "omega", "omega_step": "omega_step", "momentum": "angular_momentum",
+                   "gamma": "gamma", "sigma": "entropy_change", "heat": "heat", "attitude": "attitude"}
+RUN_VARIABLES = ("status", "failed_at_step", "steps_done", "max_h_omega", "newton_iterations_mean",
+                 "newton_iterations_max")
+#: the derived variables, and (for ``initial.file`` scenes, whose data live in a file) the stored ones
+DERIVED_VARIABLES = ("omega", "angular_momentum", "angular_momentum_norm", "vertical_angular_momentum", "entropy",
+                     "temperature", "kinetic_energy", "potential_energy", "internal_energy", "total_energy",
+                     "energy_error", "energy_error_paper", "mechanical_energy_initial", "initial_omega",
+                     "initial_attitude", "center_of_mass")
+#: named groups of variables ``output.variables`` takes
+VARIABLE_GROUPS = {
+    "energies": ("kinetic_energy", "potential_energy", "internal_energy", "total_energy", "energy_error",
+                 "energy_error_paper", "mechanical_energy_initial"),
+    "thermodynamics": ("entropy", "temperature", "internal_energy"),
+    "momentum": ("angular_momentum", "angular_momentum_norm", "vertical_angular_momentum"),
+    "initial": ("initial_omega", "initial_attitude"),
+}
+#: the names that integrate the attitude R (as ``output.attitude = true``)
+ATTITUDE_NAMES = ("attitude", "center_of_mass")
+
+
+def variable_names() -> dict[str, tuple[str, ...]]:
+    """Every name ``output.variables`` takes: ``{name: (variable, ...)}``."""
+    from .kernels.terms import registry
+
+    params = ("inertia", "heat_capacity") + tuple(prm.variable_name for t in registry() for prm in t.parameters
+                                                  if prm.shape is not None and prm.variable_name)
+    single = (tuple(STATE_VARIABLES.values()) + RUN_VARIABLES + DERIVED_VARIABLES + params)
+    return {**{v: (v,) for v in single}, **VARIABLE_GROUPS}
 
 
 def _term_key(setting) -> Key:
@@ -319,6 +357,7 @@ def validate(scene: dict) -> Scene:
     clean = copy.deepcopy(DEFAULTS)
     for k in KEYS:
         clean[k.section][k.name] = k.check(k.path, scene[k.section][k.name], scene)
+    apply_switches(clean, {"attitude": ATTITUDE_NAMES}, {"attitude": "output.attitude"}, every=False)
     _cross_rules(clean)
     return _scene_from_dict(clean)
 

@@ -155,6 +155,20 @@ A scene with a `[torus]` table is Zeitlin's sine-bracket fluid on the torus
 fluid locally, heat is conducted, and buoyancy (Φ = cos y) carries it back into the flow.  Its methods are
 `cmp`, `magmp`, `isomp`, `cmp4`, `magmp4`, `isomp4`, `rk4` and `reference`."""
 
+#: the variables a torus run always writes (diagnostics of every stored time, the members' runs) ...
+DEFAULT_VARIABLES = ("kinetic_energy", "internal_energy", "potential_energy", "total_energy", "energy_error",
+                     "entropy", "enstrophy", "theta_min", "theta_max", "temperature_min", "temperature_max",
+                     "casimir", "fixed_point_iterations", "status", "failed_step")
+#: ... and the names ``output.variables`` takes: those, the vorticity W (group ``vorticity``,
+#: also ``output.vorticity = true``) and the entropy density S (group ``entropy_field``,
+#: also ``output.entropy_field = true``)
+VARIABLES = {**{v: (v,) for v in DEFAULT_VARIABLES}, "vorticity": ("vorticity_real", "vorticity_imag"),
+             "vorticity_real": ("vorticity_real",), "vorticity_imag": ("vorticity_imag",),
+             "entropy_field": ("entropy_density_real", "entropy_density_imag"),
+             "entropy_density_real": ("entropy_density_real",), "entropy_density_imag": ("entropy_density_imag",)}
+
 SCENE_MODEL = declare_scene("torus", KEYS, methods=METHODS, marks=is_torus, title="a torus fluid", intro=INTRO,
-                            scene_class=TorusScene, refuse=_refuse, check=_rules, noun="a torus scene")
+                            scene_class=TorusScene, refuse=_refuse, check=_rules, noun="a torus scene",
+                            variables=VARIABLES,
+                            switches={"vorticity": "output.vorticity", "entropy_field": "output.entropy_field"})
 load = SCENE_MODEL.load

@@ -185,8 +185,18 @@ It has keys of its own, below; sections it shares with the top (`[fluid]`, `[the
 `[integrator]`, `[ensemble]`, `[output]`) hold only the keys listed here.  Its methods are `split`,
 `split4`, `split6`, `rk4` and `reference`."""
 
+#: the variables a Zeitlin run always writes (diagnostics of every stored time, the members' runs) ...
+DEFAULT_VARIABLES = ("energy", "heat", "total_energy", "energy_error", "entropy", "temperature", "enstrophy",
+                     "casimir", "casimir_drift", "angular_momentum", "energy_spectrum", "fixed_point_iterations",
+                     "status", "failed_step", "initial_vorticity_real", "initial_vorticity_imag")
+#: ... and the names ``output.variables`` takes: those, and the vorticity matrix W
+#: (the group ``vorticity``, which ``output.vorticity = true`` also stores)
+VARIABLES = {**{v: (v,) for v in DEFAULT_VARIABLES}, "vorticity": ("vorticity_real", "vorticity_imag"),
+             "vorticity_real": ("vorticity_real",), "vorticity_imag": ("vorticity_imag",)}
+
 #: the scene side of the fluid's model (registered with it: liethermo.zeitlin.model)
 SCENE_MODEL = declare_scene("zeitlin", KEYS, methods=METHODS, marks=is_zeitlin, title="a Zeitlin fluid",
                             intro=INTRO, scene_class=ZeitlinScene, refuse=_refuse, check=_initial_file_rules, adjust=_follow_n,
-                            noun="a Zeitlin scene")
+                            noun="a Zeitlin scene", variables=VARIABLES,
+                            switches={"vorticity": "output.vorticity"})
 load = SCENE_MODEL.load
