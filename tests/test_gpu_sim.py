@@ -3,7 +3,12 @@
 The device kernels run here in numba-cuda's simulator
 (``NUMBA_ENABLE_CUDASIM=1``, which must be set before numba-cuda is imported:
 one subprocess runs every case, CPU and simulated GPU side by side, and this
-module compares what it saved).  Each case: 6 members, 50 steps kept every 5,
+module compares what it saved).  The subprocess runs with ``NUMBA_DISABLE_JIT=1``:
+both sides are the same lane functions in plain Python, so what is compared is
+the device path's own part (thread indexing, strided loads and stores, kernel
+calls of a few outputs, statuses); compiled CPU kernels are checked against
+plain Python in tests/test_plain_python.py, and the device compile itself by
+benchmarks/gpu_compile_check.py on a GPU.  Each case: 6 members, 50 steps kept every 5,
 kernel calls of 4 outputs (so the last call is a partial one).  The cases
 take every method and every term at least once: the paper's top (shared
 parameters; members whose explicit RK2 blows up), every force at once with
@@ -107,7 +112,10 @@ def results(tmp_path_factory):
     if importlib.util.find_spec("numba_cuda") is None:
         pytest.skip("numba-cuda is not installed (it is in the test extra: pip install -e '.[test]')")
     out = tmp_path_factory.mktemp("gpu_sim") / "cases.npz"
-    env = {**os.environ, "NUMBA_ENABLE_CUDASIM": "1",  # LIETHERMO_GPU_SIM_FULL passes through
+    # plain Python on both sides (NUMBA_DISABLE_JIT): the simulator runs a thread's lane functions in
+    # Python either way, and compiling the CPU kernels of every case from an empty cache took longer
+    # (about 100 s) than interpreting them (about 40 s)
+    env = {**os.environ, "NUMBA_ENABLE_CUDASIM": "1", "NUMBA_DISABLE_JIT": "1",  # LIETHERMO_GPU_SIM_FULL passes
            "PYTHONPATH": os.pathsep.join([str(ROOT / "src"), str(HERE), os.environ.get("PYTHONPATH", "")])}
     proc = subprocess.run([sys.executable, str(Path(__file__).resolve()), str(out)], env=env,
                           capture_output=True, text=True, timeout=600)

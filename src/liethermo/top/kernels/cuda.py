@@ -111,7 +111,7 @@ if numba.config.ENABLE_CUDASIM:
     def _host_array(a):  # noqa: F811
         return np.asarray(a._item._ary) if hasattr(a, "_item") else a
 
-    _member_body = jit(nogil=True)(run_member.py_func)
+    _member_body = jit(nogil=True)(getattr(run_member, "py_func", run_member))  # plain under NUMBA_DISABLE_JIT
 
 
 @contextlib.contextmanager
