@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import importlib.util
 import math
+import os
 import platform
 import subprocess
 import sys
@@ -97,36 +98,42 @@ def assert_same(a, b):
                                           np.ascontiguousarray(y).view(np.uint64), err_msg=name)
 
 
-CASES = [  # (variant, method, extra simulate keywords)
-    ("paper", "vi", dict(start="node", entropy="explicit")),
-    ("paper", "vi", dict(friction="endpoint")),
-    ("paper", "vi4", {}),
-    ("paper", "vi6", {}),
-    ("paper", "vi4", dict(composition="triple_jump")),
-    ("paper", "split", {}),
-    ("paper", "split4", {}),
-    ("paper", "split6", {}),
-    ("diagonal", "split4", {}),
-    ("no_friction", "split", {}),
-    ("no_gravity", "split6", {}),
-    ("paper", "rk2", {}),
-    ("paper", "rk4", {}),
-    ("diagonal", "vi", {}),
-    ("diagonal", "rk4", {}),
-    ("no_gravity", "vi", {}),
-    ("no_friction", "vi", {}),
-    ("no_friction", "rk2", {}),
-    ("coupled", "vi", {}),
-    ("coupled", "vi4", {}),
-    ("coupled", "rk4", {}),
-    ("double_bracket", "vi", {}),
-    ("double_bracket", "rk2", {}),
+CASES = [  # (variant, method, extra simulate keywords, parameter layouts run by default)
+    ("paper", "vi", dict(start="node", entropy="explicit"), (0, 12)),
+    ("paper", "vi", dict(friction="endpoint"), (12,)),
+    ("paper", "vi4", {}, (0,)),
+    ("paper", "vi6", {}, (12,)),
+    ("paper", "vi4", dict(composition="triple_jump"), (0,)),
+    ("paper", "split", {}, (0, 12)),
+    ("paper", "split4", {}, (12,)),
+    ("paper", "split6", {}, (0,)),
+    ("diagonal", "split4", {}, (0,)),
+    ("no_friction", "split", {}, (12,)),
+    ("no_gravity", "split6", {}, (12,)),
+    ("paper", "rk2", {}, (0, 12)),
+    ("paper", "rk4", {}, (12,)),
+    ("diagonal", "vi", {}, (12,)),
+    ("diagonal", "rk4", {}, (0,)),
+    ("no_gravity", "vi", {}, (0,)),
+    ("no_friction", "vi", {}, (12,)),
+    ("no_friction", "rk2", {}, (0,)),
+    ("coupled", "vi", {}, (0, 12)),
+    ("coupled", "vi4", {}, (12,)),
+    ("coupled", "rk4", {}, (0,)),
+    ("double_bracket", "vi", {}, (12,)),
+    ("double_bracket", "rk2", {}, (0,)),
 ]
+#: every case runs with shared parameters (registers, n_random = 0) or per-member rows (12 random members)
+#: where its last field says: each method, each variant and each family meets both layouts somewhere.
+#: Each (case, layout) compiles a kernel pair of its own (10–20 s from an empty cache);
+#: LIETHERMO_FAST_FULL=1 runs every case in both layouts.
+FULL = os.environ.get("LIETHERMO_FAST_FULL") == "1"
+RUNS = [(v, m, k, n) for v, m, k, layouts in CASES for n in ((0, 12) if FULL else layouts)]
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("n_random", [0, 12])  # shared parameters (registers) / mixed (rows)
-@pytest.mark.parametrize("variant,method,kw", CASES, ids=[f"{v}-{m}-{'-'.join(k.values())}" for v, m, k in CASES])
+@pytest.mark.parametrize("variant,method,kw,n_random", RUNS,
+                         ids=[f"{v}-{m}-{'-'.join(k.values())}-{n}" for v, m, k, n in RUNS])
 def test_fast_equals_simple(variant, method, kw, n_random):
     phys, om, R = mixed(n_random=n_random, seed=1, variant=variant)
     assert (build_model(phys).shared is None) == (n_random > 0)
