@@ -110,19 +110,5 @@ def pools(counts: ThreadCounts) -> Iterator[ThreadCounts]:
         _kernel_threads = old
 
 
-def counts_for(scene) -> ThreadCounts:
-    """The thread counts a run of ``scene`` uses on this machine (the model's choice)."""
-    from .models import model_of
-
-    return model_of(scene).thread_counts(scene, usable_cores())
-
-
-@contextmanager
-def scene_pools(scene) -> Iterator[ThreadCounts]:
-    """:func:`pools` with the counts of ``scene`` (:func:`counts_for`)."""
-    with pools(counts_for(scene)) as c:
-        yield c
-
-
-__all__ = ["ThreadCounts", "affinity_cores", "cgroup_quota_cores", "counts_for", "kernel_threads", "pools", "scene_pools",
+__all__ = ["ThreadCounts", "affinity_cores", "cgroup_quota_cores", "kernel_threads", "pools",
            "usable_cores"]
