@@ -313,23 +313,14 @@ def stored_variables(scene, traj_layout) -> set[str] | None:
 def select_variables(ds: xr.Dataset, scene, traj_layout) -> xr.Dataset:
     """``ds`` with the data variables a run of ``scene`` stores (:func:`stored_variables`);
     the parameters (no time dimension, no member dimension) always."""
+    from .scene import parameter_names
+
     keep = stored_variables(scene, traj_layout)
     if keep is None:
         return ds
-    drop = [n for n, v in ds.data_vars.items() if n not in keep and "member" in v.dims
-            and not _is_parameter(n)]
+    params = parameter_names()
+    drop = [n for n, v in ds.data_vars.items() if n not in keep and "member" in v.dims and n not in params]
     return ds.drop_vars(drop)
-
-
-def _is_parameter(name: str) -> bool:
-    return name in _parameter_names()
-
-
-def _parameter_names() -> tuple[str, ...]:
-    from .kernels.terms import registry
-
-    return ("inertia", "heat_capacity") + tuple(prm.variable_name for t in registry() for prm in t.parameters
-                                                if prm.shape is not None and prm.variable_name)
 
 
 def derive(ds: xr.Dataset) -> xr.Dataset:
@@ -343,7 +334,7 @@ def derive(ds: xr.Dataset) -> xr.Dataset:
     from ..scene import load_scene
     from .initial import initial_conditions
     from .resolve import resolve
-    from .scene import STATE_VARIABLES
+    from .scene import STATE_VARIABLES, parameter_names
 
     text = ds.attrs.get("scene")
     if not isinstance(text, str) or not text:
@@ -388,14 +379,13 @@ def derive(ds: xr.Dataset) -> xr.Dataset:
                 out = out.drop_vars(n)
             else:
                 out[n] = ds[n].variable
-    for n in _parameter_names():
+    for n in parameter_names():
         if n in ds and n in out and not np.array_equal(np.asarray(ds[n].values), out[n].values):
             raise ValueError(f"the dataset's {n!r} is not its scene's: its members were not run from the "
                              "stored scene alone, and their derived variables cannot be rebuilt")
     out = out.assign_coords({c: ds[c].variable for c in ("member", "t", "step") if c in ds.coords})
     out.attrs = dict(ds.attrs)
     return out
-
 
 
 def _scene_tables(text: str) -> dict:

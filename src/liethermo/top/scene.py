@@ -205,13 +205,17 @@ VARIABLE_GROUPS = {
 ATTITUDE_NAMES = ("attitude", "center_of_mass")
 
 
-def variable_names() -> dict[str, tuple[str, ...]]:
-    """Every name ``output.variables`` takes: ``{name: (variable, ...)}``."""
+def parameter_names() -> tuple[str, ...]:
+    """The variables of the members' parameters: the body's, then every term's."""
     from .kernels.terms import registry
 
-    params = ("inertia", "heat_capacity") + tuple(prm.variable_name for t in registry() for prm in t.parameters
-                                                  if prm.shape is not None and prm.variable_name)
-    single = (tuple(STATE_VARIABLES.values()) + RUN_VARIABLES + DERIVED_VARIABLES + params)
+    return ("inertia", "heat_capacity") + tuple(prm.variable_name for t in registry() for prm in t.parameters
+                                                if prm.shape is not None and prm.variable_name)
+
+
+def variable_names() -> dict[str, tuple[str, ...]]:
+    """Every name ``output.variables`` takes: ``{name: (variable, ...)}``."""
+    single = (tuple(STATE_VARIABLES.values()) + RUN_VARIABLES + DERIVED_VARIABLES + parameter_names())
     return {**{v: (v,) for v in single}, **VARIABLE_GROUPS}
 
 
