@@ -88,10 +88,7 @@ class LiethermoAccessor:
         reader = getattr(model, "energy_error_of", None)
         if reader is None:
             raise KeyError(f"{model.title or model.name}: its files carry no relative energy error")
-        ds = self._ds
-        if "energy_error" not in ds and getattr(model, "derived", None) is not None:
-            ds = self.derived()
-        return reader(ds, convention)
+        return reader(self._ds, convention)
 
     def quantiles(self, variable: str | xr.DataArray, q=(0.05, 0.5, 0.95), *,
                   only_ok: bool = False) -> xr.DataArray:

@@ -640,6 +640,7 @@ class HeavyTop(StudyDefaults, Model):
         name = {"node": "energy_error", "paper": "energy_error_paper"}.get(convention)
         if name is None:
             raise ValueError(f"convention must be 'node' or 'paper', got {convention!r}")
+        ds = self._full(ds)
         if name not in ds:
             raise KeyError(f"{name}: this dataset has no energy error in the {convention} convention "
                            "(it exists for the variational integrators only)")
