@@ -80,14 +80,15 @@ def splitting(factors: tuple, order: int):
 
 def __getattr__(name: str):
     """A splitting marker class by name, for unpickling a kernel cache index in a
-    process that has not built it yet: the markers of every composition the methods
-    offer are built on first request."""
+    process that has not built it yet: the markers of every splitting method with
+    every composition are built on first request."""
     if name.startswith("Splitting"):
-        from ...numerics.compositions import COMPOSITION_FACTORS
+        from ..methods import COMPOSITION_KINDS, METHODS, SplittingMethod
 
-        for factors in [(1.0,)] + list(COMPOSITION_FACTORS.values()):
-            for order in (2, 4, 6, 8):
-                splitting(factors, order)
+        for method in METHODS.values():
+            if isinstance(method, SplittingMethod):
+                for kind in COMPOSITION_KINDS:
+                    method.kernel_tableau(kind)
         if name in globals():
             return globals()[name]
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
