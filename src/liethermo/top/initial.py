@@ -35,13 +35,20 @@ def quat_to_matrix(q: np.ndarray) -> np.ndarray:
     return R
 
 
-def _draw_block(seed: int, block: int, omega_norm: float, spin_range) -> tuple[np.ndarray, np.ndarray]:
+def _draw_raw(seed: int, block: int, q, d, u, spin_range) -> None:
+    """Block ``block``'s draws, in their fixed order, into q (BLOCK, 4), d (BLOCK, 3), u (BLOCK,)."""
     rng = np.random.default_rng(np.random.SeedSequence([seed, block]))
-    q = rng.standard_normal((BLOCK, 4))
-    q /= np.linalg.norm(q, axis=1, keepdims=True)
-    d = rng.standard_normal((BLOCK, 3))
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    mag = rng.uniform(spin_range[0], spin_range[1], BLOCK) * omega_norm
+    rng.standard_normal(out=q)
+    rng.standard_normal(out=d)
+    u[:] = rng.uniform(spin_range[0], spin_range[1], BLOCK)
+
+
+def _shape(q, d, u, omega_norm: float) -> tuple[np.ndarray, np.ndarray]:
+    """(Ω₀, R₀) from the raw draws of whole blocks (row by row, so any number of
+    blocks at once gives each member the same bits)."""
+    q = q / np.linalg.norm(q, axis=1, keepdims=True)
+    d = d / np.linalg.norm(d, axis=1, keepdims=True)
+    mag = u * omega_norm
     return d * mag[:, None], quat_to_matrix(q)
 
 
@@ -208,11 +215,11 @@ def initial_conditions(scene: dict, start: int = 0, stop: int | None = None):
     seed = int(scene["ensemble"]["seed"])
     sr = scene["ensemble"]["spin_range"]
     w = np.linalg.norm(omega0)
-    omegas, Rs = [], []
-    for b in range(start // BLOCK, (stop - 1) // BLOCK + 1):
-        ob, Rb = _draw_block(seed, b, w, sr)
-        lo = max(start - b * BLOCK, 0)
-        hi = min(stop - b * BLOCK, BLOCK)
-        omegas.append(ob[lo:hi])
-        Rs.append(Rb[lo:hi])
-    return np.concatenate(omegas), np.concatenate(Rs)
+    b0, b1 = start // BLOCK, (stop - 1) // BLOCK + 1
+    nb = b1 - b0
+    q, d, u = np.empty((nb * BLOCK, 4)), np.empty((nb * BLOCK, 3)), np.empty(nb * BLOCK)
+    for k in range(nb):  # one generator per block: a member's draws do not depend on the chunking
+        rows = slice(k * BLOCK, (k + 1) * BLOCK)
+        _draw_raw(seed, b0 + k, q[rows], d[rows], u[rows], sr)
+    keep = slice(start - b0 * BLOCK, stop - b0 * BLOCK)
+    return _shape(q[keep], d[keep], u[keep], w)
