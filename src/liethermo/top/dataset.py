@@ -83,64 +83,134 @@ def _start_note(traj) -> str:
 
 
 def trajectory_dataset(traj: Trajectory, *, omega0: np.ndarray, R0: np.ndarray,
-                       member_offset: int = 0) -> xr.Dataset:
+                       member_offset: int = 0, keep=None) -> xr.Dataset:
     """The dataset of one member chunk (no global attributes; see :func:`global_attrs`).
 
-    omega0, R0: the members' initial data at t = 0 (N, 3), (N, 3, 3).
+    omega0, R0: the members' initial data at t = 0 (N, 3), (N, 3, 3).  ``keep``:
+    the names of the member variables to compute (None: every one); the
+    parameters are always there.
     """
-    # a member that blew up (explicit RK2) has huge-but-finite values before its NaNs:
-    # the energies of those values overflow to inf, which is the truthful answer
-    with np.errstate(over="ignore", invalid="ignore"):
-        return _trajectory_dataset(traj, omega0, R0, member_offset)
+    return chunk_labels(traj, omega0=omega0, R0=R0, member_offset=member_offset).dataset(keep)
 
 
-def _trajectory_dataset(traj, omega0, R0, member_offset):
+class ChunkLabels:
+    """The labelled variables of one member chunk, each computed when first asked
+    for (``labels[name]``, an :class:`xarray.Variable`; coordinates too) and kept;
+    :meth:`dataset` gathers them in their fixed order.  A run computes what its
+    summary reads and what its file stores, nothing else."""
+
+    def __init__(self, build: dict, coords: dict):
+        self._build, self._coords, self._done = build, coords, {}
+
+    def __contains__(self, name) -> bool:
+        return name in self._build or name in self._coords
+
+    def names(self) -> tuple[str, ...]:
+        return tuple(self._build)
+
+    def computed_on_demand(self) -> set[str]:
+        """The variables computed when asked for (the others are the state's views and
+        the members' run and parameters as they are)."""
+        return {n for n, make in self._build.items() if callable(make)}
+
+    def __getitem__(self, name: str) -> xr.Variable:
+        if name in self._coords:
+            return self._coords[name]
+        v = self._done.get(name)
+        if v is None:
+            make = self._build[name]
+            if callable(make):
+                # a member that blew up (explicit RK2) has huge-but-finite values before its NaNs:
+                # the energies of those values overflow to inf, which is the truthful answer
+                with np.errstate(over="ignore", invalid="ignore"):
+                    make = make()
+            v = self._done[name] = make
+        return v
+
+    def dataset(self, keep=None) -> xr.Dataset:
+        """The chunk's dataset: the member variables in ``keep`` (None: every one)
+        and the parameters (variables without the member dimension, or named by
+        :func:`liethermo.top.scene.parameter_names`)."""
+        from .scene import parameter_names
+
+        params = set(parameter_names())
+        data = {n: self[n] for n, make in self._build.items()
+                if keep is None or n in keep or n in params
+                or (not callable(make) and "member" not in make.dims)}
+        return xr.Dataset(data, coords=self._coords)
+
+
+def _once(f):
+    """f() computed on the first call and kept."""
+    box = []
+
+    def get():
+        if not box:
+            box.append(f())
+        return box[0]
+
+    return get
+
+
+def chunk_labels(traj: Trajectory, *, omega0: np.ndarray, R0: np.ndarray, member_offset: int = 0) -> ChunkLabels:
+    """The variables of one member chunk, computed on demand (:class:`ChunkLabels`);
+    :func:`trajectory_dataset` is its dataset."""
+    with np.errstate(over="ignore", invalid="ignore"):  # see ChunkLabels.__getitem__
+        return _chunk_labels(traj, omega0, R0, member_offset)
+
+
+def _chunk_labels(traj, omega0, R0, member_offset) -> ChunkLabels:
     phys = traj.physics
     N = traj.states.shape[0]
-    e = node_energies(traj)
-    K0, V0 = initial_energy(phys, omega0, R0)
-    dE = (e["K"] - K0[:, None]) + (e["V"] - V0[:, None]) + e["dU"]
-    U = phys.heat_capacity[:, None] * ph.theta(phys, traj.sigma)
-    emech0 = ph.mechanical_energy_scale(phys, omega0, R0[:, 2, :])
+    om = traj.omega
+    sigma = traj.sigma
+
+    e = _once(lambda: node_energies(traj))
+    K0V0 = _once(lambda: initial_energy(phys, omega0, R0))
+    dE = _once(lambda: (e()["K"] - K0V0()[0][:, None]) + (e()["V"] - K0V0()[1][:, None]) + e()["dU"])
+    U = _once(lambda: phys.heat_capacity[:, None] * ph.theta(phys, sigma))
     dims_t = ("member", "t")
     dims_v = ("member", "t", "axis")
     vi = traj.choice.method.node_form
-    mom = _momentum(traj, e["omega"])
+    mom = _once(lambda: _momentum(traj, om))
     node_note = ("node velocity I(S_k)^-1 mu_k from the node momentum (discrete Legendre transform)"
                  if vi else "node value Omega(t_k)")
     start_note = _start_note(traj) if vi else ""
-    data = {
-        "omega": _var(e["omega"], dims_v, "rad s-1", "angular velocity",
+    build = {
+        "omega": _var(om, dims_v, "rad s-1", "angular velocity",
                       comment=f"body angular velocity Omega at t_k: {node_note}{start_note}"),
-        "angular_momentum": _var(mom, dims_v, "kg m2 s-1", "angular momentum",
-                                 comment="body angular momentum mu = I(S) Omega at t_k"),
-        "angular_momentum_norm": _var(np.linalg.norm(mom, axis=-1), dims_t, "kg m2 s-1", "|mu|, a Casimir",
-                                      comment="|mu| = |I(S) Omega|: a Casimir, kept by friction of "
-                                              "the double-bracket form"),
-        "vertical_angular_momentum": _var(np.sum(traj.gamma * mom, axis=-1), dims_t, "kg m2 s-1", "Gamma . mu",
-                                          comment="angular momentum about the vertical (the "
-                                                  "Kelvin-Noether quantity; d/dt = -Gamma . C Omega)"),
+        "angular_momentum": lambda: _var(mom(), dims_v, "kg m2 s-1", "angular momentum",
+                                         comment="body angular momentum mu = I(S) Omega at t_k"),
+        "angular_momentum_norm": lambda: _var(np.linalg.norm(mom(), axis=-1), dims_t, "kg m2 s-1",
+                                              "|mu|, a Casimir",
+                                              comment="|mu| = |I(S) Omega|: a Casimir, kept by friction of "
+                                                      "the double-bracket form"),
+        "vertical_angular_momentum": lambda: _var(np.sum(traj.gamma * mom(), axis=-1), dims_t, "kg m2 s-1",
+                                                  "Gamma . mu",
+                                                  comment="angular momentum about the vertical (the "
+                                                          "Kelvin-Noether quantity; d/dt = -Gamma . C Omega)"),
         "gamma": _var(traj.gamma, dims_v, "1", "gravity direction (body)",
                       comment="direction of gravity in the body frame, Gamma = R^T e3"),
         **_heat_parts(traj, dims_t),
-        "entropy": _var(phys.S0[:, None] + traj.sigma, dims_t, "J K-1", "entropy S",
-                        comment="entropy of body and fluid"),
-        "temperature": _var(e["T"], dims_t, "K", "temperature T",
-                            comment="T = -dL/dS (T0 exp((S - S0)/c_v) for a constant inertia)",
-                            units_metadata="temperature: on_scale"),
-        "kinetic_energy": _var(e["K"], dims_t, "J", "kinetic energy K",
-                               comment="K = 1/2 Omega . I(S) Omega"),
-        "potential_energy": _var(e["V"], dims_t, "J", "potential energy V",
-                                 comment="V = m g l Gamma . chi"),
-        "internal_energy": _var(U, dims_t, "J", "internal energy U",
-                                comment="U(S) = c_v T0 exp((S - S0)/c_v)"),
-        "total_energy": _var(e["K"] + e["V"] + U, dims_t, "J", "total energy E = K + V + U"),
-        "energy_error": _var(dE, dims_t, "J", "energy error E_k - E_0",
-                             comment="total energy error on node values (computed without "
-                                     "cancellation); E_0 is the energy of the initial data "
-                                     "(Omega(0), Gamma_0, S_0) at t = 0" + start_note),
-        "mechanical_energy_initial": _var(emech0, ("member",), "J", "initial mechanical energy",
-                                          comment="above the resting state: K_0 + V_0 + |m g l|"),
+        "entropy": lambda: _var(phys.S0[:, None] + sigma, dims_t, "J K-1", "entropy S",
+                                comment="entropy of body and fluid"),
+        "temperature": lambda: _var(e()["T"], dims_t, "K", "temperature T",
+                                    comment="T = -dL/dS (T0 exp((S - S0)/c_v) for a constant inertia)",
+                                    units_metadata="temperature: on_scale"),
+        "kinetic_energy": lambda: _var(e()["K"], dims_t, "J", "kinetic energy K",
+                                       comment="K = 1/2 Omega . I(S) Omega"),
+        "potential_energy": lambda: _var(e()["V"], dims_t, "J", "potential energy V",
+                                         comment="V = m g l Gamma . chi"),
+        "internal_energy": lambda: _var(U(), dims_t, "J", "internal energy U",
+                                        comment="U(S) = c_v T0 exp((S - S0)/c_v)"),
+        "total_energy": lambda: _var(e()["K"] + e()["V"] + U(), dims_t, "J", "total energy E = K + V + U"),
+        "energy_error": lambda: _var(dE(), dims_t, "J", "energy error E_k - E_0",
+                                     comment="total energy error on node values (computed without "
+                                             "cancellation); E_0 is the energy of the initial data "
+                                             "(Omega(0), Gamma_0, S_0) at t = 0" + start_note),
+        "mechanical_energy_initial": lambda: _var(ph.mechanical_energy(phys, *K0V0()),  # K₀ + V₀ − min V
+                                                  ("member",), "J", "initial mechanical energy",
+                                                  comment="above the resting state: K_0 + V_0 + |m g l|"),
         "status": _var(traj.status.astype(np.int8), ("member",), "1", "member status",
                        **status_flags(np.int8)),
         "failed_at_step": _var(np.where(traj.status != 0, traj.fail_step, -1).astype(np.int64),
@@ -158,38 +228,41 @@ def _trajectory_dataset(traj, omega0, R0, member_offset):
                               comment="principal moments of inertia about the fixed point"),
         "heat_capacity": _parameter(phys.heat_capacity, ("member",), "J K-1", "heat capacity c_v"),
     }
-    data.update(term_variables(phys))
+    build.update(term_variables(phys))
     if vi:
         step = traj.omega_step
-        s = traj.sigma if traj.thermo else None
-        Kp = ph.kinetic_energy(phys, step, s)
-        dEp = (Kp - K0[:, None]) + (e["V"] - V0[:, None]) + e["dU"]
-        data["omega_step"] = _var(step, dims_v, "rad s-1",
-                                  "step velocity",
-                                  comment="step velocity Omega_k = cay^-1(R_k^T R_k+1)/h of the step "
-                                          "from t_k; approximates Omega(t_k + h/2); the paper's Omega_k")
+
+        def paper_error():
+            s = sigma if traj.thermo else None
+            Kp = ph.kinetic_energy(phys, step, s)
+            return (Kp - K0V0()[0][:, None]) + (e()["V"] - K0V0()[1][:, None]) + e()["dU"]
+
+        build["omega_step"] = _var(step, dims_v, "rad s-1",
+                                   "step velocity",
+                                   comment="step velocity Omega_k = cay^-1(R_k^T R_k+1)/h of the step "
+                                           "from t_k; approximates Omega(t_k + h/2); the paper's Omega_k")
         composed = ("; for a composition (vi4, vi6) Omega_k is a substep's velocity, so this is not the "
                     "paper's quantity: the summary and the figures leave it out" if METHODS[traj.method].composed
                     else "")
-        data["energy_error_paper"] = _var(
-            dEp, dims_t, "J", "paper's energy error",
+        build["energy_error_paper"] = lambda: _var(
+            paper_error(), dims_t, "J", "paper's energy error",
             comment="total energy error in the paper's convention (step velocity Omega_k with "
                     "Gamma_k and S_k); it mixes two instants: a first-order error of the "
                     "diagnostic itself; energy_error is the node-value error" + composed)
         steps = np.maximum(traj.steps_done, 1)
-        data["newton_iterations_mean"] = _var(traj.newton_iterations / steps, ("member",), "1",
-                                              "mean Newton iterations",
-                                              comment="mean Newton iterations per step, summed over the "
-                                                      "step's solves (one for vi, 3 for vi4, 9 for vi6)")
-        data["newton_iterations_max"] = _var(traj.newton_max.astype(np.int64), ("member",), "1",
-                                             "max Newton iterations",
-                                             comment="max Newton iterations in one solve")
+        build["newton_iterations_mean"] = _var(traj.newton_iterations / steps, ("member",), "1",
+                                               "mean Newton iterations",
+                                               comment="mean Newton iterations per step, summed over the "
+                                                       "step's solves (one for vi, 3 for vi4, 9 for vi6)")
+        build["newton_iterations_max"] = _var(traj.newton_max.astype(np.int64), ("member",), "1",
+                                              "max Newton iterations",
+                                              comment="max Newton iterations in one solve")
     R = traj.attitude
     if R is not None:
-        data["attitude"] = _var(R, ("member", "t", "row", "col"), "1", "attitude R (body to space)")
-        data["center_of_mass"] = _var(np.einsum("mtij,mj->mti", R, phys.center_of_mass), dims_v, "m",
-                                      "centre of mass R G",
-                                      comment="centre of mass in space, relative to the fixed point")
+        build["attitude"] = _var(R, ("member", "t", "row", "col"), "1", "attitude R (body to space)")
+        build["center_of_mass"] = lambda: _var(np.einsum("mtij,mj->mti", R, phys.center_of_mass), dims_v, "m",
+                                               "centre of mass R G",
+                                               comment="centre of mass in space, relative to the fixed point")
     coords = {
         "member": _var(np.arange(member_offset, member_offset + N, dtype=np.int64), ("member",), "1",
                        "ensemble member"),
@@ -198,7 +271,7 @@ def _trajectory_dataset(traj, omega0, R0, member_offset):
         "step": _var(traj.step_index.astype(np.int64), ("t",), "1", "step index k"),
         "axis": xr.Variable(("axis",), np.array(AXIS), attrs={"units": "1", "long_name": "body-frame axis"}),
     }
-    return xr.Dataset(data, coords=coords)
+    return ChunkLabels(build, coords)
 
 
 def _heat_parts(traj, dims_t) -> dict:
@@ -245,8 +318,12 @@ def _parameter(v: np.ndarray, dims: tuple, units: str, long_name: str, **extra) 
     member has it bit for bit (every run of a scene: the scene gives one body), else
     per member (an ensemble of bodies built through the API)."""
     v = np.asarray(v)
-    rows = np.ascontiguousarray(v).reshape(v.shape[0], -1).view(np.uint8) if v.shape[0] else None
-    if rows is not None and (rows == rows[0]).all():
+    if v.shape[0] and v.strides[0] == 0:  # one row seen by every member (Physics.repeat)
+        alike = True
+    else:
+        rows = np.ascontiguousarray(v).reshape(v.shape[0], -1).view(np.uint8) if v.shape[0] else None
+        alike = rows is not None and bool((rows == rows[0]).all())
+    if alike:
         note = "the same for every member"
         extra["comment"] = f"{extra['comment']}; {note}" if extra.get("comment") else note
         return _var(v[0], dims[1:], units, long_name, **extra)

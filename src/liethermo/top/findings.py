@@ -89,40 +89,69 @@ def _linear_friction(phys: ph.Physics, axis: int) -> np.ndarray:
 
 
 def _span(values) -> list[float] | None:
+    """[min, max] of the finite values (None if there are none)."""
     v = np.asarray(values, dtype=float)
-    v = v[np.isfinite(v)]
-    return [float(v.min()), float(v.max())] if v.size else None
+    finite = np.isfinite(v)
+    lo = float(np.min(v, where=finite, initial=np.inf))
+    return [lo, float(np.max(v, where=finite, initial=-np.inf))] if lo != np.inf else None
+
+
+def _parameter_facts(phys: ph.Physics) -> dict:
+    """Per member, what its parameters alone decide: which exact laws apply, the
+    linear friction on axes 1 and 3, the major axis.  For members that share one
+    row of parameters (:attr:`~liethermo.top.physics.Physics.uniform`) they are
+    worked out once and broadcast."""
+    n = phys.n
+    if n > 1 and phys.uniform:
+        one = _parameter_facts(phys.take(slice(0, 1)))
+        return {k: np.broadcast_to(v, (n,) + v.shape[1:]) for k, v in one.items()}
+    from .kernels.terms import LAW_LAGRANGE_OMEGA3, LAW_MOMENTUM_NORM, LAW_SPHERICAL_DECAY, registry
+
+    acting = phys.acting()
+    srt = np.sort(phys.inertia, axis=-1)
+    frictions = np.any([acting[t.name] for t in registry() if t.friction], axis=0)
+    return {
+        "no_torque": phys.keeps(LAW_MOMENTUM_NORM),  # forces ⟂ μ only: |μ| is kept
+        "spherical": _equal(phys.inertia) & phys.keeps(LAW_SPHERICAL_DECAY),
+        "c1": _linear_friction(phys, 0),  # the same on every axis for the spherical members
+        "lagrange": ((np.abs(phys.inertia[:, 0] - phys.inertia[:, 1]) <= _RTOL * phys.inertia[:, 2])
+                     & phys.keeps(LAW_LAGRANGE_OMEGA3)),
+        "c3": _linear_friction(phys, 2),
+        "unique_major": srt[:, 2] > srt[:, 1] * (1.0 + 1e-9),
+        "major": np.argmax(phys.inertia, axis=-1),
+        "frictions": frictions,
+        "sets_inertia": np.any([acting[t.name] for t in registry() if t.sets_inertia], axis=0) & np.ones(n, bool),
+    }
 
 
 def chunk_findings(ds, phys: ph.Physics) -> dict:
     """``{name: [min, max]}`` over the chunk's members that completed (and to
-    which the finding applies); ``ds`` is the chunk's dataset, ``phys`` its
+    which the finding applies); ``ds`` is the chunk's dataset (or any mapping of
+    its labelled variables, read only where a finding applies), ``phys`` its
     physics (one row per member)."""
     ok = ds["status"].values == 0
     tdim = ds["omega"].dims[1]  # the time dimension, whatever its name
     t = np.asarray(ds[tdim].values, dtype=float)
     om = ds["omega"].values
-    from .kernels.terms import LAW_LAGRANGE_OMEGA3, LAW_MOMENTUM_NORM, LAW_SPHERICAL_DECAY, registry
-
     # each exact law below holds on the members whose every term keeps it
-    acting = phys.acting()
-    no_torque = phys.keeps(LAW_MOMENTUM_NORM)  # forces ⟂ μ only: |μ| is kept
+    facts = _parameter_facts(phys)
     out: dict = {}
 
     def put(name, sel, values):
+        if isinstance(sel, np.ndarray) and sel.all():
+            sel = slice(None)  # every member: no copy
         s = _span(np.asarray(values)[sel])
         if s is not None:
             out[name] = s
 
     # the spherical top's exact solution
-    sph = ok & _equal(phys.inertia) & phys.keeps(LAW_SPHERICAL_DECAY)
+    sph = ok & facts["spherical"]
     if sph.any():
         gamma, S = ds["gamma"].values[sph], ds["entropy"].values[sph]
         om0 = ds["initial_omega"].values[sph]  # Ω(0), Γ(0) = R(0)ᵀe₃ of the initial data
         g0 = ds["initial_attitude"].values[sph, 2, :]
         T0 = ds["temperature"].values[sph, 0]  # θ(S₀) = T₀ for a constant inertia
-        c = _linear_friction(phys, 0)  # the same on every axis for these members
-        e_om, e_g, e_s = exact_spherical_top(phys.inertia[sph, 0], c[sph],
+        e_om, e_g, e_s = exact_spherical_top(phys.inertia[sph, 0], facts["c1"][sph],
                                              phys.heat_capacity[sph], T0, om0, g0, t)
         w0 = np.linalg.norm(om0, axis=-1)
         sig = S - S[:, :1]
@@ -135,30 +164,25 @@ def chunk_findings(ds, phys: ph.Physics) -> dict:
             put("exact_entropy_rel", produced > 0, d_s / np.where(produced > 0, produced, 1.0))
 
     # the Lagrange top's Ω₃ (I₁ = I₂, no torque on the third axis but −C₃Ω₃)
-    lag = (ok & ~sph & (np.abs(phys.inertia[:, 0] - phys.inertia[:, 1]) <= _RTOL * phys.inertia[:, 2])
-           & phys.keeps(LAW_LAGRANGE_OMEGA3))
+    lag = ok & ~sph & facts["lagrange"]
     if lag.any():
         om0 = ds["initial_omega"].values[lag]
-        c3 = _linear_friction(phys, 2)
-        exact3 = om0[:, 2:3] * np.exp(-(c3[lag] / phys.inertia[lag, 2])[:, None] * t[None, :])
+        exact3 = om0[:, 2:3] * np.exp(-(facts["c3"][lag] / phys.inertia[lag, 2])[:, None] * t[None, :])
         with np.errstate(invalid="ignore", divide="ignore"):
             put("exact_omega3", slice(None),
                 np.max(np.abs(om[lag, :, 2] - exact3), axis=1) / np.linalg.norm(om0, axis=-1))
 
     # |μ| without external torque
-    free = ok & no_torque
+    free = ok & facts["no_torque"]
     if free.any():
         mu = ds["angular_momentum_norm"].values
         with np.errstate(invalid="ignore", divide="ignore"):
             put("mu_drift", free, np.max(np.abs(mu - mu[:, :1]), axis=1) / mu[:, 0])
 
     # the flat spin: a friction that keeps |μ|, a unique major axis
-    srt = np.sort(phys.inertia, axis=-1)
-    unique = srt[:, 2] > srt[:, 1] * (1.0 + 1e-9)
-    frictions = np.any([acting[t.name] for t in registry() if t.friction], axis=0)
-    flat = free & frictions & unique  # dissipation at constant |μ| ends at the major axis
+    flat = free & facts["frictions"] & facts["unique_major"]  # dissipation at constant |μ| ends at the major axis
     if flat.any():
-        major = np.argmax(phys.inertia, axis=-1)
+        major = facts["major"]
         rows = np.arange(om.shape[0])
         with np.errstate(invalid="ignore", divide="ignore"):
             cos = np.abs(om[rows, :, major]) / np.linalg.norm(om, axis=-1)
@@ -169,13 +193,13 @@ def chunk_findings(ds, phys: ph.Physics) -> dict:
         put("t_end", flat, np.full(om.shape[0], t[-1]))
 
     # heating and the inertia's change
-    warm = ok & frictions
+    warm = ok & facts["frictions"]
     if warm.any():
         T = ds["temperature"].values
         put("heating", warm, T[:, -1] - T[:, 0])
         put("T_start", warm, T[:, 0])
         put("T_end", warm, T[:, -1])
-    grow = warm & np.any([acting[t.name] for t in registry() if t.sets_inertia], axis=0)
+    grow = warm & facts["sets_inertia"]
     if grow.any():
         sigma = ds["entropy"].values - ds["entropy"].values[:, :1]
         s = np.broadcast_to(ph.inertia_scale(phys, sigma), sigma.shape)

@@ -133,9 +133,10 @@ class RunSummary:
 
 
 def _nanmax(a) -> float:
+    """The largest finite value of ``a`` (NaN if none)."""
     a = np.asarray(a, dtype=float)
-    a = a[np.isfinite(a)]
-    return float(a.max()) if a.size else float("nan")
+    m = float(np.max(a, where=np.isfinite(a), initial=-np.inf))
+    return m if m != -np.inf else float("nan")
 
 
 #: an energy error at t = 0 above this (relative to E_mech,0) is not round-off: the summary explains it
@@ -285,16 +286,63 @@ def estimate_time(scene) -> TimeEstimate:
     label = np.inf
     for _ in range(2):
         t = time.perf_counter()
-        _labelled_stats(traj, trajectory_dataset_of(traj, om0, R0))
+        label_chunk(scene, traj, om0, R0)
         label = min(label, time.perf_counter() - t)
     host = label * (members / pm) * ((steps // int(scene["output"]["every"]) + 1) / 2)
     return TimeEstimate(run.choice.name, best * (members * steps) / (pm * ps), pm, ps, best, compile_s, host)
 
 
-def trajectory_dataset_of(traj, om0, R0, lo: int = 0):
-    from .dataset import trajectory_dataset
+#: members per slice, at least, when a chunk's summary figures are computed in slices on several threads
+STATS_SLICE_MEMBERS = 8192
 
-    return trajectory_dataset(traj, omega0=om0, R0=R0, member_offset=lo)
+
+def label_chunk(scene: dict, traj, om0, R0, lo: int = 0) -> tuple:
+    """(dataset, stats) of a simulated member chunk starting at member ``lo``: the
+    stats from what the summary reads, the dataset with the variables the scene
+    stores; nothing else is computed.
+
+    Where the file stores only the state (nothing computed for it), the stats are
+    computed over member slices on as many threads as the kernels were given
+    (numpy releases the GIL in its loops): every figure is a count, a max, a min
+    or a sum of integers, so the slices give the stats of the whole chunk exactly."""
+    import numba
+
+    from .dataset import chunk_labels, stored_variables
+
+    labels = chunk_labels(traj, omega0=om0, R0=R0, member_offset=lo)
+    keep = stored_variables(scene, traj.layout)
+    ds = labels.dataset(keep)
+    n = traj.states.shape[0]
+    parts = min(numba.get_num_threads(), n // STATS_SLICE_MEMBERS)
+    if parts < 2 or keep is None or keep & labels.computed_on_demand():
+        return ds, _labelled_stats(traj, labels)
+    bounds = np.linspace(0, n, parts + 1).astype(int)
+    slices = [slice(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]
+
+    def stats_of(sl):
+        part = traj.take(sl)
+        return _labelled_stats(part, chunk_labels(part, omega0=om0[sl], R0=R0[sl]))
+
+    got = list(_stats_pool(parts).map(stats_of, slices))
+    stats = got[0]
+    for other in got[1:]:
+        stats.merge(other)
+    stats.kernel_time, stats.compile_time = traj.wall_time, traj.compile_time  # once, not per slice
+    return ds, stats
+
+
+_POOL: list = [None, 0]
+
+
+def _stats_pool(n: int):
+    """A thread pool of ``n`` workers for :func:`label_chunk`, kept between chunks."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    if _POOL[1] != n:
+        if _POOL[0] is not None:
+            _POOL[0].shutdown(wait=False)
+        _POOL[0], _POOL[1] = ThreadPoolExecutor(max_workers=n, thread_name_prefix="liethermo-stats"), n
+    return _POOL[0]
 
 
 def run_chunk(scene: dict, lo: int, hi: int, *, progress_cb=None, kernel: str | None = None,
@@ -305,22 +353,24 @@ def run_chunk(scene: dict, lo: int, hi: int, *, progress_cb=None, kernel: str | 
     :mod:`liethermo.distributed`; member i's result depends only on (scene, i).
     ``progress_cb(n)`` gets the number of member-steps just done.
     """
-    from .dataset import select_variables
-
-    traj, ds = _chunk(scene, lo, hi, progress_cb=progress_cb, kernel=kernel, threads=threads)
-    stats = _labelled_stats(traj, ds)  # from every variable; the file holds those the scene stores
-    return select_variables(ds, scene, traj.layout), stats
+    traj, om0, R0 = _simulated(scene, lo, hi, progress_cb=progress_cb, kernel=kernel, threads=threads)
+    return label_chunk(scene, traj, om0, R0, lo)
 
 
 def _labelled_stats(traj, ds) -> "ChunkStats":
-    """The stats of a chunk from its trajectory and labelled dataset."""
+    """The stats of a chunk from its trajectory and its labelled variables (a
+    dataset, or the :class:`~liethermo.top.dataset.ChunkLabels` that compute
+    them when asked)."""
     from .findings import chunk_findings
     from .simulate import STATUS_MEANINGS
 
-    st = ChunkStats(members=ds.sizes["member"], kernel_time=traj.wall_time, compile_time=traj.compile_time)
+    st = ChunkStats(members=traj.states.shape[0], kernel_time=traj.wall_time, compile_time=traj.compile_time)
     ncounts = len(STATUS_MEANINGS)
     st.counts = [int(c) for c in np.bincount(traj.status, minlength=ncounts)[:ncounts]]
     ok = traj.status == 0  # accuracy figures are over members that completed
+    every = bool(ok.all())
+    if every:
+        ok = slice(None)  # the same members, without copies
     ee = np.abs(ds["energy_error"].values[ok])
     st.e_abs = max(st.e_abs, _nanmax(ee))
     em = np.abs(ds["mechanical_energy_initial"].values[ok])[:, None]
@@ -328,7 +378,7 @@ def _labelled_stats(traj, ds) -> "ChunkStats":
         rel = ee / em
         st.e_rel = max(st.e_rel, _nanmax(rel))
         st.e_rel_t0 = max(st.e_rel_t0, _nanmax(rel[:, :1]))
-        worst = np.max(np.where(np.isnan(rel), 0.0, rel), axis=1, initial=0.0)  # 0/0: no energy to lose
+        worst = np.fmax.reduce(rel, axis=1, initial=0.0)  # NaN (0/0: no energy to lose) counts as 0
         st.diverged = int(np.count_nonzero(worst > DIVERGED_REL_ENERGY))
         if "energy_error_paper" in ds:
             st.e_rel_paper = max(st.e_rel_paper,
@@ -338,15 +388,14 @@ def _labelled_stats(traj, ds) -> "ChunkStats":
     st.nit_total = int(traj.newton_iterations.sum())
     st.nsteps_total = int(traj.steps_done.sum())
     st.nmax = int(traj.newton_max.max(initial=0))
-    st.first_fail = int(traj.fail_step[~ok].min()) if not ok.all() else 0
+    st.first_fail = int(traj.fail_step[~ok].min()) if not every else 0
     with np.errstate(over="ignore", invalid="ignore"):
         st.findings = chunk_findings(ds, traj.physics)
     return st
 
 
-def _chunk(scene, lo: int, hi: int, *, progress_cb=None, kernel=None, threads=None) -> tuple:
-    """(trajectory, labelled dataset) of members ``lo:hi``."""
-    from .dataset import trajectory_dataset
+def _simulated(scene, lo: int, hi: int, *, progress_cb=None, kernel=None, threads=None) -> tuple:
+    """(trajectory, Ω₀, R₀) of members ``lo:hi``."""
     from .initial import initial_conditions
     from .resolve import resolve
 
@@ -354,6 +403,14 @@ def _chunk(scene, lo: int, hi: int, *, progress_cb=None, kernel=None, threads=No
     om0, R0 = initial_conditions(scene, lo, hi)
     traj = run.simulate(om0, R0, kernel=kernel or "auto", threads=threads,
                         progress=(lambda n, k=hi - lo: progress_cb(n * k)) if progress_cb else None)
+    return traj, om0, R0
+
+
+def _chunk(scene, lo: int, hi: int, *, progress_cb=None, kernel=None, threads=None) -> tuple:
+    """(trajectory, labelled dataset with every variable) of members ``lo:hi``."""
+    from .dataset import trajectory_dataset
+
+    traj, om0, R0 = _simulated(scene, lo, hi, progress_cb=progress_cb, kernel=kernel, threads=threads)
     return traj, trajectory_dataset(traj, omega0=om0, R0=R0, member_offset=lo)
 
 

@@ -37,7 +37,7 @@ import numpy as np
 from ..numerics import heat as _heat
 from .kernels import gen
 from .kernels.layout import StateLayout, state_layout
-from .kernels.terms import ATTITUDE, Model, bcast, constant_inertia_part, registry
+from .kernels.terms import ATTITUDE, Model, bcast, constant_inertia_part, registry, sum3
 from .kernels.terms import thermo as _thermo
 
 R_GAS = 8.314462618  # J mol⁻¹ K⁻¹
@@ -68,8 +68,17 @@ class _PhysicsBase:
         return dataclasses.replace(self, **kw)
 
     def repeat(self, n: int) -> "Physics":
-        """n copies of member 0."""
-        return self.take(np.zeros(int(n), dtype=np.int64))
+        """n copies of member 0: read-only views of its row (no copy; :attr:`uniform`)."""
+        kw = {f.name: np.broadcast_to(v[:1], (int(n),) + v.shape[1:]) for f in dataclasses.fields(self)
+              if isinstance(v := getattr(self, f.name), np.ndarray)}
+        return dataclasses.replace(self, **kw)
+
+    @property
+    def uniform(self) -> bool:
+        """Every per-member parameter is one row seen by every member (:meth:`repeat`):
+        what holds for member 0 holds for all, without a pass over the members."""
+        return all(v.strides[0] == 0 or v.shape[0] <= 1 for f in dataclasses.fields(self)
+                   if isinstance(v := getattr(self, f.name), np.ndarray) and v.ndim >= 1)
 
     @property
     def dissipative(self) -> bool:
@@ -286,6 +295,8 @@ class KernelModel:
 def _members_alike(phys: Physics) -> bool:
     """Do all members share every per-member parameter, bit for bit?"""
     N = phys.n
+    if phys.uniform:
+        return True
     for f in dataclasses.fields(phys):
         v = getattr(phys, f.name)
         if isinstance(v, np.ndarray) and v.ndim >= 1 and v.shape[0] == N:
@@ -295,7 +306,25 @@ def _members_alike(phys: Physics) -> bool:
     return True
 
 
+#: the kernel model last built for members that share one row: the chunks of a run
+#: pass the same Physics object (``ResolvedRun.physics_for``), and get it again
+_LAST_MODEL: list = []
+
+
 def build_model(phys: Physics, attitude: bool = False, heat=None) -> KernelModel:
+    """The kernels' model of an ensemble (:func:`_build_model`); for members sharing one
+    row of parameters, the one built last for the same Physics object (its ``P`` is
+    only read by the kernels)."""
+    for p, a, q, km in list(_LAST_MODEL):
+        if p is phys and a == attitude and q == heat:
+            return km
+    km = _build_model(phys, attitude, heat)
+    if phys.n > 1 and phys.uniform:
+        _LAST_MODEL[:] = [(phys, attitude, heat, km)]
+    return km
+
+
+def _build_model(phys: Physics, attitude: bool = False, heat=None) -> KernelModel:
     """The kernels' model of an ensemble: only the terms some member needs,
     in registry order.  ``heat``: an upper bound of the heat any member can
     produce (J; its initial mechanical energy above rest): where it could
@@ -307,7 +336,7 @@ def build_model(phys: Physics, attitude: bool = False, heat=None) -> KernelModel
     member, so the rows are the same bits, without the passes over N."""
     N = phys.n
     if N > 1 and _members_alike(phys):
-        one = build_model(phys.take(slice(0, 1)), attitude, heat)
+        one = _build_model(phys.take(slice(0, 1)), attitude, heat)
         return KernelModel(one.model, np.repeat(one.P, N, axis=0), one.model)
     inertia = constant_inertia_part(phys)
     forces: list[tuple[type, np.ndarray]] = []
@@ -392,7 +421,7 @@ def node_velocity(phys: Physics, momentum: np.ndarray, sigma: np.ndarray | None)
 def kinetic_energy(phys: Physics, omega: np.ndarray, sigma: np.ndarray | None) -> np.ndarray:
     """K = ½ Ω·𝕀(S)Ω in J."""
     s = inertia_scale(phys, sigma)
-    return 0.5 * s * np.sum(bcast(phys.inertia, omega) * omega * omega, axis=-1)
+    return 0.5 * s * sum3(bcast(phys.inertia, omega) * omega * omega)
 
 
 def potential_energy(phys: Physics, gamma: np.ndarray) -> np.ndarray:
@@ -424,7 +453,7 @@ def temperature(phys: Physics, omega: np.ndarray, sigma: np.ndarray) -> np.ndarr
     if e is None:
         return th
     phi, dphi = e
-    return th - phi * dphi * np.sum(bcast(phys.inertia, omega) * omega * omega, axis=-1)
+    return th - phi * dphi * sum3(bcast(phys.inertia, omega) * omega * omega)
 
 
 def torque(phys: Physics, omega: np.ndarray, gamma: np.ndarray, sigma: np.ndarray | None = None) -> np.ndarray:
@@ -451,6 +480,8 @@ def dissipated_power(phys: Physics, omega: np.ndarray, sigma: np.ndarray | None 
 
 def potential_span(phys: Physics) -> np.ndarray:
     """max V − min V over all attitudes (J), per member."""
+    if phys.n > 1 and phys.uniform:  # one body: its span, seen by every member
+        return np.broadcast_to(potential_span(phys.take(slice(0, 1))), (phys.n,))
     out = np.zeros(phys.n)
     for t in registry():
         out = out + t.potential_span(phys)

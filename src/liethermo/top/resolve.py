@@ -53,8 +53,9 @@ class ResolvedRun:
         return int(self.scene["ensemble"]["members"])
 
     def physics_for(self, members: int) -> Physics:
-        """The physics of ``members`` members (all share the scene's parameters)."""
-        return self.physics if members == 1 else self.physics.repeat(members)
+        """The physics of ``members`` members (all share the scene's parameters): the same
+        object for every chunk of that size, so its kernel model is built once."""
+        return self.physics if members == 1 else _repeated(self, int(members))
 
     def kernel(self, kernel: str = "auto") -> str:
         """The ensemble loop every chunk of the run uses ("fast" or "simple"),
@@ -98,6 +99,11 @@ def resolve(scene) -> ResolvedRun:
     if not isinstance(scene, Scene):
         scene = load_scene(scene)
     return _resolve(scene)
+
+
+@functools.lru_cache(maxsize=4)
+def _repeated(run: ResolvedRun, members: int) -> Physics:
+    return run.physics.repeat(members)
 
 
 @functools.lru_cache(maxsize=16)

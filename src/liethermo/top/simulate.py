@@ -128,6 +128,15 @@ class Trajectory:
     def times(self) -> np.ndarray:
         return self.step_index * self.h
 
+    def take(self, members: slice) -> "Trajectory":
+        """The members ``members`` (a slice: views, no copies)."""
+        from dataclasses import replace
+
+        return replace(self, physics=self.physics.take(members), states=self.states[members],
+                       status=self.status[members], fail_step=self.fail_step[members],
+                       newton_iterations=self.newton_iterations[members], newton_max=self.newton_max[members],
+                       steps_done=self.steps_done[members], max_h_omega=self.max_h_omega[members])
+
     def part(self, name: str) -> np.ndarray | None:
         sl = self.layout.slice(name)
         return None if sl is None else self.states[..., sl]

@@ -554,6 +554,16 @@ def bcast(a: np.ndarray, like: np.ndarray) -> np.ndarray:
     return a.reshape(a.shape[:1] + (1,) * extra + a.shape[1:])
 
 
+def sum3(x: np.ndarray) -> np.ndarray:
+    """``np.sum(x, axis=-1)`` of a fresh array x (..., 3), bit for bit: numpy adds
+    (x₀ + x₁) + x₂ onto 0 (so −0 sums to +0), here without its slow reduction
+    over a short axis."""
+    out = x[..., 0] + x[..., 1]
+    out += x[..., 2]
+    out += 0.0
+    return out
+
+
 def _term_modules():
     """The term modules, frictions before conservative torques: the one place
     that names them (adding a term is adding its module here)."""
