@@ -214,3 +214,54 @@ def test_a_fluid_runs_summary_counts_its_members_by_status_and_names_its_time(tm
         assert "kernels" not in lines[0]
     rk4 = zr.simulate(liethermo.load_scene("zeitlin_decay", {**small, "integrator.method": "rk4"}))
     assert "  status   ok: 3, non_finite: 0" in rk4.attrs["summary"].splitlines()
+
+
+def test_a_chunks_summary_figures_from_member_slices_equal_those_of_the_whole_chunk(monkeypatch):
+    """The summary's figures of a chunk computed over member slices on several threads
+    (``label_chunk``) are those of the whole chunk: counts, maxima and finding spans,
+    with failed members among them (rk2 at a large step), for the paper top (the
+    Lagrange top's exact Ω₃ and the heating) and a spherical top (its exact solution).
+    The negative control: a slice alone gives other figures."""
+    import numba
+    import numpy as np
+
+    from liethermo import load_scene
+    from liethermo.top import model as tm
+    from liethermo.top.dataset import chunk_labels
+    from liethermo.top.initial import initial_conditions
+    from liethermo.top.resolve import resolve
+
+    import pytest
+
+    if numba.config.NUMBA_NUM_THREADS < 2:
+        pytest.skip("needs two kernel threads")
+    monkeypatch.setattr(tm, "STATS_SLICE_MEMBERS", 100)
+    pools = []
+    real_pool = tm._stats_pool
+    monkeypatch.setattr(tm, "_stats_pool", lambda n: pools.append(n) or real_pool(n))
+    threads = numba.get_num_threads()
+    numba.set_num_threads(min(2, numba.config.NUMBA_NUM_THREADS))
+    try:
+        _sliced_equals_whole(tm, load_scene, chunk_labels, initial_conditions, resolve, np)
+    finally:
+        numba.set_num_threads(threads)
+    assert pools == [2, 2, 2]  # every chunk was summarised in two slices
+
+
+def _sliced_equals_whole(tm, load_scene, chunk_labels, initial_conditions, resolve, np):
+    cases = [("paper", {"integrator.method": "rk2", "integrator.h": 0.12}),
+             ("paper", {"integrator.method": "split"}),
+             ("spherical_top", {"integrator.method": "vi"})]
+    for name, over in cases:
+        sc = load_scene(name, {"ensemble.members": 600, "integrator.steps": 40, "output.every": 20, **over})
+        om0, R0 = initial_conditions(sc, 0, 600)
+        traj = resolve(sc).simulate(om0, R0)
+        if over.get("integrator.h") == 0.12:  # some members blow up, some do not
+            assert 0 < np.count_nonzero(traj.status) < 600
+        whole = tm._labelled_stats(traj, chunk_labels(traj, omega0=om0, R0=R0)).to_dict()
+        ds, sliced = tm.label_chunk(sc, traj, om0, R0)
+        assert sliced.to_dict() == whole, name
+        assert sliced.findings and ds.sizes["member"] == 600
+        part = traj.take(slice(0, 300))
+        alone = tm._labelled_stats(part, chunk_labels(part, omega0=om0[:300], R0=R0[:300])).to_dict()
+        assert alone != whole

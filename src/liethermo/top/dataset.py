@@ -173,14 +173,19 @@ def _chunk_labels(traj, omega0, R0, member_offset) -> ChunkLabels:
     dims_v = ("member", "t", "axis")
     vi = traj.choice.method.node_form
     mom = _once(lambda: _momentum(traj, om))
+
+    def now_if_stored(make):
+        """``make`` itself where it only labels the state (the VI's and splittings' μ), else on demand."""
+        return make() if traj.momentum is not None else make
+
     node_note = ("node velocity I(S_k)^-1 mu_k from the node momentum (discrete Legendre transform)"
                  if vi else "node value Omega(t_k)")
     start_note = _start_note(traj) if vi else ""
     build = {
         "omega": _var(om, dims_v, "rad s-1", "angular velocity",
                       comment=f"body angular velocity Omega at t_k: {node_note}{start_note}"),
-        "angular_momentum": lambda: _var(mom(), dims_v, "kg m2 s-1", "angular momentum",
-                                         comment="body angular momentum mu = I(S) Omega at t_k"),
+        "angular_momentum": now_if_stored(lambda: _var(mom(), dims_v, "kg m2 s-1", "angular momentum",
+                                                       comment="body angular momentum mu = I(S) Omega at t_k")),
         "angular_momentum_norm": lambda: _var(np.linalg.norm(mom(), axis=-1), dims_t, "kg m2 s-1",
                                               "|mu|, a Casimir",
                                               comment="|mu| = |I(S) Omega|: a Casimir, kept by friction of "

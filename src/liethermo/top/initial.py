@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .kernels.draws import shaped
+
 BLOCK = 1024
 
 
@@ -41,15 +43,6 @@ def _draw_raw(seed: int, block: int, q, d, u, spin_range) -> None:
     rng.standard_normal(out=q)
     rng.standard_normal(out=d)
     u[:] = rng.uniform(spin_range[0], spin_range[1], BLOCK)
-
-
-def _shape(q, d, u, omega_norm: float) -> tuple[np.ndarray, np.ndarray]:
-    """(Ω₀, R₀) from the raw draws of whole blocks (row by row, so any number of
-    blocks at once gives each member the same bits)."""
-    q = q / np.linalg.norm(q, axis=1, keepdims=True)
-    d = d / np.linalg.norm(d, axis=1, keepdims=True)
-    mag = u * omega_norm
-    return d * mag[:, None], quat_to_matrix(q)
 
 
 #: units a file may give Ω₀ in (all mean rad s⁻¹)
@@ -222,4 +215,4 @@ def initial_conditions(scene: dict, start: int = 0, stop: int | None = None):
         rows = slice(k * BLOCK, (k + 1) * BLOCK)
         _draw_raw(seed, b0 + k, q[rows], d[rows], u[rows], sr)
     keep = slice(start - b0 * BLOCK, stop - b0 * BLOCK)
-    return _shape(q[keep], d[keep], u[keep], w)
+    return shaped(q[keep], d[keep], u[keep], w)  # normalised, scaled and turned into rotations

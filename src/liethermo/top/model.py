@@ -362,6 +362,7 @@ def _labelled_stats(traj, ds) -> "ChunkStats":
     dataset, or the :class:`~liethermo.top.dataset.ChunkLabels` that compute
     them when asked)."""
     from .findings import chunk_findings
+    from .kernels.terms import norm3
     from .simulate import STATUS_MEANINGS
 
     st = ChunkStats(members=traj.states.shape[0], kernel_time=traj.wall_time, compile_time=traj.compile_time)
@@ -383,7 +384,7 @@ def _labelled_stats(traj, ds) -> "ChunkStats":
         if "energy_error_paper" in ds:
             st.e_rel_paper = max(st.e_rel_paper,
                                  _nanmax(np.abs(ds["energy_error_paper"].values[ok]) / em))
-        st.gdef = max(st.gdef, _nanmax(np.abs(np.linalg.norm(traj.gamma[ok], axis=-1) - 1.0)))
+        st.gdef = max(st.gdef, _nanmax(np.abs(norm3(traj.gamma[ok]) - 1.0)))
     st.hw = max(st.hw, _nanmax(traj.max_h_omega[ok]))
     st.nit_total = int(traj.newton_iterations.sum())
     st.nsteps_total = int(traj.steps_done.sum())
@@ -515,7 +516,8 @@ def estimate(scene: dict):
     kept = select_variables(full, scene, layout)
     stored = per_member(kept)  # the file: the variables the scene stores
     per = sum(n for n, _ in stored)
-    # a chunk is labelled whole (its summary reads every variable) before the file's are kept
+    # a chunk computes the variables its file stores and those its summary reads (energies,
+    # temperature, |mu|): every variable bounds that from above
     memory = int(MEMORY_FACTOR * sum(n for n, _ in per_member(full))) + n_t * width * 8
     est = Estimate(per, memory, members, int(outp["member_chunk"]), stored,
                    variables=tuple(sorted(n for n, v in kept.data_vars.items() if "member" in v.dims)))

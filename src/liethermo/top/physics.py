@@ -403,9 +403,16 @@ def _expansion(phys: Physics, th: np.ndarray):
     return None
 
 
+def _entropy_sets_inertia(phys: Physics) -> bool:
+    """Some term makes some member's inertia depend on S (only such a term gives
+    :func:`_expansion`; without one, θ(S) need not be computed for it)."""
+    row = phys.take(slice(0, 1)) if phys.n > 1 and phys.uniform else phys
+    return any(t.sets_inertia and bool(np.any(t.active(row))) for t in registry())
+
+
 def inertia_scale(phys: Physics, sigma: np.ndarray | None) -> np.ndarray | float:
     """s(S) = φ² with 𝕀(S) = s 𝕀₀ (1 for a constant inertia)."""
-    if sigma is None:
+    if sigma is None or not _entropy_sets_inertia(phys):
         return 1.0
     e = _expansion(phys, theta(phys, sigma))
     return 1.0 if e is None else e[0] ** 2

@@ -564,6 +564,12 @@ def sum3(x: np.ndarray) -> np.ndarray:
     return out
 
 
+def norm3(x: np.ndarray) -> np.ndarray:
+    """``np.linalg.norm(x, axis=-1)`` of real vectors x (..., 3), bit for bit (numpy's
+    is the square root of the reduced x·x)."""
+    return np.sqrt(sum3(x * x))
+
+
 def _term_modules():
     """The term modules, frictions before conservative torques: the one place
     that names them (adding a term is adding its module here)."""
