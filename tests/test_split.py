@@ -189,20 +189,22 @@ def test_a_splitting_marker_comes_back_from_the_kernel_cache_as_itself():
 
     from numba.core.serialize import dumps
 
-    from liethermo.top.kernels.split import splitting
-    from liethermo.top.methods import COMPOSITION_FACTORS
+    from liethermo.top.methods import COMPOSITION_KINDS, METHODS, SplittingMethod
 
-    blobs = [dumps(type(splitting(f, o))) for f, o in (((1.0,), 2), (COMPOSITION_FACTORS[("triple_jump", 6)], 6))]
+    # every marker a splitting method takes, with every composition
+    blobs = [dumps(type(m.kernel_tableau(k))) for m in METHODS.values() if isinstance(m, SplittingMethod)
+             for k in COMPOSITION_KINDS]
     code = ("import pickle, sys\n"
-            "from liethermo.top.kernels.split import splitting\n"
-            "from liethermo.top.methods import COMPOSITION_FACTORS\n"
             "blobs = pickle.loads(sys.stdin.buffer.read())\n"
             "first = [pickle.loads(b) for b in blobs]\n"  # before the process has built any marker
-            "built = [type(splitting((1.0,), 2)), type(splitting(COMPOSITION_FACTORS[('triple_jump', 6)], 6))]\n"
-            "print([a is b for a, b in zip(first, built)], [c.factors == b.factors for c, b in zip(first, built)])\n")
+            "from liethermo.top.methods import COMPOSITION_KINDS, METHODS, SplittingMethod\n"
+            "built = [type(m.kernel_tableau(k)) for m in METHODS.values() if isinstance(m, SplittingMethod) "
+            "for k in COMPOSITION_KINDS]\n"
+            "print(len(first), all(a is b for a, b in zip(first, built)), "
+            "all(a.factors == b.factors for a, b in zip(first, built)))\n")
     out = subprocess.run([sys.executable, "-c", code], input=__import__("pickle").dumps(blobs),
                          capture_output=True, check=True).stdout.decode().strip()
-    assert out == "[True, True] [True, True]"
+    assert out == "6 True True"
 
 
 def test_compositions_of_one_length_compile_apart():

@@ -80,15 +80,16 @@ def splitting(factors: tuple, order: int):
 
 def __getattr__(name: str):
     """A splitting marker class by name, for unpickling a kernel cache index in a
-    process that has not built it yet: the markers of every splitting method with
-    every composition are built on first request."""
+    process that has not built it yet: every marker a splitting method can take is
+    built on first request — the Strang step (order 2) and each composition of
+    :data:`liethermo.numerics.compositions.COMPOSITION_FACTORS` with its order (what
+    ``SplittingMethod.kernel_tableau`` passes to :func:`splitting`)."""
     if name.startswith("Splitting"):
-        from ..methods import COMPOSITION_KINDS, METHODS, SplittingMethod
+        from ...numerics.compositions import COMPOSITION_FACTORS
 
-        for method in METHODS.values():
-            if isinstance(method, SplittingMethod):
-                for kind in COMPOSITION_KINDS:
-                    method.kernel_tableau(kind)
+        splitting((1.0,), 2)
+        for (_, order), factors in COMPOSITION_FACTORS.items():
+            splitting(factors, order)
         if name in globals():
             return globals()[name]
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
