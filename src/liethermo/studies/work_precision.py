@@ -1,11 +1,13 @@
 """Work–precision: measured cost per member against the error at ``t_end``, on any model. The methods (default: the
 model's own) run one ensemble at steps h; a member's error is the largest |x − x_ref| / |x(0)| at ``t_end`` over the
 model's state variables that do not start at zero. A serial stage times all methods at one h interleaved
-(:func:`.timing.measure`), scipy's ``solve_ivp`` likewise; one time-to-ε computation follows."""
+(:func:`.timing.measure`), scipy's ``solve_ivp`` likewise; one time-to-ε computation follows. Costs are the process's
+CPU time on pinned threads (one by default): the machine's other load does not enter them, as it enters wall time."""
 
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 import xarray as xr
@@ -46,6 +48,16 @@ def _run(ctx, point, method: str, h: float, members: int):
                      threads=ctx.opt["threads"])
 
 
+def _cpu(ctx, point, method: str, h: float, members: int) -> float:
+    """The CPU time of the process over the kernels of one :func:`_run`, s: the model's ``kernel_cpu_time`` where
+    its stats give one (setup and output excluded, like the kernel's wall time), else over the whole run."""
+    t = time.process_time()
+    st = _run(ctx, point, method, h, members)[1]
+    whole = time.process_time() - t
+    k = getattr(st, "kernel_cpu_time", 0.0)
+    return float(k) if k > 0 else whole
+
+
 def _state(model, ds) -> dict:
     """{name: x (member, t, n)} of the model's state variables that do not start at zero."""
     st = {n: np.asarray(x).reshape(*np.shape(x)[:2], -1) for n, (x, *_) in model.study_state(ds).items()}
@@ -83,7 +95,7 @@ def costs(ctx, coords) -> xr.Dataset:
     h, N = float(coords["h"]), ctx.opt["members"]
     n = N * -(-ctx.opt["timing_member_steps"] // (N * round(ctx.opt["t_end"] / h)))  # members of a timed run
     for _ in range(REMEASURE):  # a spread over 100 % says the machine was loaded: time again, up to REMEASURE times
-        c = timing.measure({m: (lambda m=m: _run(ctx, coords["point"], m, h, n)[1].kernel_time) for m in ctx.methods},
+        c = timing.measure({m: (lambda m=m: _cpu(ctx, coords["point"], m, h, n)) for m in ctx.methods},
                            repeats=ctx.opt["repeats"], min_time=ctx.opt["min_timing"], threads=ctx.opt["threads"])
         if not timing.loaded(c):
             break
@@ -153,7 +165,7 @@ def extend(ctx, coords, reference, errors) -> xr.Dataset:
     N = ctx.opt["members"]
     for k, (h, e) in enumerate(got):
         n = N * -(-ctx.opt["timing_member_steps"] // (N * round(T / h)))
-        c = timing.measure({m: lambda: _run(ctx, coords["point"], m, h, n)[1].kernel_time},
+        c = timing.measure({m: lambda: _cpu(ctx, coords["point"], m, h, n)},
                            repeats=ctx.opt["repeats"], min_time=ctx.opt["min_timing"], threads=ctx.opt["threads"])[m]
         c = c.per(n)
         for key, v in (("h", h), ("error", e), ("cost", c.best), ("cost_spread", c.spread),
@@ -179,7 +191,7 @@ def scipy_runs(ctx, coords, reference) -> xr.Dataset:
                     for m in range(M)]
 
     c = timing.measure({sm: (lambda sm=sm: solve(sm)) for sm in solvers}, repeats=ctx.opt["repeats"], warm=0,
-                       threads=ctx.opt["threads"])
+                       threads=ctx.opt["threads"], clock=time.process_time)
     ref, err = {n: x[:M] for n, x in _state(ctx.model, reference).items()}, []
     for sm in solvers:
         got = {n: np.array([state(s.y[:, -1])[n] for s in sols[sm]])[:, None] for n in ref}  # (member, t_end, n)
@@ -304,10 +316,10 @@ def derive(ds, ctx) -> xr.Dataset:
 
 def tables(ds, ctx) -> list[Table]:
     ttr, cheapest = reach(ds, ctx)
-    cols = ("error at t_end (max)", "cost/member (s)", "spread", "repeats", "failed members")
+    cols = ("error at t_end (max)", "CPU time/member (s)", "spread", "repeats", "failed members")
     runs = [{"method": n, "h (s)" if n in ctx.methods else "rtol": lev[i], **{k: c[i] for k, c in zip(cols, cs)}}
             for n, (lev, *cs) in _curves(ds).items() for i in range(len(lev))]
-    return [Table("time_to_error", "Time per member to reach error ε (log–log between levels; spread: that of the "
+    return [Table("time_to_error", "CPU time per member to reach error ε (log–log between levels; spread: that of the "
                   "levels it rests on)", ttr),
             Table("cheapest", "The cheapest per error level (from the table above)", cheapest),
             Table("work_precision", "All runs", runs)]
@@ -370,7 +382,7 @@ def _draw(ds, ctx, fig) -> None:
                     ax.plot([eps], [est], "x", color=col, ms=7)
     for eps in ctx.opt["epsilons"]:
         ax.axvline(eps, color="0.6", lw=0.8, ls="--")
-    ax.set(xscale="log", yscale="log", xlabel="error at t_end (1)", ylabel="cost per member (s)")
+    ax.set(xscale="log", yscale="log", xlabel="error at t_end (1)", ylabel="CPU time per member (s)")
     ax.invert_xaxis()
     ax.grid(True, which="both", alpha=0.3)
     keys = [Line2D([], [], marker="o", color="0.3", ls="", label="time to ε: bracketed"),
@@ -382,7 +394,7 @@ def _draw(ds, ctx, fig) -> None:
 
 
 _Q = {"error": ("1", "max over members of the error at t_end"), "failed": ("1", "members that failed"), "cost_repeats":
-      ("1", "repeats"), "cost": ("s", "cost per member (min over repeats)"), "cost_spread": ("1", "median / min - 1")}
+      ("1", "repeats"), "cost": ("s", "CPU time per member (min over repeats)"), "cost_spread": ("1", "median / min - 1")}
 QUANTITIES = {**_Q, **{f"scipy_{k}": v for k, v in _Q.items()}, "timed_members": ("1", "members of one timed run"),
               "state_error": ("1", "|x - x_ref| / |x(0)| at t_end"), "state": ("1", "state variable of the model"),
               "rtol": ("1", "solve_ivp relative tolerance"), "solver": ("1", "solve_ivp method"),
@@ -391,7 +403,7 @@ QUANTITIES = {**_Q, **{f"scipy_{k}": v for k, v in _Q.items()}, "timed_members":
 
 STUDY = Study(
     kind="work_precision", title="Work–precision", models=None, needs_methods=False,
-    description="Cost per member against the error at t_end, every method and scipy's solve_ivp",
+    description="CPU time per member against the error at t_end, every method and scipy's solve_ivp",
     options=(Option("t_end", 10.0, "number>0", "s", "end time"), Option("members", 32, "int>=1", "1", "members measured"),
              Option("h", [0.2 / 2**k for k in range(9)], "list[number>0]", "s", "the ladder of steps, coarse to fine"),
              Option("scipy_methods", ["RK45", "DOP853"], "list[str]", "", "solve_ivp methods (where the model has an ode)"),
@@ -416,7 +428,8 @@ STUDY = Study(
         "filled circles are bracketed times to ε, open triangles bounds (▼ at most, ▲ at least) with their h^p-line "
         "estimates (×)")),),
     report=("Scene `{scene}` ({model}), {opt[members]} members, t_end = {opt[t_end]} s. Error: per member the largest "
-            "|x(t_end) − x_ref(t_end)| / |x(0)| over {state}; the reference: {ref}. Costs: all methods at an h timed "
+            "|x(t_end) − x_ref(t_end)| / |x(0)| over {state}; the reference: {ref}. Costs: the process's CPU time over "
+            "the kernels (not wall time: the machine's other load does not enter it), all methods at an h timed "
             "interleaved on {opt[threads]} pinned thread(s), runs of ≥ {opt[timing_member_steps]} member-steps, ≥ "
             "{opt[repeats]} rounds and {opt[min_timing]} s; the minimum over repeats, spread = median / min − 1 (a spread "
             "over 100 % means a loaded machine: that h is timed again, up to 3 times, and a ranking that rests on "

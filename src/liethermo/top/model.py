@@ -154,6 +154,8 @@ class ChunkStats:
 
     members: int = 0
     kernel_time: float = 0.0
+    #: the process's CPU time over the kernels of ``kernel_time``, s (0: not measured, e.g. on the GPU)
+    kernel_cpu_time: float = 0.0
     compile_time: float = 0.0
     counts: list = field(default_factory=lambda: [0] * len(_status_meanings()))
     e_abs: float = -np.inf
@@ -172,6 +174,7 @@ class ChunkStats:
     def merge(self, other: "ChunkStats") -> "ChunkStats":
         self.members += other.members
         self.kernel_time += other.kernel_time
+        self.kernel_cpu_time += other.kernel_cpu_time
         self.compile_time += other.compile_time
         self.counts = [a + b for a, b in zip(self.counts, other.counts)]
         self.e_abs = max(self.e_abs, other.e_abs)
@@ -365,7 +368,8 @@ def _labelled_stats(traj, ds) -> "ChunkStats":
     from .kernels.terms import norm3
     from .simulate import STATUS_MEANINGS
 
-    st = ChunkStats(members=traj.states.shape[0], kernel_time=traj.wall_time, compile_time=traj.compile_time)
+    st = ChunkStats(members=traj.states.shape[0], kernel_time=traj.wall_time, kernel_cpu_time=traj.cpu_time,
+                    compile_time=traj.compile_time)
     ncounts = len(STATUS_MEANINGS)
     st.counts = [int(c) for c in np.bincount(traj.status, minlength=ncounts)[:ncounts]]
     ok = traj.status == 0  # accuracy figures are over members that completed
@@ -729,7 +733,7 @@ class HeavyTop(StudyDefaults, Model):
 
     def run_with_laws(self, scene, *, kernel=None, threads=None):
         traj, ds = _chunk(scene, 0, int(scene["ensemble"]["members"]), kernel=kernel, threads=threads)
-        return ds, ChunkStats(members=ds.sizes["member"], kernel_time=traj.wall_time,
+        return ds, ChunkStats(members=ds.sizes["member"], kernel_time=traj.wall_time, kernel_cpu_time=traj.cpu_time,
                               compile_time=traj.compile_time), law_defects(traj)
 
     def ode(self, scene, lo, hi):

@@ -94,6 +94,9 @@ class Trajectory:
     #: the time of the stepping kernels alone, s: on the GPU the kernel launches
     #: (CUDA events, summed), without the copies; on the CPU the same as ``wall_time``
     kernel_seconds: float = 0.0
+    #: the process's CPU time over the chunk loop of ``wall_time`` (all its threads), s, on the CPU; 0 on the GPU.
+    #: Unlike wall time it does not grow while the machine's other load holds the cores.
+    cpu_time: float = 0.0
 
     @property
     def method(self) -> str:
@@ -411,7 +414,7 @@ def simulate(
     if compile_only:
         return None
     states[:, 0] = Y
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     j = 0
     while j < n_out:
         check_stop()  # a stop signal is acted on between kernel calls
@@ -426,7 +429,7 @@ def simulate(
         j += nj
         if progress is not None:
             progress(nj * every)
-    wall = time.perf_counter() - t0
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     # a member that failed keeps NaN from its failing step on (the kernels
     # leave its later outputs untouched), and its initial row if it could not start
     return Trajectory(
@@ -436,7 +439,7 @@ def simulate(
         newton_iterations=IS[:, _lay.IS_NEWTON_TOTAL].copy(),
         newton_max=IS[:, _lay.IS_NEWTON_MAX].copy(),
         steps_done=IS[:, _lay.IS_STEPS].copy(), max_h_omega=FS[:, _lay.FS_MAX_H_OMEGA].copy(),
-        wall_time=wall, compile_time=compile_time, kernel_seconds=wall,
+        wall_time=wall, compile_time=compile_time, kernel_seconds=wall, cpu_time=cpu,
         reference_substeps=((int(nsub) if nsub else int(IS[:, _lay.IS_NSUB].max(initial=0)))
                             if m.name == "reference" else 0),
     )
