@@ -154,6 +154,36 @@ def test_work_precision_times_in_this_process():
                                                        "extend": True, "scipy": True}
 
 
+def test_work_precision_costs_are_the_kernels_cpu_time(monkeypatch):
+    """A timed run's cost is the CPU time the model's stats give for its kernels (not their wall time), and the
+    process's CPU time over the whole run where the stats give none; the top model's is positive and within the
+    whole run's CPU time."""
+    import time
+    from types import SimpleNamespace
+
+    from liethermo.scene import load_scene
+    from liethermo.studies import work_precision as wp
+    from liethermo.top.model import ChunkStats
+
+    ctx = SimpleNamespace(scene=lambda point=None: load_scene("paper"), opt={"t_end": 0.5, "threads": 1})
+    t = time.process_time()
+    got = wp._cpu(ctx, None, "rk4", 0.01, 64)
+    whole = time.process_time() - t
+    assert 0 < got <= whole
+    stats = wp._run(ctx, None, "rk4", 0.01, 64)[1]
+    assert stats.kernel_cpu_time > 0 and stats.kernel_time > 0
+
+    fake = {"stats": SimpleNamespace(kernel_time=5.0, kernel_cpu_time=0.125)}
+    monkeypatch.setattr(wp, "_run", lambda *a: (None, fake["stats"]))
+    assert wp._cpu(ctx, None, "rk4", 0.01, 64) == 0.125  # the CPU time, not the 5 s of wall time
+    fake["stats"] = SimpleNamespace(kernel_time=5.0)  # a model whose stats give no CPU time
+    assert 0 <= wp._cpu(ctx, None, "rk4", 0.01, 64) < 1.0
+    # a chunk record written before the field loads with none measured, and chunks add up
+    old = {k: v for k, v in ChunkStats(kernel_cpu_time=1.0).to_dict().items() if k != "kernel_cpu_time"}
+    assert ChunkStats.from_dict(old).kernel_cpu_time == 0.0
+    assert ChunkStats(kernel_cpu_time=1.0).merge(ChunkStats(kernel_cpu_time=0.5)).kernel_cpu_time == 1.5
+
+
 def test_time_to_error_interpolation():
     from liethermo.studies.work_precision import time_to_error
 
