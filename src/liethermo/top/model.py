@@ -330,7 +330,8 @@ def label_chunk(scene: dict, traj, om0, R0, lo: int = 0) -> tuple:
     stats = got[0]
     for other in got[1:]:
         stats.merge(other)
-    stats.kernel_time, stats.compile_time = traj.wall_time, traj.compile_time  # once, not per slice
+    stats.kernel_time, stats.kernel_cpu_time = traj.wall_time, traj.cpu_time  # once, not per slice
+    stats.compile_time = traj.compile_time
     return ds, stats
 
 
