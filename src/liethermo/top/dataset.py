@@ -105,9 +105,6 @@ class ChunkLabels:
     def __contains__(self, name) -> bool:
         return name in self._build or name in self._coords
 
-    def names(self) -> tuple[str, ...]:
-        return tuple(self._build)
-
     def computed_on_demand(self) -> set[str]:
         """The variables computed when asked for (the others are the state's views and
         the members' run and parameters as they are)."""
