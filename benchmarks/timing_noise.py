@@ -16,20 +16,10 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
 
 os.environ.setdefault("NUMBA_OPT", "2")  # as the liethermo console script (numba reads it on import)
 
-
-def cpu_name() -> str:
-    try:
-        with open("/proc/cpuinfo") as f:
-            for line in f:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown CPU"
+from bench import cpu_name  # noqa: E402  (run as python benchmarks/timing_noise.py: benchmarks/ is on the path)
 
 
 def main(argv=None) -> int:

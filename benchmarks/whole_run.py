@@ -15,22 +15,13 @@ running it in each, interleaved, on one machine.
 from __future__ import annotations
 
 import argparse
-import platform
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
-
-def cpu_model() -> str:
-    try:
-        for line in open("/proc/cpuinfo"):
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown CPU"
+from bench import cpu_name  # run as python benchmarks/whole_run.py: benchmarks/ is on the path
 
 
 def whole_runs(members: int, steps: int, method: str, rounds: int) -> None:
@@ -97,7 +88,7 @@ def main() -> None:
     ap.add_argument("--method", default="rk2")
     ap.add_argument("--rounds", type=int, default=3)
     a = ap.parse_args()
-    print(f"{cpu_model()}, {time.strftime('%Y-%m-%d')}; paper, {a.members} members x {a.steps} steps, {a.method}")
+    print(f"{cpu_name()}, {time.strftime('%Y-%m-%d')}; paper, {a.members} members x {a.steps} steps, {a.method}")
     whole_runs(a.members, a.steps, a.method, a.rounds)
     host_parts(a.members, a.method)
 
