@@ -233,19 +233,18 @@ def test_a_chunks_summary_figures_from_member_slices_equal_those_of_the_whole_ch
 
     import pytest
 
+    from liethermo.threads import ThreadCounts, pools
+
     if numba.config.NUMBA_NUM_THREADS < 2:
         pytest.skip("needs two kernel threads")
     monkeypatch.setattr(tm, "STATS_SLICE_MEMBERS", 100)
-    pools = []
-    real_pool = tm._stats_pool
-    monkeypatch.setattr(tm, "_stats_pool", lambda n: pools.append(n) or real_pool(n))
-    threads = numba.get_num_threads()
-    numba.set_num_threads(min(2, numba.config.NUMBA_NUM_THREADS))
-    try:
+    merged = []
+    real_merge = tm.ChunkStats.merge
+    monkeypatch.setattr(tm.ChunkStats, "merge",
+                        lambda self, other: merged.append(other.members) or real_merge(self, other))
+    with pools(ThreadCounts(blas=1, kernel=2)):  # as a run on two cores sets them
         _sliced_equals_whole(tm, load_scene, chunk_labels, initial_conditions, resolve, np)
-    finally:
-        numba.set_num_threads(threads)
-    assert pools == [2, 2, 2]  # every chunk was summarised in two slices
+    assert merged == [300, 300, 300]  # every chunk was summarised in two slices of 300 members
 
 
 def _sliced_equals_whole(tm, load_scene, chunk_labels, initial_conditions, resolve, np):

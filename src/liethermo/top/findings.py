@@ -121,7 +121,7 @@ def _parameter_facts(phys: ph.Physics) -> dict:
         "unique_major": srt[:, 2] > srt[:, 1] * (1.0 + 1e-9),
         "major": np.argmax(phys.inertia, axis=-1),
         "frictions": frictions,
-        "sets_inertia": np.any([acting[t.name] for t in registry() if t.sets_inertia], axis=0) & np.ones(n, bool),
+        "sets_inertia": np.any([acting[t.name] for t in registry() if t.sets_inertia], axis=0),
     }
 
 

@@ -305,18 +305,18 @@ def label_chunk(scene: dict, traj, om0, R0, lo: int = 0) -> tuple:
     stores; nothing else is computed.
 
     Where the file stores only the state (nothing computed for it), the stats are
-    computed over member slices on as many threads as the kernels were given
-    (numpy releases the GIL in its loops): every figure is a count, a max, a min
-    or a sum of integers, so the slices give the stats of the whole chunk exactly."""
-    import numba
-
+    computed over member slices on as many threads as the kernels are given
+    (:func:`liethermo.threads.kernel_threads`; numpy releases the GIL in its loops):
+    every figure is a count, a max, a min or a sum of integers, so the slices give the
+    stats of the whole chunk exactly."""
     from .dataset import chunk_labels, stored_variables
+    from .kernels import parallel as _par
 
     labels = chunk_labels(traj, omega0=om0, R0=R0, member_offset=lo)
     keep = stored_variables(scene, traj.layout)
     ds = labels.dataset(keep)
     n = traj.states.shape[0]
-    parts = min(numba.get_num_threads(), n // STATS_SLICE_MEMBERS)
+    parts = min(_par.default_threads(), n // STATS_SLICE_MEMBERS)
     if parts < 2 or keep is None or keep & labels.computed_on_demand():
         return ds, _labelled_stats(traj, labels)
     bounds = np.linspace(0, n, parts + 1).astype(int)
@@ -326,27 +326,13 @@ def label_chunk(scene: dict, traj, om0, R0, lo: int = 0) -> tuple:
         part = traj.take(sl)
         return _labelled_stats(part, chunk_labels(part, omega0=om0[sl], R0=R0[sl]))
 
-    got = list(_stats_pool(parts).map(stats_of, slices))
+    got = list(_par.pool(parts).map(stats_of, slices))  # the kernels' pool: they wait meanwhile
     stats = got[0]
     for other in got[1:]:
         stats.merge(other)
     stats.kernel_time, stats.kernel_cpu_time = traj.wall_time, traj.cpu_time  # once, not per slice
     stats.compile_time = traj.compile_time
     return ds, stats
-
-
-_POOL: list = [None, 0]
-
-
-def _stats_pool(n: int):
-    """A thread pool of ``n`` workers for :func:`label_chunk`, kept between chunks."""
-    from concurrent.futures import ThreadPoolExecutor
-
-    if _POOL[1] != n:
-        if _POOL[0] is not None:
-            _POOL[0].shutdown(wait=False)
-        _POOL[0], _POOL[1] = ThreadPoolExecutor(max_workers=n, thread_name_prefix="liethermo-stats"), n
-    return _POOL[0]
 
 
 def run_chunk(scene: dict, lo: int, hi: int, *, progress_cb=None, kernel: str | None = None,

@@ -407,7 +407,7 @@ def _entropy_sets_inertia(phys: Physics) -> bool:
     """Some term makes some member's inertia depend on S (only such a term gives
     :func:`_expansion`; without one, θ(S) need not be computed for it)."""
     row = phys.take(slice(0, 1)) if phys.n > 1 and phys.uniform else phys
-    return any(t.sets_inertia and bool(np.any(t.active(row))) for t in registry())
+    return not bool(np.all(has_constant_inertia(row)))
 
 
 def inertia_scale(phys: Physics, sigma: np.ndarray | None) -> np.ndarray | float:

@@ -23,7 +23,8 @@ def default_threads() -> int:
     return kernel_threads()
 
 
-def _pool(threads: int) -> ThreadPoolExecutor:
+def pool(threads: int) -> ThreadPoolExecutor:
+    """The process's pool of ``threads`` threads (made on first use, then kept)."""
     pool = _POOLS.get(threads)
     if pool is None:
         pool = _POOLS[threads] = ThreadPoolExecutor(threads, thread_name_prefix="liethermo")
@@ -44,10 +45,10 @@ def run_ranges(fn, n_items: int, args_before: tuple, args_after: tuple,
     if len(ranges) == 1:
         fn(*args_before, ranges[0][0], ranges[0][1], *args_after)
         return
-    futures = [_pool(threads).submit(fn, *args_before, lo, hi, *args_after)
+    futures = [pool(threads).submit(fn, *args_before, lo, hi, *args_after)
                for lo, hi in ranges]
     for f in futures:
         f.result()
 
 
-__all__ = ["run_ranges", "default_threads"]
+__all__ = ["run_ranges", "default_threads", "pool"]
