@@ -3,7 +3,8 @@
     python benchmarks/whole_run.py [--members 1048576] [--steps 1000] [--method rk2] [--rounds 3]
 
 runs ``liethermo run paper`` (h = 0.01 s, ``output.every`` = steps: two stored times, the
-default variables, no comparison, no figures) ``--rounds`` times into a temporary folder and
+default variables, no comparison, no figures) ``--rounds`` times into new files of a temporary
+folder (replacing an existing file adds what the file system spends freeing the old one) and
 prints, per round, the summary's **whole run** (simulating, labelling and writing; not
 compiling, start-up or figures) and **kernel** times and their ratio.  Then, for one member
 chunk, the host's parts of a run, each the best of five on this process's threads: drawing
@@ -27,13 +28,14 @@ from bench import cpu_name  # run as python benchmarks/whole_run.py: benchmarks/
 def whole_runs(members: int, steps: int, method: str, rounds: int) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         for r in range(rounds):
-            cmd = [sys.executable, "-m", "liethermo", "run", "paper", "-o", str(Path(tmp) / "p.nc"), "--force",
+            cmd = [sys.executable, "-m", "liethermo", "run", "paper", "-o", str(Path(tmp) / f"p{r}.nc"),
                    "--no-progress", "--set", f"ensemble.members={members}", "--set", f"integrator.steps={steps}",
                    "--set", "integrator.h=0.01", "--set", f"output.every={steps}", "--set",
                    f'integrator.method="{method}"', "--set", "output.compare=[]", "--set", "output.figures=false"]
             out = subprocess.run(cmd, capture_output=True, text=True, check=True).stdout
             wall = float(out.split("wall time ")[1].split(" s")[0])
             kern = float(out.split(" ran ")[1].split(" s")[0])
+            (Path(tmp) / f"p{r}.nc").unlink()
             print(f"round {r + 1}: whole run {wall:.2f} s, kernel {kern:.2f} s, whole run / kernel {wall / kern:.2f}")
 
 

@@ -108,6 +108,25 @@ def checksum(values: np.ndarray) -> int:
     return zlib.crc32(memoryview(np.ascontiguousarray(a)).cast("B"))
 
 
+def _create_netcdf(tmp: Path) -> netCDF4.Dataset:
+    """A new netCDF-4 file at the (empty, locked) temporary ``tmp``.
+
+    HDF5 creates the file by truncating the temporary, which ext4 (its default
+    ``auto_da_alloc``) takes for a file being replaced by a rewrite: when the
+    writer's descriptor is closed it would allocate and start writing out every
+    block still in the page cache, on the run's critical path (0.1 s per 300 MB
+    measured).  Closing a descriptor of our own while the file is still empty
+    spends that one-off flush on nothing; the data then reaches the disk by the
+    system's usual writeback, as any file written without fsync.  Elsewhere
+    this is one open and close."""
+    nc = netCDF4.Dataset(tmp, "w", format="NETCDF4")
+    try:
+        os.close(os.open(tmp, os.O_WRONLY))
+    except OSError:  # pragma: no cover - only a missed speed-up
+        pass
+    return nc
+
+
 class ChunkedWriter:
     """Write ``n_members`` members in chunks: ``write(ds_chunk, offset)``.
 
@@ -157,8 +176,7 @@ class ChunkedWriter:
             self._fail(exc)
 
     def _define(self, ds: xr.Dataset) -> None:
-        nc = netCDF4.Dataset(self.tmp, "w", format="NETCDF4")
-        self.nc = nc
+        nc = self.nc = _create_netcdf(self.tmp)
         for dim, size in ds.sizes.items():
             nc.createDimension(dim, self.n_members if dim == "member" else size)
         for name, var in list(ds.coords.items()) + list(ds.data_vars.items()):
@@ -197,8 +215,7 @@ class ChunkedWriter:
             self._fail(exc)
 
     def _define_from(self, src) -> None:
-        nc = netCDF4.Dataset(self.tmp, "w", format="NETCDF4")
-        self.nc = nc
+        nc = self.nc = _create_netcdf(self.tmp)
         for dim, d in src.dimensions.items():
             nc.createDimension(dim, self.n_members if dim == "member" else len(d))
         for name, var in src.variables.items():
