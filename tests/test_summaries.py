@@ -264,3 +264,56 @@ def _sliced_equals_whole(tm, load_scene, chunk_labels, initial_conditions, resol
         part = traj.take(slice(0, 300))
         alone = tm._labelled_stats(part, chunk_labels(part, omega0=om0[:300], R0=R0[:300])).to_dict()
         assert alone != whole
+
+
+def _adversarial(rng, shape):
+    """Values over the whole double range, with ±0, NaN, ±inf, the largest and the subnormal."""
+    import numpy as np
+
+    x = rng.standard_normal(shape) * np.exp(rng.uniform(-340, 340, shape))
+    flat = x.reshape(-1)
+    idx = rng.integers(0, flat.size, flat.size // 8)
+    flat[idx] = rng.choice([0.0, -0.0, np.nan, np.inf, -np.inf, 1.7e308, -1.7e308, 5e-324, -5e-324], idx.size)
+    return x
+
+
+def test_the_labellings_dot_products_are_numpys_bits_in_one_compiled_pass(monkeypatch):
+    """dot3 (the energies K = ½ΣIΩΩ, V = Σ g Γ and the norms |Γ|) gives np.sum(a*b[*c], axis=-1)
+    bit for bit, on every shape the labelling passes (member parameters broadcast over the stored
+    times, one vector per member), and runs the compiled pass for them; summing in another order
+    gives other bits on the same values (the comparison can fail)."""
+    import numpy as np
+
+    from liethermo.top.kernels import reductions
+    from liethermo.top.kernels.terms import dot3, norm3
+
+    calls = []
+    real = reductions.dot3_rows
+
+    class Spy:
+        overloads = real.overloads  # compiled: dot3 takes this path
+
+        def __call__(self, *args):
+            calls.append(args[0].shape)
+            return real(*args)
+
+    monkeypatch.setattr(reductions, "dot3_rows", Spy())
+    rng = np.random.default_rng(3)
+    n = 4000
+    cases = [((n, 1, 3), (n, 5, 3), (n, 5, 3)), ((n, 3), (n, 3), (n, 3)), ((n, 5, 3), (n, 5, 3), None),
+             ((3,), (n, 3), None), ((1, 3), (n, 2, 3), None), ((n, 2, 3), (n, 2, 3), (n, 2, 3))]
+    for sa, sb, sc in cases:
+        a, b = _adversarial(rng, sa), _adversarial(rng, sb)
+        c = None if sc is None else _adversarial(rng, sc)
+        with np.errstate(all="ignore"):
+            want = np.sum(a * b if c is None else a * b * c, axis=-1)
+            got = dot3(a, b, c)
+        assert got.shape == want.shape
+        assert np.array_equal(got.view(np.int64), want.view(np.int64)), (sa, sb, sc)
+    x = _adversarial(rng, (n, 2, 3))
+    with np.errstate(all="ignore"):
+        assert np.array_equal(norm3(x).view(np.int64), np.linalg.norm(x, axis=-1).view(np.int64))
+        p = x * x
+        other = (p[..., 1] + p[..., 2]) + p[..., 0]
+        assert not np.array_equal(other.view(np.int64), np.sum(p, axis=-1).view(np.int64))
+    assert len(calls) == len(cases) + 1  # every case above ran compiled

@@ -37,7 +37,7 @@ import numpy as np
 from ..numerics import heat as _heat
 from .kernels import gen
 from .kernels.layout import StateLayout, state_layout
-from .kernels.terms import ATTITUDE, Model, bcast, constant_inertia_part, registry, sum3
+from .kernels.terms import ATTITUDE, Model, bcast, constant_inertia_part, dot3, registry
 from .kernels.terms import thermo as _thermo
 
 R_GAS = 8.314462618  # J mol⁻¹ K⁻¹
@@ -428,7 +428,7 @@ def node_velocity(phys: Physics, momentum: np.ndarray, sigma: np.ndarray | None)
 def kinetic_energy(phys: Physics, omega: np.ndarray, sigma: np.ndarray | None) -> np.ndarray:
     """K = ½ Ω·𝕀(S)Ω in J."""
     s = inertia_scale(phys, sigma)
-    return 0.5 * s * sum3(bcast(phys.inertia, omega) * omega * omega)
+    return 0.5 * s * dot3(bcast(phys.inertia, omega), omega, omega)
 
 
 def potential_energy(phys: Physics, gamma: np.ndarray) -> np.ndarray:
@@ -460,7 +460,7 @@ def temperature(phys: Physics, omega: np.ndarray, sigma: np.ndarray) -> np.ndarr
     if e is None:
         return th
     phi, dphi = e
-    return th - phi * dphi * sum3(bcast(phys.inertia, omega) * omega * omega)
+    return th - phi * dphi * dot3(bcast(phys.inertia, omega), omega, omega)
 
 
 def torque(phys: Physics, omega: np.ndarray, gamma: np.ndarray, sigma: np.ndarray | None = None) -> np.ndarray:

@@ -567,7 +567,33 @@ def sum3(x: np.ndarray) -> np.ndarray:
 def norm3(x: np.ndarray) -> np.ndarray:
     """``np.linalg.norm(x, axis=-1)`` of real vectors x (..., 3), bit for bit (numpy's
     is the square root of the reduced x·x)."""
-    return np.sqrt(sum3(x * x))
+    return np.sqrt(dot3(x, x))
+
+
+#: below this many vectors :func:`dot3` stays in numpy (calling the compiled pass costs more)
+DOT3_COMPILED_MIN = 256
+
+
+def dot3(a: np.ndarray, b: np.ndarray, c: np.ndarray | None = None) -> np.ndarray:
+    """``sum3(a * b)`` or ``sum3(a * b * c)`` of float arrays (..., 3) that broadcast
+    together, bit for bit, in one pass without temporaries
+    (:func:`liethermo.top.kernels.reductions.dot3_rows`) where they have two or three
+    dimensions and enough vectors; numpy's expression otherwise."""
+    from ..reductions import dot3_rows
+
+    arrays = (a, b) if c is None else (a, b, c)
+    shape = np.broadcast_shapes(*(x.shape for x in arrays))
+    if (len(shape) not in (2, 3) or shape[-1] != 3 or int(np.prod(shape[:-1])) < DOT3_COMPILED_MIN
+            or any(x.dtype != np.float64 for x in arrays) or not hasattr(dot3_rows, "overloads")):
+        return sum3(a * b) if c is None else sum3(a * b * c)
+    full = shape if len(shape) == 3 else (shape[0], 1, 3)
+    views = [np.broadcast_to(x.reshape(x.shape[:1] + (1, 3)) if len(shape) == 2 and x.ndim == 2 else x, full)
+             for x in arrays]
+    if c is None:
+        views.append(np.broadcast_to(np.ones(1), full))
+    out = np.empty(full[:2])
+    dot3_rows(*views, out)
+    return out if len(shape) == 3 else out[:, 0]
 
 
 def _term_modules():

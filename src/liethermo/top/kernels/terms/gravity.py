@@ -16,7 +16,7 @@ import numpy as np
 from .._jit import fma
 from ..gen import madd
 from . import (LAW_LAGRANGE_OMEGA3, ROLE_POTENTIAL, Parameter, Setting, Term, angular_acceleration, bcast, exact_flow,
-               sum3, torque)
+               dot3, torque)
 
 
 class Gravity(namedtuple("Gravity", "gx gy gz gz1 gy1 gx2 gz2 gy3 gx3")):
@@ -37,7 +37,7 @@ def potential_energy(gravity_torque: np.ndarray, gamma: np.ndarray) -> np.ndarra
     """V = g⃗·Γ (J): g⃗ (N, 3), Γ (N, ..., 3)."""
     g = np.asarray(gravity_torque, dtype=np.float64)
     g = g.reshape(g.shape[:1] + (1,) * (gamma.ndim - 2) + (3,))
-    return sum3(g * gamma)
+    return dot3(g, gamma)
 
 
 @angular_acceleration.register(Gravity)
