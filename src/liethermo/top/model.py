@@ -314,11 +314,10 @@ def label_chunk(scene: dict, traj, om0, R0, lo: int = 0) -> tuple:
 
     labels = chunk_labels(traj, omega0=om0, R0=R0, member_offset=lo)
     keep = stored_variables(scene, traj.layout)
-    ds = labels.dataset(keep)
     n = traj.states.shape[0]
     parts = min(_par.default_threads(), n // STATS_SLICE_MEMBERS)
     if parts < 2 or keep is None or keep & labels.computed_on_demand():
-        return ds, _labelled_stats(traj, labels)
+        return labels.dataset(keep), _labelled_stats(traj, labels)
     bounds = np.linspace(0, n, parts + 1).astype(int)
     slices = [slice(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]
 
@@ -326,7 +325,9 @@ def label_chunk(scene: dict, traj, om0, R0, lo: int = 0) -> tuple:
         part = traj.take(sl)
         return _labelled_stats(part, chunk_labels(part, omega0=om0[sl], R0=R0[sl]))
 
-    got = list(_par.pool(parts).map(stats_of, slices))  # the kernels' pool: they wait meanwhile
+    pending = _par.pool(parts).map(stats_of, slices)  # the kernels' pool: they wait meanwhile
+    ds = labels.dataset(keep)  # the stored variables only label the state: nothing shared is computed
+    got = list(pending)
     stats = got[0]
     for other in got[1:]:
         stats.merge(other)
