@@ -376,9 +376,9 @@ def simulate(
             IS[:, _lay.IS_NSUB] = reference_substeps(h, physics, omega0)
         stepper = m.stepper(choice, nsub)
 
+    states = np.full((N, n_out + 1, layout.size), np.nan)
     adapt = chunk_steps is None
     if gpu:
-        states = np.full((N, n_out + 1, layout.size), np.nan)
         from .kernels import cuda as _cuda
 
         out_per_chunk = (_cuda.outputs_per_call(N, layout.size, n_out, every) if adapt
@@ -389,8 +389,6 @@ def simulate(
         return _simulate_gpu(m, km, stepper, Y, IS, FS, states,
                              start_args, float(h), int(every), n_out,
                              out_per_chunk, progress, threads, compile_only, traj)
-    # row 0 and the NaN of later rows are written on the kernels' threads (start_outputs)
-    states = np.empty((N, n_out + 1, layout.size))
     if adapt:
         chunk_steps = max(every, min(steps, CHUNK_MEMBER_STEPS // max(N, 1)))
     out_per_chunk = max(1, chunk_steps // every)
@@ -413,11 +411,9 @@ def simulate(
         compile_time += _ensure_compiled(_simple.vi_start_members, start_args)
         if not compile_only:
             _par.run_ranges(_simple.vi_start_members, N, start_args[:4], start_args[6:], threads)
-    if N:
-        compile_time += _ensure_compiled(_simple.start_outputs, (states, Y, 0, 1))
     if compile_only:
         return None
-    _par.run_ranges(_simple.start_outputs, N, (states, Y), (), threads)
+    states[:, 0] = Y
     t0, c0 = time.perf_counter(), time.process_time()
     j = 0
     while j < n_out:

@@ -252,19 +252,6 @@ def advance_members(stepper, model, shared, Y, P, m0, m1, h, every, n_out, OUT, 
 
 
 @jit(nogil=True)
-def start_outputs(OUT, Y, m0, m1):
-    """Members m0 … m1−1's output rows: row 0 their state ``Y`` (N, n), the later
-    rows NaN, which a member that fails keeps from its failing step on.  On the
-    kernels' threads, so that the fresh rows' pages are touched in parallel."""
-    for m in range(m0, m1):
-        for k in range(Y.shape[1]):
-            OUT[m, 0, k] = Y[m, k]
-        for j in range(1, OUT.shape[1]):
-            for k in range(OUT.shape[2]):
-                OUT[m, j, k] = np.nan
-
-
-@jit(nogil=True)
 def vi_start_members(model, shared, Y, P, m0, m1, h0, wl, wr, legendre, tol, maxiter, ISTAT):
     """The first step velocity X₀ and node momentum μ₀ of members m0 … m1−1,
     for a first (sub)step of size h0.  On entry the ``omega_step`` columns of
