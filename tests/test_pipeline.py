@@ -65,11 +65,11 @@ def test_chunk_k_is_written_while_chunk_k_plus_1_computes(tmp_path, monkeypatch)
         started.setdefault(lo, threading.Event()).set()
         return real_chunk(scene, lo, hi, **kw)
 
-    def write(self, ds, offset):
+    def write(self, ds, offset, pause=None):
         events.append(("write", offset, threading.current_thread().name))
         if offset == 0:
             assert started.setdefault(8, threading.Event()).wait(timeout=WAIT), "chunk 1 did not start"
-        out = real_write(self, ds, offset)
+        out = real_write(self, ds, offset, pause)
         events.append(("written", offset))
         return out
 
@@ -87,10 +87,10 @@ def test_chunk_k_is_written_while_chunk_k_plus_1_computes(tmp_path, monkeypatch)
 def test_a_write_error_on_the_writer_thread_ends_the_run_and_leaves_nothing(tmp_path, monkeypatch):
     real = lio.ChunkedWriter.write_arrays
 
-    def write_arrays(self, arrays, offset):
+    def write_arrays(self, arrays, offset, pause=None):
         if offset == 16:
             self._fail(OSError(28, "No space left on device"))
-        return real(self, arrays, offset)
+        return real(self, arrays, offset, pause)
 
     monkeypatch.setattr(lio.ChunkedWriter, "write_arrays", write_arrays)
     with pytest.raises(lio.WriteError, match="No space left on device"):
@@ -107,11 +107,11 @@ def test_a_stop_while_a_chunk_is_written_keeps_every_chunk_written(tmp_path, mon
     writing = threading.Event()
     release = threading.Event()
 
-    def write(self, ds, offset):
+    def write(self, ds, offset, pause=None):
         if offset == 8:
             writing.set()
             release.wait(timeout=30)
-        return real_write(self, ds, offset)
+        return real_write(self, ds, offset, pause)
 
     def chunk(scene, lo, hi, **kw):
         if lo == 16:
@@ -146,3 +146,62 @@ def test_the_write_probe_measures_a_disk_once_per_process(tmp_path, monkeypatch)
     assert 0 < rate < float("inf") and calls == [tmp_path]
     assert io.write_rate(tmp_path, nbytes=2**20) == rate and len(calls) == 1
     assert not list(tmp_path.iterdir())  # the probe file is gone
+
+
+class _Stats:
+    def __init__(self, kernel_time):
+        self.kernel_time = kernel_time
+
+    def to_dict(self):
+        return {"kernel_time": self.kernel_time}
+
+
+class _Journal:
+    chunks: list = []
+
+    def save(self, path):
+        pass
+
+
+def test_the_writer_gives_way_to_the_kernels_while_it_keeps_up(tmp_path):
+    """While the kernels run (they take every core) the writer waits, and writes once
+    they end; once the main thread has had to wait for a write longer than a tenth of
+    a chunk's kernel time, it writes beside the kernels."""
+    from liethermo.threads import kernels_running
+
+    events = []
+
+    class Writer:
+        delay = 0.0
+
+        def write(self, ds, offset, pause=None):
+            if pause is not None:
+                pause()
+            threading.Event().wait(self.delay)
+            events.append(offset)
+            return {}
+
+        def sync(self):
+            pass
+
+    w = Writer()
+    pipe = lr._WritePipeline(w, _Journal(), tmp_path / "journal")
+    try:
+        with kernels_running():
+            pipe.put(None, 0, 1, _Stats(kernel_time=1.0))
+            threading.Event().wait(0.3)
+            assert events == []  # waiting for the kernels
+        pipe.wait()
+        assert events == [0] and pipe.give_way
+        w.delay = 0.3  # a write now takes longer than the kernels it could hide behind
+        pipe.put(None, 1, 2, _Stats(kernel_time=0.01))
+        pipe.put(None, 2, 3, _Stats(kernel_time=0.01))  # waits 0.3 s for chunk 1: > 0.001 s
+        assert not pipe.give_way
+        w.delay = 0.0
+        pipe.wait()
+        with kernels_running():
+            pipe.put(None, 3, 4, _Stats(kernel_time=1.0))
+            pipe._pending.result(timeout=10)  # written while the kernels run (a writer giving way would time out)
+            assert events == [0, 1, 2, 3]
+    finally:
+        pipe.close()

@@ -240,9 +240,10 @@ class ChunkedWriter:
             v.setncatts({k: var.getncattr(k) for k in var.ncattrs()})
         nc.setncatts({k: _nc_attr(a) for k, a in self.attrs.items()})
 
-    def write(self, ds: xr.Dataset, offset: int) -> dict[str, int]:
+    def write(self, ds: xr.Dataset, offset: int, pause=None) -> dict[str, int]:
         """Write a chunk at ``offset`` (CF-encoded: :func:`liethermo.cf.encode_variables`);
-        returns the CRC-32 of each member variable's values as written."""
+        returns the CRC-32 of each member variable's values as written.  ``pause()``, if
+        given, is called before each variable (a writer thread giving way to the kernels)."""
         ds = cf.encode_variables(ds)
         if self.nc is None:
             self.define(ds)
@@ -252,9 +253,9 @@ class ChunkedWriter:
             if var.dims[0] != "member":
                 raise ValueError(f"variable {name}: 'member' must be its first dimension")
             arrays[name] = var.values
-        return self.write_arrays(arrays, offset)
+        return self.write_arrays(arrays, offset, pause)
 
-    def write_arrays(self, arrays: dict, offset: int) -> dict[str, int]:
+    def write_arrays(self, arrays: dict, offset: int, pause=None) -> dict[str, int]:
         """Write the member variables' values of members ``offset:offset+n``
         (as :meth:`write` does); returns their CRC-32s."""
         n = len(next(iter(arrays.values()))) if arrays else 0
@@ -263,6 +264,8 @@ class ChunkedWriter:
         crc = {}
         try:
             for name in self.member_vars:
+                if pause is not None:
+                    pause()
                 a = arrays[name]
                 if a.dtype.kind != "O":
                     a = np.ascontiguousarray(a)

@@ -290,7 +290,19 @@ class _WritePipeline:
     write error is raised from the next ``put`` or ``wait``; a stop signal in
     the main thread lets the chunk being written finish first (``close``), so
     a kept partial file holds every chunk its journal lists.
+
+    The writer gives way to the kernels: while they run (they use every core it
+    could take) it waits between variables (:func:`liethermo.threads.wait_for_kernels`),
+    and it writes in the host's share of each chunk instead (labelling it, setting
+    up the next).  That holds while it keeps up: once the main thread has waited
+    for a write longer than GIVE_WAY_WAIT of the chunk's kernel time, the writer
+    writes beside the kernels for the rest of the run (a run that writes much).
+    Either way the file is the same.
     """
+
+    #: the main thread's wait for a write, as a share of the chunk's kernel time, beyond which
+    #: the writer stops giving way to the kernels
+    GIVE_WAY_WAIT = 0.1
 
     def __init__(self, writer, journal, jpath: Path):
         from concurrent.futures import ThreadPoolExecutor
@@ -298,9 +310,15 @@ class _WritePipeline:
         self.writer, self.journal, self.jpath = writer, journal, jpath
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="liethermo-writer")
         self._pending = None
+        self.give_way = True
 
     def _write(self, ds, lo: int, hi: int, stats: dict) -> None:
-        crc = self.writer.write(ds, lo)
+        from .threads import wait_for_kernels
+
+        pause = wait_for_kernels if self.give_way else None
+        crc = self.writer.write(ds, lo, pause)
+        if pause is not None:
+            pause()
         self.writer.sync()
         self.journal.chunks.append({"lo": lo, "hi": hi, "crc": crc, "stats": stats})
         self.journal.save(self.jpath)
@@ -322,7 +340,10 @@ class _WritePipeline:
             fut.result()
 
     def put(self, ds, lo: int, hi: int, stats) -> None:
+        t0 = time.perf_counter()
         self.wait()
+        if time.perf_counter() - t0 > self.GIVE_WAY_WAIT * getattr(stats, "kernel_time", 0.0):
+            self.give_way = False
         self._pending = self._pool.submit(self._write, ds, lo, hi, stats.to_dict())
 
     def close(self) -> None:

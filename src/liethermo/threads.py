@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 import os
+import threading
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -110,5 +111,34 @@ def pools(counts: ThreadCounts) -> Iterator[ThreadCounts]:
         _kernel_threads = old
 
 
-__all__ = ["ThreadCounts", "affinity_cores", "cgroup_quota_cores", "kernel_threads", "pools",
-           "usable_cores"]
+_kernels_idle = threading.Event()
+_kernels_idle.set()
+_kernel_calls_lock = threading.Lock()
+_kernel_calls = 0
+
+
+@contextmanager
+def kernels_running() -> Iterator[None]:
+    """Marks a call of a model's kernels, which use every kernel thread: host work that
+    can wait for it (:func:`wait_for_kernels`: the writer thread of a run) does, instead of
+    taking a core from the kernels.  Calls may nest or run on several threads at once."""
+    global _kernel_calls
+    with _kernel_calls_lock:
+        _kernel_calls += 1
+        _kernels_idle.clear()
+    try:
+        yield
+    finally:
+        with _kernel_calls_lock:
+            _kernel_calls -= 1
+            if _kernel_calls == 0:
+                _kernels_idle.set()
+
+
+def wait_for_kernels() -> None:
+    """Until no call of the kernels runs (:func:`kernels_running`); at once if none does."""
+    _kernels_idle.wait()
+
+
+__all__ = ["ThreadCounts", "affinity_cores", "cgroup_quota_cores", "kernel_threads", "kernels_running", "pools",
+           "usable_cores", "wait_for_kernels"]

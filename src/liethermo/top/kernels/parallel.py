@@ -42,13 +42,16 @@ def run_ranges(fn, n_items: int, args_before: tuple, args_after: tuple,
     ntasks = 1 if threads == 1 else min(n_items // max(1, min_items) or 1, TASKS_PER_THREAD * threads)
     bounds = [round(k * n_items / ntasks) for k in range(ntasks + 1)]
     ranges = [(bounds[k], bounds[k + 1]) for k in range(ntasks) if bounds[k + 1] > bounds[k]]
-    if len(ranges) == 1:
-        fn(*args_before, ranges[0][0], ranges[0][1], *args_after)
-        return
-    futures = [pool(threads).submit(fn, *args_before, lo, hi, *args_after)
-               for lo, hi in ranges]
-    for f in futures:
-        f.result()
+    from ...threads import kernels_running
+
+    with kernels_running():  # a run's writer thread waits meanwhile
+        if len(ranges) == 1:
+            fn(*args_before, ranges[0][0], ranges[0][1], *args_after)
+            return
+        futures = [pool(threads).submit(fn, *args_before, lo, hi, *args_after)
+                   for lo, hi in ranges]
+        for f in futures:
+            f.result()
 
 
 __all__ = ["run_ranges", "default_threads", "pool"]
