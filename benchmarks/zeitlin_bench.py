@@ -20,25 +20,15 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
 import statistics
 import time
 
 import numpy as np
 
+from bench import cpu_name  # run as python benchmarks/zeitlin_bench.py: benchmarks/ is on the path
 from liethermo.scene import load_scene
 from liethermo.zeitlin import kernels as zk
 from liethermo.zeitlin import run as zr
-
-
-def cpu_name() -> str:
-    try:
-        for line in open("/proc/cpuinfo"):
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown CPU"
 
 
 def gemm_rate(n: int, dtype, seconds: float = 0.5) -> float:
