@@ -14,6 +14,9 @@ count inside a block and restores them on leaving.  What a run uses is the
 model's choice (:meth:`liethermo.models.Model.thread_counts`): the top's
 kernels run members on ``usable_cores()`` threads and need no BLAS; the
 fluid uses BLAS on one thread below a measured matrix size.
+:func:`kernels_running` marks a call of a model's kernels, which take every
+kernel thread; a run's writer thread waits for its end
+(:func:`wait_for_kernels`) rather than take a core from it.
 
 Thread counts change no result: the top's members are independent of one
 another, and the fluid's BLAS products (OpenBLAS ``zgemm``/``dgemm``) give
