@@ -102,10 +102,11 @@ def _parameter_facts(phys: ph.Physics) -> dict:
     linear friction on axes 1 and 3, the major axis.  For members that share one
     row of parameters (:attr:`~liethermo.top.physics.Physics.uniform`) they are
     worked out once and broadcast."""
-    n = phys.n
-    if n > 1 and phys.uniform:
-        one = _parameter_facts(phys.take(slice(0, 1)))
-        return {k: np.broadcast_to(v, (n,) + v.shape[1:]) for k, v in one.items()}
+    return phys.per_row(_facts)
+
+
+def _facts(phys: ph.Physics) -> dict:
+    """:func:`_parameter_facts` of every member of ``phys``, one by one."""
     from .kernels.terms import LAW_LAGRANGE_OMEGA3, LAW_MOMENTUM_NORM, LAW_SPHERICAL_DECAY, registry
 
     acting = phys.acting()

@@ -80,6 +80,24 @@ class _PhysicsBase:
         return all(v.strides[0] == 0 or v.shape[0] <= 1 for f in dataclasses.fields(self)
                    if isinstance(v := getattr(self, f.name), np.ndarray) and v.ndim >= 1)
 
+    def one_row(self) -> "Physics":
+        """Member 0 alone where it stands for every member (:attr:`uniform`), else every member."""
+        return self.take(slice(0, 1)) if self.n > 1 and self.uniform else self
+
+    def per_row(self, f):
+        """``f(physics)``, per member (an array of leading length n, or a dict of them),
+        worked out once on :meth:`one_row` and broadcast (read-only views) where the
+        members share one row."""
+        one = self.one_row()
+        out = f(one)
+        if one is self:
+            return out
+
+        def spread(v):
+            return np.broadcast_to(v, (self.n,) + np.shape(v)[1:])
+
+        return {k: spread(v) for k, v in out.items()} if isinstance(out, dict) else spread(out)
+
     @property
     def dissipative(self) -> bool:
         """Some term turns mechanical energy into heat for some member."""
@@ -406,8 +424,7 @@ def _expansion(phys: Physics, th: np.ndarray):
 def _entropy_sets_inertia(phys: Physics) -> bool:
     """Some term makes some member's inertia depend on S (only such a term gives
     :func:`_expansion`; without one, θ(S) need not be computed for it)."""
-    row = phys.take(slice(0, 1)) if phys.n > 1 and phys.uniform else phys
-    return not bool(np.all(has_constant_inertia(row)))
+    return not bool(np.all(has_constant_inertia(phys.one_row())))
 
 
 def inertia_scale(phys: Physics, sigma: np.ndarray | None) -> np.ndarray | float:
@@ -486,9 +503,11 @@ def dissipated_power(phys: Physics, omega: np.ndarray, sigma: np.ndarray | None 
 
 
 def potential_span(phys: Physics) -> np.ndarray:
-    """max V − min V over all attitudes (J), per member."""
-    if phys.n > 1 and phys.uniform:  # one body: its span, seen by every member
-        return np.broadcast_to(potential_span(phys.take(slice(0, 1))), (phys.n,))
+    """max V − min V over all attitudes (J), per member (once for members that share a body)."""
+    return phys.per_row(_potential_span)
+
+
+def _potential_span(phys: Physics) -> np.ndarray:
     out = np.zeros(phys.n)
     for t in registry():
         out = out + t.potential_span(phys)
