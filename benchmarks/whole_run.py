@@ -9,8 +9,11 @@ prints, per round, the summary's **whole run** (simulating, labelling and writin
 compiling, start-up or figures) and **kernel** times and their ratio.  Then, for one member
 chunk, the host's parts of a run, each the best of five on this process's threads: drawing
 the initial conditions, ``simulate`` outside its kernels, labelling the chunk with its summary's
-figures, and writing it (CF encoding, CRC-32, netCDF, flush).  Compare two checkouts by
-running it in each, interleaved, on one machine.
+figures, and writing it (CF encoding, CRC-32, netCDF, flush).  Last, the run's chunk loop on
+this process with parts of it left out: drawing the initial conditions and simulating only,
+then with labelling too (no writing in either), each with its wall time, kernel time and
+ratio: the floor a run reaches when what is left out costs nothing.  Compare two checkouts
+by running it in each, interleaved, on one machine.
 """
 
 from __future__ import annotations
@@ -84,6 +87,34 @@ def host_parts(members: int, method: str) -> None:
         print(f"  {what:38s} {t * 1e3:7.1f} ms")
 
 
+def chunk_loops(members: int, steps: int, method: str) -> None:
+    from liethermo import load_scene
+    from liethermo.models import model_of
+    from liethermo.threads import pools, usable_cores
+    from liethermo.top.initial import initial_conditions
+    from liethermo.top.model import label_chunk
+    from liethermo.top.resolve import resolve
+
+    sc = load_scene("paper", {"ensemble.members": members, "integrator.steps": steps, "integrator.h": 0.01,
+                              "output.every": steps, "integrator.method": method})
+    n = int(sc["output"]["member_chunk"])
+    run = resolve(sc)
+    print("the chunk loop without writing (the run's thread pools, one round each):")
+    with pools(model_of(sc).thread_counts(sc, usable_cores())):
+        om0, R0 = initial_conditions(sc, 0, min(n, members))
+        label_chunk(sc, run.simulate(om0, R0, steps=2, every=2), om0, R0)  # compiled or loaded: not timed
+        for what, label in (("initial conditions and simulate", False), ("... and labelling", True)):
+            kernel, t0 = 0.0, time.perf_counter()
+            for lo in range(0, members, n):
+                om0, R0 = initial_conditions(sc, lo, min(lo + n, members))
+                traj = run.simulate(om0, R0)
+                kernel += traj.wall_time
+                if label:
+                    label_chunk(sc, traj, om0, R0, lo)
+            wall = time.perf_counter() - t0
+            print(f"  {what:38s} {wall:6.2f} s, kernel {kernel:.2f} s, ratio {wall / kernel:.2f}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--members", type=int, default=2 ** 20)
@@ -94,6 +125,7 @@ def main() -> None:
     print(f"{cpu_name()}, {time.strftime('%Y-%m-%d')}; paper, {a.members} members x {a.steps} steps, {a.method}")
     whole_runs(a.members, a.steps, a.method, a.rounds)
     host_parts(a.members, a.method)
+    chunk_loops(a.members, a.steps, a.method)
 
 
 if __name__ == "__main__":
