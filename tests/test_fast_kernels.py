@@ -283,10 +283,10 @@ def test_members_already_failed_are_skipped_by_both_kernels():
         stepper = Explicit(rk.RK4, 1)
         if kernel == "fast":
             parallel.run_ranges(F.advance_blocks, -(-len(om) // F.BLOCK),
-                                (stepper, km.model, km.shared, Y, km.P), (0.1, 5, 3, OUT, IS, FS))
+                                (stepper, km.model, km.shared, Y, km.P), (0.1, 5, 3, OUT, 0, IS, FS))
         else:
             parallel.run_ranges(simple.advance_members, len(om), (stepper, km.model, km.shared, Y, km.P),
-                                (0.1, 5, 3, OUT, IS, FS))
+                                (0.1, 5, 3, OUT, 0, IS, FS))
         res.append((Y, OUT, IS, FS))
     for a, b in zip(*res):
         np.testing.assert_array_equal(a, b)
@@ -300,6 +300,21 @@ def test_threads_do_not_change_numbers():
     for method in ("vi", "rk2"):
         assert_same(run("fast", method, phys, om, R, 0.1, 40, 10, threads=1),
                     run("fast", method, phys, om, R, 0.1, 40, 10, threads=2))
+
+
+@pytest.mark.skipif(not hasattr(simple.advance_members, "signatures"), reason="plain Python: nothing is compiled")
+def test_a_one_member_run_uses_the_kernels_compiled_for_many():
+    """A run hands the kernels its whole output array and the first slot to fill, so
+    their types do not depend on the member count: one member (whose output slice
+    alone would be contiguous, another numba type) needs no kernel of its own."""
+    phys, om, R = mixed(n_paper=3, n_random=0, seed=3)
+    one = phys.take(slice(0, 1))
+    for kernel, fn in (("simple", simple.advance_members), ("fast", F.advance_blocks)):
+        many = run(kernel, "rk2", phys, om, R, 0.1, 6, 2)
+        before = set(fn.signatures)
+        alone = run(kernel, "rk2", one, om[:1], R[:1], 0.1, 6, 2)
+        assert set(fn.signatures) == before, kernel
+        assert_same(alone, many.take(slice(0, 1)))
 
 
 def test_reference_runs_on_the_straightforward_kernel():

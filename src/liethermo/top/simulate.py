@@ -399,13 +399,15 @@ def simulate(
     else:
         fn, n_items = _simple.advance_members, N
 
-    def args_for(OUT, nj):
-        return (stepper, km.model, km.shared, Y, km.P), (float(h), int(every), int(nj), OUT, IS, FS)
+    def args_for(j0, nj):
+        # outputs into states[:, j0:j0 + nj]: the whole array goes in, so a kernel's types
+        # (its numba specialization) do not depend on the slice being contiguous (one member)
+        return (stepper, km.model, km.shared, Y, km.P), (float(h), int(every), int(nj), states, int(j0), IS, FS)
 
     # compile the main kernel first, then the variational integrators' start:
     # a process warming the cache for this run compiles the start meanwhile
     if n_out and N and compile_only != "start":
-        a, b = args_for(states[:, 1:1 + min(out_per_chunk, n_out)], min(out_per_chunk, n_out))
+        a, b = args_for(1, min(out_per_chunk, n_out))
         compile_time += _ensure_compiled(fn, a + (0, min(1, n_items)) + b)
     if start_args is not None and N:
         compile_time += _ensure_compiled(_simple.vi_start_members, start_args)
@@ -419,8 +421,7 @@ def simulate(
     while j < n_out:
         check_stop()  # a stop signal is acted on between kernel calls
         nj = min(out_per_chunk, n_out - j)
-        OUT = states[:, 1 + j: 1 + j + nj]  # strided view, written in place
-        a, b = args_for(OUT, nj)
+        a, b = args_for(1 + j, nj)  # written in place
         tc = time.perf_counter()
         _par.run_ranges(fn, n_items, a, b, threads)
         if adapt:

@@ -850,7 +850,7 @@ def next_rows_vi(stepper, cur):
 
 
 @jit(nogil=True)
-def advance_blocks(stepper, model, shared, Y, P, b0, b1, h, every, n_out, OUT, ISTAT, FSTAT):
+def advance_blocks(stepper, model, shared, Y, P, b0, b1, h, every, n_out, OUT, j0, ISTAT, FSTAT):
     """Blocks b0 … b1−1, ``every`` × ``n_out`` steps of the method whose
     kernel data is ``stepper`` (:mod:`.steppers`; see the module docstring)."""
     align_frame()
@@ -876,6 +876,6 @@ def advance_blocks(stepper, model, shared, Y, P, b0, b1, h, every, n_out, OUT, I
                 done += 1
             if nb == 0:
                 break
-            _store_output(S, nb, n, cur, OUT, j)
+            _store_output(S, nb, n, cur, OUT, j0 + j)
         _write_back(S, nb, n, cur, done, h, Y, ISTAT, FSTAT)
 

@@ -11,7 +11,10 @@ the same lane functions.  Arrays (all caller-allocated):
 * ``P``     (N, nparam)     per-member model parameters (the floats of the
                             model, :func:`.gen.flatten` order); read only
                             when ``shared`` is None
-* ``OUT``   (N, n_out, n)   receives the state after every ``every`` steps
+* ``OUT``   (N, j0 + n_out, n) receives the state after every ``every`` steps
+                            in ``OUT[:, j0:j0 + n_out]`` (a run passes its whole
+                            output array, so the kernels' types do not depend on
+                            the member count)
 * ``ISTAT`` (N, NISTAT)     int64: status, failing step, Newton iterations
                             (total, max per solve), steps done, reference
                             substeps (``rk`` with the reference tableau)
@@ -239,16 +242,17 @@ def advance_member(stepper, md, Y, base, stride, OUT, h, every, n_out, ISTAT, FS
 
 
 @jit(nogil=True)
-def advance_members(stepper, model, shared, Y, P, m0, m1, h, every, n_out, OUT, ISTAT, FSTAT):
+def advance_members(stepper, model, shared, Y, P, m0, m1, h, every, n_out, OUT, j0, ISTAT, FSTAT):
     """Members m0 … m1−1, ``every`` × ``n_out`` steps of the method whose
     kernel data is ``stepper`` (:mod:`.steppers`), output after every
-    ``every`` steps."""
+    ``every`` steps into ``OUT[:, j0:j0 + n_out]``."""
     align_frame()
     for m in range(m0, m1):
         if ISTAT[m, IS_STATUS] != STATUS_OK:
             continue
         md = member_model(shared, model, P, m)
-        advance_member(stepper, md, Y[m], 0, 1, OUT[m], h, every, n_out, ISTAT, FSTAT, m, Y.shape[1], Y.shape[0])
+        advance_member(stepper, md, Y[m], 0, 1, OUT[m, j0:j0 + n_out], h, every, n_out, ISTAT, FSTAT, m,
+                       Y.shape[1], Y.shape[0])
 
 
 @jit(nogil=True)
