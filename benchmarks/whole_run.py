@@ -91,23 +91,18 @@ def chunk_loops(members: int, steps: int, method: str) -> None:
     from liethermo import load_scene
     from liethermo.models import model_of
     from liethermo.threads import pools, usable_cores
-    from liethermo.top.initial import initial_conditions
-    from liethermo.top.model import label_chunk
-    from liethermo.top.resolve import resolve
+    from liethermo.top.model import _simulated, label_chunk
 
     sc = load_scene("paper", {"ensemble.members": members, "integrator.steps": steps, "integrator.h": 0.01,
                               "output.every": steps, "integrator.method": method})
     n = int(sc["output"]["member_chunk"])
-    run = resolve(sc)
     print("the chunk loop without writing (the run's thread pools, one round each):")
     with pools(model_of(sc).thread_counts(sc, usable_cores())):
-        om0, R0 = initial_conditions(sc, 0, min(n, members))
-        label_chunk(sc, run.simulate(om0, R0, steps=2, every=2), om0, R0)  # compiled or loaded: not timed
+        label_chunk(sc, *_simulated(sc, 0, min(n, members)))  # compiled or loaded: not timed
         for what, label in (("initial conditions and simulate", False), ("... and labelling", True)):
             kernel, t0 = 0.0, time.perf_counter()
             for lo in range(0, members, n):
-                om0, R0 = initial_conditions(sc, lo, min(lo + n, members))
-                traj = run.simulate(om0, R0)
+                traj, om0, R0 = _simulated(sc, lo, min(lo + n, members))  # the run's own chunk step
                 kernel += traj.wall_time
                 if label:
                     label_chunk(sc, traj, om0, R0, lo)
