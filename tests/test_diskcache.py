@@ -42,7 +42,7 @@ def _counting(monkeypatch) -> list:
 
 def _same(a, b) -> bool:
     return all(np.array_equal(getattr(a, k), getattr(b, k)) and getattr(a, k).dtype == getattr(b, k).dtype
-               for k in zk._BASIS_ARRAYS) and a.N == b.N and a.hbar == b.hbar
+               for k in zk._BASIS_ARRAYS + ("vecs_t",)) and a.N == b.N and a.hbar == b.hbar
 
 
 def test_a_basis_read_back_has_the_bits_of_one_computed(cache, monkeypatch):
@@ -54,6 +54,43 @@ def test_a_basis_read_back_has_the_bits_of_one_computed(cache, monkeypatch):
     assert calls == [17]  # read, not computed
     assert _same(first, second) and _same(second, zk.compute_basis(17))
     assert not zk.basis_on_disk(18)
+
+
+def _entry_bytes(N: int) -> int:
+    """The bytes of the arrays of su(N)'s entry: the eigenvectors once (Σ (N−d)²
+    numbers), five numbers per mode, g0 (N²) and two offsets (N + 1 each)."""
+    from liethermo.zeitlin.estimate import basis_numbers
+
+    modes = N * (N + 1) // 2
+    return 8 * (basis_numbers(N) + 5 * modes + N * N + 2 * (N + 1))
+
+
+def test_an_entry_holds_the_eigenvectors_once_and_the_default_limit_holds_su_1024(cache):
+    """The transposed copy of the eigenvectors that the CPU's steps use is made from
+    the entry, not stored: the entry of su(1024) is 2.9 GB, not 5.8 GB, and fits the
+    default size limit (the first run at N = 1024 leaves it for the next)."""
+    b = zk.basis(24)
+    with np.load(next(cache.glob("*.npz"))) as z:
+        assert sorted(z.files) == sorted(zk._BASIS_ARRAYS)
+        assert sum(z[k].nbytes for k in z.files) == _entry_bytes(24)
+    assert b.vecs_t.shape == b.vecs.shape
+    for d in range(24):  # block d of the transposed copy is block d of the eigenvectors, transposed
+        n, blk = 24 - d, slice(b.voff[d], b.voff[d + 1])
+        assert np.array_equal(b.vecs_t[blk].reshape(n, n), b.vecs[blk].reshape(n, n).T)
+    assert 2.8e9 < _entry_bytes(1024) < diskcache.DEFAULT_MAX_MB * 2**20 == diskcache.max_bytes()
+
+
+def test_an_entry_larger_than_the_limit_is_not_written_and_the_user_is_told(cache, monkeypatch, capsys):
+    monkeypatch.setenv("LIETHERMO_CACHE_MAX_MB", str(0.5 * _entry_bytes(30) / 2**20))
+    calls = _counting(monkeypatch)
+    assert _same(zk.basis(30), zk.compute_basis(30)) and calls == [30, 30]
+    err = capsys.readouterr().err
+    assert "not caching zeitlin-basis N30" in err and "LIETHERMO_CACHE_MAX_MB" in err and "set it higher" in err
+    assert not cache.exists() or not list(cache.iterdir())  # nothing written, no temporary left
+    monkeypatch.setenv("LIETHERMO_CACHE_MAX_MB", str(2 * _entry_bytes(30) / 2**20))
+    zk.basis.cache_clear()
+    zk.basis(30)
+    assert zk.basis_on_disk(30) and capsys.readouterr().err == ""
 
 
 def test_the_cache_can_be_switched_off(cache, monkeypatch):

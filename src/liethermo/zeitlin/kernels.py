@@ -75,13 +75,23 @@ class Basis:
     ell: np.ndarray       # (K,) degree l of each mode
     voff: np.ndarray      # (N+1,) int64
     vecs: np.ndarray      # (Σ (N−d)²,) float64, row-major per block
-    vecs_t: np.ndarray    # the same blocks transposed
     g0: np.ndarray        # (N, N): −Δ_N⁻¹ on block 0 without its l = 0 mode, V diag(1/l(l+1)) Vᵀ
     diag: np.ndarray      # (K,) main diagonal of −Δ's blocks, packed like the modes
     off: np.ndarray       # (K,) off-diagonal of −Δ's blocks (entry i couples i and i+1)
     # Thomas factors of −Δ's blocks d ≥ 1 (block 0 is singular: solved through its modes)
     tc: np.ndarray        # (K,)
     tinv: np.ndarray      # (K,)
+
+    @functools.cached_property
+    def vecs_t(self) -> np.ndarray:
+        """The blocks of ``vecs`` transposed, packed the same way: made on first use
+        (the CPU's steps), not stored (a device's steps and the disk cache do without)."""
+        N, vecs, voff = self.N, self.vecs, self.voff
+        out = np.empty_like(vecs)  # filled block by block: one copy in memory, not two
+        for d in range(N):
+            n = N - d
+            out[voff[d]:voff[d + 1]].reshape(n, n)[...] = vecs[voff[d]:voff[d + 1]].reshape(n, n).T
+        return out
 
     @property
     def modes(self) -> int:
@@ -171,7 +181,8 @@ def _orient(vs: list, N: int) -> None:
 #: the version of the basis's construction: a change of its values bumps it (the
 #: disk cache keys its entries by it, :mod:`liethermo.diskcache`)
 BASIS_VERSION = 1
-_BASIS_ARRAYS = ("offset", "ell", "voff", "vecs", "vecs_t", "g0", "diag", "off", "tc", "tinv")
+#: the arrays of a :class:`Basis` (its cache entry: :attr:`Basis.vecs_t` is made from them)
+_BASIS_ARRAYS = ("offset", "ell", "voff", "vecs", "g0", "diag", "off", "tc", "tinv")
 
 
 @functools.lru_cache(maxsize=16)
@@ -248,10 +259,9 @@ def compute_basis(N: int) -> Basis:
                 cp[i] = b[i] * inv[i] if i < n - 1 else 0.0
             tc[o:o + n] = cp
             tinv[o:o + n] = inv
-    vecs_t = np.concatenate([vecs[voff[d]:voff[d + 1]].reshape(N - d, N - d).T.ravel() for d in range(N)])
     v0 = vecs[: N * N].reshape(N, N)
     g0 = (v0[:, 1:] / (ell[1:N] * (ell[1:N] + 1.0))) @ v0[:, 1:].T
-    return Basis(N, hbar(N), offset, ell, voff, vecs, vecs_t, np.ascontiguousarray(g0), diag, off, tc, tinv)
+    return Basis(N, hbar(N), offset, ell, voff, vecs, np.ascontiguousarray(g0), diag, off, tc, tinv)
 
 
 # ----------------------------------------------------------------------------- modes
