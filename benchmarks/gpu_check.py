@@ -18,7 +18,10 @@
    ours;
 6. ``liethermo run`` with ``--device gpu`` against the CPU for the paper
    scene and the fluid (whole files compared variable by variable), and the
-   ``--check`` line of a 2²²-member run.
+   ``--check`` line of a 2²²-member run;
+7. whole runs of the paper scene (rk4, split; ``--members`` × ``--steps``, the
+   end state only, writing included) with the summary's times, and the fluid at
+   N = 1024 run twice from an empty basis cache: how soon the second starts.
 
 Each method compiles in its own process (the device machine has many cores
 and a CUDA compile is single-threaded); the timings are then taken one
@@ -331,6 +334,57 @@ def run_layer_section(args):
         + " ".join((p.stdout + p.stderr).split())[-600:])
 
 
+def _summary_lines(text: str, *starts: str) -> str:
+    """The summary's lines that begin (after spaces) with one of ``starts``, joined."""
+    return "; ".join(ln.strip() for ln in text.splitlines() if ln.strip().startswith(starts))
+
+
+def whole_runs_section(args):
+    """Whole runs as a user starts them: ``liethermo run paper --device gpu`` of ``--members``
+    × ``--steps`` (h = ``--h``) for rk4 and split, the end state only (``output.every`` =
+    steps, the default variables, writing included), each with the summary's wall and kernel
+    times, to set against a CPU's whole run of the same command; then the fluid at N = 1024
+    twice on the GPU with an empty basis cache: the second run's start (the command's time
+    less its stepping) is what the cache saves.  ``--whole-device cpu`` runs the same commands
+    on the CPU: the other side of the comparison, measured the same way."""
+    import subprocess
+    import tempfile
+
+    dev = args.whole_device
+    say(f"\n## Whole runs on the {dev.upper()} ({args.members} members × {args.steps} steps, h = {args.h} s, "
+        "end state only, default variables, writing included)")
+    for method in ("rk4", "split"):
+        out = os.path.join(args.scratch, f"whole_{method}.nc")
+        p, sec = _cli("run", "paper", "-o", out, "--force", "--no-progress", "--device", dev,
+                      "--set", f"ensemble.members={args.members}", "--set", f"integrator.steps={args.steps}",
+                      "--set", f"integrator.h={args.h}", "--set", f"output.every={args.steps}",
+                      "--set", f'integrator.method="{method}"', "--set", "output.compare=[]",
+                      "--set", "output.figures=false")
+        if p.returncode:
+            say(f"{method}: FAILED\n{p.stderr[-3000:]}")
+            continue
+        size = os.path.getsize(out) / 1e6
+        os.remove(out)
+        say(f"{method}: {_summary_lines(p.stdout, 'wall time', 'kernels')} (the command {sec:.1f} s; "
+            f"file {size:.0f} MB)")
+    cache = tempfile.mkdtemp(prefix="basis-cache-", dir=args.scratch)
+    env = dict(os.environ, LIETHERMO_CACHE_DIR=cache)
+    say(f"\n## The fluid at N = 1024 on the {dev.upper()}, twice, the basis cache empty at first")
+    for tag in ("first", "second"):
+        t0 = time.perf_counter()
+        p = subprocess.run([sys.executable, "-m", "liethermo.cli", "run", "zeitlin_decay", "-o",
+                            os.path.join(args.scratch, "z1024.nc"), "--force", "--no-progress", "--device", dev,
+                            "--set", "zeitlin.N=1024", "--set", "ensemble.members=1", "--set", "integrator.steps=1",
+                            "--set", "output.every=1", "--set", 'integrator.method="rk4"', "--set", "output.compare=[]",
+                            "--set", "output.figures=false"], capture_output=True, text=True, env=env)
+        sec = time.perf_counter() - t0
+        if p.returncode:
+            say(f"{tag} run: FAILED\n{p.stderr[-3000:]}")
+            break
+        step = float(_summary_lines(p.stdout, "stepping").split()[1])
+        say(f"{tag} run: the command {sec:.1f} s, stepping {step:.1f} s, so it started in {sec - step:.1f} s")
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
@@ -346,7 +400,9 @@ def main():
     ap.add_argument("--fluid-xp", default="cupy", help="array module of the fluid (numpy: a dry run here)")
     ap.add_argument("--compile-timeout", type=float, default=300.0)
     ap.add_argument("--run-members", type=int, default=65536, help="members of the run-layer check")
-    ap.add_argument("--skip", nargs="*", default=[], choices=["top", "fluid", "jax", "run"])
+    ap.add_argument("--skip", nargs="*", default=[], choices=["top", "fluid", "jax", "run", "whole"])
+    ap.add_argument("--whole-device", default="gpu", choices=["gpu", "cpu"],
+                    help="where the whole runs of the last section run (cpu: the comparison's other side)")
     ap.add_argument("--scratch", default=os.environ.get("TMPDIR", "/tmp"))
     args = ap.parse_args()
     t0 = time.perf_counter()
@@ -378,6 +434,11 @@ def main():
     if "run" not in args.skip:
         try:
             run_layer_section(args)
+        except Exception:  # noqa: BLE001
+            say(traceback.format_exc())
+    if "whole" not in args.skip:
+        try:
+            whole_runs_section(args)
         except Exception:  # noqa: BLE001
             say(traceback.format_exc())
     say(f"\ntotal {time.perf_counter() - t0:.0f} s")

@@ -84,8 +84,8 @@ class Basis:
 
     @functools.cached_property
     def vecs_t(self) -> np.ndarray:
-        """The blocks of ``vecs`` transposed, packed the same way: made on first use
-        (the CPU's steps), not stored (a device's steps and the disk cache do without)."""
+        """The blocks of ``vecs`` transposed, packed the same way (:func:`from_modes`, the
+        CPU's steps): made on first use, not kept in the disk cache."""
         N, vecs, voff = self.N, self.vecs, self.voff
         out = np.empty_like(vecs)  # filled block by block: one copy in memory, not two
         for d in range(N):
