@@ -142,6 +142,18 @@ def test_timing_returns_seconds_per_member_step():
     assert 0 < t < 10
 
 
+@pytest.mark.parametrize("timer", ["xp", "cpu"])
+def test_timing_refuses_steps_whose_fixed_point_did_not_converge(timer):
+    """One iteration cannot reach the tolerance: there is no step to time, and the
+    timing says so instead of returning the time of iterations that reach nothing."""
+    time_it = (lambda **k: xs.time_fluid_xp(np, 8, 2, 1, "split", **k)) if timer == "xp" else \
+        (lambda **k: xs.time_fluid_cpu(8, 2, 1, "split", **k))
+    with pytest.raises(ArithmeticError, match=r"split at N = 8, h = 0.01 s: the fixed point of 2 of 2 member\(s\) "
+                                              r"did not converge within 1 iterations"):
+        time_it(max_iter=1, warmup=0)
+    assert 0 < time_it(warmup=0) < 10  # converged: timed
+
+
 def test_a_thomas_kernel_that_fails_falls_back_to_the_vector_sweeps():
     """Where the namespace offers RawKernel (CuPy) but the kernel does not
     compile or disagrees, the sweeps run as vector operations, and say why."""

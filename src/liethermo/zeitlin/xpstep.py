@@ -522,7 +522,9 @@ def time_fluid_xp(xp, N: int, members: int, steps: int, method: str = "split", *
                   warmup: int = 2) -> float:
     """Seconds per member-step of ``method`` on ``xp`` (warm: ``warmup``
     steps first; the fixed point started from the predictor, as in a run;
-    the device synchronized before the clock is read)."""
+    the device synchronized before the clock is read).  Raises ArithmeticError
+    when a split step's fixed point did not converge (:func:`_converged`): the
+    time of iterations that reach nothing is not a step's time."""
     from .run import factors
 
     check_method(method)
@@ -534,11 +536,15 @@ def time_fluid_xp(xp, N: int, members: int, steps: int, method: str = "split", *
     act = xp.arange(members)
     D = None
 
+    failed = xp.zeros(members, dtype=bool)
+
     def step(W, q, D):
+        nonlocal failed
         if method == "rk4":
             W, q = rk4_step(W, q, h, nu, xb)
             return W, q, None
-        W, q, _, _, D = split_step(W, q, h, nu, xb, fac, tol, max_iter, D, pred, act)
+        W, q, _, fl, D = split_step(W, q, h, nu, xb, fac, tol, max_iter, D, pred, act)
+        failed = failed | fl
         return W, q, D
 
     for _ in range(warmup):
@@ -548,13 +554,24 @@ def time_fluid_xp(xp, N: int, members: int, steps: int, method: str = "split", *
     for _ in range(steps):
         W, q, D = step(W, q, D)
     synchronize(xp)
-    return (_time.perf_counter() - t0) / (members * steps)
+    seconds = (_time.perf_counter() - t0) / (members * steps)
+    _converged(int(failed.sum()), method, N, members, h, max_iter)
+    return seconds
+
+
+def _converged(failed: int, method: str, N: int, members: int, h: float, max_iter: int) -> None:
+    """Raise ArithmeticError if ``failed`` of the members' fixed points did not converge."""
+    if failed:
+        raise ArithmeticError(f"{method} at N = {N}, h = {h} s: the fixed point of {failed} of {members} "
+                              f"member(s) did not converge within {max_iter} iterations, so there is no "
+                              "step to time (a smaller h converges)")
 
 
 def time_fluid_cpu(N: int, members: int, steps: int, method: str = "split", *, h: float = 0.01,
                    nu: float = 1e-3, tol: float = 1e-15, max_iter: int = 100, composition: str = "small_error",
                    warmup: int = 2) -> float:
-    """The same figure for the numba kernels (:func:`.run.split_step`, :func:`.run.rk4_step`)."""
+    """The same figure for the numba kernels (:func:`.run.split_step`, :func:`.run.rk4_step`),
+    refused in the same way when a fixed point did not converge."""
     from . import run as zr
 
     check_method(method)
@@ -566,11 +583,14 @@ def time_fluid_cpu(N: int, members: int, steps: int, method: str = "split", *, h
     act = np.arange(members)
     D = None
 
+    failed = np.zeros(members, dtype=bool)
+
     def step(W, q, D):
         if method == "rk4":
             W, q = zr.rk4_step(W, q, h, nu, b)
             return W, q, None
-        W, q, _, _, D = zr.split_step(W, q, h, nu, b, fac, tol, max_iter, D, pred, act)
+        W, q, _, fl, D = zr.split_step(W, q, h, nu, b, fac, tol, max_iter, D, pred, act)
+        failed[:] |= fl
         return W, q, D
 
     for _ in range(warmup):
@@ -578,4 +598,6 @@ def time_fluid_cpu(N: int, members: int, steps: int, method: str = "split", *, h
     t0 = _time.perf_counter()
     for _ in range(steps):
         W, q, D = step(W, q, D)
-    return (_time.perf_counter() - t0) / (members * steps)
+    seconds = (_time.perf_counter() - t0) / (members * steps)
+    _converged(int(failed.sum()), method, N, members, h, max_iter)
+    return seconds
