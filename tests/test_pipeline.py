@@ -148,6 +148,41 @@ def test_the_write_probe_measures_a_disk_once_per_process(tmp_path, monkeypatch)
     assert not list(tmp_path.iterdir())  # the probe file is gone
 
 
+def test_the_write_probe_is_no_larger_than_the_file(tmp_path, monkeypatch):
+    """A run's estimate probes as many bytes as its file, within 1 MiB … 64 MiB: a small
+    file is not outweighed by its probe (the fluid's runs at N ≥ 256 estimate their time
+    before they start)."""
+    from liethermo import io
+    from liethermo.preflight import estimate
+    from liethermo.runner import estimate_time
+    from liethermo.scene import load_scene
+
+    sizes = []
+    real = io._measure_write_rate
+
+    def measure(folder, nbytes):
+        sizes.append(nbytes)
+        seen = set(folder.iterdir())
+        rate = real(folder, nbytes)
+        assert set(folder.iterdir()) == seen
+        return rate
+
+    monkeypatch.setattr(io, "_WRITE_RATES", {})
+    monkeypatch.setattr(io, "_measure_write_rate", measure)
+    written = []
+    real_write = io.ChunkedWriter.write_arrays
+    monkeypatch.setattr(io.ChunkedWriter, "write_arrays",
+                        lambda self, arrays, offset, pause=None: written.append(
+                            sum(a.nbytes for a in arrays.values())) or real_write(self, arrays, offset, pause))
+    for members, want in ((4, io.WRITE_PROBE_MIN_BYTES), (2**20, io.WRITE_PROBE_BYTES)):
+        sc = load_scene("paper", {"ensemble.members": members, "integrator.steps": 10, "output.every": 5})
+        written.clear()
+        est = estimate_time(sc, tmp_path / "run.nc")
+        fb = estimate(sc).file_bytes
+        assert sizes[-1] == min(io.WRITE_PROBE_BYTES, max(io.WRITE_PROBE_MIN_BYTES, fb)) == want
+        assert sum(written) == want and est.rate > 0  # the probe wrote what it was asked, no more
+
+
 class _Stats:
     def __init__(self, kernel_time):
         self.kernel_time = kernel_time

@@ -323,8 +323,10 @@ class ChunkedWriter:
         self._lock_fd = None
 
 
-#: bytes the write probe of ``--check`` writes (:func:`write_rate`)
+#: bytes the write probe of ``--check`` writes (:func:`write_rate`): at most this ...
 WRITE_PROBE_BYTES = 64 * 2**20
+#: ... and at least this, for a smaller file: the probe costs no more than writing the file
+WRITE_PROBE_MIN_BYTES = 2**20
 
 
 def write_rate(folder: str | os.PathLike, nbytes: int = WRITE_PROBE_BYTES) -> float:
@@ -353,7 +355,9 @@ _WRITE_RATES: dict = {}
 def _measure_write_rate(folder: Path, nbytes: int) -> float:
     import time
 
-    members, width = 131072, 8  # chunks of 32768 members, as a run's disk chunks
+    width = 8
+    # chunks of up to 32768 members, as a run's disk chunks; fewer for a small probe
+    members = 4 * max(1024, min(32768, nbytes // (4 * width * 8)))
     per = max(1, nbytes // (members * width * 8))  # variables of (member, width) float64
     rng = np.random.default_rng(0)
     ds = xr.Dataset({f"v{k}": (("member", "w"), rng.random((members // 4, width)),

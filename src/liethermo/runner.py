@@ -54,7 +54,9 @@ def estimate_time(scene, out: str | Path | None = None):
     """The run's time on this machine (``.seconds``, ``.line()``, ``.warnings()``):
     the model's probe (kernel time, and what else the model times), run with the
     thread pools the run will use, plus writing the file at the rate a probe
-    write measures in ``out``'s folder (the current folder without ``out``).
+    write measures in ``out``'s folder (the current folder without ``out``): as
+    many bytes as the file, from :data:`liethermo.io.WRITE_PROBE_MIN_BYTES` to
+    :data:`liethermo.io.WRITE_PROBE_BYTES`.
     A model without :class:`liethermo.models.Estimates` says it has none."""
     from .models import Estimates
     from .threads import pools, usable_cores
@@ -64,11 +66,13 @@ def estimate_time(scene, out: str | Path | None = None):
         return _NoTimeEstimate(model.title or model.name)
     with pools(model.thread_counts(scene, usable_cores())):  # the probe runs as the run will
         inner = model.estimate_time(scene)
-    from .io import write_rate
+    from .io import WRITE_PROBE_BYTES, WRITE_PROBE_MIN_BYTES, write_rate
     from .preflight import estimate
 
     folder = Path(out).parent if out is not None else Path.cwd()
-    return _WithWriting(inner, estimate(scene).file_bytes, write_rate(folder), folder)
+    file_bytes = estimate(scene).file_bytes
+    probe = min(WRITE_PROBE_BYTES, max(WRITE_PROBE_MIN_BYTES, file_bytes))
+    return _WithWriting(inner, file_bytes, write_rate(folder, probe), folder)
 
 
 class _WithWriting:
