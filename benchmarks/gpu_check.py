@@ -348,6 +348,7 @@ def whole_runs_section(args):
     twice on the GPU with an empty basis cache: the second run's start (the command's time
     less its stepping) is what the cache saves.  ``--whole-device cpu`` runs the same commands
     on the CPU: the other side of the comparison, measured the same way."""
+    import shutil
     import subprocess
     import tempfile
 
@@ -384,6 +385,7 @@ def whole_runs_section(args):
             break
         step = float(_summary_lines(p.stdout, "stepping").split()[1])
         say(f"{tag} run: the command {sec:.1f} s, stepping {step:.1f} s, so it started in {sec - step:.1f} s")
+    shutil.rmtree(cache, ignore_errors=True)  # the basis of su(1024): 2.9 GB
 
 
 def main():
