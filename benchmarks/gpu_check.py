@@ -284,11 +284,11 @@ def _free(xp):
         xp.get_default_memory_pool().free_all_blocks()
 
 
-def _cli(*args):
+def _cli(*args, env=None):
     import subprocess
 
     t0 = time.perf_counter()
-    p = subprocess.run([sys.executable, "-m", "liethermo.cli", *args], capture_output=True, text=True)
+    p = subprocess.run([sys.executable, "-m", "liethermo.cli", *args], capture_output=True, text=True, env=env)
     return p, time.perf_counter() - t0
 
 
@@ -349,7 +349,6 @@ def whole_runs_section(args):
     less its stepping) is what the cache saves.  ``--whole-device cpu`` runs the same commands
     on the CPU: the other side of the comparison, measured the same way."""
     import shutil
-    import subprocess
     import tempfile
 
     dev = args.whole_device
@@ -373,13 +372,10 @@ def whole_runs_section(args):
     env = dict(os.environ, LIETHERMO_CACHE_DIR=cache)
     say(f"\n## The fluid at N = 1024 on the {dev.upper()}, twice, the basis cache empty at first")
     for tag in ("first", "second"):
-        t0 = time.perf_counter()
-        p = subprocess.run([sys.executable, "-m", "liethermo.cli", "run", "zeitlin_decay", "-o",
-                            os.path.join(args.scratch, "z1024.nc"), "--force", "--no-progress", "--device", dev,
-                            "--set", "zeitlin.N=1024", "--set", "ensemble.members=1", "--set", "integrator.steps=1",
-                            "--set", "output.every=1", "--set", 'integrator.method="rk4"', "--set", "output.compare=[]",
-                            "--set", "output.figures=false"], capture_output=True, text=True, env=env)
-        sec = time.perf_counter() - t0
+        p, sec = _cli("run", "zeitlin_decay", "-o", os.path.join(args.scratch, "z1024.nc"), "--force", "--no-progress",
+                      "--device", dev, "--set", "zeitlin.N=1024", "--set", "ensemble.members=1",
+                      "--set", "integrator.steps=1", "--set", "output.every=1", "--set", 'integrator.method="rk4"',
+                      "--set", "output.compare=[]", "--set", "output.figures=false", env=env)
         if p.returncode:
             say(f"{tag} run: FAILED\n{p.stderr[-3000:]}")
             break

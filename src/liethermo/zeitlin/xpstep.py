@@ -523,48 +523,11 @@ def time_fluid_xp(xp, N: int, members: int, steps: int, method: str = "split", *
     """Seconds per member-step of ``method`` on ``xp`` (warm: ``warmup``
     steps first; the fixed point started from the predictor, as in a run;
     the device synchronized before the clock is read).  Raises ArithmeticError
-    when a split step's fixed point did not converge (:func:`_converged`): the
-    time of iterations that reach nothing is not a step's time."""
-    from .run import factors
-
+    when a split step's fixed point did not converge: the time of iterations
+    that reach nothing is not a step's time."""
     check_method(method)
-    xb = xp_basis(xp, N)
-    W = xp.asarray(_members(N, members))
-    q = xp.zeros(members)
-    fac = factors(method, composition) if method != "rk4" else ()
-    pred = Predictor(xp, len(fac), members, N) if fac else None
-    act = xp.arange(members)
-    D = None
-
-    failed = xp.zeros(members, dtype=bool)
-
-    def step(W, q, D):
-        nonlocal failed
-        if method == "rk4":
-            W, q = rk4_step(W, q, h, nu, xb)
-            return W, q, None
-        W, q, _, fl, D = split_step(W, q, h, nu, xb, fac, tol, max_iter, D, pred, act)
-        failed = failed | fl
-        return W, q, D
-
-    for _ in range(warmup):
-        W, q, D = step(W, q, D)
-    synchronize(xp)
-    t0 = _time.perf_counter()
-    for _ in range(steps):
-        W, q, D = step(W, q, D)
-    synchronize(xp)
-    seconds = (_time.perf_counter() - t0) / (members * steps)
-    _converged(int(failed.sum()), method, N, members, h, max_iter)
-    return seconds
-
-
-def _converged(failed: int, method: str, N: int, members: int, h: float, max_iter: int) -> None:
-    """Raise ArithmeticError if ``failed`` of the members' fixed points did not converge."""
-    if failed:
-        raise ArithmeticError(f"{method} at N = {N}, h = {h} s: the fixed point of {failed} of {members} "
-                              f"member(s) did not converge within {max_iter} iterations, so there is no "
-                              "step to time (a smaller h converges)")
+    return _time_steps(XpOps(xp_basis(xp, N)), xp.asarray(_members(N, members)), steps, method, h, nu, tol,
+                       max_iter, composition, warmup)
 
 
 def time_fluid_cpu(N: int, members: int, steps: int, method: str = "split", *, h: float = 0.01,
@@ -575,29 +538,42 @@ def time_fluid_cpu(N: int, members: int, steps: int, method: str = "split", *, h
     from . import run as zr
 
     check_method(method)
-    b = zk.basis(N)
-    W = _members(N, members)
-    q = np.zeros(members)
-    fac = zr.factors(method, composition) if method != "rk4" else ()
-    pred = zr.Predictor(len(fac), members, N) if fac else None
-    act = np.arange(members)
+    return _time_steps(zr.SphereOps(zk.basis(N)), _members(N, members), steps, method, h, nu, tol, max_iter,
+                       composition, warmup)
+
+
+def _time_steps(ops, W, steps: int, method: str, h: float, nu: float, tol: float, max_iter: int,
+                composition: str, warmup: int) -> float:
+    """:func:`time_fluid_xp` and :func:`time_fluid_cpu` on ``ops`` (:mod:`liethermo.numerics.matrix_flow`)."""
+    xp = ops.xp
+    M, N = W.shape[0], W.shape[-1]
+    q = xp.zeros(M)
+    fac = mf.factors(method, composition) if method != "rk4" else ()
+    pred = mf.Predictor(len(fac), M, N, xp=xp) if fac else None
+    act = xp.arange(M)
+    failed = xp.zeros(M, dtype=bool)
     D = None
 
-    failed = np.zeros(members, dtype=bool)
-
     def step(W, q, D):
+        nonlocal failed
         if method == "rk4":
-            W, q = zr.rk4_step(W, q, h, nu, b)
+            W, q = mf.rk4_step(ops, W, q, h, nu)
             return W, q, None
-        W, q, _, fl, D = zr.split_step(W, q, h, nu, b, fac, tol, max_iter, D, pred, act)
-        failed[:] |= fl
+        W, q, _, fl, D = mf.split_step(ops, W, q, h, nu, fac, tol, max_iter, D, pred, act)
+        failed = failed | fl
         return W, q, D
 
     for _ in range(warmup):
         W, q, D = step(W, q, D)
+    ops.synchronize()
     t0 = _time.perf_counter()
     for _ in range(steps):
         W, q, D = step(W, q, D)
-    seconds = (_time.perf_counter() - t0) / (members * steps)
-    _converged(int(failed.sum()), method, N, members, h, max_iter)
+    ops.synchronize()
+    seconds = (_time.perf_counter() - t0) / (M * steps)
+    bad = int(failed.sum())
+    if bad:
+        raise ArithmeticError(f"{method} at N = {N}, h = {h} s: the fixed point of {bad} of {M} member(s) did not "
+                              f"converge within {max_iter} iterations, so there is no step to time (a smaller h "
+                              "converges)")
     return seconds
