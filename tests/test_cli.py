@@ -477,7 +477,7 @@ def test_check_of_a_fluid_scene_estimates_time_and_memory(tmp_path, capsys):
     assert "warning" not in cap.err
     assert main([*base, "--set", "zeitlin.N=1024"]) == 0
     cap = capsys.readouterr()
-    assert "basis of su(1024): about 3.0 min and 8.6 GB" in cap.out
+    assert re.search(r"basis of su\(1024\): about [0-9.]+ (s|min) and 8.6 GB to build \(timed at N = 128", cap.out)
     assert re.search(r"liethermo: warning: this run would take about [0-9.]+ (h|days) on this machine", cap.err)
     assert not list(tmp_path.iterdir())  # a check writes nothing
 
@@ -490,6 +490,50 @@ def test_fluid_estimates_memory_of_the_basis_it_builds():
     b = zk.basis(24)
     assert b.vecs.nbytes + b.vecs_t.nbytes == 16 * basis_numbers(24) == basis_bytes(24) * 2 // 3
     assert basis_numbers(24) == sum((24 - d) ** 2 for d in range(24))
+    assert basis_bytes(24, cached=True) == b.vecs.nbytes + b.vecs_t.nbytes
+
+
+def test_a_basis_in_the_disk_cache_is_counted_as_read_not_built(tmp_path, monkeypatch):
+    """The run layer's memory for a fluid scene counts the build's peak (24·S) while the
+    basis must be built, and the two copies a read leaves (16·S) once the cache holds it."""
+    from liethermo import load_scene
+    from liethermo.models import model_of
+    from liethermo.zeitlin import kernels as zk
+    from liethermo.zeitlin.estimate import basis_numbers
+
+    monkeypatch.setenv("LIETHERMO_CACHE_DIR", str(tmp_path / "cache"))
+    sc = load_scene("zeitlin_decay", {"zeitlin.N": 20, "ensemble.members": 2})
+    built = model_of(sc).estimate(sc).memory
+    zk.basis.cache_clear()
+    zk.basis(20)  # built and stored
+    assert zk.basis_on_disk(20)
+    assert built - model_of(sc).estimate(sc).memory == 8 * basis_numbers(20)
+
+
+def test_the_basis_build_time_is_this_machines_timed_probe_scaled_by_n_cubed(monkeypatch):
+    """basis_seconds times a build of su(BASIS_PROBE_N) here (not a constant measured
+    elsewhere) and scales it by N³."""
+    import time
+
+    from liethermo.zeitlin import estimate as ze
+    from liethermo.zeitlin import kernels as zk
+
+    calls = []
+
+    def slow_build(N):
+        calls.append(N)
+        time.sleep(0.05)
+
+    monkeypatch.setattr(zk, "compute_basis", slow_build)
+    ze.basis_seconds_per_n3.cache_clear()
+    try:
+        s = ze.basis_seconds(1024)
+        assert calls == [ze.BASIS_PROBE_N] * 2
+        assert 0.05 * 8 ** 3 <= s < 0.08 * 8 ** 3, s
+        ze.basis_seconds(512)
+        assert len(calls) == 2  # timed once per process
+    finally:
+        ze.basis_seconds_per_n3.cache_clear()
 
 
 def test_a_long_run_says_how_long_before_it_starts(tmp_path, monkeypatch, capsys):
@@ -522,3 +566,23 @@ def test_python_m_liethermo_and_the_study_help_lists_kinds_and_files():
     assert all(kind in text for kind in kinds()) and "mypackage.mystudy" in text
     r = subprocess.run([sys.executable, "-m", "liethermo", "keys"], capture_output=True, text=True)
     assert r.returncode == 0 and "integrator.h [s]" in r.stdout
+
+
+def test_a_basis_build_is_announced_when_this_machine_would_take_long(monkeypatch, capsys):
+    """build_basis announces (and times) a build only when this machine's timed rate
+    says it takes more than two seconds; a build that cannot take long is not probed."""
+    from liethermo.zeitlin import estimate as ze
+    from liethermo.zeitlin import kernels as zk
+
+    built, rates = [], iter([3.0 / 512 ** 3, 1.0 / 512 ** 3])
+    monkeypatch.setattr(zk, "basis", built.append)
+    monkeypatch.setattr(zk, "basis_on_disk", lambda N: False)
+    monkeypatch.setattr(ze, "basis_seconds_per_n3", lambda: next(rates))
+    ze.build_basis(512)
+    err = capsys.readouterr().err
+    assert "liethermo: building the basis of su(512): about 3 s and 1.08 GB" in err and "built in" in err
+    ze.build_basis(512)
+    assert capsys.readouterr().err == ""
+    ze.build_basis(64)  # 1.7e-7 s x 64³ = 0.04 s at most: not even probed
+    assert capsys.readouterr().err == "" and built == [512, 512, 64]
+    assert next(rates, None) is None

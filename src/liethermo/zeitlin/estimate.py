@@ -1,12 +1,13 @@
 """What a Zeitlin fluid's run will cost, said before it starts (``liethermo run --check``).
 
 * **Set-up**: the basis of su(N) (:func:`liethermo.zeitlin.kernels.basis`, built
-  once per N) takes about ``BASIS_SECONDS_PER_N3`` · N³ seconds, a constant
-  measured on a 2-core AMD EPYC Zen 4 (family 25 model 17): 1.0 s at N = 192,
-  3.2 s at 256, 11.5 s at 384, 23 s at 512.  It holds the eigenvectors of the N
-  blocks of the Laplacian and their transposes, S = Σ_{d<N} (N−d)² =
-  N(N+1)(2N+1)/6 float64 numbers each, 24·S bytes at the peak of the build
-  (1.1 GB at N = 512, 8.6 GB at N = 1024).
+  once per N) takes about c·N³ seconds, with this machine's c from a timed build
+  of su(``BASIS_PROBE_N``) (:func:`basis_seconds_per_n3`; machines differ by 6×:
+  su(512) took 3.5 s on a 2-core Intel Xeon, 23 s on a 2-core AMD EPYC Zen 4).
+  It holds the eigenvectors of the N blocks of the Laplacian and their
+  transposes, S = Σ_{d<N} (N−d)² = N(N+1)(2N+1)/6 float64 numbers each: 24·S
+  bytes at the peak of a build (1.1 GB at N = 512, 8.6 GB at N = 1024), 16·S
+  when it is read from the disk cache (:func:`basis_bytes`).
 * **Steps**: a step costs about c·N³ per member (dense complex N×N products:
   per fixed-point iteration of each isospectral substep, or per RK4 stage).
   c is measured by a short probe of the scene's own method, initial field and
@@ -24,12 +25,17 @@ this module gives the time (``--check``, and before a long run) and the basis's 
 
 from __future__ import annotations
 
+import functools
 import sys
 import time
 from dataclasses import dataclass, field
 
-#: seconds per N³ to build the basis of su(N) (measured: 23 s at N = 512, Zen 4)
+#: seconds per N³ to build the basis of su(N) on the slowest machine measured (23 s at
+#: N = 512, a 2-core AMD EPYC Zen 4): an upper bound, which decides whether a build is
+#: worth timing a probe for before it is announced
 BASIS_SECONDS_PER_N3 = 1.7e-7
+#: the basis timed for this machine's cost per N³ (about 0.1 s to build on a 2-core Xeon)
+BASIS_PROBE_N = 128
 #: the probe's matrix size (a step there takes a few hundredths of a second)
 PROBE_N = 96
 PROBE_STEPS = 5
@@ -45,14 +51,32 @@ def basis_numbers(N: int) -> int:
     return N * (N + 1) * (2 * N + 1) // 6
 
 
+@functools.lru_cache(maxsize=1)
+def basis_seconds_per_n3() -> float:
+    """This machine's seconds per N³ to build a basis: the faster of two timed builds of
+    su(BASIS_PROBE_N) (no cache), once per process.  The rate varies with N (on a 2-core
+    Xeon 4.8·10⁻⁸ s at N = 128, 2.6–3.1·10⁻⁸ at 512, 3.8–4.3·10⁻⁸ at 1024): the probe's is
+    the highest there up to N = 1024, so the figure errs long, by less than 2×."""
+    from .kernels import compute_basis
+
+    best = float("inf")
+    for _ in range(2):
+        t0 = time.perf_counter()
+        compute_basis(BASIS_PROBE_N)
+        best = min(best, time.perf_counter() - t0)
+    return best / BASIS_PROBE_N ** 3
+
+
 def basis_seconds(N: int) -> float:
-    """About how long building the basis of su(N) takes (s)."""
-    return BASIS_SECONDS_PER_N3 * float(N) ** 3
+    """About how long building the basis of su(N) takes on this machine (s)."""
+    return basis_seconds_per_n3() * float(N) ** 3
 
 
-def basis_bytes(N: int) -> int:
-    """Peak memory of building the basis of su(N) (bytes)."""
-    return 24 * basis_numbers(N)
+def basis_bytes(N: int, cached: bool = False) -> int:
+    """Peak memory of the basis of su(N) (bytes): building it holds three copies of its
+    S eigenvector entries at once (24·S); one read from the disk cache, two (the
+    eigenvectors and their transposed copy, 16·S)."""
+    return (16 if cached else 24) * basis_numbers(N)
 
 
 def run_bytes(scene, method: str | None = None) -> int:
@@ -143,7 +167,8 @@ class Estimate:
         out = [f"  basis of su({self.N}): {human_bytes(self.basis_bytes)}, read from the disk cache"
                if self.basis_cached else
                f"  basis of su({self.N}): about {human_seconds(self.basis_seconds)} and "
-               f"{human_bytes(self.basis_bytes)} to build (once per N, then read from the disk cache; ~N³)"]
+               f"{human_bytes(self.basis_bytes)} to build (timed at N = {BASIS_PROBE_N} on this machine and "
+               "scaled by N³; once per N, then read from the disk cache)"]
         for m, (s, b, Np) in self.methods.items():
             scaled = f", scaled by (N/{Np})³ from a timed probe at N = {Np}" if Np != self.N else " from a timed probe"
             out.append(f"  {m}: about {human_seconds(s)} for {self.members} member(s) x {self.steps} steps"
@@ -178,7 +203,7 @@ def estimate(scene, methods: list[str] | None = None) -> Estimate:
     from . import kernels as zk
 
     on_disk = zk.basis_on_disk(N)
-    est = Estimate(N, M, steps, 0.0 if on_disk else basis_seconds(N), basis_bytes(N),
+    est = Estimate(N, M, steps, 0.0 if on_disk else basis_seconds(N), basis_bytes(N, on_disk),
                    available=_available_bytes(), basis_cached=on_disk)
     for m in methods:
         if m == "reference":  # scipy's DOP853 per member: not probed (a study's reference, not a run's)
@@ -193,8 +218,11 @@ def build_basis(N: int, progress: bool | None = None) -> None:
     takes more than two seconds (unless ``progress`` is False)."""
     from . import kernels as zk
 
-    seconds = basis_seconds(N)
-    loud = progress is not False and seconds > 2.0 and not zk.basis_on_disk(N)
+    loud = (progress is not False and BASIS_SECONDS_PER_N3 * float(N) ** 3 > 2.0  # might take long
+            and not zk.basis_on_disk(N))
+    if loud:
+        seconds = basis_seconds(N)
+        loud = seconds > 2.0
     if loud:
         from ..faults import human_bytes
         from ..runner import human_seconds

@@ -332,7 +332,9 @@ class Fluid(StudyDefaults, Model):
         if scene["output"]["vorticity"]:
             work += W * T  # kept by the run, then labelled (in the file's bytes below)
         memory_per = work + 2 * file_per  # the labelled chunk and its encoded copy
-        fixed = ze.basis_bytes(N) + W * T  # the basis; member 0's W for the figures
+        from .kernels import basis_on_disk
+
+        fixed = ze.basis_bytes(N, basis_on_disk(N)) + W * T  # the basis; member 0's W for the figures
         est = Estimate(file_per, memory_per, M, int(scene["output"]["member_chunk"]), layout, fixed)
         if scene["ensemble"]["device"] == "gpu" and method != "reference":
             from .xpstep import memory_bytes
