@@ -479,7 +479,35 @@ def test_check_of_a_fluid_scene_estimates_time_and_memory(tmp_path, capsys):
     cap = capsys.readouterr()
     assert re.search(r"basis of su\(1024\): about [0-9.]+ (s|min) and 8.6 GB to build \(timed at N = 128", cap.out)
     assert re.search(r"liethermo: warning: this run would take about [0-9.]+ (h|days) on this machine", cap.err)
+    assert ("liethermo: warning: split's fixed point will probably not converge at N = 1024 and h = 0.01 s"
+            in cap.err and "(h = 0.107 s) they did not" in cap.err and "At h = 0.005 s it converged" in cap.err)
     assert not list(tmp_path.iterdir())  # a check writes nothing
+
+
+def test_check_foretells_a_fixed_point_that_will_not_converge_and_the_run_bears_it_out(tmp_path, capsys):
+    """The splitting's fixed point contracts by a factor that depends on h·N: --check probes it at
+    N = 96 with the run's h·N, warns where it fails and names a step that converges; the runs at
+    N = 192 agree (h·N = 10.2: the member stops at its first step; 5.1: 40 iterations)."""
+    from liethermo.cf import open_dataset
+
+    out = tmp_path / "z.nc"
+    base = ["run", "zeitlin_decay", "-o", str(out), "--no-progress", "--set", "zeitlin.N=192", "--set",
+            "ensemble.members=1", "--set", "integrator.steps=1", "--set", "output.every=1", "--set",
+            "output.compare=[]", "--set", "output.figures=false"]
+    for h, fails in ((0.0533, True), (0.0267, False)):
+        assert main([*base, "--set", f"integrator.h={h}", "--check"]) == 0
+        err = capsys.readouterr().err
+        warned = f"split's fixed point will probably not converge at N = 192 and h = {h} s" in err
+        assert warned == fails, err
+        if fails:
+            assert "At h = 0.0267 s it converged" in err
+        assert main([*base, "--set", f"integrator.h={h}"]) == 0
+        with open_dataset(out) as ds:
+            assert (int(ds["status"].values[0]) == 1) == fails  # fixed_point_not_converged
+        out.unlink()
+    # a run at N >= 256 estimates itself before it starts, and says so without --check
+    assert main([*base, "--set", "zeitlin.N=256", "--set", "integrator.h=0.04"]) == 0
+    assert "split's fixed point will probably not converge at N = 256 and h = 0.04 s" in capsys.readouterr().err
 
 
 def test_fluid_estimates_memory_of_the_basis_it_builds():

@@ -142,6 +142,8 @@ def _announce_long_runs(todo, args) -> None:
         est = estimate_time(sc)
         if est.seconds > LONG_RUN_SECONDS:
             print(one_line(f"liethermo: {o.path}: {est.line().strip()}"), file=sys.stderr)
+        for w in est.cautions():
+            print(one_line(w), file=sys.stderr)
 
 
 def _figures(plan, stem: str) -> list[Path]:

@@ -102,6 +102,11 @@ class _WithWriting:
     def warnings(self) -> list[str]:
         return self.inner.warnings()
 
+    def cautions(self) -> list[str]:
+        """The warnings a run gives before it starts, however long it takes (the model's
+        ``cautions()``, where it has any)."""
+        return list(getattr(self.inner, "cautions", lambda: [])())
+
 
 class _NoTimeEstimate:
     """The time estimate of a model that offers none."""
@@ -115,6 +120,9 @@ class _NoTimeEstimate:
         return f"  time: {self.title} gives no estimate before a run"
 
     def warnings(self) -> list[str]:
+        return []
+
+    def cautions(self) -> list[str]:
         return []
 
 

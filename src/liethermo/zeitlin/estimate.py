@@ -30,6 +30,8 @@ import sys
 import time
 from dataclasses import dataclass, field
 
+import numpy as np
+
 #: seconds per N³ to build the basis of su(N) on the slowest machine measured (23 s at
 #: N = 512, a 2-core AMD EPYC Zen 4): an upper bound, which decides whether a build is
 #: worth timing a probe for before it is announced
@@ -114,29 +116,77 @@ def _available_bytes() -> int | None:
     return available_memory()
 
 
-def probe_step_seconds(scene, method: str) -> tuple[float, int, int]:
-    """Seconds per step of ``method`` on the scene's first members, measured at
-    N_probe = min(N, PROBE_N): ``(seconds, N_probe, members_probe)``, the faster
-    of three timed runs after one untimed step (kernels compiled or loaded)."""
+def fixed_point(method: str) -> bool:
+    """Whether ``method``'s steps solve a fixed point (the splittings; not rk4 or the reference)."""
+    return method not in ("rk4", "reference")
+
+
+def _probe_scene(scene, h: float):
+    """The scene at N_probe = min(N, PROBE_N): its first members (at most two), PROBE_STEPS
+    steps of ``h``, its initial field up to the degree N_probe allows."""
     from ..scene import load_scene
+
+    N = int(scene["zeitlin"]["N"])
+    Np = min(N, PROBE_N)
+    lmax = min(int(scene["initial"]["lmax"]), Np - 1)
+    over = {"zeitlin.N": Np, "ensemble.members": min(int(scene["ensemble"]["members"]), 2),
+            "integrator.steps": PROBE_STEPS, "integrator.h": h, "output.every": 1,
+            "output.vorticity": False, "output.compare": [], "initial.lmax": lmax,
+            "initial.m": min(int(scene["initial"]["m"]), lmax)}
+    return load_scene(scene.to_dict(), over)
+
+
+def probe_step_seconds(scene, method: str) -> tuple[float, int, int, bool]:
+    """Seconds per step of ``method`` on the scene's first members, measured at
+    N_probe = min(N, PROBE_N): ``(seconds, N_probe, members_probe, converged)``, the
+    faster of three timed runs after one untimed step (kernels compiled or loaded).
+
+    A fixed point's iterations contract by a factor that depends on h·N (at N = 256
+    with h = 0.01 s as at N = 1024 with h = 0.0025 s: about 8× per iteration, 16-17
+    iterations), so a splitting is probed at h·N/N_probe: as many iterations per step as
+    the run's, and whether they converge (``converged``: every probe member's did).
+    Where they do not, the steps are timed at the scene's h instead (a converging step's
+    cost)."""
     from .run import initial_fields, integrate
 
     N = int(scene["zeitlin"]["N"])
     Np = min(N, PROBE_N)
-    Mp = min(int(scene["ensemble"]["members"]), 2)
-    lmax = min(int(scene["initial"]["lmax"]), Np - 1)
-    over = {"zeitlin.N": Np, "ensemble.members": Mp, "integrator.steps": PROBE_STEPS, "output.every": 1,
-            "output.vorticity": False, "output.compare": [], "initial.lmax": lmax,
-            "initial.m": min(int(scene["initial"]["m"]), lmax)}
-    sc = load_scene(scene.to_dict(), over)
-    W0 = initial_fields(sc)
-    integrate(sc.with_overrides({"integrator.steps": 1}), W0, method=method, progress=False)
-    best = float("inf")
-    for _ in range(3):
-        t0 = time.perf_counter()
-        integrate(sc, W0, method=method, progress=False)
-        best = min(best, (time.perf_counter() - t0) / PROBE_STEPS)
-    return best, Np, Mp
+    h = float(scene["integrator"]["h"])
+
+    def timed(hp: float) -> tuple[float, bool]:
+        sc = _probe_scene(scene, hp)
+        W0 = initial_fields(sc)
+        ok = bool(np.all(integrate(sc.with_overrides({"integrator.steps": 1}), W0, method=method,
+                                   progress=False).status == 0))
+        best = float("inf")
+        for _ in range(3):
+            t0 = time.perf_counter()
+            ok &= bool(np.all(integrate(sc, W0, method=method, progress=False).status == 0))
+            best = min(best, (time.perf_counter() - t0) / PROBE_STEPS)
+        return best, ok
+
+    hp = h * N / Np if fixed_point(method) else h
+    with np.errstate(over="ignore", invalid="ignore"):  # a probe that does not converge may overflow
+        seconds, ok = timed(hp)
+        if not ok and hp != h:
+            seconds = timed(h)[0]
+    return seconds, Np, min(int(scene["ensemble"]["members"]), 2), ok
+
+
+def converging_step(scene, method: str, halvings: int = 8) -> float | None:
+    """The largest h/2^k (k = 1 … ``halvings``) at which ``method``'s fixed point converges
+    in the probe at h·N/N_probe (:func:`probe_step_seconds`), or None."""
+    from .run import initial_fields, integrate
+
+    N = int(scene["zeitlin"]["N"])
+    Np = min(N, PROBE_N)
+    h = float(scene["integrator"]["h"])
+    for k in range(1, halvings + 1):
+        sc = _probe_scene(scene, h / 2 ** k * N / Np)
+        with np.errstate(over="ignore", invalid="ignore"):
+            if np.all(integrate(sc, initial_fields(sc), method=method, progress=False).status == 0):
+                return h / 2 ** k
+    return None
 
 
 @dataclass
@@ -151,6 +201,10 @@ class Estimate:
     methods: dict = field(default_factory=dict)  # method -> (seconds, bytes, probe N)
     available: int | None = None
     basis_cached: bool = False  # the disk cache holds it (liethermo.diskcache)
+    #: method -> (the probe's h at N_probe where its fixed point did not converge, the
+    #: largest h/2^k that converged or None): :func:`probe_step_seconds`
+    not_converging: dict = field(default_factory=dict)
+    h: float = 0.0
 
     @property
     def seconds(self) -> float:
@@ -187,9 +241,24 @@ class Estimate:
             out.append(f"liethermo: warning: this run would take about {human_seconds(self.seconds)} "
                        f"on this machine (N = {self.N}: a step costs ~N³ per member); a smaller zeitlin.N, "
                        "fewer steps or members run sooner")
+        out += self.cautions()
         if self.available and self.peak_bytes > self.available / 2:
             out.append(f"liethermo: warning: this run needs about {human_bytes(self.peak_bytes)} of memory, "
                        f"more than half of the {human_bytes(self.available)} available")
+        return out
+
+    def cautions(self) -> list[str]:
+        """The warnings a run gives before it starts whatever its length: a fixed point that
+        will probably not converge."""
+        out = []
+        for m, (hp, h_ok) in self.not_converging.items():
+            Np = self.methods[m][2]
+            fix = (f"at h = {h_ok:.3g} s it converged (the same probe)" if h_ok is not None
+                   else "no step down to h/256 converged")
+            out.append(f"liethermo: warning: {m}'s fixed point will probably not converge at N = {self.N} "
+                       f"and h = {self.h:.3g} s: its iterations contract by a factor that depends on h·N, and "
+                       f"at N = {Np} with the same h·N (h = {hp:.3g} s) they did not; its members would stop "
+                       f"with fixed_point_not_converged. {fix[0].upper()}{fix[1:]}; set integrator.h")
         return out
 
 
@@ -204,12 +273,14 @@ def estimate(scene, methods: list[str] | None = None) -> Estimate:
 
     on_disk = zk.basis_on_disk(N)
     est = Estimate(N, M, steps, 0.0 if on_disk else basis_seconds(N), basis_bytes(N, on_disk),
-                   available=_available_bytes(), basis_cached=on_disk)
+                   available=_available_bytes(), basis_cached=on_disk, h=float(scene["integrator"]["h"]))
     for m in methods:
         if m == "reference":  # scipy's DOP853 per member: not probed (a study's reference, not a run's)
             continue
-        s, Np, Mp = probe_step_seconds(scene, m)
+        s, Np, Mp, ok = probe_step_seconds(scene, m)
         est.methods[m] = (s * (N / Np) ** 3 * (M / Mp) * steps, _run_memory(scene, m) - est.basis_bytes, Np)
+        if not ok:
+            est.not_converging[m] = (float(scene["integrator"]["h"]) * N / Np, converging_step(scene, m))
     return est
 
 

@@ -138,6 +138,9 @@ class TimeEstimate:
     def warnings(self) -> list[str]:
         return self.estimate.warnings()
 
+    def cautions(self) -> list[str]:
+        return self.estimate.cautions()
+
 
 #: From this matrix size N on, a run's BLAS products use every usable core; below
 #: it one thread.  benchmarks/blas_threads.py on the 2-core machine: one thread was
