@@ -255,10 +255,12 @@ class Estimate:
             Np = self.methods[m][2]
             fix = (f"at h = {h_ok:.3g} s it converged (the same probe)" if h_ok is not None
                    else "no step down to h/256 converged")
+            probe = (f"its iterations contract by a factor that depends on h·N, and at N = {Np} with the same "
+                     f"h·N (h = {hp:.3g} s) they did not" if Np != self.N else
+                     f"in a probe of {PROBE_STEPS} steps they did not")
             out.append(f"liethermo: warning: {m}'s fixed point will probably not converge at N = {self.N} "
-                       f"and h = {self.h:.3g} s: its iterations contract by a factor that depends on h·N, and "
-                       f"at N = {Np} with the same h·N (h = {hp:.3g} s) they did not; its members would stop "
-                       f"with fixed_point_not_converged. {fix[0].upper()}{fix[1:]}; set integrator.h")
+                       f"and h = {self.h:.3g} s: {probe}; its members would stop with fixed_point_not_converged. "
+                       f"{fix[0].upper()}{fix[1:]}; set integrator.h")
         return out
 
 
