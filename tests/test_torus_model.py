@@ -10,9 +10,11 @@ import pytest
 
 from cfcheck import assert_cf_clean
 from conftest import kill_and_resume
+from liethermo.cf import open_dataset
 from liethermo.cli import main
 from liethermo.runner import run_scene
 from liethermo.scene import SceneError, load_scene
+from liethermo.torus.kernels import STATUS_MEANINGS
 from ncsame import same_but_created
 
 SMALL = ["torus.N=9", "ensemble.members=5", "output.member_chunk=2", "integrator.steps=20", "output.every=5",
@@ -101,6 +103,31 @@ def test_check_says_disk_memory_and_time(tmp_path, capsys):
     out = capsys.readouterr().out
     assert re.search(r"on disk", out) and re.search(r"of memory", out) and "ms per member-step" in out, out
     assert not (tmp_path / "c.nc").exists()
+
+
+def test_check_warns_when_its_probe_member_stops_and_the_run_bears_it_out(tmp_path, capsys):
+    """--check times the run's first steps of one member; where that member stops (a fixed point
+    that does not converge, rk4 blowing up at a step far too large) it says the run's members
+    will probably stop too, and they do; at the scene's own step it says nothing of the kind."""
+    out = tmp_path / "d.nc"
+    for method, h, why in (("isomp", 20, "fixed_point_not_converged"), ("rk4", 20, "non_finite"),
+                           ("isomp", 0.01, None)):
+        args = ["run", "torus_decay", "-o", str(out), "--no-progress", *_sets(
+            [f'integrator.method="{method}"', f"integrator.h={h}", "integrator.steps=3", "output.every=1",
+             "output.compare=[]", "output.figures=false"])]
+        assert main([*args, "--check"]) == 0
+        err = capsys.readouterr().err
+        assert ("the timed probe's first member stopped with" in err) == (why is not None), err
+        assert main(args) == 0
+        summary = capsys.readouterr().out
+        assert ("fixed-point iterations" in summary) == (method != "rk4"), summary  # rk4 solves none
+        with open_dataset(out) as ds:
+            got = {STATUS_MEANINGS[int(k)] for k in ds["status"].values}
+        if why is None:
+            assert got == {"ok"} and "stopped" not in err
+        else:
+            assert f"stopped with {why} at step" in err and got == {why}
+        out.unlink()
 
 
 def test_positivity_loss_stops_the_member_and_the_summary_says_why(tmp_path):

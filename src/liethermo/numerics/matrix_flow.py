@@ -144,7 +144,7 @@ def run_members(state0: tuple, step, record, *, xp, to_host, steps: int, every: 
     ``act`` (their part of the state; iterations and status per member on the
     host, status 0 where the step went well); a member with a status, or a
     non-finite state, leaves the batch with its status (:data:`STATUS_NON_FINITE`
-    for the latter) and step.  Every ``every`` steps ``record(j, members, state)``
+    for the latter) and step, without numpy's overflow warnings on the way.  Every ``every`` steps ``record(j, members, state)``
     gets the members still running, on the host.  Returns ``(mean iterations
     per step (members, outputs), status (members,), failed_step (members,), −1
     where none)``; ``bar.update(1)`` after each step, ``check_stop()`` before each."""
@@ -162,7 +162,8 @@ def run_members(state0: tuple, step, record, *, xp, to_host, steps: int, every: 
         if active.size == 0:
             break
         act = xp.asarray(active)
-        sub, it, st = step(tuple(a[act] for a in state), k, act)
+        with np.errstate(over="ignore", invalid="ignore"):  # a member that blows up is flagged below
+            sub, it, st = step(tuple(a[act] for a in state), k, act)
         acc_its[active] += it
         fin = None
         for a in sub:

@@ -107,12 +107,16 @@ class TorusSummary(BaseSummary):
                + f"; least eigenvalue of Θ {fin(st.theta_min):.4g} K",
                f"  conduction: {st.conduction_substeps} sub-step(s), {st.conduction_rejected} halved, "
                f"{st.conduction_seconds:.3g} s"]
-        if st.its_n:
+        if st.its_n and st.its_sum > 0:  # rk4 solves no fixed point
             out.append(f"  fixed-point iterations per step: mean {st.its_sum / st.its_n:.2f}")
         if st.failed:
             why = ", ".join(f"{v} {k}" for k, v in st.status.items() if k != "ok" and v)
             out.append(f"  {st.failed} member(s) stopped ({why}): see status and failed_step")
         return out + closing_lines(self.resumed_members, self.path, "not in the stepping time above")
+
+
+#: steps of one member that ``--check`` times (the first ones: where a step too large fails)
+PROBE_STEPS = 3
 
 
 @dataclass
@@ -121,13 +125,25 @@ class TimeEstimate:
     per_step: float
     steps: int
     members: int
+    #: what stopped the probe's member in its steps ("" where it did not stop), and at which step
+    stopped: str = ""
+    stopped_at: int = -1
 
     def line(self) -> str:
         return (f"time: about {self.seconds:.3g} s ({1e3 * self.per_step:.3g} ms per member-step measured here, "
                 f"{self.members} member(s) × {self.steps} steps)")
 
     def warnings(self) -> list[str]:
-        return [f"this run takes about {self.seconds / 3600:.2g} hours"] if self.seconds > 3600 else []
+        long = [f"this run takes about {self.seconds / 3600:.2g} hours"] if self.seconds > 3600 else []
+        return long + self.cautions()
+
+    def cautions(self) -> list[str]:
+        """The warnings a run gives before it starts whatever its length."""
+        if not self.stopped:
+            return []
+        return [f"liethermo: warning: the timed probe's first member stopped with {self.stopped} at step "
+                f"{self.stopped_at} of its first {PROBE_STEPS}: this run's members will probably stop too "
+                "(a smaller integrator.h, or a larger integrator.max_iter for a fixed point)"]
 
 
 
@@ -273,15 +289,19 @@ class Torus(StudyDefaults, Model):
 
         from .run import initial_fields, integrate
 
-        probe = scene.with_overrides({"integrator.steps": 3, "output.every": 1, "ensemble.members": 1,
+        from .kernels import STATUS_MEANINGS
+
+        probe = scene.with_overrides({"integrator.steps": PROBE_STEPS, "output.every": 1, "ensemble.members": 1,
                                       "output.vorticity": False, "output.entropy_field": False})
         W0, S0 = initial_fields(probe, np.arange(1))
         integrate(probe, W0, S0, progress=False)  # warm
         t0 = time.perf_counter()
-        integrate(probe, W0, S0, progress=False)
-        per = (time.perf_counter() - t0) / 3
+        traj = integrate(probe, W0, S0, progress=False)
+        per = (time.perf_counter() - t0) / PROBE_STEPS
         steps, M = int(scene["integrator"]["steps"]), int(scene["ensemble"]["members"])
-        return TimeEstimate(per * steps * M, per, steps, M)
+        status = int(traj.status[0])
+        return TimeEstimate(per * steps * M, per, steps, M, STATUS_MEANINGS.get(status, str(status)) if status else "",
+                            int(traj.failed_step[0]))
 
     def long_run(self, scene) -> bool:
         return int(scene["torus"]["N"]) >= 127
