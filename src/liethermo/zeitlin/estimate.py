@@ -141,48 +141,49 @@ def probe_step_seconds(scene, method: str) -> tuple[float, int, int, bool]:
     N_probe = min(N, PROBE_N): ``(seconds, N_probe, members_probe, converged)``, the
     faster of three timed runs after one untimed step (kernels compiled or loaded).
 
-    A fixed point's iterations contract by a factor that depends on h·N (at N = 256
-    with h = 0.01 s as at N = 1024 with h = 0.0025 s: about 8× per iteration, 16-17
-    iterations), so a splitting is probed at h·N/N_probe: as many iterations per step as
-    the run's, and whether they converge (``converged``: every probe member's did).
-    Where they do not, the steps are timed at the scene's h instead (a converging step's
-    cost)."""
+    ``converged``: whether a splitting's fixed point converged for every probe member at
+    the run's h·N (:func:`converges`; always True for rk4).  The steps are timed at the
+    run's own h: at its h·N the probe takes the iterations of the run's first steps, more
+    than later steps take from the predictor (N = 256, h = 0.01 s, 2 members × 20 steps on
+    a 2-core Xeon: 16.5 iterations per step in the probe at h·N, 9.6 in the run; timed at
+    the run's h the estimate is 1.5–2.0× the run's 2.7–2.9 s, at its h·N 2.3×)."""
     from .run import initial_fields, integrate
 
     N = int(scene["zeitlin"]["N"])
     Np = min(N, PROBE_N)
-    h = float(scene["integrator"]["h"])
+    sc = _probe_scene(scene, float(scene["integrator"]["h"]))
+    W0 = initial_fields(sc)
+    ok = bool(np.all(integrate(sc.with_overrides({"integrator.steps": 1}), W0, method=method,
+                               progress=False).status == 0))
+    best = float("inf")
+    for _ in range(3):
+        t0 = time.perf_counter()
+        ok &= bool(np.all(integrate(sc, W0, method=method, progress=False).status == 0))
+        best = min(best, (time.perf_counter() - t0) / PROBE_STEPS)
+    if ok and Np != N and fixed_point(method):
+        ok = converges(scene, method, float(scene["integrator"]["h"]))
+    return best, Np, min(int(scene["ensemble"]["members"]), 2), ok
 
-    def timed(hp: float) -> tuple[float, bool]:
-        sc = _probe_scene(scene, hp)
-        W0 = initial_fields(sc)
-        ok = bool(np.all(integrate(sc.with_overrides({"integrator.steps": 1}), W0, method=method,
-                                   progress=False).status == 0))
-        best = float("inf")
-        for _ in range(3):
-            t0 = time.perf_counter()
-            ok &= bool(np.all(integrate(sc, W0, method=method, progress=False).status == 0))
-            best = min(best, (time.perf_counter() - t0) / PROBE_STEPS)
-        return best, ok
 
-    hp = h * N / Np if fixed_point(method) else h
-    seconds, ok = timed(hp)
-    if not ok and hp != h:
-        seconds = timed(h)[0]
-    return seconds, Np, min(int(scene["ensemble"]["members"]), 2), ok
+def converges(scene, method: str, h: float) -> bool:
+    """Whether ``method``'s fixed point converges at N with step ``h``, as a probe of
+    PROBE_STEPS steps at N_probe = min(N, PROBE_N) with the same h·N says.  Its iterations
+    contract by a factor that depends on h·N (at N = 256 with h = 0.01 s as at N = 1024
+    with h = 0.0025 s: about 8× per iteration; docs/model.md), so the probe steps
+    h·N/N_probe."""
+    from .run import initial_fields, integrate
+
+    N = int(scene["zeitlin"]["N"])
+    sc = _probe_scene(scene, h * N / min(N, PROBE_N))
+    return bool(np.all(integrate(sc, initial_fields(sc), method=method, progress=False).status == 0))
 
 
 def converging_step(scene, method: str, halvings: int = 8) -> float | None:
     """The largest h/2^k (k = 1 … ``halvings``) at which ``method``'s fixed point converges
-    in the probe at h·N/N_probe (:func:`probe_step_seconds`), or None."""
-    from .run import initial_fields, integrate
-
-    N = int(scene["zeitlin"]["N"])
-    Np = min(N, PROBE_N)
+    by :func:`converges`, or None."""
     h = float(scene["integrator"]["h"])
     for k in range(1, halvings + 1):
-        sc = _probe_scene(scene, h / 2 ** k * N / Np)
-        if np.all(integrate(sc, initial_fields(sc), method=method, progress=False).status == 0):
+        if converges(scene, method, h / 2 ** k):
             return h / 2 ** k
     return None
 
