@@ -143,10 +143,11 @@ def probe_step_seconds(scene, method: str) -> tuple[float, int, int, bool]:
 
     ``converged``: whether a splitting's fixed point converged for every probe member at
     the run's h·N (:func:`converges`; always True for rk4).  The steps are timed at the
-    run's own h: at its h·N the probe takes the iterations of the run's first steps, more
-    than later steps take from the predictor (N = 256, h = 0.01 s, 2 members × 20 steps on
-    a 2-core Xeon: 16.5 iterations per step in the probe at h·N, 9.6 in the run; timed at
-    the run's h the estimate is 1.5–2.0× the run's 2.7–2.9 s, at its h·N 2.3×)."""
+    run's own h: at its h·N the probe takes the iterations of the run's first step, but
+    not the fewer of its later ones, whose predicted first guess is better at the run's
+    smaller h (N = 256, h = 0.01 s, 2 members × 20 steps on a 2-core Xeon: the run's
+    first step 15.5 iterations, then 9; the probe at h·N 17.5, then 16; timed at the run's
+    h the estimate is 1.5–2.0× the run's 2.7–2.9 s, at its h·N 2.3×)."""
     from .run import initial_fields, integrate
 
     N = int(scene["zeitlin"]["N"])
