@@ -505,6 +505,12 @@ def test_check_foretells_a_fixed_point_that_will_not_converge_and_the_run_bears_
         with open_dataset(out) as ds:
             assert (int(ds["status"].values[0]) == 1) == fails  # fixed_point_not_converged
         out.unlink()
+    # rk4 solves no fixed point: its members blowing up (non_finite at h = 5 s) is not called one
+    rk4 = ["run", "zeitlin_decay", "-o", str(out), "--set", "zeitlin.N=32", "--set", "integrator.h=5", "--set",
+           'integrator.method="rk4"', "--set", "output.compare=[]", "--set", "integrator.steps=5", "--set",
+           "output.every=1"]
+    assert main([*rk4, "--check"]) == 0
+    assert "fixed point" not in capsys.readouterr().err
     # a run at N >= 256 estimates itself before it starts, and says so without --check
     assert main([*base, "--set", "zeitlin.N=256", "--set", "integrator.h=0.04"]) == 0
     assert "split's fixed point will probably not converge at N = 256 and h = 0.04 s" in capsys.readouterr().err

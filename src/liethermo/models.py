@@ -290,7 +290,9 @@ class Estimates(Protocol):
 
     def estimate_time(self, scene):
         """An object with ``seconds``, ``line()`` (the run's time on this machine)
-        and ``warnings()`` (lines for stderr: a run of hours, or near the memory)."""
+        and ``warnings()`` (lines for stderr: a run of hours, or near the memory);
+        optionally ``cautions()``, the warnings a long run also prints before it
+        starts (a probe that says its members will stop)."""
 
 
 @runtime_checkable

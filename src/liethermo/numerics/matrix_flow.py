@@ -144,8 +144,9 @@ def run_members(state0: tuple, step, record, *, xp, to_host, steps: int, every: 
     ``act`` (their part of the state; iterations and status per member on the
     host, status 0 where the step went well); a member with a status, or a
     non-finite state, leaves the batch with its status (:data:`STATUS_NON_FINITE`
-    for the latter) and step, without numpy's overflow warnings on the way.  Every ``every`` steps ``record(j, members, state)``
-    gets the members still running, on the host.  Returns ``(mean iterations
+    for the latter) and step, without numpy's overflow warnings on the way.  Every
+    ``every`` steps ``record(j, members, state)`` gets the members still running, on
+    the host (a member's huge but finite values give infinite diagnostics, silently).  Returns ``(mean iterations
     per step (members, outputs), status (members,), failed_step (members,), −1
     where none)``; ``bar.update(1)`` after each step, ``check_stop()`` before each."""
     M = state0[0].shape[0]
@@ -180,7 +181,8 @@ def run_members(state0: tuple, step, record, *, xp, to_host, steps: int, every: 
         if k % every == 0:
             j = k // every
             act = xp.asarray(active)
-            record(j, active, tuple(to_host(a[act]) for a in state))
+            with np.errstate(over="ignore", invalid="ignore"):  # huge but finite values: inf diagnostics
+                record(j, active, tuple(to_host(a[act]) for a in state))
             its[active, j] = acc_its[active] / every
             acc_its[:] = 0.0
         if bar is not None:

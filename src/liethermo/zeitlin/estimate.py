@@ -121,6 +121,14 @@ def fixed_point(method: str) -> bool:
     return method not in ("rk4", "reference")
 
 
+def _fixed_point_converged(traj) -> bool:
+    """Whether no member of a run stopped with ``fixed_point_not_converged`` (a member
+    that blew up, or rk4's, is not counted: it solves no fixed point that failed)."""
+    from ..numerics.matrix_flow import STATUS_NOT_CONVERGED
+
+    return not bool(np.any(traj.status == STATUS_NOT_CONVERGED))
+
+
 def _probe_scene(scene, h: float):
     """The scene at N_probe = min(N, PROBE_N): its first members (at most two), PROBE_STEPS
     steps of ``h``, its initial field up to the degree N_probe allows."""
@@ -141,8 +149,8 @@ def probe_step_seconds(scene, method: str) -> tuple[float, int, int, bool]:
     N_probe = min(N, PROBE_N): ``(seconds, N_probe, members_probe, converged)``, the
     faster of three timed runs after one untimed step (kernels compiled or loaded).
 
-    ``converged``: whether a splitting's fixed point converged for every probe member at
-    the run's h·N (:func:`converges`; always True for rk4).  The steps are timed at the
+    ``converged``: whether a splitting's fixed point converged for every probe member, at
+    the run's h and at its h·N (:func:`converges`; always True for rk4, which has none).  The steps are timed at the
     run's own h: at its h·N the probe takes the iterations of the run's first step, but
     not the fewer of its later ones, whose predicted first guess is better at the run's
     smaller h (N = 256, h = 0.01 s, 2 members × 20 steps on a 2-core Xeon: the run's
@@ -154,12 +162,12 @@ def probe_step_seconds(scene, method: str) -> tuple[float, int, int, bool]:
     Np = min(N, PROBE_N)
     sc = _probe_scene(scene, float(scene["integrator"]["h"]))
     W0 = initial_fields(sc)
-    ok = bool(np.all(integrate(sc.with_overrides({"integrator.steps": 1}), W0, method=method,
-                               progress=False).status == 0))
+    ok = _fixed_point_converged(integrate(sc.with_overrides({"integrator.steps": 1}), W0, method=method,
+                                          progress=False))
     best = float("inf")
     for _ in range(3):
         t0 = time.perf_counter()
-        ok &= bool(np.all(integrate(sc, W0, method=method, progress=False).status == 0))
+        ok &= _fixed_point_converged(integrate(sc, W0, method=method, progress=False))
         best = min(best, (time.perf_counter() - t0) / PROBE_STEPS)
     if ok and Np != N and fixed_point(method):
         ok = converges(scene, method, float(scene["integrator"]["h"]))
@@ -176,7 +184,7 @@ def converges(scene, method: str, h: float) -> bool:
 
     N = int(scene["zeitlin"]["N"])
     sc = _probe_scene(scene, h * N / min(N, PROBE_N))
-    return bool(np.all(integrate(sc, initial_fields(sc), method=method, progress=False).status == 0))
+    return _fixed_point_converged(integrate(sc, initial_fields(sc), method=method, progress=False))
 
 
 def converging_step(scene, method: str, halvings: int = 8) -> float | None:
