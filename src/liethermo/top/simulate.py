@@ -332,8 +332,7 @@ def simulate(
         require_gpu()
     if steps % every:
         raise ValueError(f"steps ({steps}) must be a multiple of every ({every})")
-    omega0 = np.array(omega0, dtype=np.float64, ndmin=2)
-    R0 = np.array(R0, dtype=np.float64, ndmin=3)
+    omega0, R0 = _float_array(omega0, 2), _float_array(R0, 3)  # read only: no copies
     N = physics.n
     if omega0.shape != (N, 3) or R0.shape != (N, 3, 3):
         raise ValueError(f"omega0 must be ({N}, 3) and R0 ({N}, 3, 3) for {N} members, got "
@@ -435,15 +434,27 @@ def simulate(
     # leave its later outputs untouched), and its initial row if it could not start
     return Trajectory(
         choice=choice, h=float(h), steps=int(steps), every=int(every), physics=physics,
-        layout=layout, terms=tuple(km.terms()), states=states,
-        status=IS[:, _lay.IS_STATUS].astype(np.int8), fail_step=IS[:, _lay.IS_FAIL_STEP].copy(),
-        newton_iterations=IS[:, _lay.IS_NEWTON_TOTAL].copy(),
-        newton_max=IS[:, _lay.IS_NEWTON_MAX].copy(),
-        steps_done=IS[:, _lay.IS_STEPS].copy(), max_h_omega=FS[:, _lay.FS_MAX_H_OMEGA].copy(),
+        layout=layout, terms=tuple(km.terms()), states=states, **_member_stats(IS, FS),
         wall_time=wall, compile_time=compile_time, kernel_seconds=wall, cpu_time=cpu,
         reference_substeps=((int(nsub) if nsub else int(IS[:, _lay.IS_NSUB].max(initial=0)))
                             if m.name == "reference" else 0),
     )
+
+
+def _float_array(a, ndim: int) -> np.ndarray:
+    """``a`` as float64 with at least ``ndim`` dimensions (leading ones added), copied only where
+    its type asks for it."""
+    a = np.asarray(a, dtype=np.float64)
+    return a.reshape((1,) * (ndim - a.ndim) + a.shape) if a.ndim < ndim else a
+
+
+def _member_stats(IS: np.ndarray, FS: np.ndarray) -> dict:
+    """The Trajectory's per-member run statistics from the kernels' (N, NISTAT) and (N, NFSTAT)
+    tables: rows of one transposed copy (one pass over the table instead of one per column)."""
+    ist = IS.T.copy()
+    return dict(status=ist[_lay.IS_STATUS].astype(np.int8), fail_step=ist[_lay.IS_FAIL_STEP],
+                newton_iterations=ist[_lay.IS_NEWTON_TOTAL], newton_max=ist[_lay.IS_NEWTON_MAX],
+                steps_done=ist[_lay.IS_STEPS], max_h_omega=FS.T[_lay.FS_MAX_H_OMEGA].copy())
 
 
 def _simulate_gpu(m: Method, km: KernelModel, stepper, Y, IS, FS, states, start_args, h: float,
@@ -473,10 +484,6 @@ def _simulate_gpu(m: Method, km: KernelModel, stepper, Y, IS, FS, states, start_
         compile_time += ct
         wall = time.perf_counter() - t0 - ct
     return Trajectory(
-        **traj, states=states,
-        status=IS[:, _lay.IS_STATUS].astype(np.int8), fail_step=IS[:, _lay.IS_FAIL_STEP].copy(),
-        newton_iterations=IS[:, _lay.IS_NEWTON_TOTAL].copy(),
-        newton_max=IS[:, _lay.IS_NEWTON_MAX].copy(),
-        steps_done=IS[:, _lay.IS_STEPS].copy(), max_h_omega=FS[:, _lay.FS_MAX_H_OMEGA].copy(),
+        **traj, states=states, **_member_stats(IS, FS),
         wall_time=wall, compile_time=compile_time, device="gpu", kernel_seconds=kernel_seconds,
     )
