@@ -74,7 +74,7 @@ def host_parts(members: int, method: str) -> None:
     _, attrs, _ = scene_setup(sc)
     with tempfile.TemporaryDirectory() as tmp:
         chunks = max(1, min(members // n, 8))
-        w = ChunkedWriter(Path(tmp) / "w.nc", n * chunks, attrs)
+        w = ChunkedWriter(Path(tmp) / "w.nc", n * chunks, attrs, member_chunk=n)  # disk chunks as the run's
         t0 = time.perf_counter()
         for k in range(chunks):
             w.write(ds, k * n)

@@ -53,6 +53,20 @@ def test_the_file_equals_a_serial_runs_and_the_in_memory_dataset(tmp_path, monke
         assert np.array_equal(a[k], ds[k].values, equal_nan=True), k
 
 
+def test_no_disk_chunk_spans_two_member_chunks(tmp_path):
+    """Each disk chunk is filled by one member chunk and written once: none is
+    larger than a member chunk (a narrow variable's 4 MiB chunk would be flushed
+    part-filled after every member chunk and rewritten by the next)."""
+    run_scene("paper", tmp_path / "x.nc", overrides=SMALL, progress=False)
+    with netCDF4.Dataset(tmp_path / "x.nc") as nc:
+        sizes = {k: v.chunking()[0] for k, v in nc.variables.items()
+                 if "member" in v.dimensions and v.chunking() != "contiguous"}
+    assert {"omega", "gamma", "entropy_change"} <= set(sizes)
+    assert set(sizes.values()) == {8}, sizes  # output.member_chunk = 8 of 40 members
+    assert lio.disk_chunk_members(40, 16) == 40 and lio.disk_chunk_members(40, 16, 8) == 8
+    assert lio.disk_chunk_members(2**20, 144, 65536) == 16384  # 4 MiB bounds it first
+
+
 def test_chunk_k_is_written_while_chunk_k_plus_1_computes(tmp_path, monkeypatch):
     """The write of chunk 0 waits for chunk 1 to start computing: a run that
     wrote before computing on would wait forever (here: time out and fail)."""

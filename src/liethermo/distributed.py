@@ -327,9 +327,10 @@ def _read_part(path: Path):
     return ds
 
 
-def combine_parts(parts: Path, chunks, out: Path, members: int, attrs: dict) -> Path:
-    """Stream the chunk files, one at a time, into the single output file."""
-    w = ChunkedWriter(out, members, attrs)
+def combine_parts(parts: Path, chunks, out: Path, members: int, attrs: dict, member_chunk: int | None = None) -> Path:
+    """Stream the chunk files, one at a time, into the single output file (its disk
+    chunks bounded by ``member_chunk`` as an in-process run's)."""
+    w = ChunkedWriter(out, members, attrs, member_chunk=member_chunk)
     with w:
         for lo, hi in chunks:
             check_stop()
@@ -490,7 +491,7 @@ def _run_scene_dask(scene, attrs, summ, out, key, parts, t_wall, chunks_out, add
         _wait_all(client, list(futures), bar, done)
     t_comb = time.perf_counter()
     if combine:
-        combine_parts(parts, chunks, out, members, attrs)
+        combine_parts(parts, chunks, out, members, attrs, int(scene["output"]["member_chunk"]))
         if not keep_parts:
             shutil.rmtree(parts, ignore_errors=True)
     summ.combine_time = time.perf_counter() - t_comb

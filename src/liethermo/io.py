@@ -92,11 +92,16 @@ def io_cause(exc: BaseException, probe: Path | None = None) -> str:
     return f"{exc}" or type(exc).__name__
 
 
-def disk_chunk_members(n_members: int, member_bytes: int) -> int:
+def disk_chunk_members(n_members: int, member_bytes: int, member_chunk: int | None = None) -> int:
     """Members per on-disk chunk of a variable with ``member_bytes`` per member:
-    about CHUNK_BYTES, a power of two, so that member chunks of a run (powers
-    of two) fill whole disk chunks and none is read back to be completed."""
+    at most about CHUNK_BYTES, a power of two, and no more than the run's
+    ``member_chunk``.  A run's member chunks (powers of two by default) then fill
+    whole disk chunks, each written once: a disk chunk larger than a member
+    chunk would be flushed part-filled after every member chunk and rewritten
+    by the next ones (the bytes of a narrow variable written four times over)."""
     budget = max(1, CHUNK_BYTES // max(1, member_bytes))
+    if member_chunk:
+        budget = min(budget, int(member_chunk))
     return min(n_members, 1 << (budget.bit_length() - 1))
 
 
@@ -134,11 +139,14 @@ class ChunkedWriter:
     Use as a context manager; on an exception the temporary file is removed.
     ``attrs`` are the global attributes; ``history`` (the command line or API
     call that makes the file) replaces the ``history`` of ``attrs`` if given.
+    ``member_chunk``: the members the writer is given at a time (the run's
+    ``output.member_chunk``), which bounds the disk chunks
+    (:func:`disk_chunk_members`).
     The temporary is created (and the folder checked) at construction.
     """
 
     def __init__(self, path: str | os.PathLike, n_members: int, attrs: dict | None = None,
-                 history: str | None = None):
+                 history: str | None = None, member_chunk: int | None = None):
         self.path = Path(path)
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -146,6 +154,7 @@ class ChunkedWriter:
         except OSError as exc:
             raise WriteError(self.path, _errno_text(exc)) from None
         self.n_members = int(n_members)
+        self.member_chunk = int(member_chunk) if member_chunk else None
         self.attrs = cf.encode_attrs(attrs or {}, history)
         self.nc: netCDF4.Dataset | None = None
         self.written = 0
@@ -189,7 +198,7 @@ class ChunkedWriter:
                 chunks = None
                 if "member" in var.dims and var.ndim > 1:
                     other = int(np.prod([ds.sizes[d] for d in var.dims if d != "member"]))
-                    m = disk_chunk_members(self.n_members, other * var.dtype.itemsize)
+                    m = disk_chunk_members(self.n_members, other * var.dtype.itemsize, self.member_chunk)
                     chunks = [m if d == "member" else ds.sizes[d] for d in var.dims]
                 v = nc.createVariable(name, var.dtype, var.dims, chunksizes=chunks)
                 if chunks is not None:
@@ -229,7 +238,7 @@ class ChunkedWriter:
                 chunks = None
                 if "member" in dims and len(dims) > 1:
                     other = int(np.prod([len(src.dimensions[d]) for d in dims if d != "member"]))
-                    m = disk_chunk_members(self.n_members, other * var.dtype.itemsize)
+                    m = disk_chunk_members(self.n_members, other * var.dtype.itemsize, self.member_chunk)
                     chunks = [m if d == "member" else len(src.dimensions[d]) for d in dims]
                 v = nc.createVariable(name, var.dtype, dims, chunksizes=chunks)
                 if chunks is not None:

@@ -232,7 +232,7 @@ def _run_to_file(scene, attrs, out: Path, summ, total, bar, kernel, resume, mode
         source = found[0] if found else None
     elif resume:
         source = resume
-    writer = ChunkedWriter(out, members, attrs)
+    writer = ChunkedWriter(out, members, attrs, member_chunk=chunk)
     journal = Journal(out, scene_to_toml(scene), members, chunk)
     jpath = journal_path(writer.tmp)
     i = 0
@@ -247,6 +247,7 @@ def _run_to_file(scene, attrs, out: Path, summ, total, bar, kernel, resume, mode
                     check_stop()
                     with critical():
                         crc = writer.write_arrays(arrays, rec["lo"])
+                        writer.sync()  # flushed chunk by chunk as the run did: HDF5 places them alike
                         journal.chunks.append({"lo": rec["lo"], "hi": rec["hi"], "crc": crc, "stats": rec["stats"]})
                     st = model.stats_from_dict(rec["stats"])
                     st.kernel_time = 0.0  # spent by the earlier run: not this run's throughput

@@ -502,7 +502,7 @@ def estimate(scene: dict):
             n = var.dtype.itemsize if var.dtype.kind != "O" else 16
             for d in var.dims[1:]:
                 n *= n_t if d == "t" else ds.sizes[d]
-            out.append((n, disk_chunk_members(members, n) if var.ndim > 1 else 0))
+            out.append((n, disk_chunk_members(members, n, int(outp["member_chunk"])) if var.ndim > 1 else 0))
         return out
 
     kept = select_variables(full, scene, layout)

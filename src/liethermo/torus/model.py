@@ -270,7 +270,7 @@ class Torus(StudyDefaults, Model):
         per_var = [8 * T] * 13 + [8 * T * 3]
         n_fields = 2 * (bool(scene["output"]["vorticity"]) + bool(scene["output"]["entropy_field"]))
         per_var += [8 * T * N * N] * n_fields
-        layout = [(n, disk_chunk_members(M, n)) for n in per_var] + [(1, 0), (8, 0)]
+        layout = [(n, disk_chunk_members(M, n, int(scene["output"]["member_chunk"]))) for n in per_var] + [(1, 0), (8, 0)]
         file_per = sum(n for n, _ in layout)
         mat = 16 * N * N
         work = 40 * mat + 16 * T * 13 + n_fields * 8 * T * N * N

@@ -325,7 +325,7 @@ class Fluid(StudyDefaults, Model):
             per_var += [8 * T * N * N] * 2
         if scene["initial"]["kind"] == "file":  # the initial coefficients, stored per member
             per_var += [8 * N * N] * 2
-        layout = [(n, disk_chunk_members(M, n)) for n in per_var] + [(1, 0), (8, 0), (8, 0)]
+        layout = [(n, disk_chunk_members(M, n, int(scene["output"]["member_chunk"]))) for n in per_var] + [(1, 0), (8, 0), (8, 0)]
         file_per = sum(n for n, _ in layout)
         W = 16 * N * N
         method = scene["integrator"]["method"]
