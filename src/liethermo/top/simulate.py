@@ -375,7 +375,8 @@ def simulate(
             IS[:, _lay.IS_NSUB] = reference_substeps(h, physics, omega0)
         stepper = m.stepper(choice, nsub)
 
-    states = np.full((N, n_out + 1, layout.size), np.nan)
+    states = np.empty((N, n_out + 1, layout.size))
+    states[:, 1:] = np.nan  # row 0 is the initial state (set below); a failed member's later rows stay NaN
     adapt = chunk_steps is None
     if gpu:
         from .kernels import cuda as _cuda
