@@ -111,6 +111,22 @@ def test_resume_in_process_equals_an_uninterrupted_run(tmp_path, monkeypatch):
     assert calls[:3] == [0, 8, 16]
 
 
+def test_the_journal_checksum_is_zlibs_crc32():
+    """The CRC-32 a journal records is zlib's, whichever library computes it: a
+    journal written by one install is read by another."""
+    import zlib
+
+    import numpy as np
+
+    from liethermo.io import checksum
+
+    x = np.arange(2 * 5 * 16, dtype=np.float64).reshape(2, 5, 16) / 7.0
+    for a in (x[..., 3:6], x[:, :, 0].astype(np.int8), np.array([], dtype=np.int64)):
+        assert checksum(a) == zlib.crc32(np.ascontiguousarray(a).tobytes())
+    labels = np.array(["x", "y", "z"], dtype=object)
+    assert checksum(labels) == zlib.crc32(b"x\0y\0z")
+
+
 def test_resume_recomputes_a_chunk_whose_checksum_fails(tmp_path, monkeypatch):
     """A recorded chunk whose values do not match the journal (a damaged file)
     is computed again, and so is everything after it."""
