@@ -201,22 +201,28 @@ class ChunkedWriter:
                 v = nc.createVariable(name, str, var.dims)
                 v[:] = np.asarray(var.values, dtype=object)
             else:
-                chunks = None
-                if "member" in var.dims and var.ndim > 1:
-                    other = int(np.prod([ds.sizes[d] for d in var.dims if d != "member"]))
-                    m = disk_chunk_members(self.n_members, other * var.dtype.itemsize, self.member_chunk)
-                    chunks = [m if d == "member" else ds.sizes[d] for d in var.dims]
-                v = nc.createVariable(name, var.dtype, var.dims, chunksizes=chunks)
-                if chunks is not None:
-                    # every disk chunk is written once, in order: a cache of two chunks is
-                    # enough. netCDF's default (64 MiB per variable, ~25 variables) made the
-                    # peak memory grow with the ensemble size (1.3 GB at 10^6 members)
-                    nbytes = int(np.prod(chunks)) * var.dtype.itemsize
-                    v.set_var_chunk_cache(size=2 * nbytes + 1024, nelems=17, preemption=1.0)
+                v = self._numeric_variable(name, var.dtype, var.dims, ds.sizes)
                 if "member" not in var.dims:
                     v[...] = var.values
             v.setncatts({k: _nc_attr(a) for k, a in var.attrs.items()})
         nc.setncatts({k: _nc_attr(a) for k, a in self.attrs.items()})
+
+    def _numeric_variable(self, name: str, dtype, dims: tuple, sizes) -> netCDF4.Variable:
+        """A numeric variable of the new file: one with ``member`` and more dimensions
+        chunked on disk by :func:`disk_chunk_members`; ``sizes``: the other dimensions'."""
+        chunks = None
+        if "member" in dims and len(dims) > 1:
+            other = int(np.prod([sizes[d] for d in dims if d != "member"]))
+            m = disk_chunk_members(self.n_members, other * dtype.itemsize, self.member_chunk)
+            chunks = [m if d == "member" else sizes[d] for d in dims]
+        v = self.nc.createVariable(name, dtype, dims, chunksizes=chunks)
+        if chunks is not None:
+            # every disk chunk is written once, in order: a cache of two chunks is
+            # enough. netCDF's default (64 MiB per variable, ~25 variables) made the
+            # peak memory grow with the ensemble size (1.3 GB at 10^6 members)
+            nbytes = int(np.prod(chunks)) * dtype.itemsize
+            v.set_var_chunk_cache(size=2 * nbytes + 1024, nelems=17, preemption=1.0)
+        return v
 
     def define_like(self, source: Path) -> None:
         """Create the file's dimensions and variables as the partial file
@@ -241,15 +247,7 @@ class ChunkedWriter:
                 v = nc.createVariable(name, str, dims)
                 v[:] = var[:]
             else:
-                chunks = None
-                if "member" in dims and len(dims) > 1:
-                    other = int(np.prod([len(src.dimensions[d]) for d in dims if d != "member"]))
-                    m = disk_chunk_members(self.n_members, other * var.dtype.itemsize, self.member_chunk)
-                    chunks = [m if d == "member" else len(src.dimensions[d]) for d in dims]
-                v = nc.createVariable(name, var.dtype, dims, chunksizes=chunks)
-                if chunks is not None:
-                    nbytes = int(np.prod(chunks)) * var.dtype.itemsize
-                    v.set_var_chunk_cache(size=2 * nbytes + 1024, nelems=17, preemption=1.0)
+                v = self._numeric_variable(name, var.dtype, dims, {d: len(n) for d, n in src.dimensions.items()})
                 if "member" not in dims:
                     v[...] = var[...]
             v.setncatts({k: var.getncattr(k) for k in var.ncattrs()})
