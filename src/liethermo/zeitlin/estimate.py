@@ -171,7 +171,13 @@ def probe_step_seconds(scene, method: str) -> tuple[float, int, int, bool]:
         best = min(best, (time.perf_counter() - t0) / PROBE_STEPS)
     if ok and Np != N and fixed_point(method):
         ok = converges(scene, method, float(scene["integrator"]["h"]))
-    return best, Np, min(int(scene["ensemble"]["members"]), 2), ok
+    return best, Np, int(sc["ensemble"]["members"]), ok
+
+
+def probe_h(scene, h: float) -> float:
+    """The step at N_probe = min(N, PROBE_N) with the same h·N as ``h`` at the scene's N."""
+    N = int(scene["zeitlin"]["N"])
+    return h * N / min(N, PROBE_N)
 
 
 def converges(scene, method: str, h: float) -> bool:
@@ -182,8 +188,7 @@ def converges(scene, method: str, h: float) -> bool:
     h·N/N_probe."""
     from .run import initial_fields, integrate
 
-    N = int(scene["zeitlin"]["N"])
-    sc = _probe_scene(scene, h * N / min(N, PROBE_N))
+    sc = _probe_scene(scene, probe_h(scene, h))
     return _fixed_point_converged(integrate(sc, initial_fields(sc), method=method, progress=False))
 
 
@@ -290,7 +295,7 @@ def estimate(scene, methods: list[str] | None = None) -> Estimate:
         s, Np, Mp, ok = probe_step_seconds(scene, m)
         est.methods[m] = (s * (N / Np) ** 3 * (M / Mp) * steps, _run_memory(scene, m) - est.basis_bytes, Np)
         if not ok:
-            est.not_converging[m] = (float(scene["integrator"]["h"]) * N / Np, converging_step(scene, m))
+            est.not_converging[m] = (probe_h(scene, est.h), converging_step(scene, m))
     return est
 
 
