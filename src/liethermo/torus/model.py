@@ -270,11 +270,12 @@ class Torus(StudyDefaults, Model):
         per_var = [8 * T] * 13 + [8 * T * 3]
         n_fields = 2 * (bool(scene["output"]["vorticity"]) + bool(scene["output"]["entropy_field"]))
         per_var += [8 * T * N * N] * n_fields
-        layout = [(n, disk_chunk_members(M, n, int(scene["output"]["member_chunk"]))) for n in per_var] + [(1, 0), (8, 0)]
+        chunk = int(scene["output"]["member_chunk"])
+        layout = [(n, disk_chunk_members(M, n, chunk)) for n in per_var] + [(1, 0), (8, 0)]
         file_per = sum(n for n, _ in layout)
         mat = 16 * N * N
         work = 40 * mat + 16 * T * 13 + n_fields * 8 * T * N * N
-        est = Estimate(file_per, work + 2 * file_per, M, int(scene["output"]["member_chunk"]), layout, 2 * mat * T)
+        est = Estimate(file_per, work + 2 * file_per, M, chunk, layout, 2 * mat * T)
         method = scene["integrator"]["method"]
         if scene["ensemble"]["device"] == "gpu" and method != "reference":
             from .step import memory_bytes

@@ -325,7 +325,8 @@ class Fluid(StudyDefaults, Model):
             per_var += [8 * T * N * N] * 2
         if scene["initial"]["kind"] == "file":  # the initial coefficients, stored per member
             per_var += [8 * N * N] * 2
-        layout = [(n, disk_chunk_members(M, n, int(scene["output"]["member_chunk"]))) for n in per_var] + [(1, 0), (8, 0), (8, 0)]
+        chunk = int(scene["output"]["member_chunk"])
+        layout = [(n, disk_chunk_members(M, n, chunk)) for n in per_var] + [(1, 0), (8, 0), (8, 0)]
         file_per = sum(n for n, _ in layout)
         W = 16 * N * N
         method = scene["integrator"]["method"]
@@ -338,7 +339,7 @@ class Fluid(StudyDefaults, Model):
         from .kernels import basis_on_disk
 
         fixed = ze.basis_bytes(N, basis_on_disk(N)) + W * T  # the basis; member 0's W for the figures
-        est = Estimate(file_per, memory_per, M, int(scene["output"]["member_chunk"]), layout, fixed)
+        est = Estimate(file_per, memory_per, M, chunk, layout, fixed)
         if scene["ensemble"]["device"] == "gpu" and method != "reference":
             from .xpstep import memory_bytes
 
