@@ -11,8 +11,9 @@ chunk, the host's parts of a run, each the best of five on this process's thread
 the initial conditions, ``simulate`` outside its kernels, labelling the chunk with its summary's
 figures, and writing it (CF encoding, CRC-32, netCDF, flush).  Last, the run's chunk loop on
 this process with parts of it left out: drawing the initial conditions and simulating only,
-then with labelling too (no writing in either), each with its wall time, kernel time and
-ratio: the floor a run reaches when what is left out costs nothing.  Compare two checkouts
+then with the stored variables labelled (what the file holds, without the summary's figures),
+then labelled with the summary's figures as a run does (no writing in any), each with its wall
+time, kernel time and ratio: the floor a run reaches when what is left out costs nothing.  Compare two checkouts
 by running it in each, interleaved, on one machine.
 """
 
@@ -91,6 +92,7 @@ def chunk_loops(members: int, steps: int, method: str) -> None:
     from liethermo import load_scene
     from liethermo.models import model_of
     from liethermo.threads import pools, usable_cores
+    from liethermo.top.dataset import chunk_labels, stored_variables
     from liethermo.top.model import _simulated, label_chunk
 
     sc = load_scene("paper", {"ensemble.members": members, "integrator.steps": steps, "integrator.h": 0.01,
@@ -99,12 +101,15 @@ def chunk_loops(members: int, steps: int, method: str) -> None:
     print("the chunk loop without writing (the run's thread pools, one round each):")
     with pools(model_of(sc).thread_counts(sc, usable_cores())):
         label_chunk(sc, *_simulated(sc, 0, min(n, members)))  # compiled or loaded: not timed
-        for what, label in (("initial conditions and simulate", False), ("... and labelling", True)):
+        for what, label in (("initial conditions and simulate", ""), ("... and the stored variables", "variables"),
+                            ("... and the summary's figures too", "all")):
             kernel, t0 = 0.0, time.perf_counter()
             for lo in range(0, members, n):
                 traj, om0, R0 = _simulated(sc, lo, min(lo + n, members))  # the run's own chunk step
                 kernel += traj.wall_time
-                if label:
+                if label == "variables":  # labelled as the file stores them, no summary figures
+                    chunk_labels(traj, omega0=om0, R0=R0, member_offset=lo).dataset(stored_variables(sc, traj.layout))
+                elif label:
                     label_chunk(sc, traj, om0, R0, lo)
             wall = time.perf_counter() - t0
             print(f"  {what:38s} {wall:6.2f} s, kernel {kernel:.2f} s, ratio {wall / kernel:.2f}")
