@@ -317,3 +317,70 @@ def test_the_labellings_dot_products_are_numpys_bits_in_one_compiled_pass(monkey
         other = (p[..., 1] + p[..., 2]) + p[..., 0]
         assert not np.array_equal(other.view(np.int64), np.sum(p, axis=-1).view(np.int64))
     assert len(calls) == len(cases) + 1  # every case above ran compiled
+
+
+def test_the_summarys_energy_figures_in_one_compiled_pass_are_those_of_numpys_arrays(monkeypatch):
+    """The energy figures (max |E_k − E_0|, max relative, at t = 0, members beyond the divergence
+    bound) and the |Γ| defect from the compiled passes equal those numpy gives from the
+    labelled arrays, on adversarial values (NaN, ±inf, ±0, a zero energy scale) and on whole
+    chunks of several physics (the coupled top's entropy-dependent inertia, the splitting's
+    heat, the flat spin's double bracket).  Summing the error in another order gives other
+    figures on the same values (the comparison can fail)."""
+    import numpy as np
+
+    from liethermo import load_scene
+    from liethermo.top import model as tm
+    from liethermo.top.dataset import chunk_labels
+    from liethermo.top.kernels.reductions import energy_error_figures, unit_norm_defect
+    from liethermo.top.resolve import resolve
+    from liethermo.top.initial import initial_conditions
+
+    def numpy_figures(K, V, dU, K0, V0, scale, order=0):
+        e = ((K - K0[:, None]) + (V - V0[:, None])) + dU if order == 0 else (K - K0[:, None]) + (
+            (V - V0[:, None]) + dU)
+        ee = np.abs(e)
+        rel = ee / np.abs(scale)[:, None]
+        worst = np.fmax.reduce(rel, axis=1, initial=0.0)
+        return [tm._nanmax(ee), tm._nanmax(rel), tm._nanmax(rel[:, :1]),
+                float(np.count_nonzero(worst > tm.DIVERGED_REL_ENERGY))]
+
+    def same(got, want):
+        return all((np.isnan(w) and (np.isnan(g) or g == -np.inf)) or g == w for g, w in zip(got, want))
+
+    rng = np.random.default_rng(11)
+    n, T = 3000, 3
+    parts = [_adversarial(rng, (n, T)) for _ in range(3)] + [_adversarial(rng, (n,)) for _ in range(3)]
+    parts[-1][:50] = 0.0  # no energy to lose: 0/0
+    with np.errstate(all="ignore"):
+        out = np.empty(4)
+        energy_error_figures(*parts, float(tm.DIVERGED_REL_ENERGY), out)
+        assert same(out, numpy_figures(*parts)), (out, numpy_figures(*parts))
+        mild = [rng.standard_normal((n, T)) for _ in range(3)] + [rng.standard_normal(n) for _ in range(3)]
+        energy_error_figures(*mild, float(tm.DIVERGED_REL_ENERGY), out)
+        assert same(out, numpy_figures(*mild))
+        tie = [np.array([[1.0]]), np.array([[2.0 ** -53]]), np.array([[2.0 ** -53]]), np.zeros(1), np.zeros(1),
+               np.ones(1)]  # (1 + u) + u rounds to 1, 1 + (u + u) does not
+        energy_error_figures(*tie, float(tm.DIVERGED_REL_ENERGY), out)
+        assert same(out, numpy_figures(*tie)) and not same(out, numpy_figures(*tie, order=1))
+        G = _adversarial(rng, (n, T, 3))
+        g = np.empty(1)
+        unit_norm_defect(G, g)
+        want = tm._nanmax(np.abs(np.linalg.norm(G, axis=-1) - 1.0))
+        assert g[0] == want or (np.isnan(want) and g[0] == -np.inf)
+        unit_norm_defect(G[:, ::2], g)  # a strided view
+        assert g[0] == tm._nanmax(np.abs(np.linalg.norm(G[:, ::2], axis=-1) - 1.0))
+
+    passes = []
+    real = tm._energy_figures_compiled
+    monkeypatch.setattr(tm, "_energy_figures_compiled", lambda *a: passes.append(1) or real(*a))
+    for name, over in [("paper", {"integrator.method": "split"}), ("coupled_egg", {}), ("flat_spin", {}),
+                       ("paper", {"integrator.method": "vi"})]:
+        sc = load_scene(name, {"ensemble.members": 400, "integrator.steps": 30, "output.every": 10, **over})
+        om0, R0 = initial_conditions(sc, 0, 400)
+        traj = resolve(sc).simulate(om0, R0)
+        compiled = tm._labelled_stats(traj, chunk_labels(traj, omega0=om0, R0=R0)).to_dict()
+        with monkeypatch.context() as m:
+            m.setattr(tm, "_compiled_figures", lambda ds, tr: False)
+            plain = tm._labelled_stats(traj, chunk_labels(traj, omega0=om0, R0=R0)).to_dict()
+        assert compiled == plain, name
+    assert len(passes) == 4  # every chunk above took the compiled pass

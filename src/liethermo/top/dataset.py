@@ -99,8 +99,10 @@ class ChunkLabels:
     :meth:`dataset` gathers them in their fixed order.  A run computes what its
     summary reads and what its file stores, nothing else."""
 
-    def __init__(self, build: dict, coords: dict):
+    def __init__(self, build: dict, coords: dict, energy_parts=None):
         self._build, self._coords, self._done = build, coords, {}
+        #: () -> (K, V, ΔU (M, T), K₀, V₀ (M,)), the parts of ``energy_error`` (None: not known)
+        self.energy_parts = energy_parts
 
     def __contains__(self, name) -> bool:
         return name in self._build or name in self._coords
@@ -273,7 +275,7 @@ def _chunk_labels(traj, omega0, R0, member_offset) -> ChunkLabels:
         "step": _var(traj.step_index.astype(np.int64), ("t",), "1", "step index k"),
         "axis": xr.Variable(("axis",), np.array(AXIS), attrs={"units": "1", "long_name": "body-frame axis"}),
     }
-    return ChunkLabels(build, coords)
+    return ChunkLabels(build, coords, energy_parts=lambda: (e()["K"], e()["V"], e()["dU"]) + K0V0())
 
 
 def _heat_parts(traj, dims_t) -> dict:

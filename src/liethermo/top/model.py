@@ -364,19 +364,22 @@ def _labelled_stats(traj, ds) -> "ChunkStats":
     every = bool(ok.all())
     if every:
         ok = slice(None)  # the same members, without copies
-    ee = np.abs(ds["energy_error"].values[ok])
-    st.e_abs = max(st.e_abs, _nanmax(ee))
     em = np.abs(ds["mechanical_energy_initial"].values[ok])[:, None]
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        rel = ee / em
-        st.e_rel = max(st.e_rel, _nanmax(rel))
-        st.e_rel_t0 = max(st.e_rel_t0, _nanmax(rel[:, :1]))
-        worst = np.fmax.reduce(rel, axis=1, initial=0.0)  # NaN (0/0: no energy to lose) counts as 0
-        st.diverged = int(np.count_nonzero(worst > DIVERGED_REL_ENERGY))
+        if every and _compiled_figures(ds, traj):
+            _energy_figures_compiled(st, ds, em, traj.gamma)
+        else:
+            ee = np.abs(ds["energy_error"].values[ok])
+            st.e_abs = max(st.e_abs, _nanmax(ee))
+            rel = ee / em
+            st.e_rel = max(st.e_rel, _nanmax(rel))
+            st.e_rel_t0 = max(st.e_rel_t0, _nanmax(rel[:, :1]))
+            worst = np.fmax.reduce(rel, axis=1, initial=0.0)  # NaN (0/0: no energy to lose) counts as 0
+            st.diverged = int(np.count_nonzero(worst > DIVERGED_REL_ENERGY))
+            st.gdef = max(st.gdef, _nanmax(np.abs(norm3(traj.gamma[ok]) - 1.0)))
         if "energy_error_paper" in ds:
             st.e_rel_paper = max(st.e_rel_paper,
                                  _nanmax(np.abs(ds["energy_error_paper"].values[ok]) / em))
-        st.gdef = max(st.gdef, _nanmax(np.abs(norm3(traj.gamma[ok]) - 1.0)))
     st.hw = max(st.hw, _nanmax(traj.max_h_omega[ok]))
     st.nit_total = int(traj.newton_iterations.sum())
     st.nsteps_total = int(traj.steps_done.sum())
@@ -385,6 +388,34 @@ def _labelled_stats(traj, ds) -> "ChunkStats":
     with np.errstate(over="ignore", invalid="ignore"):
         st.findings = chunk_findings(ds, traj.physics)
     return st
+
+
+def _compiled_figures(ds, traj) -> bool:
+    """Whether the energy figures of a chunk whose members all completed come from the
+    compiled pass (:func:`_energy_figures_compiled`): the labels know the energy's parts,
+    the state is float64, and numba compiles (not under ``NUMBA_DISABLE_JIT``)."""
+    from .kernels.reductions import energy_error_figures
+
+    return (getattr(ds, "energy_parts", None) is not None and traj.states.dtype == np.float64
+            and hasattr(energy_error_figures, "overloads"))
+
+
+def _energy_figures_compiled(st: "ChunkStats", ds, em: np.ndarray, gamma: np.ndarray) -> None:
+    """``st``'s energy figures and |Γ| defect from the energy's parts in one compiled pass
+    each (:mod:`liethermo.top.kernels.reductions`), with the values numpy's arrays give:
+    the same operations in the same order, maxima over the finite values."""
+    from .kernels.reductions import energy_error_figures, unit_norm_defect
+
+    K, V, dU, K0, V0 = (np.asarray(a, dtype=np.float64) for a in ds.energy_parts())
+    K, V, dU = np.broadcast_arrays(K, V, dU)  # a part the same at every time (none acting) broadcasts
+    out = np.empty(4)
+    energy_error_figures(K, V, dU, K0, V0, em[:, 0], float(DIVERGED_REL_ENERGY), out)
+    st.e_abs, st.e_rel, st.e_rel_t0 = (max(a, float(b)) for a, b in ((st.e_abs, out[0]), (st.e_rel, out[1]),
+                                                                      (st.e_rel_t0, out[2])))
+    st.diverged = int(out[3])
+    g = np.empty(1)
+    unit_norm_defect(gamma, g)
+    st.gdef = max(st.gdef, float(g[0]))
 
 
 def _simulated(scene, lo: int, hi: int, *, progress_cb=None, kernel=None, threads=None) -> tuple:
