@@ -234,14 +234,37 @@ def reference_substeps(h: float, physics: Physics, omega0: np.ndarray) -> np.nda
     return np.maximum(1, n).astype(np.int64)
 
 
+#: (kernel, _type_key of its arguments) of the calls already compiled or loaded in this process
+_READY: set = set()
+
+
+def _type_key(a):
+    """What numba's type of an argument depends on: an array's dtype, dimensions, layout,
+    writability and alignment, a tuple's class and items, a scalar's Python type.  Cheaper
+    than ``numba.typeof`` of the model's nested tuples (1.5 ms a chunk)."""
+    if isinstance(a, np.ndarray):
+        f = a.flags
+        return a.dtype.str, a.ndim, f.c_contiguous, f.f_contiguous, f.writeable, f.aligned
+    if isinstance(a, tuple):
+        return (type(a),) + tuple(_type_key(x) for x in a)
+    return type(a)
+
+
 def _ensure_compiled(fn, args) -> float:
-    """Compile (or load from the cache) ``fn`` for these arguments; seconds spent."""
+    """Compile (or load from the cache) ``fn`` for these arguments; seconds spent.  A call
+    whose arguments have the types of one made before is ready (a key that missed a type
+    would only leave its compiling in the kernels' time: the call itself dispatches on numba's
+    own types)."""
     if not hasattr(fn, "overloads"):  # NUMBA_DISABLE_JIT: plain Python
         return 0.0
     t0 = time.perf_counter()
+    key = (fn, tuple(_type_key(a) for a in args))
+    if key in _READY:
+        return time.perf_counter() - t0
     sig = tuple(numba.typeof(a) for a in args)
     if sig not in fn.overloads:
         fn.compile(sig)
+    _READY.add(key)
     return time.perf_counter() - t0
 
 
@@ -375,10 +398,10 @@ def simulate(
             IS[:, _lay.IS_NSUB] = reference_substeps(h, physics, omega0)
         stepper = m.stepper(choice, nsub)
 
-    states = np.empty((N, n_out + 1, layout.size))
-    states[:, 1:] = np.nan  # row 0 is the initial state (set below); a failed member's later rows stay NaN
+    states = np.empty((N, n_out + 1, layout.size))  # row 0: the initial state; later rows NaN until written
     adapt = chunk_steps is None
     if gpu:
+        states[:, 1:] = np.nan  # a failed member's later rows stay NaN
         from .kernels import cuda as _cuda
 
         out_per_chunk = (_cuda.outputs_per_call(N, layout.size, n_out, every) if adapt
@@ -415,7 +438,10 @@ def simulate(
             _par.run_ranges(_simple.vi_start_members, N, start_args[:4], start_args[6:], threads)
     if compile_only:
         return None
-    states[:, 0] = Y
+    if hasattr(_lay.start_rows, "overloads"):
+        _lay.start_rows(states, Y)  # Y after the start kernel; a failed member's later rows stay NaN
+    else:  # NUMBA_DISABLE_JIT: the same in numpy
+        states[:, 0], states[:, 1:] = Y, np.nan
     t0, c0 = time.perf_counter(), time.process_time()
     j = 0
     while j < n_out:
@@ -451,11 +477,11 @@ def _float_array(a, ndim: int) -> np.ndarray:
 
 def _member_stats(IS: np.ndarray, FS: np.ndarray) -> dict:
     """The Trajectory's per-member run statistics from the kernels' (N, NISTAT) and (N, NFSTAT)
-    tables: rows of one transposed copy (one pass over the table instead of one per column)."""
-    ist = IS.T.copy()
-    return dict(status=ist[_lay.IS_STATUS].astype(np.int8), fail_step=ist[_lay.IS_FAIL_STEP],
-                newton_iterations=ist[_lay.IS_NEWTON_TOTAL], newton_max=ist[_lay.IS_NEWTON_MAX],
-                steps_done=ist[_lay.IS_STEPS], max_h_omega=FS.T[_lay.FS_MAX_H_OMEGA].copy())
+    tables: their columns as views (no copies; what reads them copies what it keeps), the
+    status as int8."""
+    return dict(status=IS[:, _lay.IS_STATUS].astype(np.int8), fail_step=IS[:, _lay.IS_FAIL_STEP],
+                newton_iterations=IS[:, _lay.IS_NEWTON_TOTAL], newton_max=IS[:, _lay.IS_NEWTON_MAX],
+                steps_done=IS[:, _lay.IS_STEPS], max_h_omega=FS[:, _lay.FS_MAX_H_OMEGA])
 
 
 def _simulate_gpu(m: Method, km: KernelModel, stepper, Y, IS, FS, states, start_args, h: float,

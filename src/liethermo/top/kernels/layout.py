@@ -31,9 +31,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
 from numba.extending import overload
 
-from ._jit import LANE_OPTIONS, ld, st
+from ._jit import LANE_OPTIONS, jit, ld, st
 from .gen import compile_source, is_none
 
 STATUS_OK, STATUS_NEWTON, STATUS_NONFINITE = 0, 1, 2
@@ -185,3 +186,17 @@ def _make_io(family: str):
 load_rk_state, store_rk_state = _make_io("rk")
 load_vi_state, store_vi_state = _make_io("vi")
 load_split_state, store_split_state = _make_io("split")
+
+
+@jit(nogil=True)
+def start_rows(states, Y):
+    """The output array before the kernels write it, in one pass: ``states[m, 0] = Y[m]``
+    (the state at t = 0) and NaN in every later row (what a member that fails keeps from
+    its failing step on)."""
+    nan = np.nan
+    for m in range(states.shape[0]):
+        for k in range(states.shape[2]):
+            states[m, 0, k] = Y[m, k]
+        for t in range(1, states.shape[1]):
+            for k in range(states.shape[2]):
+                states[m, t, k] = nan
