@@ -384,3 +384,41 @@ def test_the_summarys_energy_figures_in_one_compiled_pass_are_those_of_numpys_ar
             plain = tm._labelled_stats(traj, chunk_labels(traj, omega0=om0, R0=R0)).to_dict()
         assert compiled == plain, name
     assert len(passes) == 4  # every chunk above took the compiled pass
+
+
+def test_the_summarys_maxima_and_spans_take_one_pass_where_the_values_allow_and_agree_with_the_masked_ones():
+    """_nanmax and _span (the largest finite value; [min, max] of the finite ones) and the
+    findings' maximum over the stored times give what numpy's masked reductions give, bit for bit
+    (the sign of a zero too), on values with NaN, ±inf, ±0, none finite, and none at all."""
+    import numpy as np
+
+    from liethermo.top.findings import _max_over_t, _span
+    from liethermo.top.model import _nanmax
+
+    def masked_max(a):
+        m = float(np.max(a, where=np.isfinite(a), initial=-np.inf))
+        return m if m != -np.inf else float("nan")
+
+    def masked_span(a):
+        f = np.isfinite(a)
+        lo = float(np.min(a, where=f, initial=np.inf))
+        return [lo, float(np.max(a, where=f, initial=-np.inf))] if lo != np.inf else None
+
+    def same(x, y):
+        return np.array_equal(np.asarray(x, dtype=float).view(np.int64), np.asarray(y, dtype=float).view(np.int64))
+
+    rng = np.random.default_rng(5)
+    arrays = [_adversarial(rng, (500, 3)), rng.standard_normal((500, 2)), np.abs(rng.standard_normal(400)),
+              np.array([-0.0, 0.0]), np.array([0.0, -0.0]), np.array([-0.0]), np.array([np.nan, np.inf]),
+              np.array([-np.inf, 1.0]), np.array([np.inf, 2.0]), np.array([np.nan, 3.0, -1.0]), np.zeros(0),
+              np.array([-5.0, -0.0])]
+    with np.errstate(all="ignore"):
+        for a in arrays:
+            got, want = _nanmax(a), masked_max(a)
+            assert same(got, want) or (np.isnan(got) and np.isnan(want)), (a, got, want)
+            s, w = _span(a), masked_span(a)
+            assert (s is None and w is None) or same(s, w), (a, s, w)
+        for x in (np.abs(_adversarial(rng, (300, 2))), np.abs(rng.standard_normal((300, 5))),
+                  np.abs(_adversarial(rng, (300, 1))), np.abs(_adversarial(rng, (300, 12)))):
+            got, want = _max_over_t(x), np.max(x, axis=1)
+            assert np.array_equal(got, want, equal_nan=True)

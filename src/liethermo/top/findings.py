@@ -92,9 +92,25 @@ def _linear_friction(phys: ph.Physics, axis: int) -> np.ndarray:
 def _span(values) -> list[float] | None:
     """[min, max] of the finite values (None if there are none)."""
     v = np.asarray(values, dtype=float)
+    if v.size:
+        lo, hi = float(np.min(v)), float(np.max(v))  # both finite and not 0: no NaN, no inf, one sign of zero
+        if lo != 0.0 and hi != 0.0 and np.isfinite(lo) and np.isfinite(hi):
+            return [lo, hi]
     finite = np.isfinite(v)
     lo = float(np.min(v, where=finite, initial=np.inf))
     return [lo, float(np.max(v, where=finite, initial=-np.inf))] if lo != np.inf else None
+
+
+def _max_over_t(x: np.ndarray) -> np.ndarray:
+    """``np.max(x, axis=1)`` of values (M, T) that are ≥ 0 or NaN, in T − 1 passes of
+    ``np.maximum`` where T is short (numpy reduces a short inner axis slowly): the same
+    values, NaN where a row has one."""
+    if x.ndim != 2 or not 1 <= x.shape[1] <= 8:
+        return np.max(x, axis=1)
+    out = x[:, 0].copy()
+    for k in range(1, x.shape[1]):
+        np.maximum(out, x[:, k], out=out)
+    return out
 
 
 def _parameter_facts(phys: ph.Physics) -> dict:
@@ -158,9 +174,9 @@ def chunk_findings(ds, phys: ph.Physics) -> dict:
         w0 = np.linalg.norm(om0, axis=-1)
         sig = S - S[:, :1]
         with np.errstate(invalid="ignore", divide="ignore"):
-            put("exact_omega", slice(None), np.max(np.linalg.norm(om[sph] - e_om, axis=-1), axis=1) / w0)
-            put("exact_gamma", slice(None), np.max(np.linalg.norm(gamma - e_g, axis=-1), axis=1))
-            d_s = np.max(np.abs(sig - e_s), axis=1)
+            put("exact_omega", slice(None), _max_over_t(np.linalg.norm(om[sph] - e_om, axis=-1)) / w0)
+            put("exact_gamma", slice(None), _max_over_t(np.linalg.norm(gamma - e_g, axis=-1)))
+            d_s = _max_over_t(np.abs(sig - e_s))
             put("exact_entropy", slice(None), d_s)
             produced = e_s[:, -1]
             put("exact_entropy_rel", produced > 0, d_s / np.where(produced > 0, produced, 1.0))
@@ -174,14 +190,14 @@ def chunk_findings(ds, phys: ph.Physics) -> dict:
         exact3 = om0[:, 2:3] * np.exp(-(facts["c3"][lag] / phys.inertia[lag, 2])[:, None] * t[None, :])
         with np.errstate(invalid="ignore", divide="ignore"):
             put("exact_omega3", slice(None),
-                np.max(np.abs(om[lag, :, 2] - exact3), axis=1) / norm3(om0))
+                _max_over_t(np.abs(om[lag, :, 2] - exact3)) / norm3(om0))
 
     # |μ| without external torque
     free = ok & facts["no_torque"]
     if free.any():
         mu = ds["angular_momentum_norm"].values
         with np.errstate(invalid="ignore", divide="ignore"):
-            put("mu_drift", free, np.max(np.abs(mu - mu[:, :1]), axis=1) / mu[:, 0])
+            put("mu_drift", free, _max_over_t(np.abs(mu - mu[:, :1])) / mu[:, 0])
 
     # the flat spin: a friction that keeps |μ|, a unique major axis
     flat = free & facts["frictions"] & facts["unique_major"]  # dissipation at constant |μ| ends at the major axis

@@ -135,6 +135,10 @@ class RunSummary:
 def _nanmax(a) -> float:
     """The largest finite value of ``a`` (NaN if none)."""
     a = np.asarray(a, dtype=float)
+    if a.size:
+        m = float(np.max(a))  # one pass: finite and not 0 means no NaN, no +inf and one sign of zero
+        if m != 0.0 and np.isfinite(m):
+            return m
     m = float(np.max(a, where=np.isfinite(a), initial=-np.inf))
     return m if m != -np.inf else float("nan")
 
