@@ -380,7 +380,7 @@ def test_the_summarys_energy_figures_in_one_compiled_pass_are_those_of_numpys_ar
         traj = resolve(sc).simulate(om0, R0)
         compiled = tm._labelled_stats(traj, chunk_labels(traj, omega0=om0, R0=R0)).to_dict()
         with monkeypatch.context() as m:
-            m.setattr(tm, "_compiled_figures", lambda ds, tr: False)
+            m.setattr(tm, "_compiled_figures", lambda ds: False)
             plain = tm._labelled_stats(traj, chunk_labels(traj, omega0=om0, R0=R0)).to_dict()
         assert compiled == plain, name
     assert len(passes) == 4  # every chunk above took the compiled pass

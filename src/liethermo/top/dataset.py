@@ -166,7 +166,11 @@ def _chunk_labels(traj, omega0, R0, member_offset) -> ChunkLabels:
 
     e = _once(lambda: node_energies(traj))
     K0V0 = _once(lambda: initial_energy(phys, omega0, R0))
-    dE = _once(lambda: (e()["K"] - K0V0()[0][:, None]) + (e()["V"] - K0V0()[1][:, None]) + e()["dU"])
+
+    def parts():  # the energy error's parts: K, V, ΔU (N, T), K₀, V₀ (N,)
+        return (e()["K"], e()["V"], e()["dU"]) + K0V0()
+
+    dE = _once(lambda: (lambda K, V, dU, K0, V0: (K - K0[:, None]) + (V - V0[:, None]) + dU)(*parts()))
     U = _once(lambda: phys.heat_capacity[:, None] * ph.theta(phys, sigma))
     dims_t = ("member", "t")
     dims_v = ("member", "t", "axis")
@@ -275,7 +279,7 @@ def _chunk_labels(traj, omega0, R0, member_offset) -> ChunkLabels:
         "step": _var(traj.step_index.astype(np.int64), ("t",), "1", "step index k"),
         "axis": xr.Variable(("axis",), np.array(AXIS), attrs={"units": "1", "long_name": "body-frame axis"}),
     }
-    return ChunkLabels(build, coords, energy_parts=lambda: (e()["K"], e()["V"], e()["dU"]) + K0V0())
+    return ChunkLabels(build, coords, energy_parts=parts)
 
 
 def _heat_parts(traj, dims_t) -> dict:

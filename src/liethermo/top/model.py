@@ -370,7 +370,7 @@ def _labelled_stats(traj, ds) -> "ChunkStats":
         ok = slice(None)  # the same members, without copies
     em = np.abs(ds["mechanical_energy_initial"].values[ok])[:, None]
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        if every and _compiled_figures(ds, traj):
+        if every and _compiled_figures(ds):
             _energy_figures_compiled(st, ds, em, traj.gamma)
         else:
             ee = np.abs(ds["energy_error"].values[ok])
@@ -394,14 +394,13 @@ def _labelled_stats(traj, ds) -> "ChunkStats":
     return st
 
 
-def _compiled_figures(ds, traj) -> bool:
+def _compiled_figures(ds) -> bool:
     """Whether the energy figures of a chunk whose members all completed come from the
-    compiled pass (:func:`_energy_figures_compiled`): the labels know the energy's parts,
-    the state is float64, and numba compiles (not under ``NUMBA_DISABLE_JIT``)."""
+    compiled pass (:func:`_energy_figures_compiled`): the labels know the energy's parts
+    and numba compiles (not under ``NUMBA_DISABLE_JIT``)."""
     from .kernels.reductions import energy_error_figures
 
-    return (getattr(ds, "energy_parts", None) is not None and traj.states.dtype == np.float64
-            and hasattr(energy_error_figures, "overloads"))
+    return getattr(ds, "energy_parts", None) is not None and hasattr(energy_error_figures, "overloads")
 
 
 def _energy_figures_compiled(st: "ChunkStats", ds, em: np.ndarray, gamma: np.ndarray) -> None:
@@ -414,8 +413,9 @@ def _energy_figures_compiled(st: "ChunkStats", ds, em: np.ndarray, gamma: np.nda
     K, V, dU = np.broadcast_arrays(K, V, dU)  # a part the same at every time (none acting) broadcasts
     out = np.empty(4)
     energy_error_figures(K, V, dU, K0, V0, em[:, 0], float(DIVERGED_REL_ENERGY), out)
-    st.e_abs, st.e_rel, st.e_rel_t0 = (max(a, float(b)) for a, b in ((st.e_abs, out[0]), (st.e_rel, out[1]),
-                                                                      (st.e_rel_t0, out[2])))
+    st.e_abs = max(st.e_abs, float(out[0]))
+    st.e_rel = max(st.e_rel, float(out[1]))
+    st.e_rel_t0 = max(st.e_rel_t0, float(out[2]))
     st.diverged = int(out[3])
     g = np.empty(1)
     unit_norm_defect(gamma, g)
