@@ -105,3 +105,29 @@ def test_pools_are_restored_after_a_run(tmp_path):
     run_scene("zeitlin_decay", tmp_path / "x.nc", overrides=FLUID, progress=False)
     assert [(i["prefix"], i["num_threads"]) for i in threadpool_info()] == before
     assert lt.kernel_threads() == k
+
+
+def test_a_run_sets_its_pools_once_and_its_chunks_keep_them(tmp_path, monkeypatch):
+    """The chunk loop of a run sets the pools once (threadpoolctl's scan of the loaded libraries
+    and the cgroup's files cost milliseconds a chunk); every chunk's kernels still run on the
+    run's thread counts, and a chunk run on its own sets them itself."""
+    from liethermo.top import model as tm
+
+    entered, seen = [], []
+    real_pools = lt.pools
+
+    def counting(counts):
+        entered.append(counts)
+        return real_pools(counts)
+
+    monkeypatch.setattr(lt, "pools", counting)
+    real = tm.label_chunk
+    monkeypatch.setattr(tm, "label_chunk", lambda *a, **k: seen.append(lt.active_pools()) or real(*a, **k))
+    over = {"ensemble.members": 96, "output.member_chunk": 32, "integrator.steps": 4}
+    run_scene("paper", tmp_path / "p.nc", overrides=over, progress=False)
+    assert len(seen) == 3 and len(entered) == 1, (seen, entered)
+    assert all(s == entered[0] for s in seen) and lt.active_pools() is None
+    from liethermo.runner import run_chunk, scene_setup
+
+    run_chunk(scene_setup("paper", over)[0], 0, 32)  # on its own: sets them for itself
+    assert len(entered) == 2 and seen[-1] == entered[-1]

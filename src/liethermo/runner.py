@@ -41,10 +41,12 @@ def run_chunk(scene, lo: int, hi: int, *, progress_cb=None, kernel: str | None =
     :mod:`liethermo.distributed`; member i's result depends only on (scene, i).
     ``progress_cb(n)`` gets the number of member-steps just done.
     """
-    from .threads import pools, usable_cores
+    from .threads import active_pools, pools, usable_cores
 
     check_stop()  # a stop signal whose exception a library swallowed still stops the run
     model = model_of(scene)
+    if threads is None and active_pools() is not None:  # a run's chunk loop set them for its scene
+        return model.run_chunk(scene, lo, hi, progress_cb=progress_cb, kernel=kernel, threads=threads)
     # the pools fit the cores this process may use (or the threads it was given)
     with pools(model.thread_counts(scene, threads or usable_cores())):
         return model.run_chunk(scene, lo, hi, progress_cb=progress_cb, kernel=kernel, threads=threads)
@@ -167,16 +169,19 @@ def run_scene(scene, out: str | Path | None = None, *, overrides=None,
     bar = _progress_bar(members * steps, progress, f"{scene['scene']['name']} [{summ.method}]")
     model = model_of(scene)
     total = model.new_stats()
-    try:
-        if out is None:
-            pieces = []
-            for lo in range(0, members, chunk):
-                hi = min(lo + chunk, members)
-                ds, st = run_chunk(scene, lo, hi, progress_cb=bar.update if bar else None, kernel=kernel)
-                total.merge(st)
-                pieces.append(ds)
-        else:
-            _run_to_file(scene, attrs, Path(out), summ, total, bar, kernel, resume, model)
+    from .threads import pools, usable_cores
+
+    try:  # the pools fit the cores this process may use, set once for the run: each chunk keeps them
+        with pools(model.thread_counts(scene, usable_cores())):
+            if out is None:
+                pieces = []
+                for lo in range(0, members, chunk):
+                    hi = min(lo + chunk, members)
+                    ds, st = run_chunk(scene, lo, hi, progress_cb=bar.update if bar else None, kernel=kernel)
+                    total.merge(st)
+                    pieces.append(ds)
+            else:
+                _run_to_file(scene, attrs, Path(out), summ, total, bar, kernel, resume, model)
     finally:
         if bar:
             bar.close()
