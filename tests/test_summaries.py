@@ -422,3 +422,63 @@ def test_the_summarys_maxima_and_spans_take_one_pass_where_the_values_allow_and_
                   np.abs(_adversarial(rng, (300, 1))), np.abs(_adversarial(rng, (300, 12)))):
             got, want = _max_over_t(x), np.max(x, axis=1)
             assert np.array_equal(got, want, equal_nan=True)
+
+
+def test_the_omega3_finding_in_one_compiled_pass_is_numpys_and_its_decay_is_worked_out_once_per_row():
+    """The Lagrange top's Ω₃ error span from the compiled pass equals numpy's
+    ``_span(max_t |W − W₀ e^{−C₃t/I₃}| / |Ω₀|)`` on adversarial values (NaN, ±inf, ±0, a zero
+    norm), strided and broadcast views; the decay computed on one shared row and broadcast has the
+    bits of the decay computed per member; the parameter facts of members that share one row are
+    those worked out per member, and a row of other values gets its own."""
+    import numpy as np
+
+    from liethermo import load_scene
+    from liethermo.top import findings as tf
+    from liethermo.top.kernels.reductions import decay_error_span
+    from liethermo.top.physics import physics_of_scene
+
+    rng = np.random.default_rng(5)
+    n, T = 4000, 3
+
+    def numpy_span(W, W0, E, scale):
+        return tf._span(tf._max_over_t(np.abs(W - W0[:, None] * E)) / scale)
+
+    def compiled_span(W, W0, E, scale):
+        out = np.empty(3)
+        decay_error_span(W, W0, E, scale, out)
+        return [float(out[0]), float(out[1])] if out[2] > 0 else None
+
+    with np.errstate(all="ignore"):
+        W, E = _adversarial(rng, (n, T)), _adversarial(rng, (n, T))
+        W0, scale = _adversarial(rng, (n,)), np.abs(_adversarial(rng, (n,)))
+        scale[:40] = 0.0
+        assert compiled_span(W, W0, E, scale) == numpy_span(W, W0, E, scale)
+        big = _adversarial(rng, (n, 2 * T, 3))  # strided views, as the state's Ω₃ column
+        row = np.broadcast_to(rng.uniform(0.1, 1.0, (1, 2 * T)), (n, 2 * T))
+        args = (big[:, :, 2], big[::1, 0, 1], row, np.abs(big[:, 1, 0]))
+        assert compiled_span(*args) == numpy_span(*args)
+        nan = np.full((3, T), np.nan)
+        assert compiled_span(nan, np.ones(3), nan, np.ones(3)) is None is numpy_span(nan, np.ones(3), nan, np.ones(3))
+        # the largest difference can sit at any time; with t = 0 alone the span is another one (can fail)
+        W, E, W0, scale = rng.standard_normal((n, T)), rng.uniform(0, 1, (n, T)), rng.standard_normal(n), np.ones(n)
+        assert compiled_span(W, W0, E, scale) == numpy_span(W, W0, E, scale) != numpy_span(W[:, :1], W0, E[:, :1],
+                                                                                         scale)
+
+    t = np.array([0.0, 0.01, 7.3, 1000.0, 12345.678])
+    for c, inertia in zip(rng.uniform(1e-6, 10.0, 200), rng.uniform(1e-3, 100.0, 200)):
+        shared = tf._decay(np.broadcast_to(c, (50,)), np.broadcast_to(inertia, (50,)), t)
+        each = np.exp(-(np.full(50, c) / np.full(50, inertia))[:, None] * t[None, :])
+        assert shared.shape == each.shape and shared.strides[0] == 0
+        assert np.array_equal(shared.view(np.int64), each.view(np.int64))
+
+    sc = load_scene("paper", {"ensemble.members": 64})
+    phys = physics_of_scene(sc, 64)
+    assert phys.uniform
+    tf._ROW_FACTS.clear()
+    for _ in range(2):  # worked out, then found
+        got, want = tf._parameter_facts(phys), tf._facts(phys.take(np.arange(64)))
+        assert got.keys() == want.keys() and all(np.array_equal(got[k], want[k]) for k in want)
+    assert len(tf._ROW_FACTS) == 1
+    other = load_scene("spherical_top", {"ensemble.members": 64})
+    got = tf._parameter_facts(physics_of_scene(other, 64))
+    assert len(tf._ROW_FACTS) == 2 and bool(got["spherical"].all()) and not bool(tf._parameter_facts(phys)["spherical"].any())

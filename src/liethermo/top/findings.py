@@ -43,6 +43,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import physics as ph
+from .kernels.reductions import decay_error_span
 from .kernels.terms import norm3
 
 #: relative spread under which per-member values count as equal (isotropy tests)
@@ -101,6 +102,16 @@ def _span(values) -> list[float] | None:
     return [lo, float(np.max(v, where=finite, initial=-np.inf))] if lo != np.inf else None
 
 
+def _decay(c: np.ndarray, inertia: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """``np.exp(-(c / inertia)[:, None] * t[None, :])`` (M, T): computed on one row and
+    broadcast where every member shares c and the inertia (views of one row), with
+    the same bits (numpy's exp gives a value the same bits wherever it stands in a
+    contiguous array)."""
+    if len(c) > 1 and c.strides[0] == 0 and inertia.strides[0] == 0:
+        return np.broadcast_to(np.exp(-(c[:1] / inertia[:1])[:, None] * t[None, :]), (len(c), len(t)))
+    return np.exp(-(c / inertia)[:, None] * t[None, :])
+
+
 def _max_over_t(x: np.ndarray) -> np.ndarray:
     """``np.max(x, axis=1)`` of values (M, T) that are ≥ 0 or NaN, in T − 1 passes of
     ``np.maximum`` where T is short (numpy reduces a short inner axis slowly): the same
@@ -117,8 +128,33 @@ def _parameter_facts(phys: ph.Physics) -> dict:
     """Per member, what its parameters alone decide: which exact laws apply, the
     linear friction on axes 1 and 3, the major axis.  For members that share one
     row of parameters (:attr:`~liethermo.top.physics.Physics.uniform`) they are
-    worked out once and broadcast."""
-    return phys.per_row(_facts)
+    worked out once per row of values (every chunk of a run has the same row)
+    and broadcast."""
+    if phys.n <= 1 or not phys.uniform:
+        return _facts(phys)
+    one = phys.one_row()
+    key = _row_key(one)
+    facts = _ROW_FACTS.get(key)
+    if facts is None:
+        if len(_ROW_FACTS) >= 8:
+            _ROW_FACTS.clear()
+        facts = _ROW_FACTS[key] = _facts(one)
+    return {k: np.broadcast_to(v, (phys.n,) + np.shape(v)[1:]) for k, v in facts.items()}
+
+
+#: the facts of one row of parameters, by the row's values (:func:`_row_key`)
+_ROW_FACTS: dict = {}
+
+
+def _row_key(one: ph.Physics) -> tuple:
+    """The values of a one-member Physics, as a key: every field, arrays by their type, shape and bytes."""
+    import dataclasses
+
+    out = []
+    for f in dataclasses.fields(one):
+        v = getattr(one, f.name)
+        out.append((f.name, v.dtype.str, v.shape, v.tobytes()) if isinstance(v, np.ndarray) else (f.name, repr(v)))
+    return tuple(out)
 
 
 def _facts(phys: ph.Physics) -> dict:
@@ -187,10 +223,16 @@ def chunk_findings(ds, phys: ph.Physics) -> dict:
         lag = slice(None)  # every member: views, not copies
     if isinstance(lag, slice) or lag.any():
         om0 = ds["initial_omega"].values[lag]
-        exact3 = om0[:, 2:3] * np.exp(-(facts["c3"][lag] / phys.inertia[lag, 2])[:, None] * t[None, :])
+        decay = _decay(facts["c3"][lag], phys.inertia[lag, 2], t)  # e^{−C₃t/I₃} (M, T)
         with np.errstate(invalid="ignore", divide="ignore"):
-            put("exact_omega3", slice(None),
-                _max_over_t(np.abs(om[lag, :, 2] - exact3)) / norm3(om0))
+            if hasattr(decay_error_span, "overloads"):  # one compiled pass, numpy's values
+                span = np.empty(3)
+                decay_error_span(om[lag, :, 2], om0[:, 2], decay, norm3(om0), span)
+                if span[2] > 0:
+                    out["exact_omega3"] = [float(span[0]), float(span[1])]
+            else:  # NUMBA_DISABLE_JIT
+                put("exact_omega3", slice(None),
+                    _max_over_t(np.abs(om[lag, :, 2] - om0[:, 2:3] * decay)) / norm3(om0))
 
     # |μ| without external torque
     free = ok & facts["no_torque"]

@@ -92,3 +92,33 @@ def unit_norm_defect(G, out):
             if np.isfinite(d) and d > worst:
                 worst = d
     out[0] = worst
+
+
+@jit((_ROWS, _COL, _ROWS, _COL, types.Array(types.float64, 1, "C")), nogil=True)
+def decay_error_span(W, W0, E, scale, out):
+    """The span over members of r = maxₜ |W[m, t] − W0[m] E[m, t]| / scale[m], in one pass.
+
+    The values numpy's arrays give: the product, difference and absolute value of
+    ``np.abs(W - W0[:, None] * E)``, the maximum over t propagating NaN as
+    ``np.maximum`` does, then the division.  Into ``out``: the least and the largest
+    finite r (inf and −inf where none is finite) and the number of finite r.
+    W, E (M, T) and W0, scale (M,) are views of any strides (E may be broadcast)."""
+    lo = np.inf
+    hi = -np.inf
+    count = 0
+    for m in range(W.shape[0]):
+        d = abs(W[m, 0] - W0[m] * E[m, 0])
+        for t in range(1, W.shape[1]):
+            x = abs(W[m, t] - W0[m] * E[m, t])
+            if not x <= d:  # x larger, or either NaN: np.maximum's result
+                d = x if not np.isnan(d) else d
+        r = d / scale[m]
+        if np.isfinite(r):
+            count += 1
+            if r < lo:
+                lo = r
+            if r > hi:
+                hi = r
+    out[0] = lo
+    out[1] = hi
+    out[2] = count
