@@ -257,15 +257,18 @@ class ChunkedWriter:
         """Write a chunk at ``offset`` (CF-encoded: :func:`liethermo.cf.encode_variables`);
         returns the CRC-32 of each member variable's values as written.  ``pause()``, if
         given, is called before each variable (a writer thread giving way to the kernels)."""
-        ds = cf.encode_variables(ds)
+        if self.nc is None or any(n not in ds.variables for n in self.member_vars):
+            ds = cf.encode_variables(ds)  # a relabelled variable's name is the encoding's
         if self.nc is None:
             self.define(ds)
         arrays = {}
         for name in self.member_vars:
-            var = ds[name]
+            var = ds.variables[name]
             if var.dims[0] != "member":
                 raise ValueError(f"variable {name}: 'member' must be its first dimension")
-            arrays[name] = var.values
+            # once the file is defined, the encoding's only change to a member variable's values is
+            # a boolean's cast to int8 (the rest is attributes, which the file has)
+            arrays[name] = var.values.astype(np.int8) if var.dtype.kind == "b" else var.values
         return self.write_arrays(arrays, offset, pause)
 
     def write_arrays(self, arrays: dict, offset: int, pause=None) -> dict[str, int]:
