@@ -1,6 +1,8 @@
 """Run kernels on threads: member ranges (straightforward kernel) or block
-ranges (vectorized kernel), split into about four tasks per thread so that
-uneven members (diverging RK members, slow Newton iterations) balance out.
+ranges (vectorized kernel), split into about twelve tasks per thread so that
+uneven members (diverging RK members, slow Newton iterations) and a core
+taken away for a while (a shared or virtual machine) balance out
+(benchmarks/README.md, "Whole runs against their kernels").
 
 The kernel functions are compiled with ``nogil=True``; Python threads then
 run them truly in parallel, with no numba threading layer to compile or
@@ -13,7 +15,7 @@ from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
 
-TASKS_PER_THREAD = 4
+TASKS_PER_THREAD = 12
 _POOLS: dict[int, ThreadPoolExecutor] = {}
 
 
