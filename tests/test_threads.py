@@ -109,25 +109,34 @@ def test_pools_are_restored_after_a_run(tmp_path):
 
 def test_a_run_sets_its_pools_once_and_its_chunks_keep_them(tmp_path, monkeypatch):
     """The chunk loop of a run sets the pools once (threadpoolctl's scan of the loaded libraries
-    and the cgroup's files cost milliseconds a chunk); every chunk's kernels still run on the
-    run's thread counts, and a chunk run on its own sets them itself."""
+    costs milliseconds a chunk): each chunk asks for the same counts and finds them set, and its
+    kernels run on them. A chunk run on its own, or inside a block of other counts (a study's),
+    sets the counts its scene asks for."""
+    import threadpoolctl
+
+    from liethermo.runner import run_chunk, scene_setup
     from liethermo.top import model as tm
 
-    entered, seen = [], []
-    real_pools = lt.pools
+    limits, seen = [], []
+    real_limits = threadpoolctl.threadpool_limits
 
-    def counting(counts):
-        entered.append(counts)
-        return real_pools(counts)
+    def counting(*a, **k):
+        limits.append(k.get("limits"))
+        return real_limits(*a, **k)
 
-    monkeypatch.setattr(lt, "pools", counting)
+    monkeypatch.setattr(threadpoolctl, "threadpool_limits", counting)
     real = tm.label_chunk
-    monkeypatch.setattr(tm, "label_chunk", lambda *a, **k: seen.append(lt.active_pools()) or real(*a, **k))
+    monkeypatch.setattr(tm, "label_chunk", lambda *a, **k: seen.append((lt._active, lt.kernel_threads()))
+                        or real(*a, **k))
     over = {"ensemble.members": 96, "output.member_chunk": 32, "integrator.steps": 4}
+    sc = scene_setup("paper", over)[0]
+    want = model_of(sc).thread_counts(sc, lt.usable_cores())
     run_scene("paper", tmp_path / "p.nc", overrides=over, progress=False)
-    assert len(seen) == 3 and len(entered) == 1, (seen, entered)
-    assert all(s == entered[0] for s in seen) and lt.active_pools() is None
-    from liethermo.runner import run_chunk, scene_setup
-
-    run_chunk(scene_setup("paper", over)[0], 0, 32)  # on its own: sets them for itself
-    assert len(entered) == 2 and seen[-1] == entered[-1]
+    assert len(seen) == 3 and len(limits) == 1, (seen, limits)
+    assert all(s == (want, max(1, want.kernel)) for s in seen) and lt._active is None
+    run_chunk(sc, 0, 32)  # on its own: sets them for itself
+    assert len(limits) == 2 and seen[-1][0] == want
+    other = lt.ThreadCounts(blas=want.blas + 1, kernel=1)
+    with lt.pools(other):  # a study's block: the chunk sets its scene's counts inside it
+        run_chunk(sc, 0, 32)
+    assert len(limits) == 4 and seen[-1][0] == want

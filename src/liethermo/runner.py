@@ -41,13 +41,12 @@ def run_chunk(scene, lo: int, hi: int, *, progress_cb=None, kernel: str | None =
     :mod:`liethermo.distributed`; member i's result depends only on (scene, i).
     ``progress_cb(n)`` gets the number of member-steps just done.
     """
-    from .threads import active_pools, pools, usable_cores
+    from .threads import pools, usable_cores
 
     check_stop()  # a stop signal whose exception a library swallowed still stops the run
     model = model_of(scene)
-    if threads is None and active_pools() is not None:  # a run's chunk loop set them for its scene
-        return model.run_chunk(scene, lo, hi, progress_cb=progress_cb, kernel=kernel, threads=threads)
-    # the pools fit the cores this process may use (or the threads it was given)
+    # the pools fit the cores this process may use (or the threads it was given); inside a
+    # run's chunk loop, which set the same, nothing is set again
     with pools(model.thread_counts(scene, threads or usable_cores())):
         return model.run_chunk(scene, lo, hi, progress_cb=progress_cb, kernel=kernel, threads=threads)
 

@@ -101,10 +101,16 @@ def kernel_threads() -> int:
 @contextmanager
 def pools(counts: ThreadCounts) -> Iterator[ThreadCounts]:
     """Set the BLAS/OpenMP pools (threadpoolctl) and the kernels' thread count
-    (:func:`kernel_threads`) to ``counts`` inside the block; both restored on leaving."""
+    (:func:`kernel_threads`) to ``counts`` inside the block; both restored on leaving.
+    Inside a block that set the same counts (a run's chunk loop, each chunk asking for
+    them again) there is nothing to set: threadpoolctl's scan of the loaded libraries
+    is skipped."""
     from threadpoolctl import threadpool_limits
 
     global _kernel_threads, _active
+    if counts == _active:
+        yield counts
+        return
     old, old_active = _kernel_threads, _active
     _kernel_threads = max(1, int(counts.kernel))
     _active = counts
@@ -115,16 +121,8 @@ def pools(counts: ThreadCounts) -> Iterator[ThreadCounts]:
         _kernel_threads, _active = old, old_active
 
 
-#: the counts of the innermost :func:`pools` block (None: outside one)
+#: the counts of the innermost :func:`pools` block that set them (None: outside one)
 _active: ThreadCounts | None = None
-
-
-def active_pools() -> ThreadCounts | None:
-    """The counts the innermost :func:`pools` block set (None outside one): a run sets
-    its pools once for its chunk loop, and each chunk keeps them (setting them again
-    costs threadpoolctl's scan of the loaded libraries and the cgroup's files, a few
-    milliseconds a chunk)."""
-    return _active
 
 
 _kernels_idle = threading.Event()
@@ -156,5 +154,5 @@ def wait_for_kernels() -> None:
     _kernels_idle.wait()
 
 
-__all__ = ["ThreadCounts", "active_pools", "affinity_cores", "cgroup_quota_cores", "kernel_threads", "kernels_running", "pools",
+__all__ = ["ThreadCounts", "affinity_cores", "cgroup_quota_cores", "kernel_threads", "kernels_running", "pools",
            "usable_cores", "wait_for_kernels"]
