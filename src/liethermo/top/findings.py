@@ -130,16 +130,23 @@ def _parameter_facts(phys: ph.Physics) -> dict:
     row of parameters (:attr:`~liethermo.top.physics.Physics.uniform`) they are
     worked out once per row of values (every chunk of a run has the same row)
     and broadcast."""
-    if phys.n <= 1 or not phys.uniform:
+    return phys.per_row(_row_facts)
+
+
+def _row_facts(phys: ph.Physics) -> dict:
+    """:func:`_facts` of ``phys``; of one member, kept by its values (:data:`_ROW_FACTS`)."""
+    if phys.n != 1:
         return _facts(phys)
-    one = phys.one_row()
-    key = _row_key(one)
+    key = _row_key(phys)
     facts = _ROW_FACTS.get(key)
     if facts is None:
         if len(_ROW_FACTS) >= 8:
             _ROW_FACTS.clear()
-        facts = _ROW_FACTS[key] = _facts(one)
-    return {k: np.broadcast_to(v, (phys.n,) + np.shape(v)[1:]) for k, v in facts.items()}
+        facts = _ROW_FACTS[key] = _facts(phys)
+        for v in facts.values():
+            if isinstance(v, np.ndarray):
+                v.flags.writeable = False  # shared by every chunk with these values
+    return dict(facts)
 
 
 #: the facts of one row of parameters, by the row's values (:func:`_row_key`)
