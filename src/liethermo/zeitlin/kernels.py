@@ -178,9 +178,11 @@ def _orient(vs: list, N: int) -> None:
                 vs[m - 1][:, l - m + 1] = -v
 
 
-#: the version of the basis's construction: a change of its values bumps it (the
-#: disk cache keys its entries by it, :mod:`liethermo.diskcache`)
-BASIS_VERSION = 1
+#: the version of the basis's construction and of its cache entry: a change of its values,
+#: or of the arrays an entry holds, bumps it (the disk cache keys its entries by it,
+#: :mod:`liethermo.diskcache`), so that two versions of the package sharing a cache
+#: folder never read each other's entries
+BASIS_VERSION = 2
 #: the arrays of a :class:`Basis` (its cache entry: :attr:`Basis.vecs_t` is made from them)
 _BASIS_ARRAYS = ("offset", "ell", "voff", "vecs", "g0", "diag", "off", "tc", "tinv")
 
@@ -201,8 +203,8 @@ def basis(N: int) -> Basis:
         return {k: getattr(b, k) for k in _BASIS_ARRAYS}
 
     arrays = cached_arrays("zeitlin-basis", f"N{N}", BASIS_VERSION, build)
-    if arrays["offset"].shape != (N + 1,):  # a foreign file under the entry's name
-        arrays = build()
+    if any(k not in arrays for k in _BASIS_ARRAYS) or arrays["offset"].shape != (N + 1,):
+        arrays = build()  # a foreign file under the entry's name: computed, not read
     return Basis(N, hbar(N), **{k: arrays[k] for k in _BASIS_ARRAYS})
 
 
