@@ -197,6 +197,51 @@ def test_the_write_probe_is_no_larger_than_the_file(tmp_path, monkeypatch):
         assert sum(written) == want and est.rate > 0  # the probe wrote what it was asked, no more
 
 
+def test_the_kernel_probe_grows_until_its_calls_outweigh_their_fixed_cost(monkeypatch):
+    """A probe call of a few milliseconds is mostly its fixed cost (waking the threads,
+    a core back from idle): the probe grows, steps first and then members, until a call
+    takes PROBE_MIN_SECONDS, and the estimate is then the kernels' per member-step time.
+    A kernel modelled as 2 ms a call plus 3 ns a member-step: the first call
+    (8192 x 200) alone would say 4.2 ns, 41 % high."""
+    from types import SimpleNamespace
+
+    from liethermo.scene import load_scene
+    from liethermo.top import model as tm
+    from liethermo.top import resolve as tr
+
+    per_step, fixed = 3e-9, 2e-3
+    calls = []
+
+    def simulate(om0, R0, steps, every):
+        calls.append((om0.shape[0], steps))
+        return SimpleNamespace(wall_time=fixed + per_step * om0.shape[0] * steps,
+                               compile_time=0.5 if len(calls) == 1 else 0.0)
+
+    real = tr.resolve
+    monkeypatch.setattr(tr, "resolve", lambda sc: SimpleNamespace(
+        members=real(sc).members, steps=real(sc).steps, choice=real(sc).choice, simulate=simulate))
+    monkeypatch.setattr(tm, "label_chunk", lambda *a, **k: None)
+    for members, steps in ((10**6, 1000), (10**6, 300), (5000, 100)):
+        calls.clear()
+        sc = load_scene("paper", {"ensemble.members": members, "integrator.steps": steps, "output.every": steps,
+                                  "integrator.method": "rk2"})
+        est = tm.estimate_time(sc)
+        assert calls[0] == (min(members, tm.PROBE_MEMBERS), min(steps, tm.PROBE_STEPS))  # compiles or loads
+        timed = calls[-tm.PROBE_REPEATS:]  # the fastest of these counts; the calls before grew the probe
+        assert len(set(timed)) == 1 and len(calls) <= 1 + tm.PROBE_GROWTHS + tm.PROBE_REPEATS
+        assert all(a[0] <= b[0] and a[1] <= b[1] for a, b in zip(calls, calls[1:]))  # it only grows
+        pm, ps = timed[0]
+        assert (est.probe_members, est.probe_steps) == (pm, ps) and ps <= steps and est.compile_seconds == 0.5
+        assert pm <= max(min(members, tm.PROBE_MEMBERS), int(sc["output"]["member_chunk"]))
+        most = min(members, max(tm.PROBE_MEMBERS, int(sc["output"]["member_chunk"])))
+        assert ps == steps or pm == min(members, tm.PROBE_MEMBERS)  # steps first
+        if most * steps * per_step >= tm.PROBE_MIN_SECONDS:  # room to grow: the fixed cost is outweighed
+            assert est.probe_seconds >= tm.PROBE_MIN_SECONDS
+            assert est.seconds == pytest.approx(per_step * members * steps, rel=0.03)
+        else:  # a member chunk of the run's steps is shorter: the probe is that
+            assert (pm, ps) == (most, steps)
+
+
 class _Stats:
     def __init__(self, kernel_time):
         self.kernel_time = kernel_time

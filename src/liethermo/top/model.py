@@ -232,10 +232,16 @@ def scene_setup(scene, overrides=None, history: str | None = None) -> tuple:
     return scene, attrs, summ
 
 
-#: Size of the timed probe behind :func:`estimate_time`: large enough that the
+#: Size of the first probe call behind :func:`estimate_time`: large enough that the
 #: vectorized kernel runs full blocks, small enough to take well under a second.
 PROBE_MEMBERS = 8192
 PROBE_STEPS = 200
+#: a probe call at least this long (s) is timed; a shorter one grows, steps first
+PROBE_MIN_SECONDS = 0.1
+#: timed probe calls after the first (which compiles or loads the kernels): the fastest counts
+PROBE_REPEATS = 3
+#: at most this many calls to grow the probe (each scaled by the last call's time)
+PROBE_GROWTHS = 3
 
 
 @dataclass
@@ -246,7 +252,7 @@ class TimeEstimate:
     seconds: float          # whole run, extrapolated from the probe's member-steps
     probe_members: int
     probe_steps: int
-    probe_seconds: float    # the faster of two probe runs (warm kernel)
+    probe_seconds: float    # the fastest of the timed probe calls (warm kernel)
     compile_seconds: float  # compiling or loading the kernels from the cache, once
     #: labelling the chunks (energies, statistics; outside the kernels), scaled from
     #: the probe's by members x stored times
@@ -270,10 +276,15 @@ class TimeEstimate:
 
 
 def estimate_time(scene) -> TimeEstimate:
-    """Time a short probe of the scene's own first members on the kernel the
-    full run will use (compiled first, then the faster of two runs) and scale
-    it to the run's member-steps.  Members that fail stop early in the probe as
-    in the run, so the figure is the run's, not a healthy ensemble's."""
+    """Time a probe of the scene's own first members on the kernel the full run
+    will use and scale it to the run's member-steps.  The first call compiles or
+    loads the kernels; while a call is shorter than :data:`PROBE_MIN_SECONDS` the
+    probe grows (more steps, up to the run's, then more members, up to a member
+    chunk), and the fastest of :data:`PROBE_REPEATS` calls of that size counts.  Members that fail stop
+    early in the probe as in the run, so the figure is the run's, not a healthy
+    ensemble's."""
+    import math
+
     from .initial import initial_conditions
     from .resolve import resolve
 
@@ -281,8 +292,22 @@ def estimate_time(scene) -> TimeEstimate:
     members, steps = run.members, run.steps
     pm, ps = min(members, PROBE_MEMBERS), min(steps, PROBE_STEPS)
     om0, R0 = initial_conditions(scene, 0, pm)
-    best, compile_s = np.inf, 0.0
-    for _ in range(2):
+    traj = run.simulate(om0, R0, steps=ps, every=ps)
+    compile_s = traj.compile_time
+    most = min(members, max(pm, int(scene["output"]["member_chunk"])))
+    for _ in range(PROBE_GROWTHS):  # a few milliseconds weigh a call's fixed costs and a core waking from idle
+        grow = 1.1 * PROBE_MIN_SECONDS / max(traj.wall_time, 1e-6)
+        if grow <= 1.1 or (ps == steps and pm == most):
+            break
+        ps2 = min(steps, math.ceil(ps * grow))
+        pm2 = min(most, max(pm, math.ceil(pm * grow * ps / ps2)))
+        if pm2 > pm:
+            om0, R0 = initial_conditions(scene, 0, pm2)
+        pm, ps = pm2, ps2
+        traj = run.simulate(om0, R0, steps=ps, every=ps)
+        compile_s += traj.compile_time
+    best = np.inf
+    for _ in range(PROBE_REPEATS):
         traj = run.simulate(om0, R0, steps=ps, every=ps)
         best = min(best, traj.wall_time)
         compile_s += traj.compile_time
