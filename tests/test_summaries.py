@@ -205,13 +205,15 @@ def test_a_fluid_runs_summary_counts_its_members_by_status_and_names_its_time(tm
 
     small = {"zeitlin.N": 12, "ensemble.members": 3, "integrator.steps": 4, "output.every": 2,
              "output.compare": [], "output.figures": False, "output.member_chunk": 2}
-    for ds in (liethermo.run("zeitlin_decay", small, output=tmp_path / "z.nc"),  # the runner's summary, two chunks
-               zr.simulate(liethermo.load_scene("zeitlin_decay", small))):     # the array-level one
+    for ds, by_runner in ((liethermo.run("zeitlin_decay", small, output=tmp_path / "z.nc"), True),  # two chunks
+                          (zr.simulate(liethermo.load_scene("zeitlin_decay", small)), False)):  # the array-level one
         lines = ds.attrs["summary"].splitlines()
         assert "  status   ok: 3, fixed_point_not_converged: 0, non_finite: 0" in lines, lines
         assert any(line.startswith("  stepping ") and "compiling" in line and "not the basis" in line
                    for line in lines), lines
         assert "kernels" not in lines[0]
+        # a run's wall time, which --check estimates as "the run in all"
+        assert any(line.startswith("  wall time ") and "(the run:" in line for line in lines) == by_runner, lines
     rk4 = zr.simulate(liethermo.load_scene("zeitlin_decay", {**small, "integrator.method": "rk4"}))
     assert "  status   ok: 3, non_finite: 0" in rk4.attrs["summary"].splitlines()
 

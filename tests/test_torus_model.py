@@ -96,6 +96,7 @@ def test_a_torus_file_is_cf_clean_and_keeps_its_laws(tmp_path, name):
         assert (np.diff(ds["entropy"].values, axis=1) >= -1e-14 * 4 * np.pi**2).all()
     lines = "\n".join(summ.lines())
     assert "conduction:" in lines and "sub-step(s)" in lines
+    assert f"  wall time {summ.wall_time:.3g} s (the run:" in lines and summ.wall_time > 0  # what --check estimates
 
 
 def test_check_says_disk_memory_and_time(tmp_path, capsys):

@@ -149,6 +149,11 @@ class BaseSummary:
         return out + closing_lines(self.resumed_members, self.path)
 
 
+def wall_line(seconds: float) -> str:
+    """The summary's line on the run's wall time: what ``--check`` estimates as "the run in all"."""
+    return f"  wall time {seconds:.3g} s (the run: simulating, labelling and writing; not start-up or figures)"
+
+
 def closing_lines(resumed_members: int, path, resumed_note: str = "") -> list[str]:
     """A summary's last lines: the members a resumed run took from the interrupted one
     (``resumed_note``: what that means for the figures above) and the file written."""

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..numerics.matrix_flow import budget_members
-from ..models import BaseSummary, MethodInfo, Model, StudyDefaults, closing_lines, register
+from ..models import BaseSummary, MethodInfo, Model, StudyDefaults, closing_lines, register, wall_line
 
 
 def _max(a) -> float:
@@ -100,6 +100,7 @@ class TorusSummary(BaseSummary):
         out = [f"{self.method}: {self.members} member(s), N = {self.N}, h = {self.h:g} s, "
                f"t = {self.steps * self.h:g} s",
                f"  stepping {st.kernel_time:.3g} s (the members' steps and diagnostics; not the writing or figures)",
+               wall_line(self.wall_time),
                "  status   " + ", ".join(f"{k}: {v}" for k, v in st.status.items()),
                f"  |H − H(0)|/H(0) ≤ {fin(st.energy_error):.2e}; "
                + ("S_tot never fell between kept times" if not st.entropy_drop > 0 else

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..numerics.matrix_flow import budget_members
-from ..models import BaseSummary, MethodInfo, Model, StudyDefaults, closing_lines, register
+from ..models import BaseSummary, MethodInfo, Model, StudyDefaults, closing_lines, register, wall_line
 
 #: a run of at least this N is timed before it starts (its basis alone takes seconds)
 ANNOUNCE_N = 256
@@ -112,6 +112,7 @@ class FluidSummary(BaseSummary):
 
         out = [f"{self.method}: {self.members} member(s), N = {self.N}, h = {self.h:g} s, t = {self.t_end:g} s",
                stepping_line(st.kernel_time),
+               wall_line(self.wall_time),
                status_line(st.status, self.method),
                f"  |H + q − H(0)|/H(0) ≤ {fin(st.energy_error):.2e}; {words.format(fin(st.casimir2))}; "
                f"angular momentum drift ≤ {dL:.2e} (relative); heat {100 * heat:.1f} % of H(0)"]
