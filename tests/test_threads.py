@@ -2,7 +2,7 @@
 cores follow the affinity mask and the cgroup quota; every run sets the BLAS
 pool and the kernels' threads; and the thread counts change no value — the
 top's file is the same on one and two kernel threads, the fluid's on one and
-two BLAS threads."""
+two BLAS threads and with its members' products on one or two threads."""
 
 from __future__ import annotations
 
@@ -97,6 +97,32 @@ def test_fluid_bits_do_not_depend_on_blas_threads(tmp_path, monkeypatch):
     if len(threadpool_info()) and os.cpu_count() and os.cpu_count() >= 2:
         assert seen == [2, 1], seen
     assert _equal(_values(tmp_path / "b1.nc"), _values(tmp_path / "b2.nc"))
+
+
+def test_fluid_bits_do_not_depend_on_the_threads_its_members_products_take(tmp_path, monkeypatch):
+    """Below BLAS_THREADED_N a fluid run splits each batch's matrix products over the
+    kernel threads by member: the file is the one a single thread writes."""
+    from liethermo.zeitlin import kernels as zk
+
+    over = FLUID + ["zeitlin.N=40"]  # at least MEMBERS_MATMUL_N: the products are split
+    sc = load_scene("zeitlin_decay", over)
+    assert model_of(sc).thread_counts(sc, 2).kernel == 2 and model_of(sc).thread_counts(sc, 2).blas == 1
+    split = []
+    real = zk.members_matmul
+
+    def counting(a, b, out):
+        split.append(min(lt.kernel_threads(), a.shape[0]) >= 2)
+        return real(a, b, out)
+
+    monkeypatch.setattr(zk, "members_matmul", counting)
+    monkeypatch.setattr(lt, "usable_cores", lambda: 2)
+    run_scene("zeitlin_decay", tmp_path / "k2.nc", overrides=over, progress=False)
+    assert any(split)
+    split.clear()
+    monkeypatch.setattr(lt, "usable_cores", lambda: 1)
+    run_scene("zeitlin_decay", tmp_path / "k1.nc", overrides=over, progress=False)
+    assert split and not any(split)
+    assert _equal(_values(tmp_path / "k1.nc"), _values(tmp_path / "k2.nc"))
 
 
 def test_pools_are_restored_after_a_run(tmp_path):

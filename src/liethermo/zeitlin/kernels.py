@@ -491,8 +491,8 @@ def isomp(W: np.ndarray, h: float, b: Basis, tol: float, max_iter: int,
     change = np.empty(M)
     while True:
         laplacian_inverse(Wt, b, scale, out=A[: len(active)])
-        np.matmul(A[: len(active)], Wt, out=Xa)
-        np.matmul(Xa, A[: len(active)], out=XA[: len(active)])
+        members_matmul(A[: len(active)], Wt, Xa)
+        members_matmul(Xa, A[: len(active)], XA[: len(active)])
         _fixed_point_update(Wa, Xa, XA, Da, Wt, change)  # D = X − X† + XA, W̃ = W + D, change
         ch = change[: len(active)]
         its[active] += 1
@@ -514,6 +514,37 @@ def isomp(W: np.ndarray, h: float, b: Basis, tol: float, max_iter: int,
             Wa, Da, Xa, Wt = W[active], Da[keep], Xa[keep], Wt[keep]
             tha, lasta = tha[keep], lasta[keep]
     return W + 2.0 * (X - _dagger(X)), its, failed, D
+
+
+#: from this N on, a batch's matrix products are split over the kernel threads by member
+MEMBERS_MATMUL_N = 32
+
+_MATMUL_POOL = None
+
+
+def members_matmul(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
+    """``np.matmul(a, b, out=out)`` over a batch of members, the members split over
+    :func:`liethermo.threads.kernel_threads` threads (numpy releases the GIL in BLAS).
+    Each member's product is the same one-matrix BLAS call whichever thread makes it,
+    so the bits do not depend on the split."""
+    global _MATMUL_POOL
+    from ..threads import kernel_threads
+
+    n = a.shape[0]
+    k = min(kernel_threads(), n)
+    if k < 2 or a.shape[-1] < MEMBERS_MATMUL_N:
+        np.matmul(a, b, out=out)
+        return
+    if _MATMUL_POOL is None or _MATMUL_POOL._max_workers < k - 1:
+        from concurrent.futures import ThreadPoolExecutor
+
+        _MATMUL_POOL = ThreadPoolExecutor(max_workers=k - 1, thread_name_prefix="liethermo-matmul")
+    cut = [n * i // k for i in range(k + 1)]
+    futs = [_MATMUL_POOL.submit(np.matmul, a[lo:hi], b[lo:hi], out=out[lo:hi])
+            for lo, hi in zip(cut[1:-1], cut[2:])]
+    np.matmul(a[: cut[1]], b[: cut[1]], out=out[: cut[1]])
+    for f in futs:
+        f.result()
 
 
 @numba.njit(cache=CACHE, error_model="numpy")
