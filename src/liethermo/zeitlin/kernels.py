@@ -519,7 +519,9 @@ def isomp(W: np.ndarray, h: float, b: Basis, tol: float, max_iter: int,
 #: from this N on, a batch's matrix products are split over the kernel threads by member
 MEMBERS_MATMUL_N = 32
 
+#: the helper threads of :func:`members_matmul` and their number (made on first use, grown as asked)
 _MATMUL_POOL = None
+_MATMUL_WORKERS = 0
 
 
 def members_matmul(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
@@ -527,7 +529,7 @@ def members_matmul(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
     :func:`liethermo.threads.kernel_threads` threads (numpy releases the GIL in BLAS).
     Each member's product is the same one-matrix BLAS call whichever thread makes it,
     so the bits do not depend on the split."""
-    global _MATMUL_POOL
+    global _MATMUL_POOL, _MATMUL_WORKERS
     from ..threads import kernel_threads
 
     n = a.shape[0]
@@ -535,10 +537,11 @@ def members_matmul(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
     if k < 2 or a.shape[-1] < MEMBERS_MATMUL_N:
         np.matmul(a, b, out=out)
         return
-    if _MATMUL_POOL is None or _MATMUL_POOL._max_workers < k - 1:
+    if _MATMUL_WORKERS < k - 1:
         from concurrent.futures import ThreadPoolExecutor
 
         _MATMUL_POOL = ThreadPoolExecutor(max_workers=k - 1, thread_name_prefix="liethermo-matmul")
+        _MATMUL_WORKERS = k - 1
     cut = [n * i // k for i in range(k + 1)]
     futs = [_MATMUL_POOL.submit(np.matmul, a[lo:hi], b[lo:hi], out=out[lo:hi])
             for lo, hi in zip(cut[1:-1], cut[2:])]
