@@ -93,6 +93,17 @@ class Basis:
             out[voff[d]:voff[d + 1]].reshape(n, n)[...] = vecs[voff[d]:voff[d + 1]].reshape(n, n).T
         return out
 
+    @functools.cached_property
+    def block_views(self) -> tuple:
+        """Per diagonal d: (first mode, end, block d of ``vecs`` as an (N−d)×(N−d) view),
+        and the same of ``vecs_t``: :func:`_blocks`' operands, sliced once per N."""
+        def views(vecs):
+            return tuple((int(self.offset[d]), int(self.offset[d + 1]),
+                          vecs[self.voff[d]:self.voff[d + 1]].reshape(self.N - d, self.N - d))
+                         for d in range(self.N))
+
+        return views(self.vecs), views(self.vecs_t)
+
     @property
     def modes(self) -> int:
         return int(self.offset[-1])
@@ -302,11 +313,8 @@ def _blocks(b: Basis, R: np.ndarray, transpose: bool) -> np.ndarray:
     """Each diagonal's columns of R (2M × K) times its block of eigenvectors (or
     their transpose): one BLAS product per diagonal, all members at once."""
     Y = np.empty_like(R)
-    vecs = b.vecs_t if transpose else b.vecs
-    for d in range(b.N):
-        n = b.N - d
-        o = b.offset[d]
-        np.matmul(R[:, o:o + n], vecs[b.voff[d]:b.voff[d + 1]].reshape(n, n), out=Y[:, o:o + n])
+    for lo, hi, v in b.block_views[1 if transpose else 0]:
+        np.matmul(R[:, lo:hi], v, out=Y[:, lo:hi])
     return Y
 
 
