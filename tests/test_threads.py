@@ -111,7 +111,7 @@ def test_fluid_bits_do_not_depend_on_the_threads_its_members_products_take(tmp_p
     real = zk.members_matmul
 
     def counting(a, b, out):
-        split.append(min(lt.kernel_threads(), a.shape[0]) >= 2)
+        split.append(min(lt.pooled_kernel_threads(), a.shape[0]) >= 2)
         return real(a, b, out)
 
     monkeypatch.setattr(zk, "members_matmul", counting)
@@ -123,6 +123,7 @@ def test_fluid_bits_do_not_depend_on_the_threads_its_members_products_take(tmp_p
     run_scene("zeitlin_decay", tmp_path / "k1.nc", overrides=over, progress=False)
     assert split and not any(split)
     assert _equal(_values(tmp_path / "k1.nc"), _values(tmp_path / "k2.nc"))
+    assert lt.pooled_kernel_threads() == 1  # outside a run's pools: no split, no file read per product
 
 
 def test_pools_are_restored_after_a_run(tmp_path):

@@ -98,6 +98,14 @@ def kernel_threads() -> int:
     return max(1, min(n, int(numba.config.NUMBA_NUM_THREADS)))
 
 
+def pooled_kernel_threads() -> int:
+    """:func:`kernel_threads` inside a :func:`pools` block, else 1: a helper called many
+    times a step (the fluid's products) splits work over threads only where a run, probe
+    or study has sized the pools to the machine, and never reads the affinity and cgroup
+    files on each call."""
+    return 1 if _kernel_threads is None else kernel_threads()
+
+
 @contextmanager
 def pools(counts: ThreadCounts) -> Iterator[ThreadCounts]:
     """Set the BLAS/OpenMP pools (threadpoolctl) and the kernels' thread count

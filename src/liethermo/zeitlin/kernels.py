@@ -534,14 +534,14 @@ _MATMUL_WORKERS = 0
 
 def members_matmul(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
     """``np.matmul(a, b, out=out)`` over a batch of members, the members split over
-    :func:`liethermo.threads.kernel_threads` threads (numpy releases the GIL in BLAS).
+    :func:`liethermo.threads.pooled_kernel_threads` threads (numpy releases the GIL in BLAS).
     Each member's product is the same one-matrix BLAS call whichever thread makes it,
     so the bits do not depend on the split."""
     global _MATMUL_POOL, _MATMUL_WORKERS
-    from ..threads import kernel_threads
+    from ..threads import pooled_kernel_threads
 
     n = a.shape[0]
-    k = min(kernel_threads(), n)
+    k = min(pooled_kernel_threads(), n)
     if k < 2 or a.shape[-1] < MEMBERS_MATMUL_N:
         np.matmul(a, b, out=out)
         return
