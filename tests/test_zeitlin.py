@@ -480,3 +480,15 @@ def test_the_compositions_heat_never_fell_where_measured():
         hot = {m: measure(m, 32, 1.0, 0.1, members=2, steps=5) for m in ("split4", "split6")}
     assert hot["split6"]["status"] == [1] and hot["split6"]["first_failed_step"] == 1
     assert hot["split4"]["failed"] == 0 and hot["split4"]["decreasing"] == 0
+
+
+def test_the_transposed_eigenvectors_are_made_only_for_the_products_that_use_them():
+    """to_modes reads vecs alone: it leaves vecs_t (a second copy of the eigenvectors,
+    2.9 GB at N = 1024) unmade; from_modes makes it, and both give their values."""
+    from liethermo.zeitlin import kernels as zk
+
+    b = zk.compute_basis(20)
+    W = zk.from_modes(np.random.default_rng(3).standard_normal((2, b.modes)) + 0j, zk.compute_basis(20))
+    C = zk.to_modes(W, b)
+    assert "vecs_t" not in b.__dict__ and "block_views_t" not in b.__dict__
+    assert np.allclose(zk.from_modes(C, b), W, rtol=0, atol=1e-12) and "vecs_t" in b.__dict__

@@ -95,14 +95,19 @@ class Basis:
 
     @functools.cached_property
     def block_views(self) -> tuple:
-        """Per diagonal d: (first mode, end, block d of ``vecs`` as an (N−d)×(N−d) view),
-        and the same of ``vecs_t``: :func:`_blocks`' operands, sliced once per N."""
-        def views(vecs):
-            return tuple((int(self.offset[d]), int(self.offset[d + 1]),
-                          vecs[self.voff[d]:self.voff[d + 1]].reshape(self.N - d, self.N - d))
-                         for d in range(self.N))
+        """Per diagonal d: (first mode, end, block d of ``vecs`` as an (N−d)×(N−d) view):
+        :func:`_blocks`' operands, sliced once per N."""
+        return self._views(self.vecs)
 
-        return views(self.vecs), views(self.vecs_t)
+    @functools.cached_property
+    def block_views_t(self) -> tuple:
+        """:attr:`block_views` of ``vecs_t`` (made, with ``vecs_t``, only where asked for)."""
+        return self._views(self.vecs_t)
+
+    def _views(self, vecs: np.ndarray) -> tuple:
+        return tuple((int(self.offset[d]), int(self.offset[d + 1]),
+                      vecs[self.voff[d]:self.voff[d + 1]].reshape(self.N - d, self.N - d))
+                     for d in range(self.N))
 
     @property
     def modes(self) -> int:
@@ -313,7 +318,7 @@ def _blocks(b: Basis, R: np.ndarray, transpose: bool) -> np.ndarray:
     """Each diagonal's columns of R (2M × K) times its block of eigenvectors (or
     their transpose): one BLAS product per diagonal, all members at once."""
     Y = np.empty_like(R)
-    for lo, hi, v in b.block_views[1 if transpose else 0]:
+    for lo, hi, v in (b.block_views_t if transpose else b.block_views):
         np.matmul(R[:, lo:hi], v, out=Y[:, lo:hi])
     return Y
 
