@@ -98,6 +98,23 @@ def kernel_threads() -> int:
     return max(1, min(n, int(numba.config.NUMBA_NUM_THREADS)))
 
 
+#: the process's thread pools, by thread count and name (:func:`thread_pool`)
+_POOLS: dict = {}
+
+
+def thread_pool(threads: int, name: str = "liethermo"):
+    """The process's pool of ``threads`` threads named ``name`` (made on first use, then
+    kept): the top's kernel tasks and summary slices use ``liethermo``; a helper that may
+    run while those are busy takes a name of its own, so it never waits behind them."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    key = (int(threads), name)
+    pool = _POOLS.get(key)
+    if pool is None:
+        pool = _POOLS[key] = ThreadPoolExecutor(int(threads), thread_name_prefix=name)
+    return pool
+
+
 def pooled_kernel_threads() -> int:
     """:func:`kernel_threads` inside a :func:`pools` block, else 1: a helper called many
     times a step (the fluid's products) splits work over threads only where a run, probe

@@ -532,32 +532,21 @@ def isomp(W: np.ndarray, h: float, b: Basis, tol: float, max_iter: int,
 #: from this N on, a batch's matrix products are split over the kernel threads by member
 MEMBERS_MATMUL_N = 32
 
-#: the helper threads of :func:`members_matmul` and their number (made on first use, grown as asked)
-_MATMUL_POOL = None
-_MATMUL_WORKERS = 0
-
-
 def members_matmul(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
     """``np.matmul(a, b, out=out)`` over a batch of members, the members split over
     :func:`liethermo.threads.pooled_kernel_threads` threads (numpy releases the GIL in BLAS).
     Each member's product is the same one-matrix BLAS call whichever thread makes it,
     so the bits do not depend on the split."""
-    global _MATMUL_POOL, _MATMUL_WORKERS
-    from ..threads import pooled_kernel_threads
+    from ..threads import pooled_kernel_threads, thread_pool
 
     n = a.shape[0]
     k = min(pooled_kernel_threads(), n)
     if k < 2 or a.shape[-1] < MEMBERS_MATMUL_N:
         np.matmul(a, b, out=out)
         return
-    if _MATMUL_WORKERS < k - 1:
-        from concurrent.futures import ThreadPoolExecutor
-
-        _MATMUL_POOL = ThreadPoolExecutor(max_workers=k - 1, thread_name_prefix="liethermo-matmul")
-        _MATMUL_WORKERS = k - 1
+    pool = thread_pool(k - 1, "liethermo-matmul")  # the caller takes the first part
     cut = [n * i // k for i in range(k + 1)]
-    futs = [_MATMUL_POOL.submit(np.matmul, a[lo:hi], b[lo:hi], out=out[lo:hi])
-            for lo, hi in zip(cut[1:-1], cut[2:])]
+    futs = [pool.submit(np.matmul, a[lo:hi], b[lo:hi], out=out[lo:hi]) for lo, hi in zip(cut[1:-1], cut[2:])]
     np.matmul(a[: cut[1]], b[: cut[1]], out=out[: cut[1]])
     for f in futs:
         f.result()

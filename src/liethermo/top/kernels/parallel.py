@@ -16,7 +16,6 @@ from __future__ import annotations
 from concurrent.futures import ThreadPoolExecutor
 
 TASKS_PER_THREAD = 12
-_POOLS: dict[int, ThreadPoolExecutor] = {}
 
 
 def default_threads() -> int:
@@ -26,11 +25,11 @@ def default_threads() -> int:
 
 
 def pool(threads: int) -> ThreadPoolExecutor:
-    """The process's pool of ``threads`` threads (made on first use, then kept)."""
-    pool = _POOLS.get(threads)
-    if pool is None:
-        pool = _POOLS[threads] = ThreadPoolExecutor(threads, thread_name_prefix="liethermo")
-    return pool
+    """The process's pool of ``threads`` threads (made on first use, then kept):
+    :func:`liethermo.threads.thread_pool`."""
+    from ...threads import thread_pool
+
+    return thread_pool(threads)
 
 
 def run_ranges(fn, n_items: int, args_before: tuple, args_after: tuple,
