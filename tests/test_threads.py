@@ -9,6 +9,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import threading
 
 import netCDF4
 import numpy as np
@@ -99,31 +100,33 @@ def test_fluid_bits_do_not_depend_on_blas_threads(tmp_path, monkeypatch):
     assert _equal(_values(tmp_path / "b1.nc"), _values(tmp_path / "b2.nc"))
 
 
-def test_fluid_bits_do_not_depend_on_the_threads_its_members_products_take(tmp_path, monkeypatch):
-    """Below BLAS_THREADED_N a fluid run splits each batch's matrix products over the
-    kernel threads by member: the file is the one a single thread writes."""
+def test_fluid_bits_do_not_depend_on_the_threads_its_members_take(tmp_path, monkeypatch):
+    """Below BLAS_THREADED_N a fluid run splits each batch's fixed points into groups of
+    members over the kernel threads: the file is the one a single thread writes."""
     from liethermo.zeitlin import kernels as zk
 
-    over = FLUID + ["zeitlin.N=40"]  # at least MEMBERS_MATMUL_N: the products are split
+    over = FLUID + ["zeitlin.N=40"]  # at least MEMBERS_SPLIT_N: the members are split
     sc = load_scene("zeitlin_decay", over)
     assert model_of(sc).thread_counts(sc, 2).kernel == 2 and model_of(sc).thread_counts(sc, 2).blas == 1
-    split = []
-    real = zk.members_matmul
+    groups = []
+    real = zk._isomp
 
-    def counting(a, b, out):
-        split.append(min(lt.pooled_kernel_threads(), a.shape[0]) >= 2)
-        return real(a, b, out)
+    def recording(W, *a, **k):
+        groups.append((threading.current_thread().name, W.shape[0]))
+        return real(W, *a, **k)
 
-    monkeypatch.setattr(zk, "members_matmul", counting)
+    monkeypatch.setattr(zk, "_isomp", recording)
     monkeypatch.setattr(lt, "usable_cores", lambda: 2)
     run_scene("zeitlin_decay", tmp_path / "k2.nc", overrides=over, progress=False)
-    assert any(split)
-    split.clear()
+    members = int(sc["ensemble"]["members"])
+    assert any(name.startswith("liethermo-members") for name, _ in groups)  # a group on the second thread
+    assert all(m < members for _, m in groups)
+    groups.clear()
     monkeypatch.setattr(lt, "usable_cores", lambda: 1)
     run_scene("zeitlin_decay", tmp_path / "k1.nc", overrides=over, progress=False)
-    assert split and not any(split)
+    assert groups and all(m == members for _, m in groups)  # one group: the whole batch
     assert _equal(_values(tmp_path / "k1.nc"), _values(tmp_path / "k2.nc"))
-    assert lt.pooled_kernel_threads() == 1  # outside a run's pools: no split, no file read per product
+    assert lt.pooled_kernel_threads() == 1  # outside a run's pools: no split, no file read per call
 
 
 def test_pools_are_restored_after_a_run(tmp_path):

@@ -285,7 +285,7 @@ def compute_basis(N: int) -> Basis:
 # ----------------------------------------------------------------------------- modes
 
 
-@numba.njit(cache=CACHE, error_model="numpy")
+@numba.njit(cache=CACHE, error_model="numpy", nogil=True)
 def _gather_diagonals(W, offset, R):
     """R[:M] and R[M:] (2M × K): the real and imaginary parts of W's upper
     diagonals, diagonal d at columns offset[d] … offset[d+1]."""
@@ -299,7 +299,7 @@ def _gather_diagonals(W, offset, R):
                 R[M + k, o + i] = w.imag
 
 
-@numba.njit(cache=CACHE, error_model="numpy")
+@numba.njit(cache=CACHE, error_model="numpy", nogil=True)
 def _scatter_diagonals(Y, offset, W):
     """The skew-Hermitian W whose upper diagonals are Y[:M] + i Y[M:] (block 0: imaginary part only)."""
     M, N = W.shape[0], W.shape[1]
@@ -372,7 +372,7 @@ def spectrum_of_modes(C: np.ndarray, b: Basis) -> np.ndarray:
 # ----------------------------------------------------------------------------- Laplacian
 
 
-@numba.njit(cache=CACHE, error_model="numpy")
+@numba.njit(cache=CACHE, error_model="numpy", nogil=True)
 def _lapinv(W, scale, offset, g0, tc, tinv, off, P):
     """P = scale · Δ_N⁻¹ W on the traceless part: block 0 (singular, its l = 0
     mode dropped) through the stored g0, blocks d ≥ 1 by Thomas with stored
@@ -425,7 +425,7 @@ def laplacian_inverse(W: np.ndarray, b: Basis, scale: float = 1.0, out=None) -> 
     return P
 
 
-@numba.njit(cache=CACHE, error_model="numpy")
+@numba.njit(cache=CACHE, error_model="numpy", nogil=True)
 def _lap(W, offset, diag, off, out):
     M, N = W.shape[0], W.shape[1]
     for k in range(M):
@@ -474,6 +474,42 @@ def _dagger(X):
 
 def isomp(W: np.ndarray, h: float, b: Basis, tol: float, max_iter: int,
           guess: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """One isospectral midpoint step of every member (:func:`_isomp`), the members split
+    into groups over :func:`liethermo.threads.pooled_kernel_threads` threads from
+    N = :data:`MEMBERS_SPLIT_N` on.  A member's iteration is its own (its Laplacian, its
+    two one-matrix BLAS products, its update and its stopping rule), so its bits do not
+    depend on the group it is computed in, nor on the thread."""
+    cuts = member_groups(W.shape[0], b.N)
+    if cuts is None:
+        return _isomp(W, h, b, tol, max_iter, guess)
+    from ..threads import thread_pool
+
+    def part(lo, hi):
+        return _isomp(W[lo:hi], h, b, tol, max_iter, None if guess is None else guess[lo:hi])
+
+    pool = thread_pool(len(cuts) - 2, "liethermo-members")  # the caller takes the first group
+    futs = [pool.submit(part, lo, hi) for lo, hi in zip(cuts[1:-1], cuts[2:])]
+    parts = [part(cuts[0], cuts[1])] + [f.result() for f in futs]
+    return tuple(np.concatenate(r) for r in zip(*parts))
+
+
+#: from this N on, a batch's fixed points are split over the kernel threads by member
+MEMBERS_SPLIT_N = 32
+
+
+def member_groups(members: int, N: int) -> list[int] | None:
+    """The cuts of ``members`` into one group per kernel thread
+    (:func:`liethermo.threads.pooled_kernel_threads`), or None: one group."""
+    from ..threads import pooled_kernel_threads
+
+    k = min(pooled_kernel_threads(), members)
+    if k < 2 or N < MEMBERS_SPLIT_N:
+        return None
+    return [members * i // k for i in range(k + 1)]
+
+
+def _isomp(W: np.ndarray, h: float, b: Basis, tol: float, max_iter: int,
+           guess: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """One isospectral midpoint step (a Cayley conjugation, so W's spectrum is kept):
 
         W̃ = W + [A, W̃] + A W̃ A,  A = (h/2ħ) Δ_N⁻¹ W̃,  W' = W + 2[A, W̃],
@@ -504,8 +540,8 @@ def isomp(W: np.ndarray, h: float, b: Basis, tol: float, max_iter: int,
     change = np.empty(M)
     while True:
         laplacian_inverse(Wt, b, scale, out=A[: len(active)])
-        members_matmul(A[: len(active)], Wt, Xa)
-        members_matmul(Xa, A[: len(active)], XA[: len(active)])
+        np.matmul(A[: len(active)], Wt, out=Xa)
+        np.matmul(Xa, A[: len(active)], out=XA[: len(active)])
         _fixed_point_update(Wa, Xa, XA, Da, Wt, change)  # D = X − X† + XA, W̃ = W + D, change
         ch = change[: len(active)]
         its[active] += 1
@@ -529,30 +565,7 @@ def isomp(W: np.ndarray, h: float, b: Basis, tol: float, max_iter: int,
     return W + 2.0 * (X - _dagger(X)), its, failed, D
 
 
-#: from this N on, a batch's matrix products are split over the kernel threads by member
-MEMBERS_MATMUL_N = 32
-
-def members_matmul(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
-    """``np.matmul(a, b, out=out)`` over a batch of members, the members split over
-    :func:`liethermo.threads.pooled_kernel_threads` threads (numpy releases the GIL in BLAS).
-    Each member's product is the same one-matrix BLAS call whichever thread makes it,
-    so the bits do not depend on the split."""
-    from ..threads import pooled_kernel_threads, thread_pool
-
-    n = a.shape[0]
-    k = min(pooled_kernel_threads(), n)
-    if k < 2 or a.shape[-1] < MEMBERS_MATMUL_N:
-        np.matmul(a, b, out=out)
-        return
-    pool = thread_pool(k - 1, "liethermo-matmul")  # the caller takes the first part
-    cut = [n * i // k for i in range(k + 1)]
-    futs = [pool.submit(np.matmul, a[lo:hi], b[lo:hi], out=out[lo:hi]) for lo, hi in zip(cut[1:-1], cut[2:])]
-    np.matmul(a[: cut[1]], b[: cut[1]], out=out[: cut[1]])
-    for f in futs:
-        f.result()
-
-
-@numba.njit(cache=CACHE, error_model="numpy")
+@numba.njit(cache=CACHE, error_model="numpy", nogil=True)
 def _fixed_point_update(W, X, XA, D, Wt, change):
     """D = X − X† + XA, W̃ = W + D and the largest change of D (the largest
     real or imaginary part of D_new − D_old), per member, in one pass; NaN

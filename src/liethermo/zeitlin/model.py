@@ -147,8 +147,8 @@ class TimeEstimate:
 #: it one thread.  benchmarks/blas_threads.py on the 2-core machine: one thread was
 #: faster at every N measured (64 to 256: 2 threads took 5-29 times as long on a
 #: loaded machine, where OpenBLAS's spinning threads wait for the scheduler).
-#: Below it the members' products are split over the cores instead
-#: (:func:`liethermo.zeitlin.kernels.members_matmul`).  The bits are the same on
+#: Below it the members' fixed points are split over the cores instead
+#: (:func:`liethermo.zeitlin.kernels.isomp`).  The bits are the same on
 #: either count (tests/test_threads.py).
 BLAS_THREADED_N = 512
 
@@ -203,7 +203,7 @@ class Fluid(StudyDefaults, Model):
         N = int(scene["zeitlin"]["N"])
         if N < BLAS_THREADED_N:
             return ThreadCounts(blas=1, kernel=max(1, int(cores)),
-                                why=f"BLAS on one thread below N = {BLAS_THREADED_N}, the members' products "
+                                why=f"BLAS on one thread below N = {BLAS_THREADED_N}, the members' fixed points "
                                     "on every core")
         return ThreadCounts(blas=max(1, int(cores)), kernel=1, why=f"BLAS on every core from N = {BLAS_THREADED_N}")
 
