@@ -2,7 +2,7 @@
 cores follow the affinity mask and the cgroup quota; every run sets the BLAS
 pool and the kernels' threads; and the thread counts change no value — the
 top's file is the same on one and two kernel threads, the fluid's on one and
-two BLAS threads and with its members' products on one or two threads."""
+two BLAS threads and with its members' fixed points on one or two threads."""
 
 from __future__ import annotations
 

@@ -117,9 +117,9 @@ def thread_pool(threads: int, name: str = "liethermo"):
 
 def pooled_kernel_threads() -> int:
     """:func:`kernel_threads` inside a :func:`pools` block, else 1: a helper called many
-    times a step (the fluid's products) splits work over threads only where a run, probe
-    or study has sized the pools to the machine, and never reads the affinity and cgroup
-    files on each call."""
+    times a run (the fluid's fixed points, once a substep) splits work over threads only
+    where a run, probe or study has sized the pools to the machine, and never reads the
+    affinity and cgroup files on each call."""
     return 1 if _kernel_threads is None else kernel_threads()
 
 

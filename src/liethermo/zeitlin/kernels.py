@@ -285,7 +285,7 @@ def compute_basis(N: int) -> Basis:
 # ----------------------------------------------------------------------------- modes
 
 
-@numba.njit(cache=CACHE, error_model="numpy", nogil=True)
+@numba.njit(cache=CACHE, error_model="numpy")
 def _gather_diagonals(W, offset, R):
     """R[:M] and R[M:] (2M × K): the real and imaginary parts of W's upper
     diagonals, diagonal d at columns offset[d] … offset[d+1]."""
@@ -299,7 +299,7 @@ def _gather_diagonals(W, offset, R):
                 R[M + k, o + i] = w.imag
 
 
-@numba.njit(cache=CACHE, error_model="numpy", nogil=True)
+@numba.njit(cache=CACHE, error_model="numpy")
 def _scatter_diagonals(Y, offset, W):
     """The skew-Hermitian W whose upper diagonals are Y[:M] + i Y[M:] (block 0: imaginary part only)."""
     M, N = W.shape[0], W.shape[1]
@@ -425,7 +425,7 @@ def laplacian_inverse(W: np.ndarray, b: Basis, scale: float = 1.0, out=None) -> 
     return P
 
 
-@numba.njit(cache=CACHE, error_model="numpy", nogil=True)
+@numba.njit(cache=CACHE, error_model="numpy")
 def _lap(W, offset, diag, off, out):
     M, N = W.shape[0], W.shape[1]
     for k in range(M):
